@@ -1,0 +1,89 @@
+"""What the core expects of a robot and of a sensor, and how a plugin describes one.
+
+The core talks to devices only through these interfaces; it never imports a plugin.
+A plugin registers a :class:`RobotType` or :class:`SensorType` (a name, a pydantic
+configuration model and a factory) through the ``spherecal_`` hooks in
+``spherecal.plugins.hookspec``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+from pydantic import BaseModel
+
+from .models import Pose, Profile
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .sim.cell import SimulatedCell
+
+
+@runtime_checkable
+class Robot(Protocol):
+    """A connected robot. Poses are ``base_from_flange`` (ABB: tool0 in wobj0), mm."""
+
+    def read_flange_pose(self) -> Pose:
+        """The flange pose now (robot standing still), ``base_from_flange``."""
+
+    def read_joints_deg(self) -> np.ndarray | None:
+        """Joint readings in degrees, controller convention, or None if not available."""
+
+    def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Move the flange in a straight line to the target and return when in position.
+        Limits (speed, workspace) are checked before anything is sent."""
+
+    def close(self) -> None:
+        """Release the connection. Safe to call twice."""
+
+
+@runtime_checkable
+class Sensor(Protocol):
+    """A connected laser line sensor. Profiles are (y, z) in the sensor frame, mm."""
+
+    def read_profile(self) -> Profile | None:
+        """One profile on request; None when the line sees nothing valid."""
+
+    def close(self) -> None:
+        """Release the device. Safe to call twice."""
+
+
+@dataclass
+class DeviceContext:
+    """What the host hands a device factory besides its own configuration.
+
+    ``cell`` is set when the run is simulated: simulated devices are views of this one
+    cell (the robot moves its flange, the sensor measures the sphere from there), so
+    they stay consistent without knowing about each other."""
+
+    cell: "SimulatedCell | None" = None
+    log: Callable[[str], None] = print
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RobotType:
+    """A kind of robot a plugin provides.
+
+    ``factory(config, context)`` returns a connected :class:`Robot`; ``config`` is an
+    instance of ``config_model`` validated by the host. ``flange_pose_from_joints`` is
+    the forward kinematics ``joints_deg -> base_from_flange`` (or None when the robot
+    only reports poses); the core uses it for observations that carry joints only."""
+
+    name: str
+    config_model: type[BaseModel]
+    factory: Callable[[BaseModel, DeviceContext], Robot]
+    description: str = ""
+    flange_pose_from_joints: Callable[[BaseModel, np.ndarray], Pose] | None = None
+
+
+@dataclass(frozen=True)
+class SensorType:
+    """A kind of sensor a plugin provides; ``factory(config, context)`` returns a
+    connected :class:`Sensor`."""
+
+    name: str
+    config_model: type[BaseModel]
+    factory: Callable[[BaseModel, DeviceContext], Sensor]
+    description: str = ""

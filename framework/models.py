@@ -1,0 +1,289 @@
+"""Data model: poses, profiles, observations, datasets, calibration results.
+
+Pydantic v2 models validated at the boundary. Arrays are NumPy inside and plain lists
+in files. Conventions in ``docs/conventions.md``: lengths in mm, ``A_from_B`` maps
+points from frame B to frame A, quaternions (w, x, y, z) as ABB writes them.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime, timezone
+from functools import cached_property
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainSerializer,
+    PlainValidator,
+    field_validator,
+    model_validator,
+)
+
+from . import geometry as geo
+
+MountingMode = Literal["eye_in_hand", "eye_to_hand"]
+
+#: Name of the unknown transform in each mounting mode (see docs/conventions.md).
+TRANSFORM_NAME: dict[str, str] = {
+    "eye_in_hand": "flange_from_sensor",
+    "eye_to_hand": "base_from_sensor",
+}
+#: Frame in which the sphere centre is fixed in each mounting mode.
+SPHERE_FRAME: dict[str, str] = {"eye_in_hand": "base", "eye_to_hand": "flange"}
+
+
+def _float_vector(value: Any) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 1:
+        raise ValueError(f"expected a flat list of numbers, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.flatnonzero(~np.isfinite(arr))[0])
+        raise ValueError(f"contains NaN or infinite values (first at index {bad}: {arr[bad]})")
+    return arr
+
+
+FloatVector = Annotated[
+    np.ndarray,
+    PlainValidator(_float_vector),
+    PlainSerializer(lambda a: a.tolist(), return_type=list),
+]
+
+
+def _finite(values, what: str):
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{what} contains NaN or infinite values: {list(values)}")
+    return values
+
+
+class Pose(BaseModel):
+    """A rigid transform ``A_from_B``: rotation as a unit quaternion (w, x, y, z) and a
+    translation in mm. Which frames it links is said by the field or variable holding it
+    (``base_from_flange``, ``flange_from_sensor``...)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    translation_mm: tuple[float, float, float] = Field(description="origin of B expressed in A, mm")
+    quaternion_wxyz: tuple[float, float, float, float] = Field(
+        description="rotation A_from_B as a unit quaternion, scalar first (ABB order)"
+    )
+
+    @field_validator("translation_mm")
+    @classmethod
+    def _check_translation(cls, v):
+        return _finite(v, "translation_mm")
+
+    @field_validator("quaternion_wxyz")
+    @classmethod
+    def _check_quaternion(cls, v):
+        _finite(v, "quaternion_wxyz")
+        n = math.sqrt(sum(c * c for c in v))
+        if abs(n - 1.0) > 1e-3:
+            raise ValueError(f"quaternion_wxyz {list(v)} has norm {n:.6f}; expected a unit quaternion")
+        q = [c / n for c in v]
+        if q[0] < 0:
+            q = [-c for c in q]
+        return tuple(q)
+
+    # construction -------------------------------------------------------------------
+    @classmethod
+    def from_rt(cls, R, t_mm) -> "Pose":
+        """From a rotation matrix (checked: orthonormal, det +1) and a translation in mm."""
+        R = geo.check_rotation_matrix(R)
+        t = np.asarray(t_mm, dtype=float).reshape(3)
+        return cls(translation_mm=tuple(t.tolist()), quaternion_wxyz=tuple(geo.quat_wxyz_from_matrix(R).tolist()))
+
+    @classmethod
+    def from_matrix(cls, T) -> "Pose":
+        """From a 4x4 homogeneous matrix in mm."""
+        T = np.asarray(T, dtype=float)
+        if T.shape != (4, 4):
+            raise ValueError(f"expected a 4x4 matrix, got shape {T.shape}")
+        if not np.allclose(T[3], [0, 0, 0, 1]):
+            raise ValueError(f"last row of a homogeneous matrix must be [0, 0, 0, 1], got {T[3].tolist()}")
+        return cls.from_rt(T[:3, :3], T[:3, 3])
+
+    @classmethod
+    def from_abb(cls, xyz_mm, quat_wxyz) -> "Pose":
+        """From an ABB robtarget's ``trans`` (mm) and ``rot`` quaternion [q1..q4] = (w, x, y, z)."""
+        return cls(translation_mm=tuple(float(c) for c in xyz_mm), quaternion_wxyz=tuple(float(c) for c in quat_wxyz))
+
+    @classmethod
+    def identity(cls) -> "Pose":
+        return cls(translation_mm=(0.0, 0.0, 0.0), quaternion_wxyz=(1.0, 0.0, 0.0, 0.0))
+
+    # views -----------------------------------------------------------------------------
+    @cached_property
+    def rotation_matrix(self) -> np.ndarray:
+        return geo.matrix_from_quat_wxyz(self.quaternion_wxyz)
+
+    @cached_property
+    def translation(self) -> np.ndarray:
+        return np.asarray(self.translation_mm, dtype=float)
+
+    def as_matrix(self) -> np.ndarray:
+        """4x4 homogeneous matrix, mm."""
+        return geo.matrix_from_rt(self.rotation_matrix, self.translation)
+
+    def as_abb(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """(xyz in mm, quaternion (w, x, y, z)) as an ABB robtarget/tooldata wants them."""
+        return self.translation_mm, self.quaternion_wxyz
+
+    # algebra ---------------------------------------------------------------------------
+    def inverse(self) -> "Pose":
+        R, t = geo.invert_rt(self.rotation_matrix, self.translation)
+        return Pose.from_rt(R, t)
+
+    def __matmul__(self, other: "Pose") -> "Pose":
+        """Composition: ``a_from_b @ b_from_c`` is ``a_from_c``."""
+        R = self.rotation_matrix @ other.rotation_matrix
+        return Pose.from_rt(R, self.rotation_matrix @ other.translation + self.translation)
+
+    def apply(self, points_mm) -> np.ndarray:
+        """Map points (..., 3) expressed in B into A."""
+        return np.asarray(points_mm, dtype=float) @ self.rotation_matrix.T + self.translation
+
+
+class Profile(BaseModel):
+    """One laser line: points (0, y, z) in the sensor frame's x = 0 plane, mm."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True)
+
+    y_mm: FloatVector = Field(description="in-plane coordinate along the line, mm")
+    z_mm: FloatVector = Field(description="in-plane range coordinate, mm (positive towards the sensor)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.y_mm.shape != self.z_mm.shape:
+            raise ValueError(f"y_mm has {self.y_mm.size} values but z_mm has {self.z_mm.size}")
+        if self.y_mm.size == 0:
+            raise ValueError("profile is empty (no points)")
+        return self
+
+    @classmethod
+    def from_points(cls, points_mm) -> "Profile":
+        """From an (N, 2) array of (y, z) in mm."""
+        p = np.asarray(points_mm, dtype=float)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"profile points: expected shape (N, 2) of (y, z) in mm, got {p.shape}")
+        return cls(y_mm=p[:, 0], z_mm=p[:, 1])
+
+    @property
+    def points_mm(self) -> np.ndarray:
+        """(N, 2) array of (y, z) in mm."""
+        return np.column_stack([self.y_mm, self.z_mm])
+
+    def __len__(self) -> int:
+        return int(self.y_mm.size)
+
+
+class Observation(BaseModel):
+    """One shot: where the robot was and what the sensor saw.
+
+    ``base_from_flange`` is the flange pose as the controller reported it (or as forward
+    kinematics gave it); ``joints_deg`` the joint reading (controller convention). At
+    least one of the two must be present. Observations of one ``station`` share one
+    flange orientation (pure translations between them)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    index: int = Field(ge=0, description="position in the acquisition, 0-based")
+    station: str = Field(min_length=1, description="station label; one flange orientation per station")
+    timestamp: datetime = Field(default_factory=lambda: datetime.now(timezone.utc))
+    base_from_flange: Pose | None = None
+    joints_deg: tuple[float, float, float, float, float, float] | None = None
+    profile: Profile
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.base_from_flange is None and self.joints_deg is None:
+            raise ValueError("needs base_from_flange or joints_deg (neither given)")
+        if self.joints_deg is not None:
+            _finite(self.joints_deg, "joints_deg")
+        return self
+
+
+class Dataset(BaseModel):
+    """Observations of one reference sphere in one mounting mode."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mounting: MountingMode
+    sphere_radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
+    observations: list[Observation] = Field(default_factory=list)
+    provenance: dict[str, Any] = Field(default_factory=dict, description="where the data came from")
+
+    @field_validator("sphere_radius_mm")
+    @classmethod
+    def _radius_in_mm(cls, v):
+        if not math.isfinite(v):
+            raise ValueError(f"sphere_radius_mm must be finite, got {v}")
+        if v < 0.5:
+            raise ValueError(
+                f"sphere_radius_mm = {v} looks like metres; give the certified radius in millimetres"
+            )
+        return v
+
+    @property
+    def transform_name(self) -> str:
+        return TRANSFORM_NAME[self.mounting]
+
+
+class ObservationFlag(BaseModel):
+    """An observation left out of (or down-weighted in) the solution, and why."""
+
+    index: int
+    station: str
+    reason: str
+
+
+class ResidualStats(BaseModel):
+    """Residuals of the final fit: in-plane distance of each profile point to the
+    predicted circle (the sphere cut by the laser plane), mm."""
+
+    rms_mm: float
+    max_abs_mm: float
+    p95_abs_mm: float
+    n_points_used: int
+    n_points_rejected: int
+    n_profiles_used: int
+    per_station_rms_mm: dict[str, float]
+
+
+class CalibrationResult(BaseModel):
+    """The calibrated transform, its uncertainty and how it was obtained.
+
+    ``transform`` is ``flange_from_sensor`` (eye-in-hand) or ``base_from_sensor``
+    (eye-to-hand), as ``transform_name`` says. Standard deviations of the rotation are
+    small rotations about the axes of the transform's target frame (flange or base),
+    in degrees; of the translation, mm in that frame."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format: Literal["spherecal-result"] = "spherecal-result"
+    version: Literal[1] = 1
+    mounting: MountingMode
+    transform_name: str
+    transform: Pose
+    std_rotation_deg: tuple[float, float, float]
+    std_translation_mm: tuple[float, float, float]
+    sphere_centre_frame: str
+    sphere_centre_mm: tuple[float, float, float]
+    std_sphere_centre_mm: tuple[float, float, float]
+    sphere_radius_mm: float
+    radius_fitted: bool
+    std_sphere_radius_mm: float | None = None
+    covariance: list[list[float]] = Field(
+        description="covariance of (rotation about target axes rad x3, translation mm x3, "
+        "sphere centre mm x3[, radius mm]) after scaling by the a-posteriori variance factor"
+    )
+    variance_factor: float = Field(description="chi^2 / dof of the whitened residuals")
+    residuals: ResidualStats
+    flagged: list[ObservationFlag] = Field(default_factory=list)
+    method: str
+    two_step_transform: Pose | None = None
+    diagnostics: dict[str, Any] = Field(default_factory=dict)
+    provenance: dict[str, Any] = Field(default_factory=dict)

@@ -1,0 +1,15 @@
+"""The simulated cell: the reference for tests and benchmarks, and the world behind the
+simulated devices."""
+
+from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, standard_cell
+from .planner import SweepPlan, plan_stations, simulate_dataset
+
+__all__ = [
+    "NoiseModel",
+    "SensorFieldOfView",
+    "SimulatedCell",
+    "standard_cell",
+    "SweepPlan",
+    "plan_stations",
+    "simulate_dataset",
+]

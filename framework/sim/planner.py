@@ -1,0 +1,133 @@
+"""Station planning (pure-translation sweeps across the sphere at several orientations)
+and simulated acquisition.
+
+The same planner serves the real acquisition: it needs only a nominal transform (from
+the configuration) and a rough sphere position. The simulator uses its true transform.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta, timezone
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from .. import geometry as geo
+from ..models import Dataset, MountingMode, Observation, Pose, Profile
+from .cell import FLANGE_DOWN, SimulatedCell
+
+
+class SweepPlan(BaseModel):
+    """How to sweep the sphere: sensor-frame positions of the sphere centre per station.
+
+    Within a station the flange only translates. The sphere centre crosses the laser
+    plane along the sensor's x from ``-sweep_fraction * r`` to ``+sweep_fraction * r``
+    while wandering by ``lateral_amplitude_mm`` in y and z, so that the moves of one
+    station span three dimensions (this is what lets each station decide, on its own,
+    on which side of the laser plane the centre lies)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    profiles_per_station: int = Field(10, ge=4, description="profiles taken per station")
+    sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
+    standoff_z_mm: float = Field(-20.0, description="sensor-frame z of the sphere centre, mm")
+    lateral_amplitude_mm: float = Field(4.0, ge=0, description="y/z wander within a sweep, mm")
+    tilts_deg: list[tuple[float, float, float]] = Field(
+        default_factory=lambda: [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 35.0)],
+        description="one rotation vector (deg) per station: about sensor axes (eye-in-hand) "
+        "or base axes (eye-to-hand), applied to the reference orientation",
+    )
+
+
+def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:
+    """(n, 3) planned sensor-frame positions of the sphere centre along one sweep, mm."""
+    n = plan.profiles_per_station
+    s = np.linspace(-1.0, 1.0, n)
+    phase = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    a = plan.lateral_amplitude_mm
+    return np.column_stack(
+        [s * plan.sweep_fraction * radius_mm, a * np.sin(phase), plan.standoff_z_mm + a * np.cos(phase)]
+    )
+
+
+def plan_stations(
+    mounting: MountingMode,
+    nominal_transform: Pose,
+    sphere_centre_mm,
+    radius_mm: float,
+    plan: SweepPlan | None = None,
+    reference_flange_rotation=None,
+) -> list[tuple[str, list[Pose]]]:
+    """Flange targets ``base_from_flange`` per station: ``[(label, [pose, ...]), ...]``.
+
+    ``nominal_transform`` is flange_from_sensor (eye-in-hand) or base_from_sensor
+    (eye-to-hand); ``sphere_centre_mm`` is in base (eye-in-hand) or flange (eye-to-hand).
+    ``reference_flange_rotation`` (3x3, base_from_flange) defaults to flange pointing down.
+    """
+    plan = plan or SweepPlan()
+    R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
+    centre = np.asarray(sphere_centre_mm, dtype=float)
+    Cs = sphere_centres_in_sensor(plan, radius_mm)
+    X = nominal_transform
+    stations = []
+    for k, tilt in enumerate(plan.tilts_deg):
+        Rt = geo.matrix_from_rotvec(np.radians(tilt))
+        poses = []
+        if mounting == "eye_in_hand":
+            R_bs = R_ref @ X.rotation_matrix @ Rt
+            for c_s in Cs:
+                base_from_sensor = Pose.from_rt(R_bs, centre - R_bs @ c_s)
+                poses.append(base_from_sensor @ X.inverse())
+        else:
+            R_bf = Rt @ R_ref
+            for c_s in Cs:
+                p_base = X.apply(c_s)
+                poses.append(Pose.from_rt(R_bf, p_base - R_bf @ centre))
+        stations.append((f"S{k + 1}", poses))
+    return stations
+
+
+def simulate_dataset(
+    cell: SimulatedCell,
+    plan: SweepPlan | None = None,
+    reference_flange_rotation=None,
+    min_points: int = 1,
+) -> Dataset:
+    """Run a simulated acquisition on ``cell`` and return the dataset (reported poses,
+    noisy profiles). The truth goes into ``provenance``. Shots that see fewer than
+    ``min_points`` points are skipped, as an acquisition would."""
+    plan = plan or SweepPlan()
+    stations = plan_stations(
+        cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
+    )
+    t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
+    obs = []
+    for label, poses in stations:
+        for pose in poses:
+            cell.move_flange_to(pose)
+            pts = cell.measure_profile()
+            if len(pts) < max(min_points, 1):
+                continue
+            obs.append(
+                Observation(
+                    index=len(obs),
+                    station=label,
+                    timestamp=t0 + timedelta(seconds=2 * len(obs)),
+                    base_from_flange=cell.report_pose(pose),
+                    profile=Profile.from_points(pts),
+                )
+            )
+    return Dataset(
+        mounting=cell.mounting,
+        sphere_radius_mm=cell.sphere_radius_mm,
+        observations=obs,
+        provenance={
+            "source": "spherecal simulator",
+            "true_transform_name": cell.transform_name,
+            "true_transform": cell.true_transform.model_dump(),
+            "true_sphere_centre_mm": cell.sphere_centre_mm.tolist(),
+            "noise": cell.noise.model_dump(),
+            "fov": cell.fov.model_dump(),
+            "plan": plan.model_dump(),
+        },
+    )
