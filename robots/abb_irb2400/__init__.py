@@ -1,0 +1,1 @@
+"""ABB IRB 2400 robot plugin."""

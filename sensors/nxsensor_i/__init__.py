@@ -1,0 +1,1 @@
+"""NextWare nxSensor-I laser line sensor plugin."""
