@@ -1,0 +1,700 @@
+"""The plugin host: loads plugins, keeps the registry of robot and sensor types,
+validates their configuration sections and creates devices.
+
+The rest of spherecal talks to plugins only through :class:`PluginHost`; nothing else
+touches the pluggy plugin manager. A host is built per run (there is no module-level
+manager), so two hosts never share state::
+
+    host = PluginHost()                      # built-ins + installed third-party plugins
+    robot = host.create_robot({"type": "abb_irb2400", ...}, context)
+    host.observation_taken(observation=obs)  # lifecycle hooks: keyword arguments only
+
+Where plugins come from
+-----------------------
+Built-in and third-party plugins are found the same way: entry points in the group
+``"spherecal"`` (:data:`spherecal.plugins.ENTRY_POINT_GROUP`). An entry point whose
+module starts with ``spherecal.`` is a built-in. Setting the environment variable
+``SPHERECAL_DISABLE_PLUGIN_AUTOLOAD=1`` turns off loading of third-party entry points;
+built-ins still load, and third-party ones can still be enabled by name (``enable=``).
+
+Errors
+------
+Everything that can go wrong with a plugin is a :class:`~spherecal.errors.PluginError`
+naming the plugin (an import error, a misspelled hook, an exception in a hook, a bad or
+duplicate device type); a host either builds completely or raises. A bad configuration
+section is a :class:`~spherecal.errors.ConfigError` listing every problem with its
+dotted path (``robot.workspace.max_x_mm: ...``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import os
+import re
+import types
+from dataclasses import dataclass, field
+from importlib import import_module, metadata
+from typing import Any, Callable, Iterable, Literal, Mapping, Sequence
+
+import pluggy
+from pydantic import BaseModel, ValidationError
+from pydantic_core import PydanticUndefined
+
+from spherecal.devices import DeviceContext, Robot, RobotType, Sensor, SensorType
+from spherecal.errors import ConfigError, PluginError, SpherecalError
+
+from . import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
+from . import hookspecs as _hookspec_module
+
+#: Environment variable that turns off autoloading of third-party plugins.
+DISABLE_AUTOLOAD_ENV = "SPHERECAL_DISABLE_PLUGIN_AUTOLOAD"
+#: Module prefix of built-in plugins (always loaded).
+BUILTIN_MODULE_PREFIX = "spherecal."
+#: Prefix every hook name carries.
+HOOK_PREFIX = PROJECT_NAME + "_"
+#: Key of a configuration section that selects the device type.
+TYPE_KEY = "type"
+
+_TYPE_NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
+_FALSE_WORDS = {"", "0", "false", "no", "off"}
+
+DeviceKind = Literal["robot", "sensor"]
+
+
+def autoload_disabled(environ: Mapping[str, str] | None = None) -> bool:
+    """True when ``SPHERECAL_DISABLE_PLUGIN_AUTOLOAD`` is set to anything but
+    ``""``, ``0``, ``false``, ``no`` or ``off`` (case-insensitive)."""
+    environ = os.environ if environ is None else environ
+    return environ.get(DISABLE_AUTOLOAD_ENV, "").strip().lower() not in _FALSE_WORDS
+
+
+# ---------------------------------------------------------------------------------------
+# Records
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PluginInfo:
+    """One loaded plugin: its name, module and where it came from."""
+
+    name: str
+    module: str
+    source: Literal["built-in", "entry point", "registered"]
+    distribution: str | None = None
+
+    def label(self) -> str:
+        where = f"module {self.module}"
+        if self.distribution:
+            where += f", distribution {self.distribution}"
+        return f"plugin '{self.name}' ({self.source}, {where})"
+
+
+@dataclass(frozen=True)
+class FieldDescription:
+    """One configuration field of a device type. Nested models are flattened with
+    dotted names (``workspace.max_x_mm``)."""
+
+    name: str
+    type: str
+    required: bool
+    default: Any
+    description: str
+    constraints: str = ""
+
+
+@dataclass(frozen=True)
+class DeviceDescription:
+    """An installed robot or sensor type, for listings (``spherecal plugins``)."""
+
+    kind: DeviceKind
+    name: str
+    plugin: str
+    description: str
+    fields: tuple[FieldDescription, ...]
+    has_kinematics: bool = False
+
+
+# ---------------------------------------------------------------------------------------
+# Registry (handed to spherecal_register_devices)
+# ---------------------------------------------------------------------------------------
+class DeviceRegistry:
+    """Robot and sensor types by name, and which plugin provided each.
+
+    Plugins add to it from ``spherecal_register_devices(registry)`` with
+    :meth:`add_robot` and :meth:`add_sensor`; the host looks types up with
+    :meth:`robot_type` and :meth:`sensor_type`."""
+
+    def __init__(self) -> None:
+        self._robots: dict[str, RobotType] = {}
+        self._sensors: dict[str, SensorType] = {}
+        self._provider: dict[tuple[str, str], str] = {}
+        self._current_plugin: str | None = None
+
+    # used by plugins -------------------------------------------------------------------
+    def add_robot(self, robot_type: RobotType) -> None:
+        """Register a :class:`~spherecal.devices.RobotType`. Its name must be new."""
+        self._add("robot", robot_type, RobotType, self._robots)
+
+    def add_sensor(self, sensor_type: SensorType) -> None:
+        """Register a :class:`~spherecal.devices.SensorType`. Its name must be new."""
+        self._add("sensor", sensor_type, SensorType, self._sensors)
+
+    # used by the host ------------------------------------------------------------------
+    @property
+    def robots(self) -> Mapping[str, RobotType]:
+        return types.MappingProxyType(self._robots)
+
+    @property
+    def sensors(self) -> Mapping[str, SensorType]:
+        return types.MappingProxyType(self._sensors)
+
+    def provider(self, kind: DeviceKind, name: str) -> str:
+        """Name of the plugin that registered the type."""
+        return self._provider[(kind, name)]
+
+    def robot_type(self, name: str, path: str = "robot.type") -> RobotType:
+        """The robot type called ``name``; a :class:`ConfigError` listing the installed
+        ones if there is none."""
+        return self._lookup("robot", name, self._robots, path)
+
+    def sensor_type(self, name: str, path: str = "sensor.type") -> SensorType:
+        """The sensor type called ``name``; a :class:`ConfigError` listing the installed
+        ones if there is none."""
+        return self._lookup("sensor", name, self._sensors, path)
+
+    # internals -------------------------------------------------------------------------
+    def _lookup(self, kind: DeviceKind, name: Any, table: dict, path: str):
+        if isinstance(name, str) and name in table:
+            return table[name]
+        available = ", ".join(sorted(table)) or "none"
+        hint = ""
+        if isinstance(name, str):
+            close = difflib.get_close_matches(name, list(table), n=1)
+            if close:
+                hint = f" Did you mean '{close[0]}'?"
+        raise ConfigError(
+            f"{path}: unknown {kind} type {name!r}; installed {kind} types: {available}.{hint} "
+            f"Fix the name, or install the plugin that provides it (list them with `spherecal plugins`)."
+        )
+
+    def _add(self, kind: DeviceKind, item: Any, cls: type, table: dict) -> None:
+        plugin = self._current_plugin or "<unknown plugin>"
+        method = f"registry.add_{kind}"
+        if not isinstance(item, cls):
+            raise PluginError(
+                f"plugin '{plugin}' passed {type(item).__name__} to {method}(); "
+                f"expected a spherecal.devices.{cls.__name__}"
+            )
+        name = item.name
+        if not isinstance(name, str) or not _TYPE_NAME_RE.match(name):
+            raise PluginError(
+                f"plugin '{plugin}' registered a {kind} type named {name!r}; a type name must be "
+                f"lower case letters, digits and underscores, starting with a letter (e.g. 'abb_irb2400')"
+            )
+        model = item.config_model
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            raise PluginError(
+                f"plugin '{plugin}': {kind} type '{name}' has config_model {model!r}; "
+                f"expected a pydantic BaseModel subclass"
+            )
+        if model.model_config.get("extra") != "forbid":
+            raise PluginError(
+                f"plugin '{plugin}': the config_model {model.__name__} of {kind} type '{name}' must set "
+                f"model_config = ConfigDict(extra='forbid', frozen=True), so that a misspelled setting "
+                f"is an error rather than silently ignored"
+            )
+        if TYPE_KEY in model.model_fields:
+            raise PluginError(
+                f"plugin '{plugin}': the config_model {model.__name__} of {kind} type '{name}' has a field "
+                f"'{TYPE_KEY}', which is reserved: '{TYPE_KEY}' selects the device type in a configuration section"
+            )
+        if not callable(item.factory):
+            raise PluginError(f"plugin '{plugin}': the factory of {kind} type '{name}' is not callable")
+        if name in table:
+            other = self._provider[(kind, name)]
+            raise PluginError(
+                f"{kind} type '{name}' is registered twice: by plugin '{other}' and by plugin '{plugin}'. "
+                f"Uninstall one of the two, or disable one (SPHERECAL_DISABLE_PLUGIN_AUTOLOAD=1 keeps "
+                f"only the built-ins)"
+            )
+        table[name] = item
+        self._provider[(kind, name)] = plugin
+
+
+# ---------------------------------------------------------------------------------------
+# Plugin manager (private: only PluginHost uses it)
+# ---------------------------------------------------------------------------------------
+def _default_impl_opts() -> dict:
+    def probe():  # pragma: no cover - never called
+        pass
+
+    hookimpl(probe)
+    return dict(getattr(probe, PROJECT_NAME + "_impl"))
+
+
+class _Manager(pluggy.PluginManager):
+    """A pluggy manager that takes every ``spherecal_*`` function as a hook
+    implementation, marked or not, so that a misspelled hook is caught by
+    :meth:`check_pending` instead of being ignored."""
+
+    _defaults = _default_impl_opts()
+
+    def parse_hookimpl_opts(self, plugin, name):
+        opts = super().parse_hookimpl_opts(plugin, name)
+        if opts is not None or not name.startswith(HOOK_PREFIX):
+            return opts
+        try:
+            obj = inspect.getattr_static(plugin, name)
+        except AttributeError:
+            return None
+        if isinstance(obj, (staticmethod, classmethod)):
+            obj = obj.__func__
+        if inspect.isfunction(obj) or inspect.ismethod(obj) or inspect.isbuiltin(obj):
+            return dict(self._defaults)
+        return None
+
+
+def _module_name(plugin: object) -> str:
+    if isinstance(plugin, types.ModuleType):
+        return plugin.__name__
+    return getattr(plugin, "__module__", None) or type(plugin).__module__
+
+
+def _field_type_name(annotation: Any) -> str:
+    if annotation is None:
+        return "None"
+    if isinstance(annotation, type) and not getattr(annotation, "__args__", None):
+        return annotation.__name__
+    text = repr(annotation)
+    return re.sub(r"\b(typing|typing_extensions|pathlib|datetime)\.", "", text)
+
+
+def _constraints_text(metadata_items: Iterable[Any]) -> str:
+    parts = []
+    for m in metadata_items:
+        for attr, sym in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="), ("multiple_of", "multiple of"),
+                          ("min_length", "min length"), ("max_length", "max length")):
+            value = getattr(m, attr, None)
+            if value is not None:
+                parts.append(f"{sym} {value}")
+    return ", ".join(parts)
+
+
+def _describe_fields(model: type[BaseModel], prefix: str = "") -> list[FieldDescription]:
+    out: list[FieldDescription] = []
+    for fname, info in model.model_fields.items():
+        ann = info.annotation
+        dotted = prefix + fname
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            out.extend(_describe_fields(ann, dotted + "."))
+            continue
+        if info.default is not PydanticUndefined:
+            default = info.default
+        elif info.default_factory is not None:
+            try:
+                default = info.default_factory()
+            except Exception:  # noqa: BLE001 - a description must not fail on a factory
+                default = "<computed>"
+        else:
+            default = None
+        if isinstance(default, BaseModel):
+            default = default.model_dump()
+        out.append(
+            FieldDescription(
+                name=dotted,
+                type=_field_type_name(ann),
+                required=info.is_required(),
+                default=default,
+                description=info.description or "",
+                constraints=_constraints_text(info.metadata),
+            )
+        )
+    return out
+
+
+def _fields_at(model: type[BaseModel], loc: Sequence[Any]) -> list[str] | None:
+    """Names of the fields of the (nested) model at ``loc``, if it is a model."""
+    current: Any = model
+    for part in loc:
+        if not (isinstance(current, type) and issubclass(current, BaseModel)):
+            return None
+        info = current.model_fields.get(part) if isinstance(part, str) else None
+        if info is None:
+            return None
+        current = info.annotation
+    if isinstance(current, type) and issubclass(current, BaseModel):
+        return list(current.model_fields)
+    return None
+
+
+def _format_loc(path: str, loc: Sequence[Any]) -> str:
+    text = path
+    for part in loc:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else str(part)
+    return text
+
+
+def format_validation_error(error: ValidationError, path: str, model: type[BaseModel]) -> list[str]:
+    """One line per pydantic error: ``<dotted path>: <message> (got <input>)``."""
+    lines = []
+    for err in error.errors(include_url=False):
+        loc = err.get("loc", ())
+        where = _format_loc(path, loc)
+        msg = err.get("msg", "invalid")
+        kind = err.get("type", "")
+        line = f"{where}: {msg}"
+        if kind == "extra_forbidden":
+            allowed = _fields_at(model, loc[:-1])
+            if allowed is not None:
+                close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
+                line += f" (allowed here: {', '.join(allowed)}"
+                line += f"; did you mean '{close[0]}'?)" if close else ")"
+        elif kind != "missing" and "input" in err:
+            shown = repr(err["input"])
+            if len(shown) > 60:
+                shown = shown[:57] + "..."
+            line += f" (got {shown})"
+        lines.append(line)
+    return lines
+
+
+# ---------------------------------------------------------------------------------------
+# The facade
+# ---------------------------------------------------------------------------------------
+class PluginHost:
+    """Loads plugins and answers for them. Build one per run.
+
+    :param plugins: extra plugins to register (modules or objects, or ``(name, plugin)``
+        pairs), for tests and for embedding; registered after the entry points.
+    :param load_entry_points: load plugins from the ``"spherecal"`` entry-point group
+        (default True). With False only ``plugins`` are registered.
+    :param autoload: load third-party entry points. Default: yes, unless the environment
+        variable ``SPHERECAL_DISABLE_PLUGIN_AUTOLOAD`` is set (see
+        :func:`autoload_disabled`). Built-ins are loaded either way.
+    :param enable: names of third-party entry points to load even when autoloading is off.
+    :param environ: the environment to read (default ``os.environ``).
+    :raises PluginError: a plugin failed to import, to register, has a misspelled hook,
+        raised in ``spherecal_register_devices`` or registered a bad or duplicate type.
+    """
+
+    def __init__(
+        self,
+        plugins: Iterable[object | tuple[str, object]] = (),
+        *,
+        load_entry_points: bool = True,
+        autoload: bool | None = None,
+        enable: Iterable[str] = (),
+        environ: Mapping[str, str] | None = None,
+    ) -> None:
+        self._pm = _Manager(PROJECT_NAME)
+        self._pm.add_hookspecs(_hookspec_module)
+        self._infos: dict[str, PluginInfo] = {}
+        self.registry = DeviceRegistry()
+        if autoload is None:
+            autoload = not autoload_disabled(environ)
+        self.autoload = autoload
+        enable = set(enable)
+        if load_entry_points:
+            self._load_entry_points(autoload, enable)
+        elif enable:
+            raise PluginError(f"enable={sorted(enable)} needs load_entry_points=True")
+        for item in plugins:
+            if isinstance(item, tuple):
+                name, plugin = item
+            else:
+                plugin = item
+                name = getattr(plugin, "__name__", None) or type(plugin).__name__
+            self._register(plugin, PluginInfo(name=name, module=_module_name(plugin), source="registered"))
+        self._check_pending()
+        self._collect_devices()
+
+    # loading ---------------------------------------------------------------------------
+    def _load_entry_points(self, autoload: bool, enable: set[str]) -> None:
+        found = list(metadata.entry_points(group=ENTRY_POINT_GROUP))
+        names = {ep.name for ep in found}
+        missing = enable - names
+        if missing:
+            raise PluginError(
+                f"cannot enable plugin(s) {sorted(missing)}: no such entry point in group "
+                f"'{ENTRY_POINT_GROUP}'; installed: {', '.join(sorted(names)) or 'none'}"
+            )
+        seen: set[tuple[str, str]] = set()
+        for ep in sorted(found, key=lambda e: (not e.value.startswith(BUILTIN_MODULE_PREFIX), e.name)):
+            if (ep.name, ep.value) in seen:
+                continue  # the same distribution seen twice on sys.path
+            seen.add((ep.name, ep.value))
+            builtin = ep.value.startswith(BUILTIN_MODULE_PREFIX)
+            if not builtin and not autoload and ep.name not in enable:
+                continue
+            dist = getattr(ep, "dist", None)
+            dist_text = f"{dist.name} {dist.version}" if dist is not None else None
+            info = PluginInfo(
+                name=ep.name,
+                module=ep.value.split(":")[0],
+                source="built-in" if builtin else "entry point",
+                distribution=dist_text,
+            )
+            try:
+                plugin = ep.load()
+            except Exception as exc:
+                hint = (
+                    "" if builtin
+                    else f" Uninstall or fix it, or set {DISABLE_AUTOLOAD_ENV}=1 to run with the built-ins only."
+                )
+                raise PluginError(
+                    f"{info.label()} failed to import: {type(exc).__name__}: {exc}.{hint}"
+                ) from exc
+            self._register(plugin, info)
+
+    def _register(self, plugin: object, info: PluginInfo) -> None:
+        if info.name in self._infos:
+            raise PluginError(
+                f"two plugins are named '{info.name}': {self._infos[info.name].label()} and {info.label()}"
+            )
+        try:
+            self._pm.register(plugin, name=info.name)
+        except pluggy.PluginValidationError as exc:
+            raise PluginError(f"{info.label()} is invalid: {exc}") from exc
+        except ValueError as exc:  # pluggy: the same object registered twice
+            raise PluginError(f"{info.label()} cannot be registered: {exc}") from exc
+        self._infos[info.name] = info
+
+    def _check_pending(self) -> None:
+        known = sorted(n for n in dir(_hookspec_module) if n.startswith(HOOK_PREFIX))
+        for name in sorted(vars(self._pm.hook)):
+            if name.startswith("_"):
+                continue
+            caller = getattr(self._pm.hook, name)
+            if caller.has_spec():
+                continue
+            for impl in caller.get_hookimpls():
+                if impl.optionalhook:
+                    continue
+                close = difflib.get_close_matches(name, known, n=1)
+                hint = f" Did you mean '{close[0]}'?" if close else ""
+                raise PluginError(
+                    f"{self._infos[impl.plugin_name].label()} defines '{name}', which is not a spherecal hook."
+                    f"{hint} Known hooks: {', '.join(known)}."
+                )
+        self._pm.check_pending()  # belt and braces: pluggy's own check
+
+    def _collect_devices(self) -> None:
+        caller = self._pm.hook.spherecal_register_devices
+        impls = caller.get_hookimpls()
+        all_plugins = [impl.plugin for impl in impls]
+        # One plugin at a time, so that the registry knows who registers what.
+        for impl in reversed(impls):  # registration order
+            only = self._pm.subset_hook_caller(
+                "spherecal_register_devices", [p for p in all_plugins if p is not impl.plugin]
+            )
+            self.registry._current_plugin = impl.plugin_name
+            try:
+                only(registry=self.registry)
+            except SpherecalError as exc:
+                if isinstance(exc, PluginError):
+                    raise
+                raise PluginError(
+                    f"{self._infos[impl.plugin_name].label()} failed in spherecal_register_devices: {exc}"
+                ) from exc
+            except Exception as exc:
+                raise PluginError(
+                    f"{self._infos[impl.plugin_name].label()} raised in spherecal_register_devices: "
+                    f"{type(exc).__name__}: {exc}"
+                ) from exc
+            finally:
+                self.registry._current_plugin = None
+
+    # hooks -----------------------------------------------------------------------------
+    def _call(self, hook_name: str, **kwargs: Any) -> list[Any]:
+        caller = getattr(self._pm.hook, hook_name)
+        try:
+            return caller(**kwargs)
+        except Exception as exc:
+            culprit = self._culprit(caller, exc)
+            raise PluginError(f"{culprit} raised in {hook_name}: {type(exc).__name__}: {exc}") from exc
+
+    def _culprit(self, caller, exc: BaseException) -> str:
+        """Which plugin's implementation the exception came from (from the traceback)."""
+        impls = caller.get_hookimpls()
+        codes = {getattr(impl.function, "__code__", None): impl.plugin_name for impl in impls}
+        tb = exc.__traceback__
+        while tb is not None:
+            name = codes.get(tb.tb_frame.f_code)
+            if name is not None:
+                return self._infos[name].label()
+            tb = tb.tb_next
+        names = ", ".join(f"'{impl.plugin_name}'" for impl in impls)
+        return f"one of the plugins {names}"
+
+    def observation_taken(self, *, observation) -> None:
+        """Call ``spherecal_observation_taken`` (see :mod:`spherecal.plugins.hookspecs`)."""
+        self._call("spherecal_observation_taken", observation=observation)
+
+    def acquisition_finished(self, *, dataset) -> None:
+        """Call ``spherecal_acquisition_finished``."""
+        self._call("spherecal_acquisition_finished", dataset=dataset)
+
+    def calibration_finished(self, *, result, dataset) -> None:
+        """Call ``spherecal_calibration_finished``."""
+        self._call("spherecal_calibration_finished", result=result, dataset=dataset)
+
+    # plugins ---------------------------------------------------------------------------
+    @property
+    def plugins(self) -> tuple[PluginInfo, ...]:
+        """The loaded plugins, in registration order."""
+        return tuple(self._infos.values())
+
+    def plugin_names(self) -> list[str]:
+        return list(self._infos)
+
+    # configuration ---------------------------------------------------------------------
+    def validate_robot_config(self, type_name: str, section: Mapping[str, Any], path: str = "robot") -> BaseModel:
+        """Validate a robot section against the config model of ``type_name``.
+
+        :param type_name: the robot type (``"abb_irb2400"``).
+        :param section: the settings, as read from the configuration file; a ``type`` key,
+            if present, must equal ``type_name`` and is not passed to the model.
+        :param path: where the section sits in the configuration, for messages.
+        :return: an instance of the type's ``config_model``.
+        :raises ConfigError: listing every error with its dotted path.
+        """
+        rt = self.registry.robot_type(type_name, path=f"{path}.{TYPE_KEY}")
+        return self._validate("robot", rt, section, path)
+
+    def validate_sensor_config(self, type_name: str, section: Mapping[str, Any], path: str = "sensor") -> BaseModel:
+        """The sensor twin of :meth:`validate_robot_config`."""
+        st = self.registry.sensor_type(type_name, path=f"{path}.{TYPE_KEY}")
+        return self._validate("sensor", st, section, path)
+
+    def _validate(self, kind: DeviceKind, dtype, section: Any, path: str) -> BaseModel:
+        if isinstance(section, BaseModel):
+            section = section.model_dump()
+        if not isinstance(section, Mapping):
+            raise ConfigError(f"{path}: expected a table of {kind} settings, got {type(section).__name__}")
+        settings = dict(section)
+        if TYPE_KEY in settings:
+            given = settings.pop(TYPE_KEY)
+            if given != dtype.name:
+                raise ConfigError(
+                    f"{path}.{TYPE_KEY}: the section says {given!r} but is being validated as '{dtype.name}'"
+                )
+        model = dtype.config_model
+        try:
+            return model.model_validate(settings)
+        except ValidationError as exc:
+            lines = format_validation_error(exc, path, model)
+            plugin = self.registry.provider(kind, dtype.name)
+            head = (
+                f"invalid configuration for {kind} type '{dtype.name}' (plugin '{plugin}'), "
+                f"{len(lines)} error{'s' if len(lines) != 1 else ''}:"
+            )
+            raise ConfigError("\n  ".join([head, *lines])) from None
+
+    def _type_of(self, kind: DeviceKind, section: Any, path: str) -> str:
+        if not isinstance(section, Mapping):
+            raise ConfigError(f"{path}: expected a table of {kind} settings, got {type(section).__name__}")
+        if TYPE_KEY not in section:
+            table = self.registry.robots if kind == "robot" else self.registry.sensors
+            raise ConfigError(
+                f"{path}.{TYPE_KEY}: missing; say which {kind} this is, one of: {', '.join(sorted(table)) or 'none'}"
+            )
+        return section[TYPE_KEY]
+
+    # devices ---------------------------------------------------------------------------
+    def create_robot(self, section: Mapping[str, Any], context: DeviceContext | None = None,
+                     path: str = "robot") -> Robot:
+        """Validate ``section`` (``{"type": "abb_irb2400", ...settings}``) and call the
+        robot type's factory with the validated config and ``context``.
+
+        :raises ConfigError: unknown type or invalid settings.
+        :raises DeviceError: (and other spherecal errors) as the factory raised them.
+        :raises PluginError: the factory raised anything else or returned something that
+            is not a :class:`~spherecal.devices.Robot`.
+        """
+        type_name = self._type_of("robot", section, path)
+        config = self.validate_robot_config(type_name, section, path)
+        rt = self.registry.robot_type(type_name)
+        return self._make("robot", rt, config, context, Robot)
+
+    def create_sensor(self, section: Mapping[str, Any], context: DeviceContext | None = None,
+                      path: str = "sensor") -> Sensor:
+        """The sensor twin of :meth:`create_robot`."""
+        type_name = self._type_of("sensor", section, path)
+        config = self.validate_sensor_config(type_name, section, path)
+        st = self.registry.sensor_type(type_name)
+        return self._make("sensor", st, config, context, Sensor)
+
+    def _make(self, kind: DeviceKind, dtype, config: BaseModel, context, protocol) -> Any:
+        context = context if context is not None else DeviceContext()
+        plugin = self.registry.provider(kind, dtype.name)
+        try:
+            device = dtype.factory(config, context)
+        except SpherecalError:
+            raise
+        except Exception as exc:
+            raise PluginError(
+                f"plugin '{plugin}': the factory of {kind} type '{dtype.name}' raised {type(exc).__name__}: {exc}"
+            ) from exc
+        if not isinstance(device, protocol):
+            missing = [m for m in ("read_flange_pose", "read_joints_deg", "move_linear", "close")
+                       if kind == "robot" and not callable(getattr(device, m, None))]
+            missing += [m for m in ("read_profile", "close")
+                        if kind == "sensor" and not callable(getattr(device, m, None))]
+            raise PluginError(
+                f"plugin '{plugin}': the factory of {kind} type '{dtype.name}' returned a "
+                f"{type(device).__name__}, which lacks {', '.join(missing)} of the {protocol.__name__} protocol"
+            )
+        return device
+
+    def robot_kinematics(self, section: Mapping[str, Any], path: str = "robot") -> Callable | None:
+        """Forward kinematics of the configured robot, ``joints_deg -> base_from_flange``
+        (a :class:`~spherecal.models.Pose`, quaternion (w, x, y, z), mm), or None when the
+        robot type has none. For ``spherecal.estimation.calibrate(..., flange_pose_from_joints=)``."""
+        type_name = self._type_of("robot", section, path)
+        config = self.validate_robot_config(type_name, section, path)
+        fk = self.registry.robot_type(type_name).flange_pose_from_joints
+        if fk is None:
+            return None
+
+        def flange_pose_from_joints(joints_deg):
+            return fk(config, joints_deg)
+
+        return flange_pose_from_joints
+
+    # listing ---------------------------------------------------------------------------
+    def describe(self) -> list[DeviceDescription]:
+        """Every installed robot and sensor type with its configuration fields, robots
+        first, each group sorted by name."""
+        out = []
+        for kind, table in (("robot", self.registry.robots), ("sensor", self.registry.sensors)):
+            for name in sorted(table):
+                dtype = table[name]
+                out.append(
+                    DeviceDescription(
+                        kind=kind,
+                        name=name,
+                        plugin=self.registry.provider(kind, name),
+                        description=dtype.description,
+                        fields=tuple(_describe_fields(dtype.config_model)),
+                        has_kinematics=kind == "robot" and dtype.flange_pose_from_joints is not None,
+                    )
+                )
+        return out
+
+    def format_description(self) -> str:
+        """:meth:`describe` as text, for a ``spherecal plugins`` command."""
+        lines = ["plugins:"]
+        for info in self.plugins:
+            lines.append(f"  {info.name}: {info.source}, {info.module}"
+                         + (f" ({info.distribution})" if info.distribution else ""))
+        if not self.autoload:
+            lines.append(f"  (third-party autoload off: {DISABLE_AUTOLOAD_ENV} is set)")
+        for d in self.describe():
+            lines.append(f"{d.kind} type '{d.name}' (plugin '{d.plugin}'): {d.description}".rstrip(": "))
+            for f in d.fields:
+                default = "required" if f.required else f"default {f.default!r}"
+                extra = f", {f.constraints}" if f.constraints else ""
+                lines.append(f"    {f.name} ({f.type}, {default}{extra}): {f.description}")
+        return "\n".join(lines)

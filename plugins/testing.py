@@ -1,0 +1,402 @@
+"""Pytest fixtures and checks for authors of robot and sensor plugins.
+
+This module is a pytest plugin, registered under the ``pytest11`` entry point
+``spherecal``: in any environment where spherecal is installed its fixtures are available
+to every test without an import. (So it imports nothing heavy at module level, and every
+fixture name starts with ``spherecal_``.)
+
+Fixtures
+--------
+``spherecal_cell``
+    A seeded :func:`spherecal.sim.standard_cell`, eye-in-hand by default. Choose the
+    mounting (or more) by indirect parametrisation::
+
+        @pytest.mark.parametrize("spherecal_cell", ["eye_in_hand", "eye_to_hand"], indirect=True)
+
+    A parameter may also be a dict of :func:`standard_cell` arguments
+    (``{"mounting": "eye_to_hand", "seed": 3}``).
+``spherecal_host``
+    A fresh :class:`spherecal.plugins.host.PluginHost` (built-ins and installed plugins).
+``spherecal_context``
+    A :class:`spherecal.devices.DeviceContext` whose ``cell`` is ``spherecal_cell``: pass it
+    to ``host.create_robot`` / ``host.create_sensor`` to get the simulated devices.
+``spherecal_stations``
+    Planned flange targets for the cell, ``[(label, [base_from_flange, ...]), ...]``, from
+    :func:`spherecal.sim.plan_stations` with the cell's true transform.
+``spherecal_robot_harness`` / ``spherecal_sensor_harness``
+    :class:`RobotHarness` / :class:`SensorHarness` bound to the cell and stations:
+    ``spherecal_robot_harness.check(robot)`` checks that a robot honours the
+    :class:`~spherecal.devices.Robot` protocol against the cell (moves land where
+    commanded, reported poses agree within the cell's noise, limits are enforced,
+    ``close()`` twice is fine); ``spherecal_sensor_harness.check(sensor)`` that profiles
+    match the cell's ideal profile within the noise and that an empty view gives None.
+
+:func:`acquire_dataset` runs a complete acquisition with a robot and a sensor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import pytest
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
+    from spherecal.devices import DeviceContext, Robot, Sensor
+    from spherecal.models import Dataset, Pose
+    from spherecal.plugins.host import PluginHost
+    from spherecal.sim import SimulatedCell
+
+
+
+# ---------------------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------------------
+def pose_error(a: "Pose", b: "Pose") -> tuple[float, float]:
+    """(translation distance in mm, rotation angle in degrees) between two poses."""
+    import numpy as np
+
+    dt = float(np.linalg.norm(a.translation - b.translation))
+    R = a.rotation_matrix.T @ b.rotation_matrix
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    return dt, angle
+
+
+def acquire_dataset(
+    robot: "Robot",
+    sensor: "Sensor",
+    stations,
+    mounting: str,
+    sphere_radius_mm: float,
+    speed_mm_s: float = 50.0,
+    host: "PluginHost | None" = None,
+    provenance: dict | None = None,
+) -> "Dataset":
+    """Acquire one observation per planned flange target.
+
+    For each target ``base_from_flange`` (quaternion (w, x, y, z), mm): move there with
+    ``robot.move_linear``, read the pose the robot reports (``read_flange_pose``) and its
+    joints (``read_joints_deg``), take a profile (``sensor.read_profile``); shots without a
+    profile are skipped. With ``host``, calls the ``spherecal_observation_taken`` and
+    ``spherecal_acquisition_finished`` hooks."""
+    from spherecal.models import Dataset, Observation
+
+    observations = []
+    for label, targets in stations:
+        for target in targets:
+            robot.move_linear(target, speed_mm_s)
+            reported = robot.read_flange_pose()
+            joints = robot.read_joints_deg()
+            profile = sensor.read_profile()
+            if profile is None:
+                continue
+            obs = Observation(
+                index=len(observations),
+                station=label,
+                base_from_flange=reported,
+                joints_deg=None if joints is None else tuple(float(j) for j in joints),
+                profile=profile,
+            )
+            observations.append(obs)
+            if host is not None:
+                host.observation_taken(observation=obs)
+    dataset = Dataset(
+        mounting=mounting,
+        sphere_radius_mm=sphere_radius_mm,
+        observations=observations,
+        provenance=dict(provenance or {}),
+    )
+    if host is not None:
+        host.acquisition_finished(dataset=dataset)
+    return dataset
+
+
+def _first_targets(stations, per_station: int) -> list[tuple[str, "Pose"]]:
+    out = []
+    for label, poses in stations:
+        step = max(1, len(poses) // per_station)
+        out.extend((label, p) for p in poses[::step][:per_station])
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# Harnesses
+# ---------------------------------------------------------------------------------------
+@dataclass
+class RobotReport:
+    """What :meth:`RobotHarness.check` measured."""
+
+    n_moves: int
+    max_move_error_mm: float
+    max_move_error_deg: float
+    max_report_error_mm: float
+    max_report_error_deg: float
+    max_kinematics_error_mm: float | None = None
+
+
+@dataclass
+class RobotHarness:
+    """Checks a robot object against the simulated cell it was created on."""
+
+    cell: "SimulatedCell"
+    stations: Any
+    per_station: int = 3
+    speed_mm_s: float = 50.0
+    move_tolerance_mm: float = 1e-6
+    move_tolerance_deg: float = 1e-6
+
+    def check(
+        self,
+        robot: "Robot",
+        *,
+        flange_pose_from_joints: Callable[[Any], "Pose"] | None = None,
+        kinematics_tolerance_mm: float = 0.01,
+        check_close: bool = True,
+    ) -> RobotReport:
+        """Assert that ``robot`` honours the Robot protocol on ``self.cell``.
+
+        - it is a :class:`spherecal.devices.Robot`;
+        - after ``move_linear(target, speed)`` the cell's flange is at the target (within
+          ``move_tolerance_mm`` / ``_deg``): the move landed where commanded;
+        - ``read_flange_pose()`` agrees with the target within six standard deviations of
+          the cell's pose noise (plus 1 um and 1e-4 deg for rounding);
+        - ``read_joints_deg()`` is None or six finite numbers; with
+          ``flange_pose_from_joints`` (joints_deg -> base_from_flange), the pose computed
+          from them agrees with the target within ``kinematics_tolerance_mm``;
+        - a non-positive speed is refused with a :class:`~spherecal.errors.SpherecalError`
+          before the robot moves;
+        - ``close()`` can be called twice (when ``check_close``; the robot is closed after).
+
+        Returns a :class:`RobotReport`; raises AssertionError naming the target at fault."""
+        import numpy as np
+
+        from spherecal.devices import Robot
+        from spherecal.errors import SpherecalError
+
+        assert isinstance(robot, Robot), (
+            f"{type(robot).__name__} is not a spherecal.devices.Robot: it needs read_flange_pose, "
+            f"read_joints_deg, move_linear and close"
+        )
+        noise = self.cell.noise
+        tol_report_mm = 6 * noise.pose_translation_noise_mm * np.sqrt(3) + 1e-3
+        tol_report_deg = 6 * noise.pose_rotation_noise_deg * np.sqrt(3) + 1e-4
+        report = RobotReport(0, 0.0, 0.0, 0.0, 0.0)
+        kin_errors = []
+        for label, target in _first_targets(self.stations, self.per_station):
+            robot.move_linear(target, self.speed_mm_s)
+            where = f"station {label}, target {target.translation_mm} mm / {target.quaternion_wxyz} (wxyz)"
+            dt, da = pose_error(self.cell.current_base_from_flange, target)
+            assert dt <= self.move_tolerance_mm and da <= self.move_tolerance_deg, (
+                f"move_linear did not land where commanded ({where}): the cell's flange is "
+                f"{dt:.6f} mm and {da:.6f} deg away"
+            )
+            reported = robot.read_flange_pose()
+            rt, ra = pose_error(reported, target)
+            assert rt <= tol_report_mm and ra <= tol_report_deg, (
+                f"read_flange_pose() is {rt:.4f} mm / {ra:.4f} deg from the commanded pose ({where}); "
+                f"the cell's pose noise allows {tol_report_mm:.4f} mm / {tol_report_deg:.4f} deg. "
+                f"Is the pose base_from_flange, in mm, quaternion (w, x, y, z)?"
+            )
+            joints = robot.read_joints_deg()
+            if joints is not None:
+                j = np.asarray(joints, dtype=float)
+                assert j.shape == (6,) and np.all(np.isfinite(j)), (
+                    f"read_joints_deg() must return None or six finite angles in degrees, got {joints!r}"
+                )
+                if flange_pose_from_joints is not None:
+                    kt, _ = pose_error(flange_pose_from_joints(j), target)
+                    kin_errors.append(kt)
+                    assert kt <= kinematics_tolerance_mm, (
+                        f"forward kinematics of read_joints_deg() = {j.tolist()} is {kt:.4f} mm from the "
+                        f"commanded pose ({where})"
+                    )
+            report.n_moves += 1
+            report.max_move_error_mm = max(report.max_move_error_mm, dt)
+            report.max_move_error_deg = max(report.max_move_error_deg, da)
+            report.max_report_error_mm = max(report.max_report_error_mm, rt)
+            report.max_report_error_deg = max(report.max_report_error_deg, ra)
+        assert report.n_moves > 0, "no stations to check (empty plan)"
+        if kin_errors:
+            report.max_kinematics_error_mm = max(kin_errors)
+
+        before = self.cell.current_base_from_flange
+        first = _first_targets(self.stations, 1)[-1][1]
+        try:
+            robot.move_linear(first, 0.0)
+        except SpherecalError:
+            pass
+        else:
+            raise AssertionError("move_linear(target, speed_mm_s=0.0) was accepted; a robot must refuse a "
+                                 "non-positive speed with a spherecal error before moving")
+        assert self.cell.current_base_from_flange is before, (
+            "move_linear with a refused speed moved the flange anyway; check limits before moving"
+        )
+        if check_close:
+            robot.close()
+            robot.close()
+        return report
+
+
+@dataclass
+class SensorReport:
+    """What :meth:`SensorHarness.check` measured."""
+
+    n_profiles: int
+    max_distance_mm: float
+    rms_distance_mm: float
+    min_coverage: float
+
+
+@dataclass
+class SensorHarness:
+    """Checks a sensor object against the simulated cell it was created on.
+
+    The harness puts the flange at planned poses itself (``cell.move_flange_to``), so a
+    sensor can be tested without a robot."""
+
+    cell: "SimulatedCell"
+    stations: Any
+    per_station: int = 3
+    min_coverage: float = 0.8
+    max_outlier_fraction: float = 0.0
+    extra_tolerance_mm: float = 0.005
+
+    def check(self, sensor: "Sensor", *, check_close: bool = True) -> SensorReport:
+        """Assert that ``sensor`` honours the Sensor protocol on ``self.cell``.
+
+        - it is a :class:`spherecal.devices.Sensor`;
+        - at each checked pose, ``read_profile()`` returns a :class:`~spherecal.models.Profile`
+          whose points (y, z in mm, sensor frame) lie on the circle where the laser plane
+          cuts the sphere, within six standard deviations of the cell's point noise plus
+          ``extra_tolerance_mm`` (a share ``max_outlier_fraction`` may lie further off);
+        - the points cover at least ``min_coverage`` of the y-range of the ideal profile
+          (a sensor that drops most points, or mirrors y, fails here);
+        - with the sphere out of the laser plane, ``read_profile()`` returns None;
+        - ``close()`` can be called twice (when ``check_close``).
+
+        Returns a :class:`SensorReport`; raises AssertionError naming the pose at fault."""
+        import numpy as np
+
+        from spherecal.devices import Sensor
+        from spherecal.models import Pose, Profile
+
+        assert isinstance(sensor, Sensor), (
+            f"{type(sensor).__name__} is not a spherecal.devices.Sensor: it needs read_profile and close"
+        )
+        cell = self.cell
+        tol = 6 * cell.noise.point_noise_mm + self.extra_tolerance_mm
+        n_profiles, worst, sq, n_pts, coverage = 0, 0.0, 0.0, 0, 1.0
+        for label, pose in _first_targets(self.stations, self.per_station):
+            cell.move_flange_to(pose)
+            ideal = cell.ideal_profile(pose)
+            profile = sensor.read_profile()
+            where = f"station {label}, flange at {pose.translation_mm} mm"
+            if len(ideal) == 0:
+                assert profile is None, f"read_profile() returned points where the sensor sees nothing ({where})"
+                continue
+            assert isinstance(profile, Profile), (
+                f"read_profile() returned {type(profile).__name__} ({where}); expected a spherecal.models.Profile"
+            )
+            c = cell.sphere_centre_in_sensor(pose)
+            rho = np.sqrt(cell.sphere_radius_mm**2 - c[0] ** 2)
+            pts = profile.points_mm
+            d = np.abs(np.hypot(pts[:, 0] - c[1], pts[:, 1] - c[2]) - rho)
+            off = d > tol
+            assert off.mean() <= self.max_outlier_fraction, (
+                f"{int(off.sum())} of {len(d)} profile points are more than {tol:.4f} mm off the sphere "
+                f"(worst {d.max():.4f} mm) ({where}). Are the points (y, z) in mm in the sensor frame, "
+                f"z positive towards the sensor?"
+            )
+            span = np.ptp(ideal[:, 0])
+            covered = float(np.ptp(pts[:, 0]) / span) if span > 0 else 1.0
+            overlap = min(pts[:, 0].max(), ideal[:, 0].max()) - max(pts[:, 0].min(), ideal[:, 0].min())
+            covered = min(covered, float(overlap / span) if span > 0 else 1.0)
+            assert covered >= self.min_coverage, (
+                f"the profile covers {covered:.0%} of the visible arc's y-range "
+                f"[{ideal[:, 0].min():.2f}, {ideal[:, 0].max():.2f}] mm; expected at least "
+                f"{self.min_coverage:.0%} ({where})"
+            )
+            n_profiles += 1
+            inl = d[~off]
+            worst = max(worst, float(inl.max()) if inl.size else 0.0)
+            sq += float((inl**2).sum())
+            n_pts += int(inl.size)
+            coverage = min(coverage, covered)
+        assert n_profiles > 0, "no pose in the plan showed the sphere; nothing was checked"
+
+        # Out of view: slide the sphere off the laser plane along the sensor's x.
+        label, pose = _first_targets(self.stations, 1)[0]
+        shift_sensor = np.array([3.0 * cell.sphere_radius_mm, 0.0, 0.0])
+        if cell.mounting == "eye_in_hand":
+            base_from_sensor = pose @ cell.true_transform
+            away = Pose.from_rt(pose.rotation_matrix, pose.translation + base_from_sensor.rotation_matrix @ shift_sensor)
+        else:
+            away = Pose.from_rt(pose.rotation_matrix,
+                                pose.translation + cell.true_transform.rotation_matrix @ shift_sensor)
+        cell.move_flange_to(away)
+        assert len(cell.ideal_profile(away)) == 0  # the harness's own premise
+        empty = sensor.read_profile()
+        assert empty is None, (
+            f"read_profile() returned {type(empty).__name__} with the sphere out of view; it must return None"
+        )
+        if check_close:
+            sensor.close()
+            sensor.close()
+        rms = float(np.sqrt(sq / n_pts)) if n_pts else 0.0
+        return SensorReport(n_profiles, worst, rms, coverage)
+
+
+# ---------------------------------------------------------------------------------------
+# Fixtures
+# ---------------------------------------------------------------------------------------
+@pytest.fixture
+def spherecal_cell(request) -> "SimulatedCell":
+    """A seeded standard cell (default eye-in-hand, seed 0); parametrise indirectly with a
+    mounting name or a dict of ``standard_cell`` arguments."""
+    from spherecal.sim import standard_cell
+
+    param = getattr(request, "param", "eye_in_hand")
+    kwargs = dict(param) if isinstance(param, dict) else {"mounting": param}
+    kwargs.setdefault("seed", 0)
+    return standard_cell(**kwargs)
+
+
+@pytest.fixture
+def spherecal_host() -> "PluginHost":
+    """A fresh plugin host: built-ins plus installed third-party plugins (unless
+    ``SPHERECAL_DISABLE_PLUGIN_AUTOLOAD`` is set)."""
+    from spherecal.plugins.host import PluginHost
+
+    return PluginHost()
+
+
+@pytest.fixture
+def spherecal_context(spherecal_cell) -> "DeviceContext":
+    """A device context on ``spherecal_cell``: factories return simulated devices."""
+    from spherecal.devices import DeviceContext
+
+    messages: list[str] = []
+    return DeviceContext(cell=spherecal_cell, log=messages.append, extras={"log_messages": messages})
+
+
+@pytest.fixture
+def spherecal_stations(spherecal_cell):
+    """Planned flange targets ``[(label, [base_from_flange, ...]), ...]`` for the cell."""
+    from spherecal.sim import plan_stations
+
+    cell = spherecal_cell
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)
+
+
+@pytest.fixture
+def spherecal_robot_harness(spherecal_cell, spherecal_stations) -> RobotHarness:
+    """A :class:`RobotHarness` on the cell and its planned stations."""
+    return RobotHarness(spherecal_cell, spherecal_stations)
+
+
+@pytest.fixture
+def spherecal_sensor_harness(spherecal_cell, spherecal_stations) -> SensorHarness:
+    """A :class:`SensorHarness` on the cell and its planned stations."""
+    return SensorHarness(spherecal_cell, spherecal_stations)
