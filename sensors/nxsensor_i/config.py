@@ -1,0 +1,42 @@
+"""Configuration of the nxSensor-I plugin (the ``sensor`` section when ``type = "nxsensor_i"``)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from .wire import WireConfig
+
+
+class NxSensorConfig(BaseModel):
+    """Settings of one nxSensor-I. ``wire`` holds the assumed USB protocol (see
+    :mod:`spherecal.sensors.nxsensor_i.wire`); the rest are acquisition settings."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    wire: WireConfig = Field(default_factory=WireConfig, description="assumed USB wire format (ids, endpoints, framing, scaling)")
+    serial_number: str | None = Field(
+        None, min_length=1, max_length=126,
+        description="USB serial number string of the unit to open; None opens the first unit with the configured ids",
+    )
+    timeout_ms: int = Field(1000, ge=1, le=60_000, description="time limit of one USB transfer, ms")
+    exposure_us: int = Field(200, ge=1, le=1_000_000, description="laser exposure time, microseconds")
+    rate_hz: float = Field(100.0, gt=0, le=10_000, description="profile rate while streaming, Hz (frame period 1e6/rate us)")
+    retries: int = Field(
+        1, ge=0, le=5,
+        description="attempts after a timeout, stall, corrupt frame or disconnect before the error is raised (count)",
+    )
+
+    @model_validator(mode="after")
+    def _exposure_fits_period(self):
+        period_us = 1e6 / self.rate_hz
+        if self.exposure_us >= period_us:
+            raise ValueError(
+                f"exposure_us = {self.exposure_us} us does not fit the frame period of rate_hz = {self.rate_hz} Hz "
+                f"({period_us:.0f} us); lower exposure_us or rate_hz"
+            )
+        return self
+
+    @property
+    def period_us(self) -> int:
+        """Frame period while streaming, microseconds."""
+        return max(1, round(1e6 / self.rate_hz))

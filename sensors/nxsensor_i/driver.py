@@ -1,0 +1,420 @@
+"""pyusb driver of the NextWare nxSensor-I laser line sensor.
+
+Talks the wire format of :mod:`spherecal.sensors.nxsensor_i.wire` (an ASSUMPTION of the
+unpublished protocol, all of it configuration) through ordinary pyusb calls, so the same
+code runs against libusb and real hardware or against
+:class:`~spherecal.sensors.nxsensor_i.simbackend.SimulatedNxSensorBackend`.
+
+Profiles are (y, z) in mm in the sensor frame's x = 0 plane, z positive towards the
+sensor (``docs/conventions.md``). Implements the :class:`spherecal.devices.Sensor`
+protocol (``read_profile``, ``close``) and adds streaming (:meth:`NxSensorDriver.stream`).
+
+Failures become :class:`spherecal.errors.DeviceError` naming the device (USB
+vendor:product id, serial number) and the operation. Recovery, up to
+``config.retries`` times per operation: after a timeout or a corrupt frame the request
+is repeated (with the IN endpoint's halt cleared); a stalled endpoint is cleared; a
+device that vanished (ENODEV, as after a reset or a brief unplug) is looked for again
+by its ids and reopened, with the settings sent again.
+"""
+
+from __future__ import annotations
+
+import errno
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import usb.core
+import usb.util
+
+from spherecal.errors import DeviceError
+from spherecal.models import Profile
+
+from .config import NxSensorConfig
+from .wire import Command, Frame, FrameFormatError, encode_bulk_command, encode_control_command, decode_frame
+
+_LIBUSB_ERROR_NO_DEVICE = -4
+_LIBUSB_ERROR_PIPE = -9
+_LIBUSB_ERROR_ACCESS = -3
+_LIBUSB_ERROR_BUSY = -6
+
+
+def _is_no_device(exc: usb.core.USBError) -> bool:
+    return exc.errno == errno.ENODEV or exc.backend_error_code == _LIBUSB_ERROR_NO_DEVICE
+
+
+def _is_pipe(exc: usb.core.USBError) -> bool:
+    return exc.errno == errno.EPIPE or exc.backend_error_code == _LIBUSB_ERROR_PIPE
+
+
+def _is_access(exc: usb.core.USBError) -> bool:
+    return exc.errno == errno.EACCES or exc.backend_error_code == _LIBUSB_ERROR_ACCESS
+
+
+def _is_busy(exc: usb.core.USBError) -> bool:
+    return exc.errno == errno.EBUSY or exc.backend_error_code == _LIBUSB_ERROR_BUSY
+
+
+@dataclass(frozen=True)
+class StreamedProfile:
+    """One profile of a stream. ``profile`` is None when the line saw nothing valid;
+    ``dropped_before`` counts frames the sensor numbered but that never arrived (or
+    arrived corrupt) between the previous item and this one."""
+
+    frame_counter: int
+    timestamp_us: int
+    profile: Profile | None
+    dropped_before: int
+
+
+class _Gone(Exception):
+    """Internal: the device vanished and could not be found again."""
+
+
+class NxSensorDriver:
+    """A connected nxSensor-I.
+
+    ``backend`` is a pyusb backend (None: pyusb's default, libusb-1.0 first). The device
+    is found by ``config.wire.vendor_id``/``product_id`` (and ``config.serial_number``
+    when set), configured, its interface claimed and the exposure and rate sent.
+    ``log`` receives one line per recovery (retry, halt cleared, reopened)."""
+
+    def __init__(self, config: NxSensorConfig, backend=None, log: Callable[[str], None] | None = None):
+        self.config = config
+        self.wire = config.wire
+        self._log = log or (lambda msg: None)
+        self._backend = backend
+        self._dev: usb.core.Device | None = None
+        self._streaming = False
+        self._closed = False
+        self.frames_dropped = 0
+        self._open()
+
+    # --- naming ------------------------------------------------------------------------
+    @property
+    def device_name(self) -> str:
+        serial = f", serial {self.config.serial_number}" if self.config.serial_number else ""
+        return f"nxSensor-I (USB {self.wire.usb_id}{serial})"
+
+    def _error(self, operation: str, what: str, hint: str) -> DeviceError:
+        return DeviceError(f"{self.device_name}: {what} while {operation}. {hint}")
+
+    # --- discovery and opening ---------------------------------------------------------
+    def _find(self) -> usb.core.Device | None:
+        wire = self.wire
+        wanted = self.config.serial_number
+        seen_serials: list[str] = []
+
+        def match(dev) -> bool:
+            if wanted is None:
+                return True
+            try:
+                serial = usb.util.get_string(dev, dev.iSerialNumber)
+            except (usb.core.USBError, ValueError):
+                serial = None
+            seen_serials.append(str(serial))
+            return serial == wanted
+
+        try:
+            dev = usb.core.find(idVendor=wire.vendor_id, idProduct=wire.product_id, backend=self._backend, custom_match=match)
+        except usb.core.NoBackendError:
+            raise DeviceError(
+                f"{self.device_name}: no USB backend available (pyusb found neither libusb-1.0, OpenUSB nor "
+                "libusb-0.1). Install libusb-1.0 (Debian/Ubuntu: apt install libusb-1.0-0; Windows: put "
+                "libusb-1.0.dll next to python.exe or on PATH), or run the simulated cell."
+            ) from None
+        if dev is None and wanted is not None and seen_serials:
+            raise DeviceError(
+                f"{self.device_name}: a device with USB id {wire.usb_id} is connected but none has serial number "
+                f"{wanted!r} (found: {', '.join(repr(s) for s in seen_serials)}). Fix sensor.serial_number in the "
+                "configuration, or leave it out to use the first unit."
+            )
+        if dev is not None and self._backend is None:
+            self._backend = dev.backend
+        return dev
+
+    def _open(self) -> None:
+        dev = self._find()
+        if dev is None:
+            raise DeviceError(
+                f"{self.device_name}: not found on USB (looked for vendor:product {self.wire.usb_id}). Check that "
+                "the sensor is powered and its cable plugged in (`lsusb` on Linux should list it); that your user "
+                "may open it (Linux: a udev rule such as SUBSYSTEM==\"usb\", "
+                f"ATTR{{idVendor}}==\"{self.wire.vendor_id:04x}\", ATTR{{idProduct}}==\"{self.wire.product_id:04x}\", "
+                "MODE=\"0660\", GROUP=\"plugdev\"; Windows: the WinUSB driver bound, e.g. with Zadig); and that "
+                "sensor.wire.vendor_id / product_id match the unit: the defaults are assumptions, as the "
+                "nxSensor-I's USB protocol is not public."
+            )
+        self._dev = dev
+        self._setup_device()
+
+    def _setup_device(self) -> None:
+        dev, wire = self._dev, self.wire
+        step = "opening the device"
+        try:
+            try:
+                if dev.is_kernel_driver_active(wire.interface):
+                    step = "detaching the kernel driver"
+                    dev.detach_kernel_driver(wire.interface)
+            except NotImplementedError:  # not every backend/OS has kernel drivers to detach
+                pass
+            step = f"selecting configuration {wire.configuration_value}"
+            active = None
+            try:
+                active = dev.get_active_configuration().bConfigurationValue
+            except usb.core.USBError:
+                pass
+            if active != wire.configuration_value:
+                dev.set_configuration(wire.configuration_value)
+            step = f"claiming interface {wire.interface}"
+            usb.util.claim_interface(dev, wire.interface)
+        except usb.core.USBError as exc:
+            if _is_access(exc):
+                hint = ("Your user may not open it: add a udev rule (see docs/sensor-nxsensor-i.md) or, on Windows, "
+                        "bind the WinUSB driver.")
+            elif _is_busy(exc):
+                hint = "Another program holds the interface: close other sensor software and try again."
+            elif _is_no_device(exc):
+                hint = "The device vanished: check the cable and power."
+            else:
+                hint = "Check sensor.wire.configuration_value and sensor.wire.interface against the unit."
+            raise self._error(step, f"USB error ({exc})", hint) from exc
+        except ValueError as exc:  # pyusb: no such configuration / interface in the descriptors
+            raise self._error(step, f"{exc}", "Check sensor.wire.configuration_value and sensor.wire.interface.") from exc
+        self._send_settings()
+
+    def _send_settings(self) -> None:
+        self._command_raw(Command("set_period", self.config.period_us))
+        self._command_raw(Command("set_exposure", self.config.exposure_us))
+
+    def _refind(self, operation: str) -> None:
+        """After ENODEV: look for the device again (it re-enumerates after a reset)."""
+        old = self._dev
+        if old is not None:
+            try:
+                usb.util.dispose_resources(old)
+            except usb.core.USBError:
+                pass
+        self._dev = None
+        dev = self._find()
+        if dev is None:
+            raise _Gone()
+        self._log(f"{self.device_name}: device reappeared while {operation}; reopened it")
+        self._dev = dev
+        self._setup_device()
+
+    # --- raw transfers -----------------------------------------------------------------
+    def _command_raw(self, command: Command) -> None:
+        timeout = self.config.timeout_ms
+        if self.wire.command_transport == "control":
+            s = encode_control_command(command, self.wire)
+            self._dev.ctrl_transfer(s.bmRequestType, s.bRequest, s.wValue, s.wIndex, None, timeout)
+        else:
+            self._dev.write(self.wire.bulk_out_endpoint, encode_bulk_command(command, self.wire), timeout)
+
+    def _read_frame_raw(self, timeout_ms: int | None = None) -> Frame:
+        size = self.wire.max_frame_bytes
+        size += -size % self.wire.max_packet_size  # whole packets, so a full last packet never overflows
+        data = self._dev.read(self.wire.bulk_in_endpoint, size, timeout_ms or self.config.timeout_ms)
+        return decode_frame(data, self.wire)
+
+    def _clear_halt_quietly(self) -> None:
+        try:
+            self._dev.clear_halt(self.wire.bulk_in_endpoint)
+        except usb.core.USBError:
+            pass
+
+    # --- recovery ----------------------------------------------------------------------
+    def _attempt(self, operation: str, action: Callable[[], object], *, after_reopen: Callable[[], None] | None = None):
+        """Run ``action`` with up to ``config.retries`` recoveries; raise DeviceError."""
+        self._check_open(operation)
+        retries = self.config.retries
+        for attempt in range(retries + 1):
+            last = attempt == retries
+            try:
+                return action()
+            except usb.core.USBTimeoutError as exc:
+                if last:
+                    raise self._error(
+                        operation, f"no answer within timeout_ms = {self.config.timeout_ms} ms "
+                        f"({attempt + 1} attempt{'s' if attempt else ''})",
+                        "Check the cable, that the sensor is not triggered by another program, and that "
+                        "timeout_ms exceeds the frame period and exposure.",
+                    ) from exc
+                self._log(f"{self.device_name}: timeout while {operation}; retrying")
+                self._clear_halt_quietly()
+            except FrameFormatError as exc:
+                if last:
+                    raise self._error(
+                        operation, f"malformed frame: {exc}",
+                        "If this persists, sensor.wire does not match the device's real wire format.",
+                    ) from exc
+                self._log(f"{self.device_name}: malformed frame while {operation} ({exc}); retrying")
+            except usb.core.USBError as exc:
+                if _is_no_device(exc):
+                    try:
+                        if last:
+                            raise _Gone()
+                        self._refind(operation)
+                    except _Gone:
+                        self._dev = None
+                        raise self._error(
+                            operation, "the device is gone (disconnected)",
+                            "Check the USB cable and the sensor's power, then reconnect; "
+                            f"`lsusb` should list {self.wire.usb_id}.",
+                        ) from exc
+                    if after_reopen is not None:
+                        after_reopen()
+                elif _is_pipe(exc):
+                    if last:
+                        raise self._error(
+                            operation, f"the device stalled the request ({exc})",
+                            "The sensor rejected it: check exposure_us, rate_hz and the command codes in sensor.wire.",
+                        ) from exc
+                    self._log(f"{self.device_name}: endpoint stalled while {operation}; clearing the halt")
+                    self._clear_halt_quietly()
+                else:
+                    raise self._error(operation, f"USB error ({exc})", "Check the cable and reconnect.") from exc
+
+    def _check_open(self, operation: str) -> None:
+        if self._closed:
+            raise DeviceError(f"{self.device_name}: closed; cannot proceed with {operation}. Open a new driver.")
+        if self._dev is None:
+            raise DeviceError(f"{self.device_name}: the device was lost earlier; cannot proceed with {operation}. "
+                              "Reconnect it and open a new driver.")
+
+    # --- public API --------------------------------------------------------------------
+    def configure(self, exposure_us: int | None = None, rate_hz: float | None = None) -> None:
+        """Change exposure (microseconds) and/or streaming rate (Hz); checked like the
+        configuration (exposure must fit the frame period)."""
+        updates = {}
+        if exposure_us is not None:
+            updates["exposure_us"] = exposure_us
+        if rate_hz is not None:
+            updates["rate_hz"] = rate_hz
+        try:
+            new = NxSensorConfig.model_validate({**self.config.model_dump(), **updates})
+        except ValueError as exc:
+            raise DeviceError(f"{self.device_name}: invalid settings {updates}: {exc}") from exc
+        old, self.config = self.config, new
+
+        def send():
+            # shorten the period first when it shrinks, so the exposure always fits it
+            if new.period_us >= old.period_us:
+                self._command_raw(Command("set_period", new.period_us))
+                self._command_raw(Command("set_exposure", new.exposure_us))
+            else:
+                self._command_raw(Command("set_exposure", new.exposure_us))
+                self._command_raw(Command("set_period", new.period_us))
+
+        try:
+            self._attempt(f"configuring exposure {new.exposure_us} us, rate {new.rate_hz} Hz", send)
+        except DeviceError:
+            self.config = old
+            raise
+
+    def read_frame(self) -> Frame:
+        """Trigger one profile and return its decoded frame (counter, timestamp, points)."""
+        if self._streaming:
+            raise DeviceError(f"{self.device_name}: cannot read a single profile while streaming; stop the stream first")
+
+        def once():
+            self._command_raw(Command("trigger"))
+            return self._read_frame_raw()
+
+        return self._attempt("reading a profile", once)
+
+    def read_profile(self) -> Profile | None:
+        """One profile on request: (y, z) mm in the sensor frame; None when the line saw
+        nothing valid."""
+        frame = self.read_frame()
+        return Profile.from_points(frame.points_mm) if len(frame.points_mm) else None
+
+    def stream(self, rate_hz: float | None = None, max_frames: int | None = None) -> Iterator[StreamedProfile]:
+        """Profiles sent by the sensor at ``rate_hz`` (default: the configured rate),
+        as :class:`StreamedProfile` items with the sensor's frame counter. Gaps in the
+        counter (frames lost in the device, on the bus, or corrupt) are reported in
+        ``dropped_before`` and summed in :attr:`frames_dropped`. Streaming stops when the
+        iterator is closed, exhausted (``max_frames``) or garbage collected."""
+        if self._streaming:
+            raise DeviceError(f"{self.device_name}: a stream is already running; close it first")
+        if rate_hz is not None:
+            self.configure(rate_hz=rate_hz)
+        # one read may wait up to a frame period on top of the transfer timeout
+        read_timeout = self.config.timeout_ms + int(2 * self.config.period_us / 1000) + 1
+        self._attempt("starting the stream", lambda: self._command_raw(Command("start_stream")))
+        self._streaming = True
+        return self._stream_items(read_timeout, max_frames)
+
+    def _stream_items(self, read_timeout: int, max_frames: int | None) -> Iterator[StreamedProfile]:
+        modulus = self.wire.frame_counter_modulus
+        previous: int | None = None
+        n = 0
+
+        def restart():
+            self._command_raw(Command("start_stream"))
+
+        try:
+            while max_frames is None or n < max_frames:
+                frame = self._attempt("streaming profiles", lambda: self._read_frame_raw(read_timeout), after_reopen=restart)
+                dropped = 0 if previous is None else (frame.frame_counter - previous - 1) % modulus
+                if dropped:
+                    self.frames_dropped += dropped
+                    self._log(f"{self.device_name}: {dropped} frame(s) lost before frame {frame.frame_counter}")
+                previous = frame.frame_counter
+                n += 1
+                profile = Profile.from_points(frame.points_mm) if len(frame.points_mm) else None
+                yield StreamedProfile(frame.frame_counter, frame.timestamp_us, profile, dropped)
+        finally:
+            self._streaming = False
+            self._stop_stream_quietly()
+
+    def _stop_stream_quietly(self) -> None:
+        if self._dev is None or self._closed:
+            return
+        try:
+            self._command_raw(Command("stop_stream"))
+            for _ in range(4):  # drain frames already in flight
+                self._dev.read(self.wire.bulk_in_endpoint, self.wire.max_frame_bytes, 20)
+        except usb.core.USBError:
+            pass
+
+    def reset(self) -> None:
+        """USB port reset, then find the device again and resend the settings."""
+        self._check_open("resetting")
+        try:
+            self._dev.reset()
+        except usb.core.USBError as exc:
+            if not _is_no_device(exc):
+                raise self._error("resetting", f"USB error ({exc})", "Unplug and replug the sensor.") from exc
+        try:
+            self._refind("resetting")
+        except _Gone:
+            self._dev = None
+            raise self._error("resetting", "the device did not come back after the reset",
+                              "Unplug and replug the sensor; check its power.") from None
+
+    def close(self) -> None:
+        """Release the interface and the device. Safe to call twice."""
+        if self._closed:
+            return
+        if self._streaming:
+            self._stop_stream_quietly()
+            self._streaming = False
+        self._closed = True
+        dev, self._dev = self._dev, None
+        if dev is None:
+            return
+        try:
+            usb.util.release_interface(dev, self.wire.interface)
+        except usb.core.USBError:
+            pass
+        try:
+            usb.util.dispose_resources(dev)
+        except usb.core.USBError:
+            pass
+
+    def __enter__(self) -> "NxSensorDriver":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,386 @@
+"""A simulated nxSensor-I behind a real pyusb backend.
+
+:class:`SimulatedNxSensorBackend` implements ``usb.backend.IBackend``, so
+``usb.core.find(idVendor=..., idProduct=..., backend=SimulatedNxSensorBackend(cell))``
+returns an ordinary ``usb.core.Device`` and the real driver talks to it through
+unchanged pyusb calls (descriptors, configuration, interface claiming, bulk and control
+transfers, clear halt, reset). The device speaks the wire format of
+:mod:`spherecal.sensors.nxsensor_i.wire` (the project's assumption, not NextWare's
+documentation) and measures with a :class:`spherecal.sim.SimulatedCell`: each profile is
+``cell.measure_profile()`` at the simulated robot's current pose, quantised to counts,
+with invalid records for the columns that saw nothing.
+
+Faults can be injected to test a driver: :meth:`inject_timeouts`, :meth:`inject_stalls`,
+:meth:`inject_corrupt_frames`, :meth:`drop_frames`, :meth:`disconnect` and
+:meth:`reconnect`. Errors are raised as libusb-1.0 would: ``usb.core.USBTimeoutError``
+(code -7, ETIMEDOUT), ``usb.core.USBError`` with ENODEV (-4) for a device that is gone,
+EPIPE (-9) for a stalled endpoint, EOVERFLOW (-8) for a frame larger than the read.
+"""
+
+from __future__ import annotations
+
+import array
+import errno
+import itertools
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import usb.backend
+import usb.core
+
+from .wire import Command, ControlSetup, FrameFormatError, WireConfig, decode_bulk_command, decode_control_command, encode_frame
+
+# libusb-1.0 error codes, as pyusb's libusb1 backend reports them in backend_error_code.
+LIBUSB_ERROR_IO = -1
+LIBUSB_ERROR_NO_DEVICE = -4
+LIBUSB_ERROR_TIMEOUT = -7
+LIBUSB_ERROR_OVERFLOW = -8
+LIBUSB_ERROR_PIPE = -9
+
+_GET_DESCRIPTOR = 0x06
+_DESC_TYPE_STRING = 0x03
+_LANGID_EN_US = 0x0409
+
+CorruptionKind = Literal["magic", "truncate", "count", "checksum"]
+
+
+def _no_device() -> usb.core.USBError:
+    return usb.core.USBError("No such device (it may have been disconnected)", LIBUSB_ERROR_NO_DEVICE, errno.ENODEV)
+
+
+def _timeout() -> usb.core.USBTimeoutError:
+    return usb.core.USBTimeoutError("Operation timed out", LIBUSB_ERROR_TIMEOUT, errno.ETIMEDOUT)
+
+
+def _pipe() -> usb.core.USBError:
+    return usb.core.USBError("Pipe error", LIBUSB_ERROR_PIPE, errno.EPIPE)
+
+
+class _Descriptor:
+    """A descriptor: attributes named as in the USB specification (what pyusb reads)."""
+
+    def __init__(self, **fields):
+        self.__dict__.update(fields)
+
+
+@dataclass(eq=False)
+class _SimDevice:
+    """Identification object of one enumeration of the device (a new one after a
+    reconnect, as the bus assigns a new address)."""
+
+    bus: int
+    address: int
+    alive: bool = True
+
+
+@dataclass(eq=False)
+class _Handle:
+    device: _SimDevice
+    claimed: set[int] = field(default_factory=set)
+
+
+class SimulatedNxSensorBackend(usb.backend.IBackend):
+    """A pyusb backend with one simulated nxSensor-I on it, measuring ``cell``.
+
+    ``wire`` is the wire format the simulated firmware speaks (default: the project's
+    assumed one). ``pad_to_columns`` sends one record per column of the cell's field of
+    view (invalid where the line saw nothing), as a profiler does; set it False to send
+    only valid points. ``simulate_waits`` makes timeouts and streaming take real time
+    (off by default so that tests stay fast)."""
+
+    def __init__(
+        self,
+        cell,
+        wire: WireConfig | None = None,
+        serial_number: str = "NXS-SIM-0001",
+        pad_to_columns: bool = True,
+        simulate_waits: bool = False,
+    ):
+        super().__init__()
+        self.cell = cell
+        self.wire = wire or WireConfig()
+        self.serial_number = serial_number
+        self.pad_to_columns = pad_to_columns
+        self.simulate_waits = simulate_waits
+        self._addresses = itertools.count(5)
+        self._device = _SimDevice(bus=1, address=next(self._addresses))
+        self._configuration = 1  # the OS configures a device on enumeration
+        self._power_on_state()
+        # faults
+        self._timeouts_pending = 0
+        self._stalls_pending = 0
+        self._corruptions: list[CorruptionKind] = []
+        self._drops_pending = 0
+        # what was measured, for tests: list of (frame_counter, (N, 2) mm points)
+        self.measured: list[tuple[int, np.ndarray]] = []
+        self.commands: list[Command] = []
+
+    def _power_on_state(self) -> None:
+        self.exposure_us = 0
+        self.period_us = 10_000
+        self.streaming = False
+        self.frame_counter = 0
+        self._queue: list[bytes] = []
+        self._halted: set[int] = set()
+
+    # --- fault injection --------------------------------------------------------------
+    def inject_timeouts(self, n: int = 1) -> None:
+        """The next ``n`` bulk reads time out; a profile waiting to be read is lost."""
+        self._timeouts_pending += n
+
+    def inject_stalls(self, n: int = 1) -> None:
+        """The bulk IN endpoint halts on the next ``n`` reads (EPIPE until cleared)."""
+        self._stalls_pending += n
+
+    def inject_corrupt_frames(self, n: int = 1, kind: CorruptionKind = "magic") -> None:
+        """The next ``n`` frames arrive corrupted: a wrong magic, cut short, with bytes
+        beyond the header's point count, or (with a CRC-32 trailer) a flipped bit."""
+        self._corruptions.extend([kind] * n)
+
+    def drop_frames(self, n: int = 1) -> None:
+        """While streaming, the next ``n`` frames are measured (their counters used) but
+        never sent, as when the device's buffer overflows."""
+        self._drops_pending += n
+
+    def disconnect(self) -> None:
+        """Unplug: the device disappears from the bus; open handles fail with ENODEV."""
+        self._device.alive = False
+
+    def reconnect(self) -> None:
+        """Plug back in: the device enumerates again at a new address, powered up afresh."""
+        self._device.alive = False
+        self._device = _SimDevice(bus=1, address=next(self._addresses))
+        self._configuration = 1
+        self._power_on_state()
+
+    # --- the device -------------------------------------------------------------------
+    def _alive(self, handle: _Handle) -> None:
+        if not handle.device.alive:
+            raise _no_device()
+
+    def _execute(self, command: Command) -> None:
+        self.commands.append(command)
+        if command.name == "set_exposure":
+            if not 1 <= command.argument < self.period_us:
+                raise _pipe()  # the firmware rejects it: the control request stalls
+            self.exposure_us = command.argument
+        elif command.name == "set_period":
+            if command.argument <= self.exposure_us:
+                raise _pipe()
+            self.period_us = command.argument
+        elif command.name == "trigger":
+            if self.streaming:
+                raise _pipe()
+            self._queue.append(self._measure())
+        elif command.name == "start_stream":
+            self.streaming = True
+        elif command.name == "stop_stream":
+            self.streaming = False
+            self._queue.clear()
+
+    def _measure(self) -> bytes:
+        counter = self.frame_counter
+        self.frame_counter = (self.frame_counter + 1) % self.wire.frame_counter_modulus
+        pts = np.asarray(self.cell.measure_profile(), dtype=float).reshape(-1, 2)
+        self.measured.append((counter, pts))
+        pad = self.cell.fov.n_columns if self.pad_to_columns else None
+        frame = encode_frame(
+            pts[: self.wire.max_points], self.wire, frame_counter=counter,
+            timestamp_us=(counter * self.period_us) & 0xFFFFFFFF, pad_to=pad, out_of_range="invalid",
+        )
+        if self._corruptions:
+            frame = self._corrupt(frame, self._corruptions.pop(0))
+        return frame
+
+    def _corrupt(self, frame: bytes, kind: CorruptionKind) -> bytes:
+        b = bytearray(frame)
+        if kind == "magic":
+            b[0] ^= 0xFF
+        elif kind == "truncate":
+            del b[len(b) // 2:]
+        elif kind == "count":
+            b += bytes(self.wire.record_dtype.itemsize)
+        elif kind == "checksum":
+            b[self.wire.header_struct.size] ^= 0x01
+        return bytes(b)
+
+    # --- IBackend: enumeration and descriptors ----------------------------------------
+    def enumerate_devices(self):
+        if self._device.alive:
+            yield self._device
+
+    def get_parent(self, dev):
+        return None
+
+    def get_device_descriptor(self, dev):
+        return _Descriptor(
+            bLength=18, bDescriptorType=0x01, bcdUSB=0x0200, bDeviceClass=0x00, bDeviceSubClass=0x00,
+            bDeviceProtocol=0x00, bMaxPacketSize0=64, idVendor=self.wire.vendor_id, idProduct=self.wire.product_id,
+            bcdDevice=0x0100, iManufacturer=1, iProduct=2, iSerialNumber=3, bNumConfigurations=1,
+            address=dev.address, bus=dev.bus, port_number=1, port_numbers=(1,), speed=3,  # 3: high speed
+        )
+
+    def get_configuration_descriptor(self, dev, config):
+        if config != 0:
+            raise IndexError(f"configuration index {config} out of range")
+        return _Descriptor(
+            bLength=9, bDescriptorType=0x02, wTotalLength=9 + 9 + 7 + 7, bNumInterfaces=1,
+            bConfigurationValue=self.wire.configuration_value, iConfiguration=0, bmAttributes=0x80,
+            bMaxPower=250, extra_descriptors=[],  # 250 x 2 mA = 500 mA, bus powered
+        )
+
+    def get_interface_descriptor(self, dev, intf, alt, config):
+        if config != 0 or intf != 0 or alt != 0:
+            raise IndexError(f"interface ({intf}, {alt}) of configuration {config} out of range")
+        return _Descriptor(
+            bLength=9, bDescriptorType=0x04, bInterfaceNumber=self.wire.interface, bAlternateSetting=0,
+            bNumEndpoints=2, bInterfaceClass=0xFF, bInterfaceSubClass=0x00, bInterfaceProtocol=0x00,
+            iInterface=0, extra_descriptors=[],
+        )
+
+    def get_endpoint_descriptor(self, dev, ep, intf, alt, config):
+        if config != 0 or intf != 0 or alt != 0 or ep not in (0, 1):
+            raise IndexError(f"endpoint {ep} of interface ({intf}, {alt}) out of range")
+        address = self.wire.bulk_out_endpoint if ep == 0 else self.wire.bulk_in_endpoint
+        return _Descriptor(
+            bLength=7, bDescriptorType=0x05, bEndpointAddress=address, bmAttributes=0x02,  # bulk
+            wMaxPacketSize=self.wire.max_packet_size, bInterval=0, bRefresh=0, bSynchAddress=0, extra_descriptors=[],
+        )
+
+    # --- IBackend: handles, configuration, interfaces ---------------------------------
+    def open_device(self, dev):
+        if not dev.alive:
+            raise _no_device()
+        return _Handle(dev)
+
+    def close_device(self, dev_handle):
+        dev_handle.claimed.clear()
+
+    def set_configuration(self, dev_handle, config_value):
+        self._alive(dev_handle)
+        if config_value not in (0, self.wire.configuration_value):
+            raise usb.core.USBError("Invalid parameter", -2, errno.EINVAL)
+        self._configuration = config_value
+
+    def get_configuration(self, dev_handle):
+        self._alive(dev_handle)
+        return self._configuration
+
+    def set_interface_altsetting(self, dev_handle, intf, altsetting):
+        self._alive(dev_handle)
+        if intf != self.wire.interface or altsetting != 0:
+            raise usb.core.USBError("Invalid parameter", -2, errno.EINVAL)
+
+    def claim_interface(self, dev_handle, intf):
+        self._alive(dev_handle)
+        if intf != self.wire.interface:
+            raise usb.core.USBError("Entity not found", -5, errno.ENOENT)
+        dev_handle.claimed.add(intf)
+
+    def release_interface(self, dev_handle, intf):
+        self._alive(dev_handle)
+        dev_handle.claimed.discard(intf)
+
+    def is_kernel_driver_active(self, dev_handle, intf):
+        self._alive(dev_handle)
+        return False
+
+    def detach_kernel_driver(self, dev_handle, intf):
+        self._alive(dev_handle)
+
+    def attach_kernel_driver(self, dev_handle, intf):
+        self._alive(dev_handle)
+
+    # --- IBackend: transfers ----------------------------------------------------------
+    def _check_claimed(self, dev_handle, intf):
+        if intf not in dev_handle.claimed:
+            raise usb.core.USBError("Access denied (interface not claimed)", -3, errno.EACCES)
+
+    def bulk_write(self, dev_handle, ep, intf, data, timeout):
+        self._alive(dev_handle)
+        self._check_claimed(dev_handle, intf)
+        if ep != self.wire.bulk_out_endpoint:
+            raise _pipe()
+        if self.wire.command_transport != "bulk":
+            raise _pipe()  # this firmware takes commands on endpoint 0 only
+        try:
+            command = decode_bulk_command(bytes(data), self.wire)
+        except FrameFormatError:
+            raise _pipe() from None
+        self._execute(command)
+        return len(data)
+
+    def bulk_read(self, dev_handle, ep, intf, buff, timeout):
+        self._alive(dev_handle)
+        self._check_claimed(dev_handle, intf)
+        if ep != self.wire.bulk_in_endpoint or ep in self._halted:
+            raise _pipe()
+        if self._stalls_pending:
+            self._stalls_pending -= 1
+            self._halted.add(ep)
+            raise _pipe()
+        if self._timeouts_pending:
+            self._timeouts_pending -= 1
+            if self._queue:
+                self._queue.pop(0)
+            elif self.streaming:
+                self._measure()  # measured, never delivered
+            self._wait(timeout)
+            raise _timeout()
+        if not self._queue and self.streaming:
+            while self._drops_pending:
+                self._drops_pending -= 1
+                self._measure()
+            if self.simulate_waits:
+                time.sleep(self.period_us * 1e-6)
+            self._queue.append(self._measure())
+        if not self._queue:
+            self._wait(timeout)
+            raise _timeout()
+        frame = self._queue.pop(0)
+        if len(frame) > len(buff) * buff.itemsize:
+            raise usb.core.USBError("Overflow", LIBUSB_ERROR_OVERFLOW, errno.EOVERFLOW)
+        buff[: len(frame)] = array.array("B", frame)
+        return len(frame)
+
+    def _wait(self, timeout_ms) -> None:
+        if self.simulate_waits and timeout_ms:
+            time.sleep(timeout_ms / 1000.0)
+
+    def ctrl_transfer(self, dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout):
+        self._alive(dev_handle)
+        if bmRequestType == 0x80 and bRequest == _GET_DESCRIPTOR and (wValue >> 8) == _DESC_TYPE_STRING:
+            return self._string_descriptor(wValue & 0xFF, data)
+        if bmRequestType == self.wire.command_request_type and self.wire.command_transport == "control":
+            try:
+                command = decode_control_command(ControlSetup(bmRequestType, bRequest, wValue, wIndex), self.wire)
+            except FrameFormatError:
+                raise _pipe() from None
+            self._execute(command)
+            return len(data)
+        raise _pipe()  # any other request: the device stalls EP0
+
+    def _string_descriptor(self, index, data):
+        if index == 0:
+            payload = _LANGID_EN_US.to_bytes(2, "little")
+        else:
+            strings = {1: "NextWare (simulated)", 2: "nxSensor-I", 3: self.serial_number}
+            if index not in strings:
+                raise _pipe()
+            payload = strings[index].encode("utf-16-le")
+        desc = bytes([2 + len(payload), _DESC_TYPE_STRING]) + payload
+        n = min(len(desc), len(data))
+        data[:n] = array.array("B", desc[:n])
+        return n
+
+    def clear_halt(self, dev_handle, ep):
+        self._alive(dev_handle)
+        self._halted.discard(ep)
+
+    def reset_device(self, dev_handle):
+        """A port reset: the firmware restarts (settings and queue lost) and, as many
+        devices do, re-enumerates, so the old handle is gone (ENODEV) afterwards."""
+        self._alive(dev_handle)
+        self.reconnect()
