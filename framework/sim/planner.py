@@ -32,8 +32,13 @@ class SweepPlan(BaseModel):
     sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
     standoff_z_mm: float = Field(-20.0, description="sensor-frame z of the sphere centre, mm")
     lateral_amplitude_mm: float = Field(4.0, ge=0, description="y/z wander within a sweep, mm")
+    station_offsets_mm: list[tuple[float, float]] = Field(
+        default_factory=lambda: [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)],
+        description="(y, z) shift of the sweep in the sensor frame, mm, per station (cycled): "
+        "sweeps at different places of the field of view tie the rotation to the translation",
+    )
     tilts_deg: list[tuple[float, float, float]] = Field(
-        default_factory=lambda: [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 35.0)],
+        default_factory=lambda: [(0.0, 0.0, 0.0), (30.0, 0.0, 0.0), (0.0, 30.0, 0.0), (0.0, 0.0, 45.0)],
         description="one rotation vector (deg) per station: about sensor axes (eye-in-hand) "
         "or base axes (eye-to-hand), applied to the reference orientation",
     )
@@ -67,10 +72,11 @@ def plan_stations(
     plan = plan or SweepPlan()
     R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
     centre = np.asarray(sphere_centre_mm, dtype=float)
-    Cs = sphere_centres_in_sensor(plan, radius_mm)
     X = nominal_transform
     stations = []
     for k, tilt in enumerate(plan.tilts_deg):
+        dy, dz = plan.station_offsets_mm[k % len(plan.station_offsets_mm)]
+        Cs = sphere_centres_in_sensor(plan, radius_mm) + [0.0, dy, dz]
         Rt = geo.matrix_from_rotvec(np.radians(tilt))
         poses = []
         if mounting == "eye_in_hand":

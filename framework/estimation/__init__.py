@@ -1,0 +1,15 @@
+"""Estimation: from (robot pose, profile) observations of a sphere to the calibrated
+transform with its uncertainty.
+
+1. :mod:`.problem`: both mounting modes as one problem, ``|A_i X p - c| = r``.
+2. :mod:`.circle`: a robust circle fit per profile.
+3. :mod:`.twostep`: the published two-step method (rotation by SVD from pure
+   translations, translation by least squares over orientations).
+4. :mod:`.refine`: joint refinement over every point with the robot pose noise in the
+   noise model, and the covariance; :func:`.refine.cramer_rao_bound`.
+5. :mod:`.pipeline`: screening, outlier rejection, diagnostics, the result.
+"""
+
+from .pipeline import CalibrationOptions, Solution, calibrate, solve
+
+__all__ = ["CalibrationOptions", "Solution", "calibrate", "solve"]
