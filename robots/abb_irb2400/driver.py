@@ -1,0 +1,298 @@
+"""Serial driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
+
+Built on ``serial.serial_for_url``, so the same code talks to a serial device
+(``/dev/ttyS0``, ``COM1``, a pseudo-terminal) or to a pyserial URL such as
+``socket://127.0.0.1:PORT`` (the simulated controller).
+
+Every exchange is one request and one reply carrying the same sequence number.
+Replies whose seq does not match the request (late replies of an earlier attempt) are
+discarded; a corrupted line (checksum or syntax) or a timeout makes the driver resend
+the request with a fresh seq, up to ``retries`` times, then raise
+:class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
+DeviceError at once. Requests are idempotent (a MOVL names its staged target), so a
+resend never makes the robot do something twice.
+
+Speed, workspace and joint limits (the latter through inverse kinematics) are checked
+before anything is sent.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Callable
+
+import numpy as np
+import serial
+
+from spherecal.errors import DeviceError, InputError
+from spherecal.geometry import matrix_from_rotvec as _matrix_from_rotvec
+from spherecal.geometry import rotvec_from_matrix as _rotvec
+from spherecal.models import Pose
+
+from . import protocol as P
+from .config import AbbIrb2400Config
+from .kinematics import Irb2400Kinematics, UnreachableError, kinematics_for
+
+#: Longest single blocking read, s (the overall deadline is checked between reads).
+_POLL_S = 0.05
+#: Bytes kept while waiting for an LF before the buffer is treated as garbage.
+_MAX_PENDING = 4 * P.MAX_LINE_CHARS
+
+
+class AbbIrb2400Robot:
+    """A connected IRB 2400 (implements :class:`spherecal.devices.Robot`).
+
+    Poses are ``base_from_flange`` (tool0 in wobj0), mm, quaternion (w, x, y, z).
+    Joints are degrees in the controller convention (``CJointT()``)."""
+
+    def __init__(
+        self,
+        config: AbbIrb2400Config,
+        *,
+        url: str | None = None,
+        kinematics: Irb2400Kinematics | None = None,
+        on_close: Callable[[], None] | None = None,
+    ):
+        self.config = config
+        self.url = url or config.port
+        self.kin = kinematics or kinematics_for(config.geometry, config.j23_coupled)
+        self._on_close = on_close
+        self._seq = 0
+        self._buffer = bytearray()
+        self._closed = False
+        self.stale_replies = 0  #: replies discarded because their seq did not match
+        self.resends = 0  #: requests sent again after a timeout or a corrupted line
+        self.last_joints_deg: np.ndarray | None = None
+        try:
+            self._serial = serial.serial_for_url(
+                self.url,
+                baudrate=config.baudrate,
+                bytesize=serial.EIGHTBITS,
+                parity=config.parity,
+                stopbits=config.stopbits,
+                timeout=min(config.timeout_s, _POLL_S),
+                write_timeout=config.timeout_s,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._closed = True
+            if on_close is not None:
+                on_close()
+            raise DeviceError(
+                f"IRB 2400: cannot open {self.url!r} ({exc}); check robot.port and that the device exists"
+            ) from exc
+
+    # Robot protocol ----------------------------------------------------------------
+    def read_joints_deg(self) -> np.ndarray:
+        """Joints in degrees, controller convention (as ``CJointT()`` reports them)."""
+        msg = self._exchange("GETJ", P.getj_request, "J")
+        joints = P.parse_joints_reply(msg)
+        self.last_joints_deg = joints
+        return joints
+
+    def read_flange_pose(self) -> Pose:
+        """``base_from_flange`` now: from the controller (GETP) or from the joints by
+        forward kinematics, as ``pose_source`` says."""
+        if self.config.pose_source == "joints":
+            return self.kin.flange_pose_from_joints(self.read_joints_deg(), check_limits=False)
+        return P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
+
+    def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Move tool0 in a straight line to ``base_from_flange`` at ``speed_mm_s`` and return
+        once in position. Limits are checked first; nothing is sent if one fails."""
+        self._check_open()
+        self._check_speed(speed_mm_s)
+        self._check_workspace(base_from_flange, "target")
+        start_joints = self.read_joints_deg()
+        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
+        self._check_path(start, base_from_flange, start_joints)
+        target_seq_holder: list[int] = []
+
+        def tgt(seq: int) -> bytes:
+            target_seq_holder.append(seq)
+            return P.target_request(seq, base_from_flange)
+
+        self._exchange("TGT", tgt, "OK")
+        target_seq = target_seq_holder[-1]
+        distance = float(np.linalg.norm(base_from_flange.translation - start.translation))
+        angle = float(
+            np.degrees(np.linalg.norm(_rotvec(start.rotation_matrix.T @ base_from_flange.rotation_matrix)))
+        )
+        duration = max(distance / speed_mm_s, angle / self.config.orientation_speed_deg_s)
+        timeout = self.config.timeout_s + 2.0 * duration + self.config.move_timeout_extra_s
+        self._exchange("MOVL", lambda seq: P.movl_request(seq, speed_mm_s, target_seq), "OK", timeout)
+
+    def close(self) -> None:
+        """Close the serial link (and stop the simulated controller, if any). Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._serial.close()
+        finally:
+            if self._on_close is not None:
+                self._on_close()
+
+    def __enter__(self) -> "AbbIrb2400Robot":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # extras ------------------------------------------------------------------------
+    def ping(self) -> int:
+        """Check the RAPID server answers; returns its protocol version."""
+        msg = self._exchange("PING", P.ping_request, "PONG")
+        try:
+            version = int(msg.args[0])
+        except ValueError:
+            raise P.ProtocolError(f"{self.url}: PONG carries a non-integer version {msg.args[0]!r}") from None
+        if version != P.PROTOCOL_VERSION:
+            raise DeviceError(
+                f"{self.url}: SpherecalServer speaks protocol version {version}, this driver "
+                f"version {P.PROTOCOL_VERSION}; load the SpherecalServer.mod shipped with this package"
+            )
+        return version
+
+    # limits ------------------------------------------------------------------------
+    def _check_speed(self, speed_mm_s: float) -> None:
+        limit = self.config.max_speed_mm_s
+        if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
+            raise InputError(f"move_linear: speed_mm_s must be a positive number, got {speed_mm_s!r}")
+        if speed_mm_s > limit:
+            raise InputError(
+                f"move_linear: speed_mm_s = {speed_mm_s} exceeds the configured max_speed_mm_s = {limit}; "
+                f"ask for a slower move or raise robot.max_speed_mm_s"
+            )
+
+    def _check_workspace(self, pose: Pose, what: str) -> None:
+        box = self.config.workspace
+        if not box.contains(pose.translation_mm):
+            t = [round(v, 3) for v in pose.translation_mm]
+            raise InputError(
+                f"move_linear: {what} flange position {t} mm is outside the configured workspace box "
+                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame)"
+            )
+
+    def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> None:
+        n = self.config.path_check_samples
+        seed = start_joints
+        R0, R1 = start.rotation_matrix, target.rotation_matrix
+        rv = _rotvec(R0.T @ R1)
+        for s in [*(np.arange(1, n + 1) / (n + 1)), 1.0]:
+            R = R0 @ _matrix_from_rotvec(s * rv)
+            t = (1 - s) * start.translation + s * target.translation
+            pose = Pose.from_rt(R, t)
+            try:
+                seed = self.kin.joints_from_flange_pose(pose, seed_joints_deg=seed)
+            except UnreachableError as exc:
+                where = "target" if s == 1.0 else f"point {s:.0%} along the linear path"
+                raise UnreachableError(f"move_linear: {where}: {exc}") from None
+
+    # transport ---------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DeviceError(f"IRB 2400 on {self.url}: the connection is closed; create the robot again")
+
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) % P.SEQ_MODULUS
+        return self._seq
+
+    def _exchange(
+        self, kind: str, build: Callable[[int], bytes], expect: str, timeout_s: float | None = None
+    ) -> P.Message:
+        """Send a request built for a fresh seq and return its reply, resending after a
+        timeout or a corrupted line; raises DeviceError when every attempt fails."""
+        self._check_open()
+        timeout_s = self.config.timeout_s if timeout_s is None else timeout_s
+        attempts = self.config.retries + 1
+        problem = ""
+        for attempt in range(attempts):
+            if attempt:
+                self.resends += 1
+            seq = self._next_seq()
+            self._write(build(seq))
+            deadline = time.monotonic() + timeout_s
+            while True:
+                raw = self._read_line(deadline)
+                if raw is None:
+                    problem = f"no reply within {timeout_s:.3g} s"
+                    break
+                try:
+                    msg = P.decode_reply(raw)
+                except P.ProtocolError as exc:  # corrupted, partial or garbage: resend
+                    problem = str(exc)
+                    break
+                if msg.kind == "ERR":
+                    code, text = P.parse_error_reply(msg)
+                    if msg.seq is None or code == P.ErrorCode.CHECKSUM:
+                        if msg.seq in (None, seq):  # the controller got a garbled request
+                            problem = f"controller could not read the request: ERR {code} {text}"
+                            break
+                    if msg.seq != seq:
+                        self.stale_replies += 1
+                        continue
+                    raise DeviceError(
+                        f"IRB 2400 on {self.url}: controller refused {kind} (seq {seq}): "
+                        f"ERR {code} {_error_name(code)}: {text}"
+                    )
+                if msg.seq != seq:
+                    self.stale_replies += 1
+                    continue
+                if msg.kind != expect:
+                    raise P.ProtocolError(
+                        f"IRB 2400 on {self.url}: reply {msg.kind} to {kind} (seq {seq}); expected {expect}"
+                    )
+                return msg
+        raise DeviceError(
+            f"IRB 2400 on {self.url}: no valid reply to {kind} after {attempts} attempt(s); last problem: "
+            f"{problem}. Check the cable, the serial settings (baudrate {self.config.baudrate}, "
+            f"parity {self.config.parity}) and that SpherecalServer is running on the controller"
+        )
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self._serial.write(data)
+            self._serial.flush()
+        except (serial.SerialException, OSError) as exc:
+            self._lost(exc)
+
+    def _read_line(self, deadline: float) -> bytes | None:
+        """One line (LF stripped), garbage flushed as a line, or None at the deadline."""
+        while True:
+            idx = self._buffer.find(b"\n")
+            if idx >= 0:
+                line = bytes(self._buffer[:idx])
+                del self._buffer[: idx + 1]
+                return line
+            if len(self._buffer) > _MAX_PENDING:
+                line = bytes(self._buffer)
+                self._buffer.clear()
+                return line
+            if time.monotonic() >= deadline:
+                return None
+            try:
+                chunk = self._serial.read(1)
+                if chunk:
+                    waiting = self._serial.in_waiting
+                    if waiting:
+                        chunk += self._serial.read(waiting)
+            except (serial.SerialException, OSError) as exc:
+                self._lost(exc)
+            self._buffer.extend(chunk)
+
+    def _lost(self, exc: BaseException):
+        self.close()
+        raise DeviceError(
+            f"IRB 2400 on {self.url}: connection lost ({exc}); check the cable and the controller, "
+            f"then create the robot again"
+        ) from exc
+
+
+def _error_name(code: int) -> str:
+    try:
+        return P.ErrorCode(code).name.lower()
+    except ValueError:
+        return "unknown code"
+
+

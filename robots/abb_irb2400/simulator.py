@@ -1,0 +1,331 @@
+"""A simulated IRB 2400 controller that serves the spherecal line protocol over a real
+serial link: a TCP server on 127.0.0.1 (pyserial ``socket://127.0.0.1:PORT``) or a
+pseudo-terminal pair (the driver opens the slave device path).
+
+:class:`SimulatedIrb2400` is the controller logic (one request line in, one reply line
+out); :class:`SimulatorServer` runs it in a thread behind a transport and injects faults
+at runtime through :class:`Faults` (reply delay, dropped requests or replies, truncated
+replies, corrupted bytes, a disconnect).
+
+Moves: a ``MOVL`` target becomes joints by inverse kinematics (the solution nearest the
+current joints, as the RAPID server's ``MoveL ... ConfL\\Off``); the true flange pose
+(forward kinematics of those joints) goes to ``cell.move_flange_to`` when a
+SimulatedCell is given. ``GETJ`` reports controller-convention joints (plus optional
+noise); ``GETP`` the forward kinematics of the joints through the pose noise.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from spherecal import geometry as geo
+from spherecal.errors import DeviceError
+from spherecal.models import Pose
+
+from . import protocol as P
+from .config import SimulatedControllerSettings
+from .kinematics import Irb2400Kinematics, UnreachableError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from spherecal.sim.cell import SimulatedCell
+
+_POLL_S = 0.02
+
+
+def _f32(values) -> np.ndarray:
+    return np.asarray(values, dtype=np.float32).astype(float)
+
+
+class SimulatedIrb2400:
+    """Controller logic: state (joints, staged target) and one reply per request."""
+
+    def __init__(
+        self,
+        kinematics: Irb2400Kinematics | None = None,
+        settings: SimulatedControllerSettings | None = None,
+        cell: "SimulatedCell | None" = None,
+    ):
+        self.kin = kinematics or Irb2400Kinematics()
+        self.settings = settings or SimulatedControllerSettings()
+        self.cell = cell
+        self.rng = np.random.default_rng(self.settings.seed)
+        self.joints_deg = self.kin.check_joint_limits(self.settings.home_joints_deg, "home_joints_deg")
+        self.staged: tuple[int, Pose] | None = None
+        self.moves = 0
+        self.requests: list[str] = []  # kinds of the requests served, in order
+        self._wait = time.sleep
+        if cell is not None:
+            cell.move_flange_to(self.true_flange_pose())
+
+    def true_flange_pose(self) -> Pose:
+        """``base_from_flange`` where the simulated robot really is."""
+        return self.kin.flange_pose_from_joints(self.joints_deg, check_limits=False)
+
+    # replies -------------------------------------------------------------------------
+    def handle(self, line: bytes) -> bytes:
+        """The reply line to one request line (both with their LF)."""
+        try:
+            msg = P.decode_request(line)
+        except P.ChecksumError:
+            return P.error_reply(None, P.ErrorCode.CHECKSUM, "bad checksum")
+        except P.ProtocolError as exc:
+            return P.error_reply(None, P.ErrorCode.SYNTAX, str(exc))
+        self.requests.append(msg.kind)
+        try:
+            return self._dispatch(msg)
+        except P.ProtocolError as exc:
+            return P.error_reply(msg.seq, P.ErrorCode.SYNTAX, str(exc))
+
+    def _dispatch(self, msg: P.Message) -> bytes:
+        s = self.settings
+        if msg.kind == "PING":
+            return P.pong_reply(msg.seq)
+        if msg.kind == "GETJ":
+            q = self.joints_deg + (self.rng.normal(0, s.joint_noise_deg, 6) if s.joint_noise_deg > 0 else 0.0)
+            return P.joints_reply(msg.seq, _f32(q) if s.single_precision else q)
+        if msg.kind == "GETP":
+            pose = self._reported_pose()
+            if s.single_precision:
+                t, q = _f32(pose.translation_mm), _f32(pose.quaternion_wxyz)
+                pose = Pose.from_abb(t, q / np.linalg.norm(q))
+            return P.pose_reply(msg.seq, pose)
+        if msg.kind == "TGT":
+            self.staged = (msg.seq, P.parse_target_request(msg))
+            return P.ok_reply(msg.seq)
+        if msg.kind == "MOVL":
+            return self._move(msg)
+        raise P.ProtocolError(f"unhandled request {msg.kind}")  # pragma: no cover
+
+    def _reported_pose(self) -> Pose:
+        true = self.true_flange_pose()
+        s = self.settings
+        if s.pose_noise == "cell":
+            return self.cell.report_pose(true) if self.cell is not None else true
+        R, t = true.rotation_matrix, true.translation
+        if s.pose_rotation_noise_deg > 0:
+            R = geo.matrix_from_rotvec(self.rng.normal(0, np.radians(s.pose_rotation_noise_deg), 3)) @ R
+        if s.pose_translation_noise_mm > 0:
+            t = t + self.rng.normal(0, s.pose_translation_noise_mm, 3)
+        return Pose.from_rt(R, t)
+
+    def _move(self, msg: P.Message) -> bytes:
+        speed, target_seq = P.parse_movl_request(msg)
+        if not 0 < speed <= self.settings.max_controller_speed_mm_s:
+            return P.error_reply(
+                msg.seq, P.ErrorCode.RANGE, f"speed {speed} outside 0..{self.settings.max_controller_speed_mm_s}"
+            )
+        if self.staged is None or self.staged[0] != target_seq:
+            have = "none" if self.staged is None else self.staged[0]
+            return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET, f"no target {target_seq} staged (have {have})")
+        target = self.staged[1]
+        try:
+            joints = self.kin.joints_from_flange_pose(target, seed_joints_deg=self.joints_deg)
+        except UnreachableError:
+            return P.error_reply(msg.seq, P.ErrorCode.UNREACHABLE, "target out of reach or beyond a joint limit")
+        start = self.true_flange_pose()
+        if self.settings.motion_time_scale > 0:
+            distance = float(np.linalg.norm(target.translation - start.translation))
+            self._wait(self.settings.motion_time_scale * distance / speed)
+        self.joints_deg = joints
+        self.moves += 1
+        if self.cell is not None:
+            self.cell.move_flange_to(self.true_flange_pose())
+        return P.ok_reply(msg.seq)
+
+
+@dataclass
+class Faults:
+    """Faults to inject, changeable while the server runs. Counters apply to the next
+    N requests or replies and count down."""
+
+    reply_delay_s: float = 0.0  #: wait this long before every reply
+    drop_requests: int = 0  #: ignore the next N requests (no reply)
+    drop_replies: int = 0  #: serve but do not send the next N replies
+    truncate_replies: int = 0  #: send only the first half of the next N replies (no LF)
+    corrupt_replies: int = 0  #: flip one byte in the next N replies
+
+
+class SimulatorServer:
+    """Runs a :class:`SimulatedIrb2400` in a thread behind a serial transport.
+
+    ``url`` is what the driver passes to ``serial.serial_for_url``. Use as a context
+    manager or call :meth:`stop`; stopping closes every socket and file descriptor and
+    joins the thread."""
+
+    def __init__(self, controller: SimulatedIrb2400, transport: Literal["tcp", "pty"] = "tcp"):
+        if transport not in ("tcp", "pty"):
+            raise ValueError(f"transport must be 'tcp' or 'pty', got {transport!r}")
+        self.controller = controller
+        self.transport = transport
+        self.faults = Faults()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._disconnect = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._listener: socket.socket | None = None
+        self._conn: socket.socket | None = None
+        self._master: int | None = None
+        self._slave: int | None = None
+        self.url = ""
+        self.error: BaseException | None = None
+
+    # lifecycle -----------------------------------------------------------------------
+    def start(self) -> "SimulatorServer":
+        if self.transport == "tcp":
+            self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self._listener.bind(("127.0.0.1", 0))
+            self._listener.listen(1)
+            self.url = f"socket://127.0.0.1:{self._listener.getsockname()[1]}"
+            target = self._serve_tcp
+        else:
+            import tty
+
+            self._master, self._slave = os.openpty()
+            tty.setraw(self._slave)
+            self.url = os.ttyname(self._slave)
+            target = self._serve_pty
+        self._thread = threading.Thread(target=self._run, args=(target,), name="irb2400-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and release everything. Safe to call twice."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+            if self._thread.is_alive():  # pragma: no cover
+                raise DeviceError("simulated IRB 2400 controller thread did not stop within 5 s")
+        self._close_all()
+
+    def disconnect(self) -> None:
+        """Drop the connection now (the driver sees the link go away)."""
+        self._disconnect.set()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def __enter__(self) -> "SimulatorServer":
+        return self.start() if self._thread is None else self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _close_all(self) -> None:
+        for attr in ("_conn", "_listener"):
+            sock = getattr(self, attr)
+            if sock is not None:
+                sock.close()
+                setattr(self, attr, None)
+        for attr in ("_master", "_slave"):
+            fd = getattr(self, attr)
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:  # pragma: no cover
+                    pass
+                setattr(self, attr, None)
+
+    def _run(self, target) -> None:
+        try:
+            target()
+        except BaseException as exc:  # pragma: no cover - surfaced through .error
+            self.error = exc
+
+    # transports ----------------------------------------------------------------------
+    def _serve_tcp(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._listener], [], [], _POLL_S)
+            if not ready:
+                continue
+            conn, _ = self._listener.accept()
+            self._conn = conn
+            self._disconnect.clear()
+            self._serve_stream(lambda n: conn.recv(n), conn.sendall, conn.fileno())
+            if self._conn is not None:
+                self._conn.close()
+                self._conn = None
+
+    def _serve_pty(self) -> None:
+        master = self._master
+
+        def send(data: bytes) -> None:
+            while data:
+                n = os.write(master, data)
+                data = data[n:]
+
+        self._serve_stream(lambda n: os.read(master, n), send, master)
+        if self._disconnect.is_set() and self._master is not None:
+            os.close(self._master)  # the slave side now reads EOF/EIO
+            self._master = None
+            self._stop.wait()
+
+    def _serve_stream(self, recv, send, fileno: int) -> None:
+        buffer = bytearray()
+        while not self._stop.is_set() and not self._disconnect.is_set():
+            ready, _, _ = select.select([fileno], [], [], _POLL_S)
+            if not ready:
+                continue
+            try:
+                chunk = recv(4096)
+            except OSError:
+                return
+            if not chunk:
+                return  # the driver closed the link
+            buffer.extend(chunk)
+            while b"\n" in buffer:
+                idx = buffer.index(b"\n")
+                line = bytes(buffer[: idx + 1])
+                del buffer[: idx + 1]
+                self._serve_line(line, send)
+                if self._disconnect.is_set() or self._stop.is_set():
+                    return
+            if len(buffer) > 2 * P.MAX_LINE_CHARS:  # garbage without LF: answer and resync
+                buffer.clear()
+                send(P.error_reply(None, P.ErrorCode.SYNTAX, "line too long"))
+
+    def _take(self, name: str) -> bool:
+        with self._lock:
+            n = getattr(self.faults, name)
+            if n > 0:
+                setattr(self.faults, name, n - 1)
+                return True
+            return False
+
+    def _serve_line(self, line: bytes, send) -> None:
+        if self._take("drop_requests"):
+            return
+        reply = self.controller.handle(line)
+        delay = self.faults.reply_delay_s
+        if delay > 0 and self._stop.wait(delay):
+            return
+        if self._take("drop_replies"):
+            return
+        if self._take("truncate_replies"):
+            reply = reply[: len(reply) // 2]
+        elif self._take("corrupt_replies"):
+            data = bytearray(reply)
+            i = min(2, len(data) - 2)  # a byte inside the body (never the LF)
+            data[i] = ord("#") if data[i] != ord("#") else ord("%")
+            reply = bytes(data)
+        send(reply)
+
+
+def start_simulator(
+    kinematics: Irb2400Kinematics | None = None,
+    settings: SimulatedControllerSettings | None = None,
+    cell: "SimulatedCell | None" = None,
+) -> SimulatorServer:
+    """Start a simulated controller on the settings' transport; returns the running
+    server (its ``url`` is for ``serial.serial_for_url``)."""
+    settings = settings or SimulatedControllerSettings()
+    controller = SimulatedIrb2400(kinematics, settings, cell)
+    return SimulatorServer(controller, settings.transport).start()
