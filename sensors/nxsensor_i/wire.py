@@ -88,9 +88,9 @@ class WireConfig(BaseModel):
     # --- identity and topology ---------------------------------------------------------
     vendor_id: int = Field(
         0x04B4, ge=0, le=0xFFFF,
-        description="USB idVendor (unitless 16-bit id). Assumed: Cypress (FX2 controller)",
+        description="USB idVendor, unitless 16-bit id (default 0x04B4, write hex in TOML). Assumed: Cypress, maker of the FX2 USB controller",
     )
-    product_id: int = Field(0x5A01, ge=0, le=0xFFFF, description="USB idProduct (unitless 16-bit id). Assumed placeholder")
+    product_id: int = Field(0x5A01, ge=0, le=0xFFFF, description="USB idProduct, unitless 16-bit id (default 0x5A01). Assumed placeholder")
     configuration_value: int = Field(1, ge=1, le=255, description="bConfigurationValue to select (unitless)")
     interface: int = Field(0, ge=0, le=255, description="bInterfaceNumber holding the bulk endpoints (unitless)")
     bulk_in_endpoint: int = Field(0x82, ge=0x81, le=0x8F, description="bEndpointAddress of the bulk IN (profile) endpoint")

@@ -1,0 +1,73 @@
+"""The nxSensor-I plugin as the host sees it: registration, configuration, factory."""
+
+import pytest
+
+import usb.backend.libusb0
+import usb.backend.libusb1
+import usb.backend.openusb
+from spherecal.devices import DeviceContext
+from spherecal.errors import ConfigError, DeviceError
+from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend
+from spherecal.sensors.nxsensor_i.plugin import create_sensor
+
+
+def test_registered_through_the_entry_point(spherecal_host):
+    st = spherecal_host.registry.sensor_type("nxsensor_i")
+    assert st.config_model is NxSensorConfig
+    assert st.factory is create_sensor
+    assert "assumption" in st.description
+
+
+def test_simulated_sensor_passes_the_sensor_harness(spherecal_host, spherecal_context, spherecal_sensor_harness):
+    sensor = spherecal_host.create_sensor({"type": "nxsensor_i", "timeout_ms": 50}, spherecal_context)
+    assert isinstance(sensor, NxSensorDriver)
+    assert isinstance(sensor._dev.backend, SimulatedNxSensorBackend)  # the real driver over the simulated device
+    report = spherecal_sensor_harness.check(sensor)
+    assert report.n_profiles >= 3
+
+
+def test_simulated_sensor_uses_the_configured_wire_and_serial(spherecal_cell):
+    cfg = NxSensorConfig(serial_number="UNIT-7", wire={"vendor_id": 0x1111, "product_id": 0x2222, "checksum": "crc32"})
+    with create_sensor(cfg, DeviceContext(cell=spherecal_cell)) as sensor:
+        assert sensor._dev.idVendor == 0x1111
+        assert sensor.device_name == "nxSensor-I (USB 1111:2222, serial UNIT-7)"
+
+
+@pytest.mark.parametrize(
+    "section, message",
+    [
+        ({"type": "nxsensor_i", "timeout_msec": 5}, "timeout_msec"),
+        ({"type": "nxsensor_i", "wire": {"vendor_id": 70000}}, "vendor_id"),
+        ({"type": "nxsensor_i", "exposure_us": 20000, "rate_hz": 100}, "exposure_us = 20000 us does not fit"),
+        ({"type": "nxsensor_i", "rate_hz": 0}, "rate_hz"),
+    ],
+)
+def test_bad_configuration_is_a_config_error(spherecal_host, section, message):
+    with pytest.raises(ConfigError, match=message):
+        spherecal_host.validate_sensor_config("nxsensor_i", section)
+
+
+def test_config_is_frozen():
+    cfg = NxSensorConfig()
+    with pytest.raises(ValueError, match="frozen"):
+        cfg.timeout_ms = 5
+    assert cfg.period_us == 10_000
+
+
+def test_hardware_without_libusb_says_what_to_install(monkeypatch):
+    for module in (usb.backend.libusb1, usb.backend.openusb, usb.backend.libusb0):
+        monkeypatch.setattr(module, "get_backend", lambda *a, **k: None)
+    with pytest.raises(DeviceError, match=r"nxSensor-I \(USB 04b4:5a01\): no USB backend available.*libusb-1\.0"):
+        create_sensor(NxSensorConfig(), DeviceContext(cell=None))
+
+
+class _EmptyBus(usb.backend.IBackend):
+    def enumerate_devices(self):
+        return iter(())
+
+
+def test_hardware_not_connected_says_what_to_check(monkeypatch):
+    monkeypatch.setattr(usb.backend.libusb1, "get_backend", lambda *a, **k: _EmptyBus())
+    with pytest.raises(DeviceError, match=r"not found on USB \(looked for vendor:product 04b4:5a01\).*"
+                                          r"plugged in.*udev rule.*assumptions"):
+        create_sensor(NxSensorConfig(), DeviceContext(cell=None))
