@@ -1,0 +1,814 @@
+"""Dataset and calibration-result files (the formats are specified in docs/file-formats.md).
+
+Datasets are JSON Lines (UTF-8): line 1 is a header object, then one object per
+observation. A file grows one observation at a time (:class:`DatasetWriter` appends a
+whole line and flushes it, with an optional ``os.fsync``), so an acquisition that is
+interrupted leaves a file that :func:`read_dataset` still loads up to its last whole
+observation, with a :class:`TruncatedFileWarning` saying what was dropped.
+
+Results are one pretty-printed JSON document (:func:`write_result`, :func:`read_result`).
+
+Conventions (docs/conventions.md): lengths in mm, angles in degrees in ``*_deg`` fields,
+poses ``A_from_B`` with ``quaternion_wxyz`` scalar first (ABB order), timestamps ISO 8601
+with a time zone. Numbers are written at full precision (shortest round-trip form), so a
+file read back gives exactly the values that were written.
+
+Public API::
+
+    write_dataset(path, dataset)            read_dataset(path) -> Dataset
+    DatasetWriter(path, mounting=..., sphere_radius_mm=..., resume=...)
+    read_dataset_header(path) -> DatasetHeader
+    write_result(path, result)              read_result(path) -> CalibrationResult
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import warnings
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from . import __version__
+from .errors import DatasetFileError, InputError
+from .models import CalibrationResult, Dataset, MountingMode, Observation, Pose
+
+try:  # optional accelerator: parses full-precision floats about 7x faster than json
+    import orjson as _orjson
+except ImportError:  # pragma: no cover - exercised only where orjson is missing
+    _orjson = None
+
+__all__ = [
+    "DATASET_FORMAT",
+    "DATASET_VERSION",
+    "RESULT_FORMAT",
+    "RESULT_VERSION",
+    "DatasetHeader",
+    "DatasetWriter",
+    "TruncatedFileWarning",
+    "read_dataset",
+    "read_dataset_header",
+    "write_dataset",
+    "read_result",
+    "write_result",
+]
+
+#: ``format`` value on line 1 of every dataset file.
+DATASET_FORMAT = "spherecal-dataset"
+#: Newest dataset format version this module reads and the one it writes.
+DATASET_VERSION = 1
+#: ``format`` value of every result file.
+RESULT_FORMAT = "spherecal-result"
+#: Newest result format version this module reads and the one it writes.
+RESULT_VERSION = 1
+
+_OBSERVATION_KIND = "observation"
+
+
+class TruncatedFileWarning(UserWarning):
+    """A dataset file ended in the middle of a line (an interrupted write); the partial
+    line was dropped. The message names the file, the line, the byte offset and size."""
+
+
+class DatasetHeader(BaseModel):
+    """Line 1 of a dataset file: what the file is and what the observations are of."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    format: Literal["spherecal-dataset"] = Field(description="always 'spherecal-dataset'")
+    version: int = Field(ge=1, le=DATASET_VERSION, description="format version the file was written in")
+    mounting: MountingMode = Field(description="eye_in_hand or eye_to_hand")
+    sphere_radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
+    provenance: dict[str, Any] = Field(default_factory=dict, description="where the data came from (free form)")
+    created: datetime = Field(description="when the file was started, ISO 8601 with a time zone")
+    written_by: str = Field("", description="software that started the file, e.g. 'spherecal 0.1.0'")
+
+
+# ---------------------------------------------------------------------------------------
+# small helpers
+# ---------------------------------------------------------------------------------------
+
+
+class _FieldError(Exception):
+    """A problem with one field of one line; turned into a DatasetFileError by the caller."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field}: {message}" if field else message)
+
+
+def _describe_validation_error(exc: ValidationError) -> str:
+    parts = []
+    for err in exc.errors():
+        loc = ""
+        for item in err["loc"]:
+            loc += f"[{item}]" if isinstance(item, int) else (f".{item}" if loc else str(item))
+        msg = err["msg"]
+        for prefix in ("Value error, ", "Assertion failed, "):
+            if msg.startswith(prefix):
+                msg = msg[len(prefix):]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown field (not part of the format; check the spelling)"
+        elif err["type"] == "missing":
+            msg = "missing (required)"
+        parts.append(f"{loc}: {msg}" if loc else msg)
+    return "; ".join(parts)
+
+
+def _loads(raw: bytes) -> Any:
+    """Parse one JSON text. orjson when available (fast, strict JSON); the standard
+    library as the fallback and for what orjson rejects but Python's json reads (NaN,
+    Infinity), so that such a file fails in validation with a field path, not here."""
+    if _orjson is not None:
+        try:
+            return _orjson.loads(raw)
+        except ValueError:
+            pass
+    return json.loads(raw)
+
+
+def _parse_timestamp(value: Any) -> datetime:
+    if isinstance(value, datetime):
+        ts = value
+    elif isinstance(value, str):
+        try:
+            ts = datetime.fromisoformat(value)
+        except ValueError:
+            raise _FieldError("timestamp", f"{value!r} is not an ISO 8601 date and time") from None
+    else:
+        raise _FieldError("timestamp", f"expected an ISO 8601 string, got {value!r}")
+    if ts.tzinfo is None or ts.utcoffset() is None:
+        raise _FieldError(
+            "timestamp", f"{value!r} has no time zone; write it with one (UTC: end it with 'Z' or '+00:00')"
+        )
+    return ts
+
+
+def _number_array(value: Any, field: str) -> np.ndarray:
+    """A JSON list of numbers as a float array, refusing strings, booleans and nulls
+    (which NumPy would otherwise convert, or keep as objects)."""
+    if not isinstance(value, list):
+        raise _FieldError(field, f"expected a list of numbers, got {type(value).__name__} {value!r:.60}")
+    try:
+        arr = np.asarray(value)
+    except ValueError:
+        raise _FieldError(field, "expected a flat list of numbers, got nested lists of unequal length") from None
+    kind = arr.dtype.kind
+    if kind == "f" and arr.ndim == 1:
+        # NumPy turns true/false mixed with floats into 1.0/0.0: look only at those values
+        suspects = np.flatnonzero((arr == 1.0) | (arr == 0.0))
+        if not any(type(value[i]) is bool for i in suspects):
+            return arr
+    elif kind in "iu":
+        return arr.astype(float)
+    elif kind == "f":
+        return arr  # not flat: the model reports the shape
+    for i, v in enumerate(value):
+        if type(v) is bool or not isinstance(v, (int, float)):
+            if isinstance(v, list):
+                raise _FieldError(field, f"expected a flat list of numbers, item {i} is a list")
+            shown = "null" if v is None else json.dumps(v) if isinstance(v, (bool, str)) else repr(v)
+            raise _FieldError(field, f"must hold only numbers; item {i} is {shown} ({type(v).__name__})")
+    return np.asarray(value, dtype=float)  # e.g. integers too large for int64
+
+
+def _small_numbers(value: Any, field: str) -> Any:
+    """Poses and joint readings: JSON lists -> tuples (what the strict model expects)."""
+    if isinstance(value, list):
+        for i, v in enumerate(value):
+            if type(v) is bool or not isinstance(v, (int, float)):
+                raise _FieldError(field, f"must hold only numbers; item {i} is {json.dumps(v)}")
+        return tuple(value)
+    return value
+
+
+def _pose_input(value: Any, field: str) -> Any:
+    if isinstance(value, dict):
+        value = dict(value)
+        for key in ("translation_mm", "quaternion_wxyz"):
+            if key in value:
+                value[key] = _small_numbers(value[key], f"{field}.{key}")
+    return value
+
+
+def _keep_written_quaternion(pose: Pose, raw: Any) -> Pose:
+    """Pose normalises its quaternion; re-normalising an already unit quaternion can move
+    its last bit. When the file's quaternion is unit to rounding and has w >= 0, keep it
+    bit for bit so that round trips are exact. Anything further off keeps the model's
+    normalised value."""
+    try:
+        q_file = tuple(float(c) for c in raw["quaternion_wxyz"])
+    except (TypeError, KeyError, ValueError):
+        return pose
+    if q_file == pose.quaternion_wxyz:
+        return pose
+    if q_file[0] >= 0 and max(abs(a - b) for a, b in zip(q_file, pose.quaternion_wxyz)) <= 1e-15:
+        return Pose.model_construct(translation_mm=pose.translation_mm, quaternion_wxyz=q_file)
+    return pose
+
+
+def _observation_from_json(obj: Any) -> Observation:
+    if not isinstance(obj, dict):
+        raise _FieldError("", f"expected a JSON object, got {type(obj).__name__}")
+    if "format" in obj and "kind" not in obj:
+        raise _FieldError(
+            "", f"a second header (format {obj.get('format')!r}); two files were joined into one? "
+            "Keep one dataset per file"
+        )
+    data = dict(obj)
+    kind = data.pop("kind", None)
+    if kind != _OBSERVATION_KIND:
+        raise _FieldError("kind", f"expected 'observation', got {json.dumps(kind)}")
+    if "timestamp" not in data:
+        raise _FieldError("timestamp", "missing (required in files: ISO 8601 with a time zone)")
+    data["timestamp"] = _parse_timestamp(data["timestamp"])
+    if data.get("base_from_flange") is not None:
+        data["base_from_flange"] = _pose_input(data["base_from_flange"], "base_from_flange")
+    if data.get("joints_deg") is not None:
+        data["joints_deg"] = _small_numbers(data["joints_deg"], "joints_deg")
+    profile = data.get("profile")
+    if isinstance(profile, dict):
+        profile = dict(profile)
+        for key in ("y_mm", "z_mm"):
+            if key in profile:
+                profile[key] = _number_array(profile[key], f"profile.{key}")
+        data["profile"] = profile
+    try:
+        obs = Observation.model_validate(data, strict=True)
+    except ValidationError as exc:
+        raise _FieldError("", _describe_validation_error(exc)) from None
+    if obs.base_from_flange is not None:
+        pose = _keep_written_quaternion(obs.base_from_flange, obj["base_from_flange"])
+        if pose is not obs.base_from_flange:
+            obs = obs.model_copy(update={"base_from_flange": pose})
+    return obs
+
+
+def _observation_line(obs: Observation) -> bytes:
+    """One observation as one line of JSON (with its newline)."""
+    if not isinstance(obs, Observation):
+        raise InputError(f"expected an Observation, got {type(obs).__name__}")
+    ts = obs.timestamp
+    if ts.tzinfo is None or ts.utcoffset() is None:
+        raise InputError(
+            f"observation {obs.index}: timestamp {ts.isoformat()} has no time zone; "
+            "files hold ISO 8601 with a time zone (use datetime.now(timezone.utc))"
+        )
+    y, z = obs.profile.y_mm, obs.profile.z_mm
+    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+        raise InputError(f"observation {obs.index}: profile contains NaN or infinite values; not written")
+    pose = obs.base_from_flange
+    doc = {
+        "kind": _OBSERVATION_KIND,
+        "index": obs.index,
+        "station": obs.station,
+        "timestamp": ts.isoformat(),
+        "base_from_flange": None
+        if pose is None
+        else {"translation_mm": list(pose.translation_mm), "quaternion_wxyz": list(pose.quaternion_wxyz)},
+        "joints_deg": None if obs.joints_deg is None else list(obs.joints_deg),
+        "profile": {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)},
+    }
+    small = [*(pose.translation_mm if pose else ()), *(pose.quaternion_wxyz if pose else ()), *(obs.joints_deg or ())]
+    if not all(math.isfinite(v) for v in small):
+        raise InputError(f"observation {obs.index}: pose or joints contain NaN or infinite values; not written")
+    if _orjson is not None:
+        return _orjson.dumps(doc, option=_orjson.OPT_SERIALIZE_NUMPY | _orjson.OPT_APPEND_NEWLINE)
+    doc["profile"] = {"y_mm": y.tolist(), "z_mm": z.tolist()}
+    return (json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
+
+
+def _check_json_safe(value: Any, where: str) -> Any:
+    """Plain JSON types only (dict with str keys, list, str, finite number, bool, None);
+    tuples, NumPy arrays and scalars, datetimes and paths are converted. Anything else,
+    and NaN or infinity, raises InputError naming the place."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, float)):
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InputError(f"{where} is {value}: a file cannot hold NaN or infinity (standard JSON)")
+        return value if type(value) in (int, float) else (float(value) if isinstance(value, float) else int(value))
+    if isinstance(value, np.generic):
+        return _check_json_safe(value.item(), where)
+    if isinstance(value, np.ndarray):
+        return _check_json_safe(value.tolist(), where)
+    if isinstance(value, BaseModel):
+        return _check_json_safe(value.model_dump(mode="python"), where)
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise InputError(f"{where}: key {k!r} is not a string; JSON object keys must be strings")
+            out[k] = _check_json_safe(v, f"{where}.{k}" if where else k)
+        return out
+    if isinstance(value, (list, tuple)):
+        return [_check_json_safe(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, datetime):
+        return value.isoformat()
+    if isinstance(value, Path):
+        return str(value)
+    raise InputError(f"{where}: a {type(value).__name__} cannot be written to a JSON file")
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path.parent, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
+
+
+# ---------------------------------------------------------------------------------------
+# reading datasets
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Scan:
+    header: DatasetHeader
+    observations: list[Observation]
+    whole_end: int  # byte offset just past the last whole line
+    needs_newline: bool  # the last whole line has no trailing newline
+    dropped: tuple[int, int, int] | None  # (line number, byte offset, byte count) of a cut-off tail
+
+
+def _header_from_json(obj: Any, name: str) -> DatasetHeader:
+    where = f"{name} line 1 (header)"
+    if not isinstance(obj, dict) or "format" not in obj:
+        found = f"a JSON {type(obj).__name__}" if not isinstance(obj, dict) else "an object without 'format'"
+        raise DatasetFileError(
+            f"{name}: not a spherecal dataset: line 1 should be a header object with "
+            f"format {DATASET_FORMAT!r}, found {found}"
+        )
+    fmt = obj["format"]
+    if fmt != DATASET_FORMAT:
+        hint = "; it is a calibration result: use read_result()" if fmt == RESULT_FORMAT else ""
+        raise DatasetFileError(
+            f"{name}: not a spherecal dataset: line 1 has format {json.dumps(fmt)}, "
+            f"expected {DATASET_FORMAT!r}{hint}"
+        )
+    version = obj.get("version")
+    if type(version) is not int or version < 1:
+        raise DatasetFileError(f"{where}: version must be a whole number >= 1, found {json.dumps(version)}")
+    if version > DATASET_VERSION:
+        raise DatasetFileError(
+            f"{name}: dataset format version {version} is newer than this spherecal ({__version__}) "
+            f"reads (versions 1 to {DATASET_VERSION}); upgrade spherecal to read it"
+        )
+    data = dict(obj)
+    if "created" not in data:
+        raise DatasetFileError(f"{where}: created: missing (required)")
+    try:
+        data["created"] = _parse_timestamp(data["created"])
+    except _FieldError as exc:
+        raise DatasetFileError(f"{where}: {str(exc).replace('timestamp', 'created', 1)}") from None
+    try:
+        header = DatasetHeader.model_validate(data, strict=True)
+        # the dataset's own rules on mounting and radius (e.g. a radius in metres)
+        Dataset.model_validate(
+            {"mounting": header.mounting, "sphere_radius_mm": header.sphere_radius_mm}, strict=True
+        )
+    except ValidationError as exc:
+        raise DatasetFileError(f"{where}: {_describe_validation_error(exc)}") from None
+    return header
+
+
+def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
+    name = os.fspath(path)
+    if not data:
+        raise DatasetFileError(f"{name}: the file is empty; expected a spherecal dataset (header line first)")
+    start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # tolerate a UTF-8 byte order mark
+    lines: list[tuple[int, bytes]] = []  # (byte offset, content without newline)
+    pos = start
+    while pos < len(data):
+        nl = data.find(b"\n", pos)
+        if nl < 0:
+            lines.append((pos, data[pos:]))
+            break
+        lines.append((pos, data[pos:nl]))
+        pos = nl + 1
+    ends_with_newline = data.endswith(b"\n")
+
+    needs_newline = False
+    dropped = None
+    whole_end = len(data)
+    if not ends_with_newline:
+        off, tail = lines[-1]
+        try:
+            whole = isinstance(_loads(tail), dict)
+        except ValueError:
+            whole = False
+        if whole:  # complete JSON object, only the newline missing (or written by hand)
+            needs_newline = True
+        else:
+            if len(lines) == 1:
+                raise DatasetFileError(
+                    f"{name}: the file ends inside its header (line 1 is incomplete, {len(data)} bytes): "
+                    "the acquisition stopped before writing anything usable; delete the file and start again"
+                )
+            dropped = (len(lines), off, len(data) - off)
+            whole_end = off
+            lines.pop()
+
+    off0, raw0 = lines[0]
+    try:
+        header_obj = _loads(raw0)
+    except ValueError as exc:
+        raise DatasetFileError(
+            f"{name}: not a spherecal dataset: line 1 is not valid JSON ({exc}); "
+            "a dataset is JSON Lines with a header object on line 1"
+        ) from None
+    header = _header_from_json(header_obj, name)
+
+    observations: list[Observation] = []
+    seen: dict[int, int] = {}  # index -> line number
+    for k in range(1, len(lines)):
+        lineno = k + 1
+        off, raw = lines[k]
+        if not raw.strip():
+            continue
+        try:
+            obj = _loads(raw)
+        except ValueError as exc:
+            raise DatasetFileError(
+                f"{name} line {lineno} (byte {off}): not valid JSON ({exc}). Only the last line of a file "
+                "may be incomplete (an interrupted write); this one is followed by more lines, so the "
+                "file is damaged: repair or remove this line"
+            ) from None
+        idx = obj.get("index") if isinstance(obj, dict) else None
+        where = f"{name} line {lineno}" + (f" (observation {idx})" if type(idx) is int else "")
+        try:
+            obs = _observation_from_json(obj)
+        except _FieldError as exc:
+            raise DatasetFileError(f"{where}: {exc}") from None
+        if obs.index in seen:
+            raise DatasetFileError(
+                f"{where}: index {obs.index} was already used on line {seen[obs.index]}; every observation "
+                "of a dataset needs its own index (two acquisitions written into one file?)"
+            )
+        seen[obs.index] = lineno
+        observations.append(obs)
+
+    if dropped is not None:
+        lineno, off, nbytes = dropped
+        warnings.warn(
+            f"{name}: line {lineno} is incomplete (the file ends without its newline): dropped "
+            f"{nbytes} bytes from byte {off} on; loaded the {len(observations)} whole observations "
+            "before it. The acquisition was probably interrupted while writing that line.",
+            TruncatedFileWarning,
+            stacklevel=3,
+        )
+    return _Scan(header, observations, whole_end, needs_newline, dropped)
+
+
+def _read_bytes(path: str | os.PathLike) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except FileNotFoundError:
+        raise DatasetFileError(f"{os.fspath(path)}: no such file") from None
+    except IsADirectoryError:
+        raise DatasetFileError(f"{os.fspath(path)}: is a directory, expected a dataset file") from None
+
+
+def read_dataset(path: str | os.PathLike) -> Dataset:
+    """Load a dataset file (JSON Lines, docs/file-formats.md).
+
+    Every observation is validated with the rules of :mod:`spherecal.models`. An
+    incomplete last line (an interrupted write) is dropped with a
+    :class:`TruncatedFileWarning`; any other problem raises :class:`DatasetFileError`
+    naming the file, the line, the observation index and the field.
+    ``provenance`` comes back as JSON types (tuples written become lists)."""
+    scan = _scan(path, _read_bytes(path))
+    h = scan.header
+    return Dataset(
+        mounting=h.mounting,
+        sphere_radius_mm=h.sphere_radius_mm,
+        provenance=h.provenance,
+        observations=scan.observations,
+    )
+
+
+def read_dataset_header(path: str | os.PathLike) -> DatasetHeader:
+    """Read and check only line 1 of a dataset file (format, version, mounting, radius,
+    provenance, creation time)."""
+    name = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.readline()
+    except FileNotFoundError:
+        raise DatasetFileError(f"{name}: no such file") from None
+    if not raw:
+        raise DatasetFileError(f"{name}: the file is empty; expected a spherecal dataset (header line first)")
+    raw = raw.removeprefix(b"\xef\xbb\xbf")
+    try:
+        obj = _loads(raw)
+    except ValueError as exc:
+        if not raw.endswith(b"\n"):
+            raise DatasetFileError(f"{name}: the file ends inside its header (line 1 is incomplete)") from None
+        raise DatasetFileError(f"{name}: not a spherecal dataset: line 1 is not valid JSON ({exc})") from None
+    return _header_from_json(obj, name)
+
+
+# ---------------------------------------------------------------------------------------
+# writing datasets
+# ---------------------------------------------------------------------------------------
+
+
+class DatasetWriter:
+    """Write a dataset file one observation at a time.
+
+    ``DatasetWriter(path, mounting=..., sphere_radius_mm=..., provenance=...)`` creates a
+    new file and writes its header; the file must not exist. With ``resume=True`` an
+    existing file is continued instead (a missing or empty one is created): its header
+    must have the same ``mounting`` and ``sphere_radius_mm`` (its own ``provenance``
+    stays), every line in it is validated, and an incomplete last line left by an
+    interrupted write is cut off (with a :class:`TruncatedFileWarning`) so that the next
+    line starts whole.
+
+    :meth:`append` writes one observation as one line and flushes it to the operating
+    system; with ``fsync=True`` it also waits until the line is on disk (``os.fsync``),
+    which survives a power cut but costs a few milliseconds per line. Indices must be
+    unique within the file; :attr:`next_index` is one past the largest so far.
+
+    Use it as a context manager, or call :meth:`close`::
+
+        with DatasetWriter("run.dataset.jsonl", mounting="eye_in_hand",
+                           sphere_radius_mm=19.05, resume=True) as out:
+            for shot in shots:
+                out.append(Observation(index=out.next_index, ...))
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        mounting: MountingMode,
+        sphere_radius_mm: float,
+        provenance: dict[str, Any] | None = None,
+        resume: bool = False,
+        fsync: bool = False,
+        created: datetime | None = None,
+    ):
+        self.path = Path(path)
+        self.fsync = bool(fsync)
+        name = os.fspath(path)
+        try:
+            Dataset.model_validate({"mounting": mounting, "sphere_radius_mm": sphere_radius_mm}, strict=True)
+        except ValidationError as exc:
+            raise InputError(f"{name}: {_describe_validation_error(exc)}") from None
+        self._indices: dict[int, int] = {}  # index -> line number
+        self._lines = 1
+        exists = self.path.exists()
+        if exists and not resume:
+            raise DatasetFileError(
+                f"{name} already exists; pass resume=True to append to it, or choose a new file name"
+            )
+        if exists and self.path.stat().st_size > 0:
+            self.header = self._resume(name, mounting, float(sphere_radius_mm))
+        else:
+            created = created or datetime.now(timezone.utc)
+            if created.tzinfo is None:
+                raise InputError(f"{name}: created {created.isoformat()} has no time zone")
+            self.header = DatasetHeader(
+                format=DATASET_FORMAT,
+                version=DATASET_VERSION,
+                mounting=mounting,
+                sphere_radius_mm=float(sphere_radius_mm),
+                provenance=provenance or {},
+                created=created,
+                written_by=f"spherecal {__version__}",
+            )
+            doc = _check_json_safe(self.header.model_dump(mode="python"), "header")
+            line = json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(", ", ": ")) + "\n"
+            self._file = open(self.path, "r+b" if exists else "xb")
+            self._write(line.encode("utf-8"))
+            if self.fsync:
+                _fsync_dir(self.path)
+
+    def _resume(self, name: str, mounting: str, radius: float) -> DatasetHeader:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", TruncatedFileWarning)
+            scan = _scan(self.path, _read_bytes(self.path))
+        for w in caught:  # re-issue, attributed to the caller
+            warnings.warn(
+                f"{w.message} Resuming: the incomplete line is cut off before appending.",
+                w.category,
+                stacklevel=3,
+            )
+        h = scan.header
+        if h.version != DATASET_VERSION:
+            raise DatasetFileError(
+                f"{name} is in dataset format version {h.version}; only version {DATASET_VERSION} files "
+                "can be continued: start a new file"
+            )
+        if h.mounting != mounting or h.sphere_radius_mm != radius:
+            raise DatasetFileError(
+                f"{name} holds a dataset for mounting={h.mounting}, sphere_radius_mm={h.sphere_radius_mm}; "
+                f"this acquisition is mounting={mounting}, sphere_radius_mm={radius}. "
+                "Write to a new file instead"
+            )
+        lineno = 1
+        for obs in scan.observations:
+            lineno += 1
+            self._indices[obs.index] = lineno
+        self._lines = lineno
+        self._file = open(self.path, "r+b")
+        if scan.dropped is not None:
+            self._file.truncate(scan.whole_end)
+        self._file.seek(scan.whole_end)
+        if scan.needs_newline:
+            self._write(b"\n")
+        return h
+
+    def _write(self, data: bytes) -> None:
+        self._file.write(data)
+        self._file.flush()
+        if self.fsync:
+            os.fsync(self._file.fileno())
+
+    @property
+    def n_observations(self) -> int:
+        """Observations in the file so far (those found when resuming included)."""
+        return len(self._indices)
+
+    @property
+    def next_index(self) -> int:
+        """One past the largest observation index in the file (0 for a new file)."""
+        return max(self._indices, default=-1) + 1
+
+    @property
+    def closed(self) -> bool:
+        return self._file.closed
+
+    def append(self, observation: Observation) -> None:
+        """Write one observation as one line, then flush (and fsync if asked)."""
+        if self._file.closed:
+            raise DatasetFileError(f"{os.fspath(self.path)}: the writer is closed; open a new one with resume=True")
+        line = _observation_line(observation)
+        if observation.index in self._indices:
+            raise InputError(
+                f"{os.fspath(self.path)}: observation index {observation.index} is already in the file "
+                f"(line {self._indices[observation.index]}); use a new index (next free: {self.next_index})"
+            )
+        self._write(line)
+        self._lines += 1
+        self._indices[observation.index] = self._lines
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            if self.fsync:
+                os.fsync(self._file.fileno())
+            self._file.close()
+
+    def __enter__(self) -> "DatasetWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self.closed else "open"
+        return f"DatasetWriter({os.fspath(self.path)!r}, {self.n_observations} observations, {state})"
+
+
+def _atomic_target(path: Path, overwrite: bool) -> Path:
+    if path.exists() and not overwrite:
+        raise DatasetFileError(f"{os.fspath(path)} already exists; pass overwrite=True to replace it")
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def write_dataset(
+    path: str | os.PathLike, dataset: Dataset, *, overwrite: bool = False, fsync: bool = False
+) -> None:
+    """Write a whole dataset to ``path`` (JSON Lines, docs/file-formats.md).
+
+    The file is written under a temporary name and renamed into place, so ``path``
+    never holds a half-written dataset. An existing file is replaced only with
+    ``overwrite=True``."""
+    path = Path(path)
+    tmp = _atomic_target(path, overwrite)
+    try:
+        with DatasetWriter(
+            tmp,
+            mounting=dataset.mounting,
+            sphere_radius_mm=dataset.sphere_radius_mm,
+            provenance=dataset.provenance,
+            fsync=False,
+        ) as out:
+            out.path = path  # so that error messages name the real file
+            for obs in dataset.observations:
+                out.append(obs)
+            if fsync:
+                os.fsync(out._file.fileno())
+        os.replace(tmp, path)
+        if fsync:
+            _fsync_dir(path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+# ---------------------------------------------------------------------------------------
+# results
+# ---------------------------------------------------------------------------------------
+
+
+def _scalar_json(v: Any) -> str:
+    return json.dumps(v, ensure_ascii=False, allow_nan=False)
+
+
+def _pretty(v: Any, indent: int) -> str:
+    """Indented JSON that keeps short lists of numbers (vectors, matrix rows) on one line."""
+    pad, inner = "  " * indent, "  " * (indent + 1)
+    if isinstance(v, dict):
+        if not v:
+            return "{}"
+        items = [f"{inner}{_scalar_json(k)}: {_pretty(x, indent + 1)}" for k, x in v.items()]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    if isinstance(v, list):
+        if all(not isinstance(x, (dict, list)) for x in v):
+            return "[" + ", ".join(_scalar_json(x) for x in v) + "]"
+        return "[\n" + ",\n".join(inner + _pretty(x, indent + 1) for x in v) + "\n" + pad + "]"
+    return _scalar_json(v)
+
+
+def write_result(
+    path: str | os.PathLike, result: CalibrationResult, *, overwrite: bool = False, fsync: bool = False
+) -> None:
+    """Write a calibration result as one pretty-printed JSON document (UTF-8), format
+    ``spherecal-result``. Poses are ``translation_mm`` + ``quaternion_wxyz`` (w first).
+    Written under a temporary name and renamed into place; an existing file is replaced
+    only with ``overwrite=True``. NaN or infinity anywhere raises InputError naming the
+    field (standard JSON cannot hold them)."""
+    if not isinstance(result, CalibrationResult):
+        raise InputError(f"expected a CalibrationResult, got {type(result).__name__}")
+    path = Path(path)
+    doc = _check_json_safe(result.model_dump(mode="python"), "")
+    text = _pretty(doc, 0) + "\n"
+    tmp = _atomic_target(path, overwrite)
+    try:
+        with open(tmp, "xb") as f:
+            f.write(text.encode("utf-8"))
+            f.flush()
+            if fsync:
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+        if fsync:
+            _fsync_dir(path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def read_result(path: str | os.PathLike) -> CalibrationResult:
+    """Load a result file written by :func:`write_result` (format ``spherecal-result``).
+    Raises :class:`DatasetFileError` naming the file and the field at fault; a result
+    of a newer format version asks for a newer spherecal."""
+    name = os.fspath(path)
+    data = _read_bytes(path)
+    try:
+        doc = json.loads(data)
+    except ValueError as exc:
+        raise DatasetFileError(f"{name}: not valid JSON ({exc}); a result file is one JSON document") from None
+    if not isinstance(doc, dict) or "format" not in doc:
+        raise DatasetFileError(
+            f"{name}: not a spherecal result: expected a JSON object with format {RESULT_FORMAT!r}"
+        )
+    fmt = doc["format"]
+    if fmt != RESULT_FORMAT:
+        hint = "; it is a dataset: use read_dataset()" if fmt == DATASET_FORMAT else ""
+        raise DatasetFileError(
+            f"{name}: not a spherecal result: format is {json.dumps(fmt)}, expected {RESULT_FORMAT!r}{hint}"
+        )
+    version = doc.get("version")
+    if type(version) is not int or version < 1:
+        raise DatasetFileError(f"{name}: version must be a whole number >= 1, found {json.dumps(version)}")
+    if version > RESULT_VERSION:
+        raise DatasetFileError(
+            f"{name}: result format version {version} is newer than this spherecal ({__version__}) reads "
+            f"(versions 1 to {RESULT_VERSION}); upgrade spherecal to read it"
+        )
+    try:
+        result = CalibrationResult.model_validate_json(data, strict=True)
+    except ValidationError as exc:
+        raise DatasetFileError(f"{name}: {_describe_validation_error(exc)}") from None
+    update = {}
+    for key in ("transform", "two_step_transform"):
+        pose = getattr(result, key)
+        if pose is not None:
+            kept = _keep_written_quaternion(pose, doc[key])
+            if kept is not pose:
+                update[key] = kept
+    return result.model_copy(update=update) if update else result
