@@ -456,7 +456,7 @@ class PluginHost:
         try:
             self._pm.register(plugin, name=info.name)
         except pluggy.PluginValidationError as exc:
-            raise PluginError(f"{info.label()} is invalid: {exc}") from exc
+            raise PluginError(f"{info.label()} is invalid: {str(exc).strip().replace(chr(10), '; ')}") from exc
         except ValueError as exc:  # pluggy: the same object registered twice
             raise PluginError(f"{info.label()} cannot be registered: {exc}") from exc
         self._infos[info.name] = info
@@ -485,7 +485,7 @@ class PluginHost:
         impls = caller.get_hookimpls()
         all_plugins = [impl.plugin for impl in impls]
         # One plugin at a time, so that the registry knows who registers what.
-        for impl in reversed(impls):  # registration order
+        for impl in impls:  # get_hookimpls() lists them in registration order
             only = self._pm.subset_hook_caller(
                 "spherecal_register_devices", [p for p in all_plugins if p is not impl.plugin]
             )
