@@ -211,10 +211,15 @@ class NxSensorDriver:
         else:
             self._dev.write(self.wire.bulk_out_endpoint, encode_bulk_command(command, self.wire), timeout)
 
-    def _read_frame_raw(self, timeout_ms: int | None = None) -> Frame:
+    @property
+    def _read_size(self) -> int:
+        """Bytes asked of one bulk read: the largest frame rounded up to whole packets, so
+        that a device filling its last packet never overflows the buffer."""
         size = self.wire.max_frame_bytes
-        size += -size % self.wire.max_packet_size  # whole packets, so a full last packet never overflows
-        data = self._dev.read(self.wire.bulk_in_endpoint, size, timeout_ms or self.config.timeout_ms)
+        return size + (-size % self.wire.max_packet_size)
+
+    def _read_frame_raw(self, timeout_ms: int | None = None) -> Frame:
+        data = self._dev.read(self.wire.bulk_in_endpoint, self._read_size, timeout_ms or self.config.timeout_ms)
         return decode_frame(data, self.wire)
 
     def _clear_halt_quietly(self) -> None:
@@ -348,14 +353,20 @@ class NxSensorDriver:
     def _stream_items(self, read_timeout: int, max_frames: int | None) -> Iterator[StreamedProfile]:
         modulus = self.wire.frame_counter_modulus
         previous: int | None = None
+        reopened = False
         n = 0
 
         def restart():
+            # a reopened device counts afresh: no gap can be told across the reopening
+            nonlocal reopened
+            reopened = True
             self._command_raw(Command("start_stream"))
 
         try:
             while max_frames is None or n < max_frames:
                 frame = self._attempt("streaming profiles", lambda: self._read_frame_raw(read_timeout), after_reopen=restart)
+                if reopened:
+                    previous, reopened = None, False
                 dropped = 0 if previous is None else (frame.frame_counter - previous - 1) % modulus
                 if dropped:
                     self.frames_dropped += dropped
@@ -374,7 +385,7 @@ class NxSensorDriver:
         try:
             self._command_raw(Command("stop_stream"))
             for _ in range(4):  # drain frames already in flight
-                self._dev.read(self.wire.bulk_in_endpoint, self.wire.max_frame_bytes, 20)
+                self._dev.read(self.wire.bulk_in_endpoint, self._read_size, 20)
         except usb.core.USBError:
             pass
 

@@ -198,6 +198,20 @@ def test_reconnected_device_is_found_again(driver, backend, logs):
     assert any("reappeared" in m for m in logs)
 
 
+def test_stream_resumes_after_the_device_comes_back(driver, backend, logs):
+    stream = driver.stream(max_frames=3)
+    next(stream)
+    next(stream)
+    backend.disconnect()
+    backend.reconnect()
+    item = next(stream)  # reopened, settings and start_stream sent again
+    assert backend.streaming is True
+    assert item.frame_counter == 0 and item.dropped_before == 0  # fresh counter, no false gap
+    assert driver.frames_dropped == 0
+    stream.close()
+    assert backend.streaming is False
+
+
 def test_reset_reopens_the_device(driver, backend):
     driver.reset()
     assert backend.exposure_us == 200
