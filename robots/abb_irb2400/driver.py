@@ -217,6 +217,9 @@ class AbbIrb2400Robot:
                 raw = self._read_line(deadline)
                 if raw is None:
                     problem = f"no reply within {timeout_s:.3g} s"
+                    if self._buffer:  # the start of a reply that never ended: stale now
+                        problem += f" (discarded a partial line {bytes(self._buffer)[:40]!r})"
+                        self._buffer.clear()
                     break
                 try:
                     msg = P.decode_reply(raw)

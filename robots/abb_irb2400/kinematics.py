@@ -42,7 +42,9 @@ from spherecal.models import Pose
 
 JOINT_COUNT = 6
 #: Largest position error (mm) an IK solution may show under forward kinematics.
-IK_TOLERANCE_MM = 1e-6
+IK_TOLERANCE_MM = 1e-4
+#: Largest element-wise rotation-matrix error an IK solution may show.
+IK_TOLERANCE_ROTATION = 1e-8
 
 
 class JointLimitError(InputError):
@@ -265,17 +267,20 @@ class Irb2400Kinematics:
                 q2 = _wrap_pi(math.atan2(r, h) - math.atan2(vx, vz))
                 R03 = _rot("z", q1) @ _rot("y", q2 + q3)
                 W = R03.T @ R6  # = Rx(q4) Ry(q5) Rx(q6)
-                c5 = max(-1.0, min(1.0, W[0, 0]))
-                q5a = math.acos(c5)
-                for q5 in (q5a, -q5a) if q5a > 1e-9 else (0.0,):
-                    s5 = math.sin(q5)
-                    if abs(s5) < 1e-9:  # wrist singular: only q4 + q6 (or q4 - q6) is fixed
-                        q4 = seed_model[3]
-                        total = math.atan2(W[2, 1], W[1, 1])
-                        q6 = total - q4 if c5 > 0 else q4 - total
-                    else:
-                        q4 = math.atan2(W[1, 0] / s5, -W[2, 0] / s5)
-                        q6 = math.atan2(W[0, 1] / s5, W[0, 2] / s5)
+                s5_abs = math.hypot(W[1, 0], W[2, 0])
+                if s5_abs < 1e-6:  # wrist singular: axes 4 and 6 aligned, keep the seed's q4
+                    q4 = seed_model[3]
+                    M = _rot("x", -q4) @ W  # = Ry(q5) Rx(q6)
+                    wrist = [(q4, math.atan2(-M[2, 0], M[0, 0]), math.atan2(-M[1, 2], M[1, 1]))]
+                else:
+                    q5a = math.atan2(s5_abs, W[0, 0])
+                    wrist = []
+                    for q5 in (q5a, -q5a):
+                        s5 = math.sin(q5)
+                        wrist.append(
+                            (math.atan2(W[1, 0] / s5, -W[2, 0] / s5), q5, math.atan2(W[0, 1] / s5, W[0, 2] / s5))
+                        )
+                for q4, q5, q6 in wrist:
                     q4 = _nearest_turn(q4, seed_model[3])
                     q6 = _nearest_turn(q6, seed_model[5])
                     q = np.array([q1, q2, q3, q4, q5, q6])
@@ -284,8 +289,8 @@ class Irb2400Kinematics:
         for sol in solutions:
             T = self.flange_matrix_from_joints(sol, check_limits=False)
             if (
-                np.linalg.norm(T[:3, 3] - base_from_flange.translation) < IK_TOLERANCE_MM * 1e3
-                and np.abs(T[:3, :3] - R_tool).max() < 1e-8
+                np.linalg.norm(T[:3, 3] - base_from_flange.translation) < IK_TOLERANCE_MM
+                and np.abs(T[:3, :3] - R_tool).max() < IK_TOLERANCE_ROTATION
             ):
                 checked.append(sol)
         return checked

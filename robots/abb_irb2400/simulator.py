@@ -147,6 +147,8 @@ class Faults:
     N requests or replies and count down."""
 
     reply_delay_s: float = 0.0  #: wait this long before every reply
+    late_replies: int = 0  #: delay the next N replies by late_reply_delay_s (on top)
+    late_reply_delay_s: float = 0.0  #: extra delay of a late reply, s
     drop_requests: int = 0  #: ignore the next N requests (no reply)
     drop_replies: int = 0  #: serve but do not send the next N replies
     truncate_replies: int = 0  #: send only the first half of the next N replies (no LF)
@@ -305,6 +307,8 @@ class SimulatorServer:
             return
         reply = self.controller.handle(line)
         delay = self.faults.reply_delay_s
+        if self._take("late_replies"):
+            delay += self.faults.late_reply_delay_s
         if delay > 0 and self._stop.wait(delay):
             return
         if self._take("drop_replies"):
