@@ -41,6 +41,10 @@ class CalibrationOptions(BaseModel):
         CHI2_3DOF_1E4, gt=0, description="profiles whose whitened chi^2 (3 dof) exceeds this are left out"
     )
     max_rejected_profile_fraction: float = Field(0.2, ge=0, le=1, description="stop rejecting profiles beyond this share")
+    nominal_transform: Pose | None = Field(
+        None, description="rough X (flange_from_sensor or base_from_sensor), used only to choose between "
+        "solutions the data cannot tell apart"
+    )
     station_rotation_tolerance_deg: float = Field(
         0.05, gt=0, description="observations of one station may differ in orientation by at most this"
     )
@@ -115,7 +119,8 @@ def solve(
     sub_fits = {j: fits[i] for j, i in enumerate(used)}
 
     say("two-step solution (rotation from translations, translation from orientations)")
-    ts = two_step(sub, sub_fits)
+    nominal_R = opt.nominal_transform.rotation_matrix if opt.nominal_transform is not None else None
+    ts = two_step(sub, sub_fits, nominal_R)
     orientations = len(sub.station_labels)
 
     if opt.point_noise_mm is not None:

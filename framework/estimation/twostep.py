@@ -156,8 +156,8 @@ def translation_from_orientations(
         rhs.append(-xb)
     M = np.vstack(rows)
     sv = np.linalg.svd(M, compute_uv=False)
-    cond = sv[0] / max(sv[-1], 1e-300)
-    if sv[-1] < 1e-3 * sv[0]:
+    cond = sv[0] / max(sv[-1], 1e-300) if len(sv) == 6 else float("inf")
+    if len(sv) < 6 or sv[-1] < 1e-3 * sv[0]:
         raise DegenerateDataError(_orientation_advice(problem, stations))
     sol = np.linalg.lstsq(M, np.concatenate(rhs), rcond=None)[0]
     return sol[:3], sol[3:], {"condition_number": float(cond), "singular_values": sv.tolist()}
@@ -191,10 +191,19 @@ def point_rms(problem: Problem, R, t, centre, profiles) -> float:
     return float(np.sqrt(sq / max(n, 1)))
 
 
-def two_step(problem: Problem, fits: dict[int, CircleFit], max_combinations: int = 256) -> TwoStepResult:
+def two_step(
+    problem: Problem,
+    fits: dict[int, CircleFit],
+    nominal_R: np.ndarray | None = None,
+    max_combinations: int = 256,
+    ambiguity_ratio: float = 1.5,
+) -> TwoStepResult:
     """The paper's two steps, with the per-station sign candidates settled by the
-    dataset: every combination of mirror candidates is solved and the one whose
-    points fit the sphere best is kept."""
+    dataset: every combination of mirror candidates is solved and the one whose points
+    fit the sphere best is kept. When stations' moves are coplanar, solutions that differ
+    by a large rotation can fit equally well (within ``ambiguity_ratio`` of the best
+    RMS); ``nominal_R`` (the rough rotation of X, e.g. from the configuration) then picks
+    one, and without it a :class:`DegenerateDataError` says what to add."""
     inliers = [p[fits[i].inliers] if i in fits else p[:0] for i, p in enumerate(problem.profiles)]
     stations = [station_centres(problem, fits, k) for k in range(len(problem.station_labels))]
     stations = [st for st in stations if st.candidates]
@@ -205,13 +214,26 @@ def two_step(problem: Problem, fits: dict[int, CircleFit], max_combinations: int
         )
     options = [range(len(st.candidates)) for st in stations]
     combos = list(itertools.islice(itertools.product(*options), max_combinations))
-    best = None
+    solutions = []
     for choice in combos:
         R, diag1 = rotation_from_translations(stations, choice)
         t, c, diag2 = translation_from_orientations(problem, R, stations, choice, inliers)
-        score = point_rms(problem, R, t, c, inliers)
-        if best is None or score < best[0]:
-            best = (score, R, t, c, choice, diag1, diag2)
+        solutions.append((point_rms(problem, R, t, c, inliers), R, t, c, choice, diag1, diag2))
+    solutions.sort(key=lambda s: s[0])
+    best = solutions[0]
+    rivals = [s for s in solutions[1:] if s[0] <= ambiguity_ratio * best[0] + 1e-9
+              and geo.rotation_angle_deg(s[1], best[1]) > 1.0]
+    if rivals:
+        if nominal_R is None:
+            angle = geo.rotation_angle_deg(rivals[0][1], best[1])
+            raise DegenerateDataError(
+                f"two solutions {angle:.1f} deg apart fit the data equally well: the moves within each station "
+                "are coplanar, so the side of the laser plane the sphere centre is on cannot be decided; add moves "
+                "out of that plane (vary the stand-off and the position along the line during each sweep), or give "
+                "a nominal transform to choose between them"
+            )
+        pool = [best] + rivals
+        best = min(pool, key=lambda s: geo.rotation_angle_deg(s[1], nominal_R))
     score, R, t, c, choice, diag1, diag2 = best
     return TwoStepResult(
         R, t, c, stations, choice,
@@ -221,6 +243,7 @@ def two_step(problem: Problem, fits: dict[int, CircleFit], max_combinations: int
             "point_rms_mm": score,
             "station_move_rank": {st.label: st.rank for st in stations},
             "sign_combinations_tried": len(combos),
+            "equally_good_alternatives": len(rivals),
             "obs_index": problem.obs_index.tolist(),
         },
     )
