@@ -383,6 +383,14 @@ def _header_from_json(obj: Any, name: str) -> DatasetHeader:
     return header
 
 
+def _is_result_document(data: bytes) -> bool:
+    try:
+        doc = json.loads(data)
+    except ValueError:
+        return False
+    return isinstance(doc, dict) and doc.get("format") == RESULT_FORMAT
+
+
 def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     name = os.fspath(path)
     if not data:
@@ -424,6 +432,10 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     try:
         header_obj = _loads(raw0)
     except ValueError as exc:
+        if _is_result_document(data):
+            raise DatasetFileError(
+                f"{name}: not a spherecal dataset: it is a calibration result ({RESULT_FORMAT!r}): use read_result()"
+            ) from None
         raise DatasetFileError(
             f"{name}: not a spherecal dataset: line 1 is not valid JSON ({exc}); "
             "a dataset is JSON Lines with a header object on line 1"
@@ -781,6 +793,15 @@ def read_result(path: str | os.PathLike) -> CalibrationResult:
     try:
         doc = json.loads(data)
     except ValueError as exc:
+        first = data.split(b"\n", 1)[0]
+        try:
+            is_dataset = json.loads(first).get("format") == DATASET_FORMAT
+        except (ValueError, AttributeError):
+            is_dataset = False
+        if is_dataset:
+            raise DatasetFileError(
+                f"{name}: not a spherecal result: it is a dataset ({DATASET_FORMAT!r}): use read_dataset()"
+            ) from None
         raise DatasetFileError(f"{name}: not valid JSON ({exc}); a result file is one JSON document") from None
     if not isinstance(doc, dict) or "format" not in doc:
         raise DatasetFileError(

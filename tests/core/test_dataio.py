@@ -567,9 +567,10 @@ def test_bad_result_files(tmp_path):
         read_result(path)
     dataset = tmp_path / "d.jsonl"
     write_dataset(dataset, small_dataset(1))
-    with pytest.raises(DatasetFileError, match=r"d\.jsonl: not valid JSON|use read_dataset"):
+    with pytest.raises(DatasetFileError, match=r"d\.jsonl: not a spherecal result: it is a dataset .*use read_dataset\(\)"):
         read_result(dataset)
-    with pytest.raises(DatasetFileError, match=r"r\.json: not a spherecal dataset.*|ends inside its header"):
+    write_result(path, hand_made_result(), overwrite=True)
+    with pytest.raises(DatasetFileError, match=r"r\.json: not a spherecal dataset: it is a calibration result .*use read_result\(\)"):
         read_dataset(path)
 
 
