@@ -179,7 +179,7 @@ class AbbIrb2400Robot:
         seed = start_joints
         R0, R1 = start.rotation_matrix, target.rotation_matrix
         rv = _rotvec(R0.T @ R1)
-        for s in [*(np.arange(1, n + 1) / (n + 1)), 1.0]:
+        for s in [1.0, *(np.arange(1, n + 1) / (n + 1))]:  # the target first
             R = R0 @ _matrix_from_rotvec(s * rv)
             t = (1 - s) * start.translation + s * target.translation
             pose = Pose.from_rt(R, t)

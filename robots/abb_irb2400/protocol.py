@@ -292,8 +292,8 @@ def parse_pose_reply(msg: Message) -> Pose:
 
 def error_reply(seq: int | None, code: ErrorCode | int, text: str) -> bytes:
     """``ERR seq code text``; the text is cleaned to printable ASCII and shortened to fit."""
-    clean = "".join(c if (c.isascii() and c.isprintable() and c != "*") else "?" for c in text)
-    clean = " ".join(clean.split()) or "error"
+    clean = " ".join(text.split())  # line breaks and tabs become single spaces
+    clean = "".join(c if (c.isascii() and c.isprintable() and c != "*") else "?" for c in clean) or "error"
     head = f"ERR {_check_seq(seq)} {int(code)} "
     room = MAX_LINE_CHARS - 3 - len(head)
     return frame(head + clean[:room].rstrip())

@@ -150,9 +150,11 @@ class Faults:
     late_replies: int = 0  #: delay the next N replies by late_reply_delay_s (on top)
     late_reply_delay_s: float = 0.0  #: extra delay of a late reply, s
     drop_requests: int = 0  #: ignore the next N requests (no reply)
+    corrupt_requests: int = 0  #: flip one byte in the next N requests as they arrive
     drop_replies: int = 0  #: serve but do not send the next N replies
     truncate_replies: int = 0  #: send only the first half of the next N replies (no LF)
     corrupt_replies: int = 0  #: flip one byte in the next N replies
+    only_kinds: tuple[str, ...] = ()  #: if set, the counters above apply only to these request kinds
 
 
 class SimulatorServer:
@@ -171,6 +173,7 @@ class SimulatorServer:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._disconnect = threading.Event()
+        self._disconnected = threading.Event()
         self._thread: threading.Thread | None = None
         self._listener: socket.socket | None = None
         self._conn: socket.socket | None = None
@@ -207,9 +210,13 @@ class SimulatorServer:
                 raise DeviceError("simulated IRB 2400 controller thread did not stop within 5 s")
         self._close_all()
 
-    def disconnect(self) -> None:
-        """Drop the connection now (the driver sees the link go away)."""
+    def disconnect(self, timeout_s: float = 2.0) -> None:
+        """Drop the connection now (the driver sees the link go away); returns once the
+        link is closed. A TCP server then accepts a new connection; a pty is gone."""
+        self._disconnected.clear()
         self._disconnect.set()
+        if self.running and not self._disconnected.wait(timeout_s):  # pragma: no cover
+            raise DeviceError(f"simulated controller did not drop its link within {timeout_s} s")
 
     @property
     def running(self) -> bool:
@@ -255,6 +262,9 @@ class SimulatorServer:
             if self._conn is not None:
                 self._conn.close()
                 self._conn = None
+            if self._disconnect.is_set():
+                self._disconnect.clear()
+                self._disconnected.set()
 
     def _serve_pty(self) -> None:
         master = self._master
@@ -268,13 +278,14 @@ class SimulatorServer:
         if self._disconnect.is_set() and self._master is not None:
             os.close(self._master)  # the slave side now reads EOF/EIO
             self._master = None
+            self._disconnected.set()
             self._stop.wait()
 
     def _serve_stream(self, recv, send, fileno: int) -> None:
         buffer = bytearray()
         while not self._stop.is_set() and not self._disconnect.is_set():
             ready, _, _ = select.select([fileno], [], [], _POLL_S)
-            if not ready:
+            if not ready or self._disconnect.is_set():
                 continue
             try:
                 chunk = recv(4096)
@@ -294,8 +305,10 @@ class SimulatorServer:
                 buffer.clear()
                 send(P.error_reply(None, P.ErrorCode.SYNTAX, "line too long"))
 
-    def _take(self, name: str) -> bool:
+    def _take(self, name: str, kind: str) -> bool:
         with self._lock:
+            if self.faults.only_kinds and kind not in self.faults.only_kinds:
+                return False
             n = getattr(self.faults, name)
             if n > 0:
                 setattr(self.faults, name, n - 1)
@@ -303,24 +316,32 @@ class SimulatorServer:
             return False
 
     def _serve_line(self, line: bytes, send) -> None:
-        if self._take("drop_requests"):
+        kind = line.split(b" ", 1)[0].decode("ascii", "replace")
+        if self._take("drop_requests", kind):
             return
+        if self._take("corrupt_requests", kind):
+            line = _flip_byte(line)
         reply = self.controller.handle(line)
         delay = self.faults.reply_delay_s
-        if self._take("late_replies"):
+        if self._take("late_replies", kind):
             delay += self.faults.late_reply_delay_s
         if delay > 0 and self._stop.wait(delay):
             return
-        if self._take("drop_replies"):
+        if self._take("drop_replies", kind):
             return
-        if self._take("truncate_replies"):
+        if self._take("truncate_replies", kind):
             reply = reply[: len(reply) // 2]
-        elif self._take("corrupt_replies"):
-            data = bytearray(reply)
-            i = min(2, len(data) - 2)  # a byte inside the body (never the LF)
-            data[i] = ord("#") if data[i] != ord("#") else ord("%")
-            reply = bytes(data)
+        elif self._take("corrupt_replies", kind):
+            reply = _flip_byte(reply)
         send(reply)
+
+
+def _flip_byte(line: bytes) -> bytes:
+    """The line with its third byte replaced (inside the body, never the LF)."""
+    data = bytearray(line)
+    i = min(2, len(data) - 2)
+    data[i] = ord("#") if data[i] != ord("#") else ord("%")
+    return bytes(data)
 
 
 def start_simulator(

@@ -1,0 +1,133 @@
+"""The spherecal line protocol: framing, round trips, line length, garbage."""
+
+import numpy as np
+import pytest
+
+from spherecal.models import Pose
+from spherecal.robots.abb_irb2400 import protocol as P
+
+
+def test_checksum_is_the_xor_of_the_body():
+    # "GETJ 7": G^E^T^J^' '^'7' computed by hand
+    x = 0
+    for c in b"GETJ 7":
+        x ^= c
+    assert P.getj_request(7) == f"GETJ 7*{x:02X}\n".encode()
+    assert P.checksum("") == "00"
+
+
+def test_request_round_trips():
+    msg = P.decode_request(P.getp_request(42))
+    assert (msg.kind, msg.seq, msg.args) == ("GETP", 42, ())
+    assert P.decode_request(P.ping_request(0)).kind == "PING"
+
+
+def test_target_and_move_requests_round_trip():
+    pose = Pose.from_abb([1234.5678, -12.0, 0.25], [0.5, -0.5, 0.5, -0.5])
+    msg = P.decode_request(P.target_request(999, pose))
+    back = P.parse_target_request(msg)
+    np.testing.assert_allclose(back.translation_mm, [1234.568, -12.0, 0.25], atol=1e-9)
+    np.testing.assert_allclose(back.quaternion_wxyz, [0.5, -0.5, 0.5, -0.5], atol=1e-9)
+    speed, target = P.parse_movl_request(P.decode_request(P.movl_request(3, 150.04, 999)))
+    assert (speed, target) == (150.0, 999)
+
+
+def test_replies_round_trip_with_the_stated_precision():
+    joints = np.array([-179.99994, 12.34567, 0.0, 399.5, -0.00004, 1.0])
+    got = P.parse_joints_reply(P.decode_reply(P.joints_reply(5, joints)))
+    np.testing.assert_allclose(got, np.round(joints, 4), atol=1e-12)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        pose = Pose.from_abb(rng.uniform(-1800, 1800, 3), q)
+        line = P.pose_reply(17, pose)
+        assert len(line) - 1 <= P.MAX_LINE_CHARS
+        back = P.parse_pose_reply(P.decode_reply(line))
+        assert np.abs(back.translation - pose.translation).max() <= 0.0005 + 1e-9
+        # quaternion (w, x, y, z) to 6 decimals: rotation within 2e-4 deg
+        angle = np.degrees(np.linalg.norm(_rotvec(back.rotation_matrix.T @ pose.rotation_matrix)))
+        assert angle < 2e-4
+
+
+def _rotvec(R):
+    from spherecal.geometry import rotvec_from_matrix
+
+    return rotvec_from_matrix(R)
+
+
+def test_the_longest_pose_fits_one_rapid_string():
+    pose = Pose.from_abb([-1999.999, -1999.999, -1999.999], [0.000001, -0.577350, -0.577350, -0.577351])
+    for line in (P.pose_reply(999, pose), P.target_request(999, pose)):
+        assert len(line.rstrip(b"\n")) <= 80
+
+
+def test_error_reply_is_cleaned_and_shortened():
+    line = P.error_reply(12, P.ErrorCode.UNREACHABLE, "target * out of reach\n" + "x" * 200)
+    assert len(line) - 1 == P.MAX_LINE_CHARS
+    msg = P.decode_reply(line)
+    code, text = P.parse_error_reply(msg)
+    assert (msg.seq, code) == (12, 5)
+    assert text.startswith("target ? out of reach x")
+    assert P.decode_reply(P.error_reply(None, P.ErrorCode.CHECKSUM, "bad checksum")).seq is None
+
+
+def test_crlf_and_lower_case_hex_are_accepted():
+    body = "OK 3"
+    assert P.decode_reply(f"{body}*{P.checksum(body).lower()}\r\n".encode()).kind == "OK"
+
+
+@pytest.mark.parametrize(
+    "line, error, message",
+    [
+        (b"J 1 0 0 0 0 0 0*00\n", P.ChecksumError, "checksum mismatch"),
+        (b"OK 1\n", P.ProtocolError, "without a '\\*XX' checksum"),
+        (b"OK 1*Z1\n", P.ProtocolError, "not two hex digits"),
+        (b"\xff\xfe*00\n", P.ProtocolError, "non-ASCII"),
+        (b"A" * 90 + b"*00\n", P.ProtocolError, "93 characters"),
+    ],
+)
+def test_garbage_lines_raise_clear_errors(line, error, message):
+    with pytest.raises(error, match=message):
+        P.decode_reply(line)
+
+
+def _framed(body: str) -> bytes:
+    return f"{body}*{P.checksum(body)}\n".encode()
+
+
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ("HELLO 1", "unknown reply kind 'HELLO'"),
+        ("OK", "has no sequence number"),
+        ("OK 1000", "not an integer 0..999"),
+        ("OK x", "not an integer"),
+        ("J 1 0 0 0", "J takes 6 arguments, got 3"),
+        ("OK  1", "single spaces"),
+        ("ERR 4 3", "needs a code and a text"),
+    ],
+)
+def test_well_framed_but_wrong_replies_raise(body, message):
+    with pytest.raises(P.ProtocolError, match=message):
+        P.decode_reply(_framed(body))
+
+
+def test_bad_numbers_name_the_field():
+    with pytest.raises(P.ProtocolError, match="J joint 3: 'abc' is not a number"):
+        P.parse_joints_reply(P.decode_reply(_framed("J 1 0 0 abc 0 0 0")))
+    with pytest.raises(P.ProtocolError, match="not a finite number"):
+        P.parse_joints_reply(P.decode_reply(_framed("J 1 0 0 nan 0 0 0")))
+    with pytest.raises(P.ProtocolError, match=r"quaternion \(q1..q4 = w, x, y, z\).*has norm 0.5"):
+        P.parse_pose_reply(P.decode_reply(_framed("P 1 0 0 0 0.5 0 0 0")))
+
+
+def test_encoding_refuses_what_the_controller_could_not_read():
+    with pytest.raises(P.ProtocolError, match="sequence number must be an integer 0..999"):
+        P.getj_request(1000)
+    with pytest.raises(P.ProtocolError, match="speed_mm_s must be finite"):
+        P.movl_request(1, float("nan"), 2)
+    with pytest.raises(P.ProtocolError, match="exceeds the 80-character RAPID string limit"):
+        P.frame("x" * 78)
+    with pytest.raises(P.ProtocolError, match="without '\\*'"):
+        P.frame("OK 1*")
