@@ -83,7 +83,7 @@ class Pose(BaseModel):
         n = math.sqrt(sum(c * c for c in v))
         if abs(n - 1.0) > 1e-3:
             raise ValueError(f"quaternion_wxyz {list(v)} has norm {n:.6f}; expected a unit quaternion")
-        q = [c / n for c in v]
+        q = list(v) if abs(n - 1.0) < 4e-16 else [c / n for c in v]
         if q[0] < 0:
             q = [-c for c in q]
         return tuple(q)
@@ -287,3 +287,16 @@ class CalibrationResult(BaseModel):
     two_step_transform: Pose | None = None
     diagnostics: dict[str, Any] = Field(default_factory=dict)
     provenance: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _check_names(self):
+        if self.transform_name != TRANSFORM_NAME[self.mounting]:
+            raise ValueError(
+                f"transform_name {self.transform_name!r} does not match mounting {self.mounting!r} "
+                f"(expected {TRANSFORM_NAME[self.mounting]!r})"
+            )
+        if self.sphere_centre_frame != SPHERE_FRAME[self.mounting]:
+            raise ValueError(
+                f"sphere_centre_frame {self.sphere_centre_frame!r} does not match mounting {self.mounting!r}"
+            )
+        return self
