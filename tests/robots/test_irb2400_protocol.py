@@ -131,3 +131,17 @@ def test_encoding_refuses_what_the_controller_could_not_read():
         P.frame("x" * 78)
     with pytest.raises(P.ProtocolError, match="without '\\*'"):
         P.frame("OK 1*")
+
+
+def test_rapid_server_uses_the_same_version_and_error_codes():
+    import re
+    from importlib import resources
+
+    text = (resources.files("spherecal.robots.abb_irb2400") / "rapid" / "SpherecalServer.mod").read_text()
+    consts = {m[0]: int(m[1]) for m in re.findall(r"CONST num (\w+) := (\d+);", text)}
+    assert consts["PROTOCOL_VERSION"] == P.PROTOCOL_VERSION
+    for code in P.ErrorCode:
+        assert consts[f"E_{code.name}"] == code.value, code
+    # it reads the flange as tool0 in wobj0, waits in position, and prints enough decimals
+    assert "CRobT(\\Tool:=tool0 \\WObj:=wobj0)" in text and "WaitRob \\InPos" in text
+    assert "NumToStr(p.rot.q1, 6)" in text and "NumToStr(j.robax.rax_1, 4)" in text
