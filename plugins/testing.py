@@ -59,8 +59,9 @@ def pose_error(a: "Pose", b: "Pose") -> tuple[float, float]:
     import numpy as np
 
     dt = float(np.linalg.norm(a.translation - b.translation))
-    R = a.rotation_matrix.T @ b.rotation_matrix
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    # |R_a - R_b|_F = 2 sqrt(2) sin(angle / 2): accurate for small angles, unlike arccos.
+    chord = float(np.linalg.norm(a.rotation_matrix - b.rotation_matrix)) / (2.0 * np.sqrt(2.0))
+    angle = float(np.degrees(2.0 * np.arcsin(min(chord, 1.0))))
     return dt, angle
 
 

@@ -175,3 +175,15 @@ def test_acquire_dataset_takes_one_observation_per_target(spherecal_cell, sphere
     assert seen == list(range(40)) and finished == [40]
     last_target = spherecal_stations[-1][1][-1]
     assert pose_error(dataset.observations[-1].base_from_flange, last_target)[0] < 0.2
+
+
+def test_pose_error_is_exact_for_small_and_large_angles():
+    from spherecal.geometry import matrix_from_rotvec
+
+    a = Pose.from_rt(matrix_from_rotvec([0.3, -0.2, 0.1]), [1.0, 2.0, 3.0])
+    for angle_deg in (1e-7, 0.01, 90.0, 179.0):
+        b = Pose.from_rt(matrix_from_rotvec(np.radians([0.0, 0.0, angle_deg])) @ a.rotation_matrix, [1.0, 2.0, 7.0])
+        dt, da = pose_error(a, b)
+        assert dt == pytest.approx(4.0)
+        assert da == pytest.approx(angle_deg, rel=1e-6, abs=1e-9)
+    assert pose_error(a, a) == (0.0, 0.0)

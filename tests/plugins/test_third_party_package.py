@@ -136,3 +136,33 @@ def test_example_package_own_tests_pass_with_the_fixtures(installed, tmp_path):
     proc = _run(installed, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", str(tmp_path), str(tests))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert " passed" in proc.stdout and "failed" not in proc.stdout
+
+
+DOC_PAGES = ["writing-a-robot-plugin.md", "writing-a-sensor-plugin.md"]
+CHECK_AGAINST_TRUTH = """
+import json as _json
+import numpy as _np
+_R = result.transform.rotation_matrix.T @ cell.true_transform.rotation_matrix
+print(_json.dumps({"mounting": cell.mounting,
+                   "error_mm": float(_np.linalg.norm(result.transform.translation - cell.true_transform.translation)),
+                   "error_deg": float(_np.degrees(_np.arccos(_np.clip((_np.trace(_R) - 1) / 2, -1, 1))))}))
+"""
+
+
+def test_calibration_snippets_of_the_docs_run_and_recover_the_truth(installed):
+    """The calibration code shown in the two how-to pages, run as written."""
+    import re
+
+    programs = []
+    for page in DOC_PAGES:
+        text = (REPO / "docs" / page).read_text()
+        blocks = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "calibrate(dataset)" in b]
+        assert len(blocks) == 1, f"{page}: expected one calibration snippet, found {len(blocks)}"
+        programs.append(blocks[0] + CHECK_AGAINST_TRUTH)
+    runner = "\n".join(f"exec({p!r}, {{'__name__': '__main__'}})" for p in programs)
+    proc = _run(installed, "-c", runner)
+    assert proc.returncode == 0, proc.stderr
+    outs = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+    assert [o["mounting"] for o in outs] == ["eye_in_hand", "eye_to_hand"]
+    for out in outs:
+        assert out["error_mm"] < 0.25 and out["error_deg"] < 0.1, out
