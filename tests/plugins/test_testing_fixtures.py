@@ -187,3 +187,28 @@ def test_pose_error_is_exact_for_small_and_large_angles():
         assert dt == pytest.approx(4.0)
         assert da == pytest.approx(angle_deg, rel=1e-6, abs=1e-9)
     assert pose_error(a, a) == (0.0, 0.0)
+
+
+def _builtin_missing(module: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(module) is None
+
+
+@pytest.mark.skipif(_builtin_missing("spherecal.robots.abb_irb2400.plugin"), reason="abb_irb2400 plugin not written yet")
+def test_builtin_robot_passes_the_robot_harness(spherecal_host, spherecal_context, spherecal_cell, spherecal_stations):
+    section = {"type": "abb_irb2400"}
+    robot = spherecal_host.create_robot(section, spherecal_context)
+    try:
+        report = RobotHarness(spherecal_cell, spherecal_stations, per_station=2).check(
+            robot, flange_pose_from_joints=spherecal_host.robot_kinematics(section))
+    finally:
+        robot.close()
+    assert report.max_kinematics_error_mm is not None
+
+
+@pytest.mark.skipif(_builtin_missing("spherecal.sensors.nxsensor_i.plugin"), reason="nxsensor_i plugin not written yet")
+def test_builtin_sensor_passes_the_sensor_harness(spherecal_host, spherecal_context, spherecal_sensor_harness):
+    sensor = spherecal_host.create_sensor({"type": "nxsensor_i"}, spherecal_context)
+    report = spherecal_sensor_harness.check(sensor)
+    assert report.n_profiles == 12

@@ -3,7 +3,9 @@
 examples/third_party_plugin is pip-installed (no network: --no-index, --no-deps,
 --no-build-isolation, so the environment's own setuptools builds it) into a temporary
 directory, and fresh interpreters with that directory on PYTHONPATH run its worked
-calibration and its own test-suite (which uses the fixtures of spherecal.plugins.testing).
+calibration, the calibration snippets of the two how-to pages and the package's own
+test-suite (which uses the fixtures of spherecal.plugins.testing). The child processes
+are independent and are started together, to keep the wall time down.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -57,9 +60,19 @@ def installed(tmp_path_factory) -> dict[str, str]:
     return env
 
 
-def _run(env, *args, timeout=120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, timeout=timeout,
-                          cwd=os.path.dirname(env["PYTHONPATH"].split(os.pathsep)[0]))
+def _start(env, *args) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env, cwd=os.path.dirname(env["PYTHONPATH"].split(os.pathsep)[0]))
+
+
+def _finish(proc: subprocess.Popen, timeout=120) -> subprocess.CompletedProcess:
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        err += f"\n(killed after {timeout} s)"
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
 DISCOVER = """
@@ -78,8 +91,78 @@ print(json.dumps(out))
 """
 
 
-def test_installed_package_is_discovered_and_its_config_validated(installed):
-    proc = _run(installed, "-c", DISCOVER)
+DISABLED = (
+    "from spherecal.plugins.host import PluginHost\n"
+    "h = PluginHost()\n"
+    "print(sorted(h.registry.robots)); h.create_robot({'type': 'example_cartesian'})"
+)
+
+CALIBRATE_BOTH = """
+import sys
+sys.path.insert(0, {example!r})
+import calibrate_simulated
+for mounting in ("eye_in_hand", "eye_to_hand"):
+    calibrate_simulated.main(["--mounting", mounting, "--seed", "1", "--json"])
+"""
+
+DOC_PAGES = ["writing-a-robot-plugin.md", "writing-a-sensor-plugin.md"]
+CHECK_AGAINST_TRUTH = """
+import json as _json
+import numpy as _np
+_R = result.transform.rotation_matrix.T @ cell.true_transform.rotation_matrix
+print(_json.dumps({"mounting": cell.mounting,
+                   "error_mm": float(_np.linalg.norm(result.transform.translation - cell.true_transform.translation)),
+                   "error_deg": float(_np.degrees(_np.arccos(_np.clip((_np.trace(_R) - 1) / 2, -1, 1))))}))
+"""
+
+
+def _doc_programs() -> list[str]:
+    """The calibration snippet of each how-to page, followed by a check against the truth."""
+    programs = []
+    for page in DOC_PAGES:
+        text = (REPO / "docs" / page).read_text()
+        blocks = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "calibrate(dataset)" in b]
+        programs.extend(block + CHECK_AGAINST_TRUTH for block in blocks[:1])
+    return programs
+
+
+class Children:
+    """The child interpreters of this module, started together (they are independent and
+    each spends most of its time importing), finished on demand."""
+
+    def __init__(self, installed: dict[str, str]):
+        work = Path(installed["PYTHONPATH"].split(os.pathsep)[0]).parent
+        disabled_env = dict(installed, SPHERECAL_DISABLE_PLUGIN_AUTOLOAD="1")
+        runner = "\n".join(f"exec({p!r}, {{'__name__': '__main__'}})" for p in _doc_programs())
+        self._procs = {
+            "discover": _start(installed, "-c", DISCOVER),
+            "disabled": _start(disabled_env, "-c", DISABLED),
+            "calibrate": _start(installed, "-c", CALIBRATE_BOTH.format(example=str(EXAMPLE))),
+            "own_tests": _start(installed, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                                "--rootdir", str(work), str(EXAMPLE / "tests")),
+            "docs": _start(installed, "-c", runner),
+        }
+        self._done: dict[str, subprocess.CompletedProcess] = {}
+
+    def result(self, name: str) -> subprocess.CompletedProcess:
+        if name not in self._done:
+            self._done[name] = _finish(self._procs[name])
+        return self._done[name]
+
+    def close(self) -> None:
+        for name in self._procs:
+            self.result(name)
+
+
+@pytest.fixture(scope="module")
+def children(installed):
+    kids = Children(installed)
+    yield kids
+    kids.close()
+
+
+def test_installed_package_is_discovered_and_its_config_validated(children):
+    proc = children.result("discover")
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert out["plugins"]["example_cartesian"] == ["entry point", "spherecal-example-plugins 0.1.0"]
@@ -92,30 +175,18 @@ def test_installed_package_is_discovered_and_its_config_validated(installed):
     assert any("robot.workspace.max_x_mm: Input should be a valid number" in line for line in lines)
 
 
-def test_disabling_autoload_hides_the_installed_package(installed):
-    env = dict(installed, SPHERECAL_DISABLE_PLUGIN_AUTOLOAD="1")
-    proc = _run(env, "-c", "from spherecal.plugins.host import PluginHost\n"
-                           "h = PluginHost()\n"
-                           "print(sorted(h.registry.robots)); h.create_robot({'type': 'example_cartesian'})")
+def test_disabling_autoload_hides_the_installed_package(children):
+    proc = children.result("disabled")
     assert proc.returncode != 0
     assert "ConfigError: robot.type: unknown robot type 'example_cartesian'; installed robot types:" in proc.stderr
     assert "example_cartesian" not in proc.stdout
 
 
-CALIBRATE_BOTH = """
-import sys
-sys.path.insert(0, {example!r})
-import calibrate_simulated
-for mounting in ("eye_in_hand", "eye_to_hand"):
-    calibrate_simulated.main(["--mounting", mounting, "--seed", "1", "--json"])
-"""
-
-
-def test_installed_plugins_acquire_and_calibrate(installed):
+def test_installed_plugins_acquire_and_calibrate(children):
     """The worked example of the docs (calibrate_simulated.py), end to end in both
     mountings: host, config, simulated devices, planned stations, acquisition,
     spherecal.estimation.calibrate, compared with the cell's true transform."""
-    proc = _run(installed, "-c", CALIBRATE_BOTH.format(example=str(EXAMPLE)))
+    proc = children.result("calibrate")
     assert proc.returncode == 0, proc.stderr
     outs = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
     assert [o["mounting"] for o in outs] == ["eye_in_hand", "eye_to_hand"]
@@ -131,36 +202,16 @@ def test_installed_plugins_acquire_and_calibrate(installed):
         assert out["rms_mm"] < 0.05, out
 
 
-def test_example_package_own_tests_pass_with_the_fixtures(installed, tmp_path):
-    tests = EXAMPLE / "tests"
-    proc = _run(installed, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", str(tmp_path), str(tests))
+def test_example_package_own_tests_pass_with_the_fixtures(children):
+    proc = children.result("own_tests")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert " passed" in proc.stdout and "failed" not in proc.stdout
 
 
-DOC_PAGES = ["writing-a-robot-plugin.md", "writing-a-sensor-plugin.md"]
-CHECK_AGAINST_TRUTH = """
-import json as _json
-import numpy as _np
-_R = result.transform.rotation_matrix.T @ cell.true_transform.rotation_matrix
-print(_json.dumps({"mounting": cell.mounting,
-                   "error_mm": float(_np.linalg.norm(result.transform.translation - cell.true_transform.translation)),
-                   "error_deg": float(_np.degrees(_np.arccos(_np.clip((_np.trace(_R) - 1) / 2, -1, 1))))}))
-"""
-
-
-def test_calibration_snippets_of_the_docs_run_and_recover_the_truth(installed):
+def test_calibration_snippets_of_the_docs_run_and_recover_the_truth(children):
     """The calibration code shown in the two how-to pages, run as written."""
-    import re
-
-    programs = []
-    for page in DOC_PAGES:
-        text = (REPO / "docs" / page).read_text()
-        blocks = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "calibrate(dataset)" in b]
-        assert len(blocks) == 1, f"{page}: expected one calibration snippet, found {len(blocks)}"
-        programs.append(blocks[0] + CHECK_AGAINST_TRUTH)
-    runner = "\n".join(f"exec({p!r}, {{'__name__': '__main__'}})" for p in programs)
-    proc = _run(installed, "-c", runner)
+    assert len(_doc_programs()) == len(DOC_PAGES), "each how-to page must show one calibration snippet"
+    proc = children.result("docs")
     assert proc.returncode == 0, proc.stderr
     outs = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
     assert [o["mounting"] for o in outs] == ["eye_in_hand", "eye_to_hand"]
