@@ -127,9 +127,14 @@ class AbbIrb2400Robot:
         if self._closed:
             return
         self._closed = True
+        # pyserial's socket:// close() skips closing its socket when shutdown() fails on a
+        # link the peer already dropped; close it ourselves (closing twice is harmless)
+        sock = getattr(self._serial, "_socket", None)
         try:
             self._serial.close()
         finally:
+            if sock is not None:
+                sock.close()
             if self._on_close is not None:
                 self._on_close()
 
@@ -157,7 +162,11 @@ class AbbIrb2400Robot:
     # limits ------------------------------------------------------------------------
     def _check_speed(self, speed_mm_s: float) -> None:
         limit = self.config.max_speed_mm_s
-        if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
+        try:
+            speed = float(speed_mm_s)
+        except (TypeError, ValueError):
+            speed = math.nan
+        if not (math.isfinite(speed) and speed > 0):
             raise InputError(f"move_linear: speed_mm_s must be a positive number, got {speed_mm_s!r}")
         if speed_mm_s > limit:
             raise InputError(

@@ -83,6 +83,8 @@ class SimulatedIrb2400:
             return self._dispatch(msg)
         except P.ProtocolError as exc:
             return P.error_reply(msg.seq, P.ErrorCode.SYNTAX, str(exc))
+        except Exception as exc:  # noqa: BLE001 - a controller answers, it does not die
+            return P.error_reply(msg.seq, P.ErrorCode.MOTION, f"{type(exc).__name__}: {exc}")
 
     def _dispatch(self, msg: P.Message) -> bytes:
         s = self.settings
