@@ -1,6 +1,13 @@
 """The plugin host: hook specifications, the plugin manager facade, device registries
 and the pytest fixtures for plugin authors.
 
+- :mod:`spherecal.plugins.hookspecs`: every hook a plugin can implement (the module is
+  ``hookspecs``, plural, because ``hookspec`` here is the marker);
+- :mod:`spherecal.plugins.host`: :class:`~spherecal.plugins.host.PluginHost`, built per
+  run: loads plugins from the ``"spherecal"`` entry points, keeps the robot and sensor
+  registry, validates configuration sections and creates devices;
+- :mod:`spherecal.plugins.testing`: pytest fixtures for plugin authors.
+
 A plugin module marks its hook implementations with :data:`hookimpl`::
 
     from spherecal.plugins import hookimpl
