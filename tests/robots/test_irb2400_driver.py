@@ -251,3 +251,21 @@ def test_simulator_stops_cleanly():
     host, port = url.removeprefix("socket://").split(":")
     with pytest.raises(ConnectionRefusedError):
         socket.create_connection((host, int(port)), timeout=0.2).close()
+
+
+def test_a_stream_of_garbage_is_a_clear_device_error():
+    import os
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        robot = AbbIrb2400Robot(AbbIrb2400Config(timeout_s=TIMEOUT_S, retries=0), url=os.ttyname(slave))
+        with robot:
+            os.write(master, b"\x00\xffnoise" * 60)  # no LF anywhere
+            with pytest.raises(DeviceError, match=r"no valid reply to GETJ after 1 attempt\(s\); "
+                                                  r"last problem: received non-ASCII bytes"):
+                robot.read_joints_deg()
+    finally:
+        os.close(master)
+        os.close(slave)
