@@ -13,11 +13,14 @@ errors in the base frame.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from .. import geometry as geo
-from ..models import TRANSFORM_NAME, MountingMode, Pose
+from ..models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
+from .objects import BallBar, SceneObject, Sphere
 
 
 class SensorFieldOfView(BaseModel):
@@ -56,13 +59,27 @@ class NoiseModel(BaseModel):
     stray_offset_mm: tuple[float, float] = Field((0.3, 3.0), description="range of a stray's distance off the surface, mm")
 
 
+class FanHits(NamedTuple):
+    """What the laser fan sees at one flange pose, before noise.
+
+    ``points_mm`` (N, 2) are (y, z) in the sensor's laser plane, in the sensor's column
+    order; ``object_index`` (N,) says which of ``cell.objects`` each point lies on."""
+
+    points_mm: np.ndarray
+    object_index: np.ndarray
+
+
 class SimulatedCell:
-    """Sphere, robot flange and sensor with a known truth, in one mounting mode.
+    """A scene of objects, a robot flange and a sensor with a known truth, in one mounting
+    mode.
 
     ``true_transform`` is ``flange_from_sensor`` (eye-in-hand) or ``base_from_sensor``
-    (eye-to-hand). ``sphere_centre_mm`` is in base (eye-in-hand) or flange (eye-to-hand).
-    Simulated devices share one cell: the robot calls :meth:`move_flange_to`, the sensor
-    :meth:`measure_profile`.
+    (eye-to-hand). The reference sphere (``sphere_centre_mm``, ``sphere_radius_mm``) is
+    ``objects[0]``, fixed in base (eye-in-hand) or flange (eye-to-hand). More objects
+    (:mod:`spherecal.sim.objects`: ball bars, plates, panels), each fixed in base or
+    flange, join the scene with :meth:`add_object`; the fan sees the nearest surface
+    along each ray (objects occlude each other). Simulated devices share one cell: the
+    robot calls :meth:`move_flange_to`, the sensor :meth:`measure_profile`.
     """
 
     def __init__(
@@ -80,14 +97,69 @@ class SimulatedCell:
             raise ValueError(f"mounting must be one of {sorted(TRANSFORM_NAME)}, got {mounting!r}")
         self.mounting = mounting
         self.true_transform = true_transform
-        self.sphere_centre_mm = np.asarray(sphere_centre_mm, dtype=float).reshape(3)
-        self.sphere_radius_mm = float(sphere_radius_mm)
+        self.objects: list[SceneObject] = [
+            Sphere(sphere_centre_mm, sphere_radius_mm, frame=SPHERE_FRAME[mounting], name="reference_sphere")
+        ]
         self.fov = fov or SensorFieldOfView()
         self.noise = noise or NoiseModel()
         self.rng = np.random.default_rng(seed)
         self.current_base_from_flange = base_from_flange or Pose.identity()
 
+    # scene -----------------------------------------------------------------------------
+    @property
+    def reference_sphere(self) -> Sphere:
+        """The calibration sphere, ``objects[0]``."""
+        return self.objects[0]
+
+    @property
+    def sphere_centre_mm(self) -> np.ndarray:
+        """Reference sphere centre, mm, in base (eye-in-hand) or flange (eye-to-hand)."""
+        return self.reference_sphere.centre_mm
+
+    @sphere_centre_mm.setter
+    def sphere_centre_mm(self, value) -> None:
+        s = self.reference_sphere
+        self.objects[0] = Sphere(value, s.radius_mm, frame=s.frame, name=s.name)
+
+    @property
+    def sphere_radius_mm(self) -> float:
+        return self.reference_sphere.radius_mm
+
+    @sphere_radius_mm.setter
+    def sphere_radius_mm(self, value: float) -> None:
+        s = self.reference_sphere
+        self.objects[0] = Sphere(s.centre_mm, value, frame=s.frame, name=s.name)
+
+    def add_object(self, obj: SceneObject) -> SceneObject:
+        """Put ``obj`` (fixed in ``obj.frame``, 'base' or 'flange') into the scene; returns it."""
+        if not isinstance(obj, SceneObject):
+            raise TypeError(
+                f"add_object: {obj!r} is not a scene object (it needs .frame, .name and "
+                ".intersect(origins_mm, directions)); see spherecal.sim.objects"
+            )
+        if obj.frame not in ("base", "flange"):
+            raise ValueError(f"add_object: {obj.name}: frame must be 'base' or 'flange', got {obj.frame!r}")
+        self.objects.append(obj)
+        return obj
+
     # geometry --------------------------------------------------------------------------
+    def base_from_sensor(self, base_from_flange: Pose) -> Pose:
+        """The true ``base_from_sensor`` at a true flange pose."""
+        if self.mounting == "eye_in_hand":
+            return base_from_flange @ self.true_transform
+        return self.true_transform
+
+    def frame_from_sensor(self, frame: str, base_from_flange: Pose) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t) of ``base_from_sensor`` or ``flange_from_sensor`` (``frame``) at a true flange pose."""
+        X = self.true_transform
+        if frame == "base":
+            T = self.base_from_sensor(base_from_flange)
+        elif frame == "flange":
+            T = X if self.mounting == "eye_in_hand" else base_from_flange.inverse() @ X
+        else:
+            raise ValueError(f"frame must be 'base' or 'flange', got {frame!r}")
+        return T.rotation_matrix, T.translation
+
     def sensor_from_sphere_frame(self, base_from_flange: Pose) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) mapping points of the frame the sphere is fixed in into the sensor frame."""
         X = self.true_transform
@@ -102,25 +174,47 @@ class SimulatedCell:
         R, t = self.sensor_from_sphere_frame(base_from_flange)
         return R @ self.sphere_centre_mm + t
 
-    def ideal_profile(self, base_from_flange: Pose) -> np.ndarray:
-        """Noise-free (N, 2) points (y, z) in mm the sensor sees at a true flange pose."""
-        c = self.sphere_centre_in_sensor(base_from_flange)
-        r = self.sphere_radius_mm
-        if abs(c[0]) >= r:
-            return np.empty((0, 2))
-        rho = np.sqrt(r * r - c[0] * c[0])
+    def fan_rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The laser fan in the sensor frame: apex (3,) and unit directions (n_columns, 3)."""
         fov = self.fov
         angles = np.linspace(-fov.half_angle_rad, fov.half_angle_rad, fov.n_columns)
-        d = np.column_stack([np.sin(angles), -np.cos(angles)])  # ray directions (y, z)
-        apex = np.array([0.0, fov.apex_z_mm])
-        w = apex - c[1:]
-        b = d @ w
-        disc = b * b - (w @ w - rho * rho)
-        hit = disc > 0
-        s = -b[hit] - np.sqrt(disc[hit])  # first intersection along each ray
-        pts = apex + s[:, None] * d[hit]
-        keep = (s > 0) & (pts[:, 1] <= fov.z_near_mm) & (pts[:, 1] >= fov.z_far_mm)
-        return pts[keep]
+        d = np.column_stack([np.zeros_like(angles), np.sin(angles), -np.cos(angles)])
+        return np.array([0.0, 0.0, fov.apex_z_mm]), d
+
+    def cast_fan(self, base_from_flange: Pose) -> FanHits:
+        """Noise-free hits of the fan at a true flange pose: the nearest surface along each
+        ray over all objects, kept when its z lies in the measuring range."""
+        apex, d = self.fan_rays()
+        dist = np.full(len(d), np.inf)
+        which = np.full(len(d), -1)
+        frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for k, obj in enumerate(self.objects):
+            if obj.frame not in frames:
+                R, t = self.frame_from_sensor(obj.frame, base_from_flange)
+                frames[obj.frame] = (R, t, *geo.invert_rt(R, t))
+            R, t, R_inv, t_inv = frames[obj.frame]
+            spheres = [obj] if isinstance(obj, Sphere) else [obj.sphere_a, obj.sphere_b] if isinstance(obj, BallBar) else []
+            if spheres:
+                # the fan lies in the laser plane: cut each sphere there (in the sensor frame)
+                s = np.full(len(d), np.inf)
+                for sph in spheres:
+                    s = np.minimum(s, sph.intersect_laser_plane(R_inv @ sph.centre_mm + t_inv, apex[1:], d[:, 1:]))
+            else:
+                d_f = d @ R.T
+                s = np.asarray(obj.intersect(np.broadcast_to(R @ apex + t, d_f.shape), d_f), dtype=float)
+            nearer = s < dist
+            dist[nearer] = s[nearer]
+            which[nearer] = k
+        hit = np.isfinite(dist)
+        s = dist[hit]
+        pts = apex[1:] + s[:, None] * d[hit][:, 1:]
+        fov = self.fov
+        keep = (pts[:, 1] <= fov.z_near_mm) & (pts[:, 1] >= fov.z_far_mm)
+        return FanHits(pts[keep], which[hit][keep])
+
+    def ideal_profile(self, base_from_flange: Pose) -> np.ndarray:
+        """Noise-free (N, 2) points (y, z) in mm the sensor sees at a true flange pose."""
+        return self.cast_fan(base_from_flange).points_mm
 
     # measurement -----------------------------------------------------------------------
     def measure_profile(self, base_from_flange: Pose | None = None) -> np.ndarray:
@@ -144,6 +238,51 @@ class SimulatedCell:
         angle = self.rng.uniform(0, 2 * np.pi, k)
         dist = self.rng.uniform(*n.stray_offset_mm, k)
         return picks + dist[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+
+    def flange_pose_for_view(self, sensor_from_frame: Pose, frame: str) -> Pose:
+        """The true ``base_from_flange`` that puts the sensor at ``sensor_from_frame``
+        relative to ``frame`` ('base' in eye-in-hand, 'flange' in eye-to-hand: the frame
+        the robot can move relative to the sensor)."""
+        X = self.true_transform
+        if self.mounting == "eye_in_hand" and frame == "base":
+            return sensor_from_frame.inverse() @ X.inverse()
+        if self.mounting == "eye_to_hand" and frame == "flange":
+            return X @ sensor_from_frame
+        raise ValueError(
+            f"flange_pose_for_view: in {self.mounting} the robot cannot move the sensor relative to "
+            f"frame {frame!r}; use {SPHERE_FRAME[self.mounting]!r}"
+        )
+
+    def sweep_poses(
+        self,
+        target_mm,
+        frame: str,
+        frame_from_sensor_rotation,
+        half_length_mm: float,
+        n_profiles: int,
+        standoff_z_mm: float = -10.0,
+    ) -> list[Pose]:
+        """True flange poses of a pure-translation sweep that carries ``target_mm`` (a point
+        in ``frame``) through the laser plane along the sensor's x, from -half_length to
+        +half_length, at sensor-frame (y, z) = (0, ``standoff_z_mm``). The sensor's
+        orientation relative to ``frame`` is ``frame_from_sensor_rotation`` (3x3)."""
+        R = geo.check_rotation_matrix(frame_from_sensor_rotation, "frame_from_sensor_rotation")
+        target = np.asarray(target_mm, dtype=float).reshape(3)
+        poses = []
+        for x in np.linspace(-half_length_mm, half_length_mm, n_profiles):
+            frame_from_sensor = Pose.from_rt(R, target - R @ np.array([x, 0.0, standoff_z_mm]))
+            poses.append(self.flange_pose_for_view(frame_from_sensor.inverse(), frame))
+        return poses
+
+    def scan(self, true_poses: list[Pose]) -> tuple[list[Pose], list[np.ndarray]]:
+        """Move the flange through ``true_poses``, measuring at each: returns the reported
+        poses (with pose noise) and the noisy profiles (N_i, 2), empty ones included."""
+        reported, profiles = [], []
+        for pose in true_poses:
+            self.move_flange_to(pose)
+            profiles.append(self.measure_profile())
+            reported.append(self.report_pose(pose))
+        return reported, profiles
 
     def report_pose(self, true_base_from_flange: Pose) -> Pose:
         """The pose a robot controller would report: the true one plus pose noise."""
