@@ -274,6 +274,8 @@ def _observation_line(obs: Observation) -> bytes:
         "joints_deg": None if obs.joints_deg is None else list(obs.joints_deg),
         "profile": {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)},
     }
+    if obs.target is not None:
+        doc["target"] = obs.target
     small = [*(pose.translation_mm if pose else ()), *(pose.quaternion_wxyz if pose else ()), *(obs.joints_deg or ())]
     if not all(math.isfinite(v) for v in small):
         raise InputError(f"observation {obs.index}: pose or joints contain NaN or infinite values; not written")

@@ -196,6 +196,7 @@ class Observation(BaseModel):
     base_from_flange: Pose | None = None
     joints_deg: tuple[float, float, float, float, float, float] | None = None
     profile: Profile
+    target: int | None = Field(None, ge=0, description="index of the planned target it was taken at, if any")
 
     @model_validator(mode="after")
     def _check(self):

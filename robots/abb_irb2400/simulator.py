@@ -62,6 +62,10 @@ class SimulatedIrb2400:
         self.moves = 0
         self.requests: list[str] = []  # kinds of the requests served, in order
         self._wait = time.sleep
+        # The controller reports the same pose for as long as the robot stands still: the
+        # pose noise is the robot's positioning error, drawn once per move, not per read.
+        self._reported: Pose | None = None
+        self._reported_joints: np.ndarray | None = None
         if cell is not None:
             cell.move_flange_to(self.true_flange_pose())
 
@@ -91,10 +95,15 @@ class SimulatedIrb2400:
         if msg.kind == "PING":
             return P.pong_reply(msg.seq)
         if msg.kind == "GETJ":
-            q = self.joints_deg + (self.rng.normal(0, s.joint_noise_deg, 6) if s.joint_noise_deg > 0 else 0.0)
+            if self._reported_joints is None:
+                noise = self.rng.normal(0, s.joint_noise_deg, 6) if s.joint_noise_deg > 0 else 0.0
+                self._reported_joints = self.joints_deg + noise
+            q = self._reported_joints
             return P.joints_reply(msg.seq, _f32(q) if s.single_precision else q)
         if msg.kind == "GETP":
-            pose = self._reported_pose()
+            if self._reported is None:
+                self._reported = self._reported_pose()
+            pose = self._reported
             if s.single_precision:
                 t, q = _f32(pose.translation_mm), _f32(pose.quaternion_wxyz)
                 pose = Pose.from_abb(t, q / np.linalg.norm(q))
@@ -137,6 +146,7 @@ class SimulatedIrb2400:
             distance = float(np.linalg.norm(target.translation - start.translation))
             self._wait(self.settings.motion_time_scale * distance / speed)
         self.joints_deg = joints
+        self._reported = self._reported_joints = None  # a new standstill: new position error
         self.moves += 1
         if self.cell is not None:
             self.cell.move_flange_to(self.true_flange_pose())

@@ -227,13 +227,22 @@ def test_simulator_answers_bad_requests_with_error_codes():
     assert code == P.ErrorCode.SYNTAX and "unknown request kind 'FOO'" in text
 
 
-def test_simulator_noise_settings_apply():
+def test_simulator_noise_is_drawn_per_move_not_per_read():
+    """At a standstill the controller reports one pose; each move draws a new error."""
     settings = SimulatedControllerSettings(pose_noise="settings", pose_translation_noise_mm=0.05, joint_noise_deg=0.01)
     ctl = SimulatedIrb2400(KIN, settings)
-    poses = [P.parse_pose_reply(P.decode_reply(ctl.handle(P.getp_request(i)))) for i in range(200)]
-    spread = np.std([p.translation for p in poses], axis=0)
-    np.testing.assert_allclose(spread, 0.05, rtol=0.25)
-    joints = [P.parse_joints_reply(P.decode_reply(ctl.handle(P.getj_request(i)))) for i in range(200)]
+    target = ctl.true_flange_pose()
+    poses, joints = [], []
+    for i in range(150):
+        seq = 3 * i
+        P.decode_reply(ctl.handle(P.target_request(seq, target)))
+        P.decode_reply(ctl.handle(P.movl_request(seq + 1, 100.0, seq)))
+        a = P.parse_pose_reply(P.decode_reply(ctl.handle(P.getp_request(seq + 2))))
+        b = P.parse_pose_reply(P.decode_reply(ctl.handle(P.getp_request(seq + 2))))
+        assert a.translation_mm == b.translation_mm  # same standstill, same reading
+        poses.append(a.translation)
+        joints.append(P.parse_joints_reply(P.decode_reply(ctl.handle(P.getj_request(seq + 2)))))
+    np.testing.assert_allclose(np.std(poses, axis=0), 0.05, rtol=0.25)
     np.testing.assert_allclose(np.std(joints, axis=0), 0.01, rtol=0.3)
 
 

@@ -1,0 +1,253 @@
+"""Acquisition: plan the stations, check every target before any motion, then move,
+read, and append each observation to the journal the moment it is taken.
+
+Devices are reached only through the :class:`spherecal.devices.Robot` and
+:class:`spherecal.devices.Sensor` interfaces; the journal is a
+:class:`spherecal.dataio.DatasetWriter` (one flushed, fsync'ed line per observation), so
+a run killed at any point loses nothing already taken and resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Callable, TextIO
+
+import numpy as np
+
+from . import geometry as geo
+from .config import AcquisitionConfig, RunConfig
+from .dataio import DatasetWriter
+from .errors import DeviceError, InputError
+from .models import Observation, Pose, Profile
+from .sim.planner import plan_stations
+
+
+@dataclass(frozen=True)
+class Target:
+    """One planned shot: flange pose ``base_from_flange`` (mm) in a station."""
+
+    index: int
+    station: str
+    pose: Pose
+    first_of_station: bool
+
+
+def plan_targets(cfg: RunConfig) -> list[Target]:
+    """The planned shots, in order, from the configuration's nominal transform and the
+    rough sphere position."""
+    acq = cfg.acquisition
+    if acq is None:
+        raise InputError("no [acquisition] section: nothing to plan")
+    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
+    stations = plan_stations(
+        cfg.mounting, cfg.nominal_transform.pose(), acq.sphere_centre_mm, cfg.sphere.radius_mm, acq.sweep, R_ref
+    )
+    targets = []
+    for label, poses in stations:
+        for k, pose in enumerate(poses):
+            targets.append(Target(len(targets), label, pose, k == 0))
+    return targets
+
+
+def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> list[str]:
+    """Every problem with the plan, before anything moves: the workspace box, the speeds,
+    and the robot plugin's own check (``robot.check_target``) where it has one."""
+    problems = []
+    check = getattr(robot, "check_target", None) if robot is not None else None
+    for t in targets:
+        speed = acq.approach_speed_mm_s if t.first_of_station else acq.speed_mm_s
+        if not acq.workspace.contains(t.pose.translation):
+            problems.append(
+                f"target {t.index} (station {t.station}) at {np.round(t.pose.translation, 1).tolist()} mm is outside "
+                f"acquisition.workspace {list(acq.workspace.min_mm)}..{list(acq.workspace.max_mm)}"
+            )
+        if check is not None:
+            try:
+                check(t.pose, speed)
+            except DeviceError as exc:
+                problems.append(f"target {t.index} (station {t.station}): {exc}")
+    return problems
+
+
+def describe_plan(targets: list[Target]) -> str:
+    """A table of the stations: orientation, number of shots and the extent of the sweep."""
+    lines = [f"{'station':8s} {'shots':>5s}  {'flange quaternion (w, x, y, z)':34s} {'first target (mm)':>28s}"]
+    for label in dict.fromkeys(t.station for t in targets):
+        ts = [t for t in targets if t.station == label]
+        q = ", ".join(f"{v:+.4f}" for v in ts[0].pose.quaternion_wxyz)
+        p = ", ".join(f"{v:.1f}" for v in ts[0].pose.translation_mm)
+        lines.append(f"{label:8s} {len(ts):5d}  {q:34s} {p:>28s}")
+    return "\n".join(lines)
+
+
+class Progress:
+    """A progress bar with an estimate of the time left, on a terminal; plain lines
+    otherwise (every tenth step)."""
+
+    def __init__(self, total: int, stream: TextIO | None = None, width: int = 30):
+        self.total = max(total, 1)
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.start = time.monotonic()
+        self.done = 0
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def update(self, done: int, note: str = "") -> None:
+        self.done = done
+        elapsed = time.monotonic() - self.start
+        left = elapsed / done * (self.total - done) if done else float("nan")
+        eta = "--:--" if not np.isfinite(left) else f"{int(left // 60):02d}:{int(left % 60):02d}"
+        filled = int(self.width * done / self.total)
+        bar = "#" * filled + "." * (self.width - filled)
+        text = f"[{bar}] {done}/{self.total} {note} eta {eta}"
+        if self.tty:
+            self.stream.write("\r" + text.ljust(79))
+            if done >= self.total:
+                self.stream.write("\n")
+        elif done == self.total or done % max(self.total // 10, 1) == 0:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+@dataclass
+class AcquisitionReport:
+    taken: int = 0
+    skipped: list[str] = field(default_factory=list)
+    retakes: int = 0
+
+
+def _poses_agree(a: Pose, b: Pose, acq: AcquisitionConfig) -> tuple[bool, float, float]:
+    d = float(np.linalg.norm(a.translation - b.translation))
+    ang = geo.rotation_angle_deg(a.rotation_matrix, b.rotation_matrix)
+    return d <= acq.pose_agreement_mm and ang <= acq.pose_agreement_deg, d, ang
+
+
+def _read_joints(robot) -> np.ndarray | None:
+    try:
+        return robot.read_joints_deg()
+    except (NotImplementedError, AttributeError):
+        return None
+
+
+def take_shot(robot, sensor, acq: AcquisitionConfig, log: Callable[[str], None]) -> tuple[Pose, np.ndarray | None, Profile | None, int]:
+    """Read pose, joints, profile, pose; re-take while the two poses disagree. Returns
+    (pose, joints, profile or None, re-takes)."""
+    for attempt in range(acq.retries_per_target + 1):
+        before = robot.read_flange_pose()
+        joints = _read_joints(robot)
+        profile = sensor.read_profile()
+        after = robot.read_flange_pose()
+        ok, d, ang = _poses_agree(before, after, acq)
+        if ok:
+            return before, joints, profile, attempt
+        log(f"  poses before and after the profile differ by {d:.3f} mm / {ang:.3f} deg: robot not settled; re-taking")
+        if acq.settle_s:
+            time.sleep(acq.settle_s)
+    raise DeviceError(
+        f"the robot pose kept changing while the profile was taken ({acq.retries_per_target + 1} tries, "
+        f"last difference {d:.3f} mm / {ang:.3f} deg): is the robot in position? Raise acquisition.settle_s"
+    )
+
+
+def acquire(
+    robot,
+    sensor,
+    targets: list[Target],
+    writer: DatasetWriter,
+    acq: AcquisitionConfig,
+    done_targets: set[int] = frozenset(),
+    on_observation: Callable[[Observation], None] | None = None,
+    log: Callable[[str], None] = print,
+    progress: Progress | None = None,
+) -> AcquisitionReport:
+    """Take every target not in ``done_targets``; each observation goes to the journal
+    (flushed, fsync'ed by the writer) before the next move."""
+    report = AcquisitionReport()
+    todo = [t for t in targets if t.index not in done_targets]
+    progress = progress or Progress(len(targets))
+    progress.update(len(targets) - len(todo), "resumed" if done_targets else "")
+    for n, t in enumerate(todo, start=len(targets) - len(todo) + 1):
+        speed = acq.approach_speed_mm_s if t.first_of_station else acq.speed_mm_s
+        robot.move_linear(t.pose, speed)
+        if acq.settle_s:
+            time.sleep(acq.settle_s)
+        pose, joints, profile, retakes = take_shot(robot, sensor, acq, log)
+        report.retakes += retakes
+        if profile is None:
+            report.skipped.append(f"target {t.index} (station {t.station}): the sensor saw nothing (sphere out of view?)")
+        else:
+            obs = Observation(
+                index=writer.next_index,
+                station=t.station,
+                timestamp=datetime.now(timezone.utc),
+                base_from_flange=pose,
+                joints_deg=None if joints is None else tuple(float(v) for v in joints),
+                profile=profile,
+                target=t.index,
+            )
+            writer.append(obs)
+            report.taken += 1
+            if on_observation is not None:
+                on_observation(obs)
+        progress.update(n, t.station)
+    return report
+
+
+def acquire_manual(
+    robot,
+    sensor,
+    writer: DatasetWriter,
+    acq: AcquisitionConfig,
+    ask: Callable[[str], str] = input,
+    log: Callable[[str], None] = print,
+    on_observation: Callable[[Observation], None] | None = None,
+) -> AcquisitionReport:
+    """The operator jogs the robot; each Enter captures a shot. Commands: Enter =
+    capture, ``s`` = start a new station (new orientation), ``q`` = finish.
+    Within a station only translations are allowed: a capture whose orientation differs
+    from the station's first is refused with a message."""
+    report = AcquisitionReport()
+    station_no = 1
+    first: Pose | None = None
+    log("Manual acquisition: jog the robot so that the laser line crosses the sphere.\n"
+        "  Enter: capture   s: new station (new orientation)   q: finish")
+    while True:
+        label = f"M{station_no}"
+        try:
+            cmd = ask(f"[{label}, {report.taken} taken] > ").strip().lower()
+        except EOFError:
+            cmd = "q"
+        if cmd == "q":
+            return report
+        if cmd == "s":
+            station_no += 1
+            first = None
+            continue
+        if cmd:
+            log(f"  unknown command {cmd!r}: Enter, s or q")
+            continue
+        pose, joints, profile, retakes = take_shot(robot, sensor, acq, log)
+        report.retakes += retakes
+        if first is not None:
+            ang = geo.rotation_angle_deg(first.rotation_matrix, pose.rotation_matrix)
+            if ang > acq.pose_agreement_deg * 2.5:
+                log(f"  refused: orientation differs from the station's first shot by {ang:.3f} deg; "
+                    "within a station jog by translations only, or press s to start a new station")
+                continue
+        if profile is None:
+            log("  refused: the sensor saw nothing; move the line onto the sphere")
+            report.skipped.append(f"{label}: empty profile")
+            continue
+        first = first or pose
+        obs = Observation(
+            index=writer.next_index, station=label, timestamp=datetime.now(timezone.utc), base_from_flange=pose,
+            joints_deg=None if joints is None else tuple(float(v) for v in joints), profile=profile,
+        )
+        writer.append(obs)
+        report.taken += 1
+        log(f"  captured shot {obs.index}: {len(profile)} points")
+        if on_observation is not None:
+            on_observation(obs)

@@ -1,0 +1,196 @@
+"""The ``spherecal`` command line. It parses arguments, loads the configuration and
+calls :mod:`spherecal.runner`; nothing else.
+
+Exit codes (scripts may rely on them; docs/cli.md):
+  0  success
+  1  internal error (a bug: please report it with the traceback)
+  2  usage or configuration error (bad arguments, bad TOML, unknown keys, bad plugin settings)
+  3  data error (bad or degenerate data, a plan outside the limits, an unreadable dataset)
+  4  device error (robot or sensor: timeout, disconnect, protocol); the journal keeps what was taken
+  5  validation failed (an acceptance figure exceeds its MPE)
+  6  plugin error (a plugin failed to load or misbehaved)
+  130 interrupted (Ctrl-C); the journal keeps what was taken, continue with --resume
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from pathlib import Path
+
+from . import __version__
+from .errors import ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_USAGE = 2
+EXIT_DATA = 3
+EXIT_DEVICE = 4
+EXIT_VALIDATION = 5
+EXIT_PLUGIN = 6
+EXIT_INTERRUPTED = 130
+
+
+def _err(msg: str) -> None:
+    print(f"spherecal: error: {msg}", file=sys.stderr)
+
+
+def cmd_calibrate(args) -> int:
+    from .config import load_config
+    from .runner import run_calibrate, summary, truth_check
+
+    loaded = load_config(args.config)
+    outcome = run_calibrate(
+        loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
+        out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
+        report=not args.no_report,
+    )
+    if outcome.solution is None:
+        return EXIT_OK
+    print(summary(outcome.solution))
+    from . import dataio
+
+    journal = outcome.files.get("journal")
+    if journal is not None:
+        check = truth_check(outcome.solution, dataio.read_dataset(journal))
+        if check:
+            print(check)
+    out = Path(args.out) if args.out else loaded.output_dir
+    print(f"results in {out}")
+    return EXIT_OK
+
+
+def cmd_solve(args) -> int:
+    from . import dataio
+    from .estimation import CalibrationOptions
+    from .models import Pose
+    from .runner import solve_and_write, summary, truth_check
+
+    dataset = dataio.read_dataset(args.dataset)
+    nominal = None
+    if args.nominal:
+        v = [float(x) for x in args.nominal.split(",")]
+        if len(v) != 7:
+            raise ConfigError("--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)")
+        nominal = Pose.from_abb(v[:3], v[3:])
+    options = CalibrationOptions(fit_radius=args.fit_radius, nominal_transform=nominal)
+    out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
+    solution = solve_and_write(dataset, options, out, log=lambda m: print(m, file=sys.stderr), report=not args.no_report)
+    print(summary(solution))
+    check = truth_check(solution, dataset)
+    if check:
+        print(check)
+    print(f"results in {out}")
+    return EXIT_OK
+
+
+def cmd_simulate(args) -> int:
+    from . import dataio
+    from .sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+
+    if args.config:
+        from .config import load_config
+        from .runner import make_cell
+
+        loaded = load_config(args.config)
+        cfg = loaded.config
+        cell = make_cell(cfg) or standard_cell(cfg.mounting, seed=args.seed)
+        plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
+    else:
+        noise = NoiseModel(
+            point_noise_mm=args.point_noise_mm,
+            pose_translation_noise_mm=args.pose_noise_mm,
+            stray_profile_fraction=args.stray_fraction,
+        )
+        cell = standard_cell(args.mounting, seed=args.seed, noise=noise)
+        plan = SweepPlan(profiles_per_station=args.profiles)
+    ds = simulate_dataset(cell, plan)
+    dataio.write_dataset(args.out, ds, overwrite=args.force)
+    print(f"wrote {len(ds.observations)} observations ({cell.mounting}) to {args.out}")
+    return EXIT_OK
+
+
+def cmd_plugins(args) -> int:
+    from .runner import make_host
+
+    print(make_host().format_description())
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="spherecal",
+        description="Calibrate a laser line sensor against a robot with a reference sphere.",
+        epilog=__doc__.split("\n\n", 1)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--version", action="version", version=f"spherecal {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    c = sub.add_parser("calibrate", help="acquire (or replay) and calibrate, as the configuration says",
+                       description="Plan, check, acquire into the journal, solve, and write the result, exports "
+                       "and report. With [simulation] in the configuration, runs against simulated devices.")
+    c.add_argument("config", help="configuration file (TOML)")
+    c.add_argument("--dry-run", action="store_true", help="show and check the plan, move nothing")
+    c.add_argument("--resume", action="store_true", help="continue an interrupted acquisition from its journal")
+    c.add_argument("--manual", action="store_true", help="the operator jogs the robot; Enter captures")
+    c.add_argument("--out", help="output folder (default: output_dir of the configuration)")
+    c.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    c.set_defaults(func=cmd_calibrate)
+
+    s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)")
+    s.add_argument("dataset", help="dataset file (.jsonl)")
+    s.add_argument("--out", help="output folder (default: <dataset>.calibration next to it)")
+    s.add_argument("--fit-radius", action="store_true", help="estimate the sphere radius too")
+    s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data")
+    s.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    s.set_defaults(func=cmd_solve)
+
+    m = sub.add_parser("simulate", help="write a dataset from the simulated cell")
+    m.add_argument("out", help="dataset file to write (.jsonl)")
+    m.add_argument("--config", help="take the cell and plan from this configuration's [simulation] and [acquisition]")
+    m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], default="eye_in_hand")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--profiles", type=int, default=10, help="profiles per station")
+    m.add_argument("--point-noise-mm", type=float, default=0.01)
+    m.add_argument("--pose-noise-mm", type=float, default=0.02)
+    m.add_argument("--stray-fraction", type=float, default=0.0, help="share of profiles with stray points")
+    m.add_argument("--force", action="store_true", help="overwrite an existing file")
+    m.set_defaults(func=cmd_simulate)
+
+    g = sub.add_parser("plugins", help="list installed robots and sensors with their configuration fields")
+    g.set_defaults(func=cmd_plugins)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        _err("interrupted; what was taken is in the journal: continue with --resume")
+        return EXIT_INTERRUPTED
+    except ConfigError as exc:
+        _err(str(exc))
+        return EXIT_USAGE
+    except (InputError, DegenerateDataError, DatasetFileError, FileExistsError) as exc:
+        _err(str(exc))
+        return EXIT_DATA
+    except DeviceError as exc:
+        _err(f"{exc}\nwhat was taken is in the journal: fix the device and continue with --resume")
+        return EXIT_DEVICE
+    except PluginError as exc:
+        _err(str(exc))
+        return EXIT_PLUGIN
+    except Exception as exc:  # noqa: BLE001
+        if args.debug:
+            traceback.print_exc()
+        _err(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback; please report it)")
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

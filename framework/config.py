@@ -1,0 +1,195 @@
+"""The run configuration: one TOML file validated by pydantic.
+
+Unknown keys are errors and every error names its dotted path and the file. The robot
+and sensor sections belong to their plugins: this module checks only that they name a
+``type``; the plugin host validates the rest against the plugin's own model. Relative
+paths in the file (``output_dir``, ``replay``) are relative to the file's folder.
+See docs/configuration.md.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from .errors import ConfigError
+from .estimation import CalibrationOptions
+from .models import MountingMode, Pose
+from .sim import NoiseModel, SensorFieldOfView, SweepPlan
+
+Vec3 = tuple[float, float, float]
+Vec4 = tuple[float, float, float, float]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class TransformConfig(_Section):
+    """A rigid transform written by hand: translation in mm, quaternion (w, x, y, z)."""
+
+    translation_mm: Vec3 = Field(description="translation, mm")
+    quaternion_wxyz: Vec4 = Field(description="rotation, unit quaternion, scalar first (ABB order)")
+
+    def pose(self) -> Pose:
+        return Pose.from_abb(self.translation_mm, self.quaternion_wxyz)
+
+    @field_validator("quaternion_wxyz")
+    @classmethod
+    def _unit(cls, v):
+        n = float(np.linalg.norm(v))
+        if abs(n - 1.0) > 1e-3:
+            raise ValueError(f"quaternion_wxyz {list(v)} has norm {n:.6f}; give a unit quaternion (w, x, y, z)")
+        return v
+
+
+class SphereConfig(_Section):
+    radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
+
+    @field_validator("radius_mm")
+    @classmethod
+    def _mm(cls, v):
+        if v < 0.5:
+            raise ValueError(f"radius_mm = {v} looks like metres; give the certified radius in millimetres")
+        return v
+
+
+class WorkspaceConfig(_Section):
+    """Box in the base frame (mm) every planned flange position must lie in."""
+
+    min_mm: Vec3 = Field(description="lower corner (x, y, z), base, mm")
+    max_mm: Vec3 = Field(description="upper corner (x, y, z), base, mm")
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
+            if not lo < hi:
+                raise ValueError(f"min_mm {axis} = {lo} must be below max_mm {axis} = {hi}")
+        return self
+
+    def contains(self, p) -> bool:
+        return all(lo <= v <= hi for v, lo, hi in zip(p, self.min_mm, self.max_mm))
+
+
+class AcquisitionConfig(_Section):
+    """How to acquire: where the sphere roughly is, the sweeps, speeds and limits."""
+
+    mode: Literal["automatic", "manual"] = Field(
+        "automatic", description="automatic: the program moves the robot; manual: the operator jogs, the program captures"
+    )
+    sphere_centre_mm: Vec3 = Field(
+        description="rough sphere centre: in base (eye_in_hand) or in the flange frame (eye_to_hand), mm"
+    )
+    reference_flange_quaternion_wxyz: Vec4 = Field(
+        (0.0, 0.0, 1.0, 0.0), description="flange orientation of the first station, base_from_flange, (w, x, y, z)"
+    )
+    sweep: SweepPlan = Field(default_factory=SweepPlan, description="stations and sweeps")
+    speed_mm_s: float = Field(20.0, gt=0, description="speed along a sweep, mm/s")
+    approach_speed_mm_s: float = Field(100.0, gt=0, description="speed of the move to a station's first target, mm/s")
+    max_speed_mm_s: float = Field(250.0, gt=0, description="no move may be faster, mm/s")
+    settle_s: float = Field(0.0, ge=0, description="wait after each move before reading, s")
+    pose_agreement_mm: float = Field(0.05, gt=0, description="poses read before and after a profile must agree, mm")
+    pose_agreement_deg: float = Field(0.02, gt=0, description="... and in orientation, deg")
+    retries_per_target: int = Field(2, ge=0, description="re-takes of a shot whose poses disagree")
+    workspace: WorkspaceConfig = Field(description="allowed flange positions, base frame, mm")
+
+    @model_validator(mode="after")
+    def _speeds(self):
+        for name in ("speed_mm_s", "approach_speed_mm_s"):
+            if getattr(self, name) > self.max_speed_mm_s:
+                raise ValueError(f"{name} = {getattr(self, name)} exceeds max_speed_mm_s = {self.max_speed_mm_s}")
+        return self
+
+
+class SimulationConfig(_Section):
+    """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
+
+    seed: int = Field(0, description="seed of the cell's noise")
+    true_transform: TransformConfig | None = Field(
+        None, description="the cell's true X (default: the standard cell's), mm and (w, x, y, z)"
+    )
+    sphere_centre_mm: Vec3 | None = Field(
+        None, description="true sphere centre, base (eye_in_hand) or flange (eye_to_hand), mm (default: standard cell's)"
+    )
+    noise: NoiseModel = Field(default_factory=NoiseModel, description="sensor and robot noise of the cell")
+    fov: SensorFieldOfView = Field(default_factory=SensorFieldOfView, description="the simulated sensor's field of view")
+
+
+class RunConfig(_Section):
+    """The root of a configuration file."""
+
+    mounting: MountingMode = Field(description="eye_in_hand (sensor on the flange) or eye_to_hand (sensor fixed)")
+    output_dir: str = Field(description="folder for the journal, result, exports and report (relative: to this file)")
+    robot: dict[str, Any] = Field(description="robot plugin section: type = '<name>' plus the plugin's settings")
+    sensor: dict[str, Any] = Field(description="sensor plugin section: type = '<name>' plus the plugin's settings")
+    sphere: SphereConfig
+    nominal_transform: TransformConfig = Field(
+        description="rough X from drawings: flange_from_sensor (eye_in_hand) or base_from_sensor (eye_to_hand)"
+    )
+    acquisition: AcquisitionConfig | None = Field(None, description="acquire with the devices")
+    replay: str | None = Field(None, description="a recorded dataset (.jsonl) to calibrate instead of acquiring")
+    calibration: CalibrationOptions = Field(default_factory=CalibrationOptions, description="estimator settings")
+    simulation: SimulationConfig | None = Field(None, description="simulate the cell instead of using hardware")
+
+    @field_validator("robot", "sensor")
+    @classmethod
+    def _typed(cls, v):
+        if "type" not in v or not isinstance(v["type"], str):
+            raise ValueError("needs type = '<plugin name>' (see `spherecal plugins`)")
+        return v
+
+    @model_validator(mode="after")
+    def _source(self):
+        if (self.acquisition is None) == (self.replay is None):
+            raise ValueError("give exactly one of [acquisition] (acquire with the devices) or replay = '<dataset>'")
+        return self
+
+
+def _format_errors(exc: ValidationError, where: str) -> str:
+    lines = []
+    for err in exc.errors():
+        path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key (a typo?)"
+        lines.append(f"  {where}: {path}: {msg}")
+    return "\n".join(lines)
+
+
+class LoadedConfig:
+    """A validated configuration and where it came from."""
+
+    def __init__(self, config: RunConfig, path: Path):
+        self.config = config
+        self.path = path
+
+    def resolve(self, relative: str) -> Path:
+        p = Path(relative).expanduser()
+        return p if p.is_absolute() else (self.path.parent / p).resolve()
+
+    @property
+    def output_dir(self) -> Path:
+        return self.resolve(self.config.output_dir)
+
+
+def load_config(path: str | Path) -> LoadedConfig:
+    """Read and validate a configuration file; :class:`ConfigError` names the file and
+    every bad key by its dotted path."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the configuration ({exc.strerror or exc})") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    try:
+        cfg = RunConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"{path}: invalid configuration:\n{_format_errors(exc, str(path))}") from None
+    return LoadedConfig(cfg, path.resolve())

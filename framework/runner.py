@@ -1,0 +1,254 @@
+"""The application layer: configuration -> plugin host -> devices -> acquisition ->
+estimation -> files. The CLI calls these functions; they take every file name and
+stream they use as arguments (no hidden I/O)."""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from . import dataio
+from .acquisition import Progress, acquire, acquire_manual, check_targets, describe_plan, plan_targets
+from .config import LoadedConfig, RunConfig
+from .devices import DeviceContext
+from .errors import ConfigError, DegenerateDataError, InputError
+from .estimation import CalibrationOptions, Solution, solve
+from .models import Dataset, Pose
+from .sim import SimulatedCell, standard_cell
+
+JOURNAL_NAME = "journal.jsonl"
+RESULT_NAME = "result.json"
+
+
+def make_cell(cfg: RunConfig) -> SimulatedCell | None:
+    """The simulated cell of a simulated run, or None for hardware."""
+    sim = cfg.simulation
+    if sim is None:
+        return None
+    cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=sim.fov, sphere_radius_mm=cfg.sphere.radius_mm)
+    if sim.true_transform is not None:
+        cell.true_transform = sim.true_transform.pose()
+    if sim.sphere_centre_mm is not None:
+        cell.sphere_centre_mm = np.asarray(sim.sphere_centre_mm, dtype=float)
+    return cell
+
+
+def make_host(enable: list[str] | None = None):
+    from spherecal.plugins.host import PluginHost
+
+    return PluginHost(enable=enable) if enable else PluginHost()
+
+
+def _in_file(loaded: LoadedConfig, fn, *args, **kwargs):
+    try:
+        return fn(*args, **kwargs)
+    except ConfigError as exc:
+        raise ConfigError(f"{loaded.path}: {exc}") from None
+
+
+@contextlib.contextmanager
+def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Callable[[str], None]) -> Iterator:
+    """Robot and sensor from the configuration, closed on the way out whatever happens."""
+    cfg = loaded.config
+    context = DeviceContext(cell=cell, log=log)
+    robot = _in_file(loaded, host.create_robot, cfg.robot, context)
+    try:
+        sensor = _in_file(loaded, host.create_sensor, cfg.sensor, context)
+    except BaseException:
+        robot.close()
+        raise
+    try:
+        yield robot, sensor
+    finally:
+        with contextlib.suppress(Exception):
+            sensor.close()
+        robot.close()
+
+
+@dataclass
+class Outcome:
+    """What a calibrate/solve run produced."""
+
+    solution: Solution | None = None
+    files: dict[str, Path] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def calibration_options(cfg: RunConfig) -> CalibrationOptions:
+    return cfg.calibration.model_copy(update={"nominal_transform": cfg.nominal_transform.pose()})
+
+
+def run_calibrate(
+    loaded: LoadedConfig,
+    *,
+    dry_run: bool = False,
+    resume: bool = False,
+    manual: bool = False,
+    out_dir: Path | None = None,
+    log: Callable[[str], None] = print,
+    ask: Callable[[str], str] = input,
+    progress_stream=None,
+    report: bool = True,
+) -> Outcome:
+    """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
+    recorded dataset), solve, write the result, exports and report."""
+    cfg = loaded.config
+    out = Path(out_dir) if out_dir is not None else loaded.output_dir
+    host = make_host()
+    fk = _in_file(loaded, host.robot_kinematics, cfg.robot)
+    _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
+    outcome = Outcome()
+
+    if cfg.replay is not None:
+        path = loaded.resolve(cfg.replay)
+        log(f"replaying {path}")
+        dataset = dataio.read_dataset(path)
+        if dataset.mounting != cfg.mounting:
+            raise InputError(f"{path}: dataset is {dataset.mounting} but the configuration says {cfg.mounting}")
+        if dry_run:
+            log(f"dry run: {len(dataset.observations)} observations would be solved")
+            return outcome
+    else:
+        acq = cfg.acquisition
+        manual = manual or acq.mode == "manual"
+        journal = out / JOURNAL_NAME
+        targets = [] if manual else plan_targets(cfg)
+        if not manual:
+            log(f"plan: {len(targets)} shots in {len(set(t.station for t in targets))} stations")
+            log(describe_plan(targets))
+            problems = check_targets(targets, acq)
+            if problems:
+                raise InputError("the plan breaks the limits; nothing was moved:\n  " + "\n  ".join(problems))
+        if dry_run:
+            log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
+            if not manual:
+                cell = make_cell(cfg)
+                with open_devices(loaded, host, cell, log) as (robot, _sensor):
+                    problems = check_targets(targets, acq, robot)
+                if problems:
+                    raise InputError("the plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+                log("plan checked against the robot's own limits too")
+            return outcome
+        if journal.exists() and not resume:
+            raise InputError(
+                f"{journal} already holds an acquisition: run with --resume to continue it, "
+                "or choose another output_dir (nothing is ever overwritten)"
+            )
+        out.mkdir(parents=True, exist_ok=True)
+        done: set[int] = set()
+        if resume and journal.exists():
+            previous = dataio.read_dataset(journal)
+            done = {o.target for o in previous.observations if o.target is not None}
+            log(f"resuming {journal}: {len(previous.observations)} observations already taken")
+        cell = make_cell(cfg)
+        provenance = {
+            "source": "spherecal calibrate",
+            "config": str(loaded.path),
+            "robot": cfg.robot["type"],
+            "sensor": cfg.sensor["type"],
+            "simulated": cell is not None,
+        }
+        if cell is not None:
+            provenance.update(
+                true_transform_name=cell.transform_name,
+                true_transform=cell.true_transform.model_dump(),
+                true_sphere_centre_mm=cell.sphere_centre_mm.tolist(),
+                simulation_seed=cfg.simulation.seed,
+            )
+        with open_devices(loaded, host, cell, log) as (robot, sensor):
+            if not manual:
+                problems = check_targets(targets, acq, robot)
+                if problems:
+                    raise InputError("the plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+            with dataio.DatasetWriter(
+                journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
+                provenance=provenance, resume=journal.exists(), fsync=True,
+            ) as writer:
+                notify = lambda obs: host.observation_taken(observation=obs)  # noqa: E731
+                if manual:
+                    rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify)
+                else:
+                    rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,
+                                  Progress(len(targets), progress_stream))
+        outcome.notes.extend(rep.skipped)
+        for s in rep.skipped:
+            log(f"skipped {s}")
+        dataset = dataio.read_dataset(journal)
+        host.acquisition_finished(dataset=dataset)
+        outcome.files["journal"] = journal
+
+    solution = solve_and_write(dataset, calibration_options(cfg), out, fk, log, report=report)
+    host.calibration_finished(result=solution.result, dataset=dataset)
+    outcome.solution = solution
+    outcome.files.update(written_files(out))
+    return outcome
+
+
+def written_files(out: Path) -> dict[str, Path]:
+    return {p.name: p for p in sorted(out.iterdir()) if p.is_file()} if out.exists() else {}
+
+
+def solve_and_write(
+    dataset: Dataset,
+    options: CalibrationOptions,
+    out: Path,
+    fk=None,
+    log: Callable[[str], None] = print,
+    report: bool = True,
+) -> Solution:
+    """Solve ``dataset`` and write ``result.json``, the exports and the HTML report in ``out``."""
+    solution = solve(dataset, options, fk, progress=log)
+    from .report.export import write_exports
+
+    out.mkdir(parents=True, exist_ok=True)
+    write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
+    if report:
+        try:
+            from .report.html import write_report
+        except ImportError:  # pragma: no cover
+            write_report = None
+        if write_report is not None:
+            write_report(solution, out)
+    return solution
+
+
+def summary(solution: Solution) -> str:
+    """The result in a few lines: both directions, xyz + ABB quaternion, uncertainties."""
+    r = solution.result
+    X = r.transform
+    inv = X.inverse()
+    a, b = r.transform_name.split("_from_")
+    q = ", ".join(f"{v:.8f}" for v in X.quaternion_wxyz)
+    t = ", ".join(f"{v:.4f}" for v in X.translation_mm)
+    lines = [
+        f"{r.transform_name} (maps points in {b} to {a}):",
+        f"  translation_mm  = [{t}]",
+        f"  quaternion_wxyz = [{q}]",
+        f"  std: rotation {', '.join(f'{v:.4f}' for v in r.std_rotation_deg)} deg about {a} x, y, z; "
+        f"translation {', '.join(f'{v:.4f}' for v in r.std_translation_mm)} mm",
+        f"{b}_from_{a}: translation_mm = [{', '.join(f'{v:.4f}' for v in inv.translation_mm)}], "
+        f"quaternion_wxyz = [{', '.join(f'{v:.8f}' for v in inv.quaternion_wxyz)}]",
+        f"residuals: RMS {r.residuals.rms_mm:.4f} mm over {r.residuals.n_points_used} points of "
+        f"{r.residuals.n_profiles_used} profiles; {r.residuals.n_points_rejected} stray points rejected",
+    ]
+    for f in r.flagged:
+        lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
+    return "\n".join(lines)
+
+
+def truth_check(solution: Solution, dataset: Dataset) -> str | None:
+    """For simulated data: the error against the cell's true transform."""
+    prov = dataset.provenance
+    if "true_transform" not in prov:
+        return None
+    from . import geometry as geo
+
+    true = Pose.model_validate(prov["true_transform"])
+    X = solution.result.transform
+    rot = geo.rotation_angle_deg(true.rotation_matrix, X.rotation_matrix)
+    dt = float(np.linalg.norm(true.translation - X.translation))
+    return f"simulated truth: error {rot:.4f} deg, {dt:.4f} mm"
