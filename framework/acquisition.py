@@ -20,7 +20,7 @@ import numpy as np
 from . import geometry as geo
 from .config import AcquisitionConfig, RunConfig
 from .dataio import DatasetWriter
-from .errors import DeviceError, InputError
+from .errors import DeviceError, InputError, SpherecalError
 from .models import Observation, Pose, Profile
 from .sim.planner import plan_stations
 
@@ -67,7 +67,7 @@ def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> 
         if check is not None:
             try:
                 check(t.pose, speed)
-            except DeviceError as exc:
+            except SpherecalError as exc:
                 problems.append(f"target {t.index} (station {t.station}): {exc}")
     return problems
 

@@ -37,6 +37,10 @@ class Robot(Protocol):
     def close(self) -> None:
         """Release the connection. Safe to call twice."""
 
+    # Optional: ``check_target(base_from_flange, speed_mm_s) -> None`` checks a planned
+    # target against the robot's own limits without moving and raises a SpherecalError
+    # naming the limit; the acquisition calls it for every target before any motion.
+
 
 @runtime_checkable
 class Sensor(Protocol):

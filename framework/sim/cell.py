@@ -102,7 +102,12 @@ class SimulatedCell:
         ]
         self.fov = fov or SensorFieldOfView()
         self.noise = noise or NoiseModel()
+        self.seed = seed
         self.rng = np.random.default_rng(seed)
+        #: When True, every standstill draws its noise from a generator seeded by (seed,
+        #: pose): the same pose gives the same noisy readings whatever came before, so an
+        #: interrupted and resumed simulated acquisition reproduces an uninterrupted one.
+        self.noise_per_pose = False
         self.current_base_from_flange = base_from_flange or Pose.identity()
 
     # scene -----------------------------------------------------------------------------
@@ -298,6 +303,10 @@ class SimulatedCell:
     def move_flange_to(self, true_base_from_flange: Pose) -> None:
         """Where the (simulated) robot has put its flange."""
         self.current_base_from_flange = true_base_from_flange
+        if self.noise_per_pose:
+            key = np.round(np.concatenate([true_base_from_flange.translation_mm,
+                                           true_base_from_flange.quaternion_wxyz]) * 1e4).astype(np.int64)
+            self.rng = np.random.default_rng([self.seed or 0, *(int(k) & 0xFFFFFFFF for k in key)])
 
     @property
     def transform_name(self) -> str:

@@ -160,6 +160,18 @@ class AbbIrb2400Robot:
         return version
 
     # limits ------------------------------------------------------------------------
+    def check_target(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Check a planned target against every limit without sending anything: speed,
+        workspace box, and reachability within the joint limits (inverse kinematics
+        seeded with the last joints read, or zero). Raises what :meth:`move_linear` would."""
+        self._check_speed(speed_mm_s)
+        self._check_workspace(base_from_flange, "target")
+        seed = self.last_joints_deg if self.last_joints_deg is not None else np.zeros(6)
+        try:
+            self.kin.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
+        except UnreachableError as exc:
+            raise UnreachableError(f"target: {exc}") from None
+
     def _check_speed(self, speed_mm_s: float) -> None:
         limit = self.config.max_speed_mm_s
         try:

@@ -1,0 +1,152 @@
+"""End-to-end runs of the CLI through the simulated serial controller and the simulated
+USB sensor, resume after a kill, bad configurations."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from spherecal import dataio
+from spherecal import geometry as geo
+from spherecal.cli import EXIT_DATA, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, main
+from spherecal.models import Pose
+
+
+def check_against_truth(out, k=5.0):
+    journal = dataio.read_dataset(out / "journal.jsonl")
+    result = dataio.read_result(out / "result.json")
+    true = Pose.model_validate(journal.provenance["true_transform"])
+    rot = geo.rotation_angle_deg(true.rotation_matrix, result.transform.rotation_matrix)
+    dt = np.linalg.norm(true.translation - result.transform.translation)
+    assert rot < k * np.linalg.norm(result.std_rotation_deg)
+    assert dt < k * np.linalg.norm(result.std_translation_mm)
+    return journal, result
+
+
+@pytest.mark.parametrize("name", ["sim-eye-in-hand.toml", "sim-eye-to-hand.toml"])
+def test_calibrate_end_to_end_in_both_modes(sim_config, name, capsys):
+    cfg = sim_config(name)
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_OK
+    out = cfg.parent / "out"
+    journal, result = check_against_truth(out)
+    assert len(journal.observations) == 40
+    assert journal.provenance["robot"] == "abb_irb2400" and journal.provenance["sensor"] == "nxsensor_i"
+    assert result.mounting == journal.mounting
+    printed = capsys.readouterr().out
+    assert result.transform_name in printed and "quaternion_wxyz" in printed
+    for f in ["result.json", "SpherecalSensor.mod", "ros_static_transform.yaml", f"{result.transform_name}_4x4.txt"]:
+        assert (out / f).exists(), f
+
+
+def test_dry_run_moves_nothing(sim_config, capsys):
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "--dry-run"]) == EXIT_OK
+    err = capsys.readouterr().err
+    assert "plan: 40 shots in 4 stations" in err and "nothing moved" in err
+    assert not (cfg.parent / "out").exists()
+
+
+def test_a_target_outside_the_workspace_stops_before_any_motion(sim_config, capsys):
+    cfg = sim_config(**{r"^max_mm = \[1600.0, 800.0, 1400.0\]": "max_mm = [1600.0, 800.0, 580.0]"})
+    assert main(["calibrate", str(cfg)]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "outside acquisition.workspace" in err and "nothing was moved" in err
+    assert not (cfg.parent / "out" / "journal.jsonl").exists()
+
+
+def test_a_target_the_robot_cannot_reach_stops_before_any_motion(sim_config, capsys):
+    # the sphere moved far out of the arm's reach; the workspace box allows it
+    cfg = sim_config(**{r"^sphere_centre_mm = \[1100.0, 150.0, 400.0\].*$": "sphere_centre_mm = [1500.0, 150.0, 1000.0]"})
+    assert main(["calibrate", str(cfg)]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "breaks the robot's limits" in err and "out of reach" in err
+    assert not (cfg.parent / "out" / "journal.jsonl").exists()
+
+
+def test_existing_journal_needs_resume(sim_config, capsys):
+    cfg = sim_config()
+    (cfg.parent / "out").mkdir()
+    (cfg.parent / "out" / "journal.jsonl").write_text("")
+    assert main(["calibrate", str(cfg)]) == EXIT_DATA
+    assert "--resume" in capsys.readouterr().err
+
+
+def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path):
+    """SIGKILL in the middle of the acquisition, then --resume: nothing taken is lost and
+    the result equals that of an uninterrupted run."""
+    cfg = sim_config(**{r"^approach_speed_mm_s = 100.0$": "approach_speed_mm_s = 100.0\nsettle_s = 0.02"})
+    whole = tmp_path / "whole"
+    assert main(["calibrate", str(cfg), "--out", str(whole), "--no-report"]) == EXIT_OK
+
+    cut = tmp_path / "cut"
+    proc = subprocess.Popen([sys.executable, "-m", "spherecal.cli", "calibrate", str(cfg), "--out", str(cut),
+                             "--no-report"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    journal = cut / "journal.jsonl"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if journal.exists() and journal.read_bytes().count(b"\n") >= 15:
+            break
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    taken = len(dataio.read_dataset(journal).observations)
+    assert 14 <= taken < 40, "the kill did not land mid-acquisition"
+    assert not (cut / "result.json").exists()
+
+    assert main(["calibrate", str(cfg), "--out", str(cut), "--resume", "--no-report"]) == EXIT_OK
+    resumed = dataio.read_dataset(journal)
+    assert sorted(o.target for o in resumed.observations) == list(range(40))
+    a, b = dataio.read_result(whole / "result.json"), dataio.read_result(cut / "result.json")
+    assert np.allclose(a.transform.as_matrix(), b.transform.as_matrix(), atol=1e-9)
+
+
+def test_interrupt_keeps_the_journal(sim_config, monkeypatch, capsys):
+    import spherecal.acquisition as acq
+
+    calls = {"n": 0}
+    real = acq.take_shot
+
+    def flaky(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 7:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(acq, "take_shot", flaky)
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
+    assert "--resume" in capsys.readouterr().err
+    assert len(dataio.read_dataset(cfg.parent / "out" / "journal.jsonl").observations) == 6
+
+
+@pytest.mark.parametrize(
+    "replace, message",
+    [
+        ({r"^mounting = .*$": 'mounting = "eye_on_hand"'}, "mounting: Input should be 'eye_in_hand' or 'eye_to_hand'"),
+        ({r"^\[sphere\]": "[sphere]\ncolour = 'red'"}, "sphere.colour: unknown key"),
+        ({r"^radius_mm = 19.1": "radius_mm = 0.0191"}, "sphere.radius_mm: Value error, radius_mm = 0.0191 looks like metres"),
+        ({r"^max_speed_mm_s = 250.0": "max_speed_mm_s = 250.0\nbaudrate = -5"}, "robot.baudrate"),
+        ({r'^type = "nxsensor_i"': 'type = "nxsensor_i"\nexposure = 3'}, "sensor.exposure"),
+        ({r'^type = "abb_irb2400"': 'type = "abb_irb2600"'}, "abb_irb2600"),
+        ({r"^speed_mm_s = 20.0": "speed_mm_s = 900.0"}, "acquisition: Value error, speed_mm_s = 900.0 exceeds max_speed_mm_s"),
+        ({r"^profiles_per_station = 10": "profiles_per_station = 2"}, "acquisition.sweep.profiles_per_station"),
+        ({r'^mounting = "eye_in_hand"': "mounting = 'eye_in_hand'\nreplay = 'x.jsonl'"}, "exactly one of [acquisition]"),
+        ({r"^quaternion_wxyz = .*$": "quaternion_wxyz = [1.0, 1.0, 0.0, 0.0]"}, "nominal_transform.quaternion_wxyz"),
+        ({r"^\[sphere\]": "[sphere"}, "not valid TOML"),
+    ],
+)
+def test_bad_configurations_name_the_path(sim_config, capsys, replace, message):
+    cfg = sim_config(**replace)
+    assert main(["calibrate", str(cfg), "--dry-run"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert str(cfg) in err
+
+
+def test_missing_configuration_file(tmp_path, capsys):
+    assert main(["calibrate", str(tmp_path / "nope.toml")]) == EXIT_USAGE
+    assert "nope.toml: cannot read the configuration" in capsys.readouterr().err
