@@ -1,0 +1,304 @@
+"""Is this calibration good, and what to do when it is not.
+
+:func:`verdict` grades a :class:`~spherecal.models.CalibrationResult` green, amber or
+red; :func:`advice` turns its diagnostics into things to do. Both read only the result,
+so they work on a result file as well as on a fresh solution. The limits are
+:class:`Thresholds` (mm and degrees); the defaults suit an IRB 2400-sized robot with a
+line sensor of about 0.01 mm noise.
+
+Why the residual RMS is not compared with the sensor noise alone: the robot's pose
+error moves a whole profile at once, so even a perfect calibration leaves residuals of
+about ``sqrt(point_noise^2 + robot_repeatability^2)``. That is the *expected RMS*.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from statistics import median
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from ..models import CalibrationResult
+
+Level = Literal["green", "amber", "red"]
+_RANK = {"green": 0, "amber": 1, "red": 2}
+_AXES = ("x", "y", "z")
+
+
+class Thresholds(BaseModel):
+    """Limits of the verdict and of the advice. Lengths in mm, angles in degrees."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    robot_repeatability_mm: float = Field(
+        0.05, gt=0, description="pose repeatability of the robot, mm (IRB 2400: about 0.03-0.06)"
+    )
+    residual_ratio_amber: float = Field(1.5, gt=0, description="residual RMS / expected RMS above this: amber")
+    residual_ratio_red: float = Field(3.0, gt=0, description="residual RMS / expected RMS above this: red")
+    rotation_std_amber_deg: float = Field(0.05, gt=0, description="largest rotation 1-sigma above this: amber, deg")
+    rotation_std_red_deg: float = Field(0.15, gt=0, description="largest rotation 1-sigma above this: red, deg")
+    translation_std_amber_mm: float = Field(0.1, gt=0, description="largest translation 1-sigma above this: amber, mm")
+    translation_std_red_mm: float = Field(0.3, gt=0, description="largest translation 1-sigma above this: red, mm")
+    flagged_fraction_amber: float = Field(
+        0.1, ge=0, le=1, description="share of observations flagged above this: amber"
+    )
+    station_inconsistency_factor: float = Field(
+        3.0, gt=1, description="a station whose consistency RMS exceeds this many times the median of the stations"
+    )
+    station_inconsistency_floor_mm: float = Field(
+        0.05, ge=0, description="... and this many mm is called inconsistent"
+    )
+    axis_imbalance_factor: float = Field(
+        2.5, gt=1, description="a rotation axis whose 1-sigma exceeds this many times the best axis is weak"
+    )
+    stray_fraction_info: float = Field(0.002, ge=0, le=1, description="share of points rejected as strays worth a note")
+    pose_noise_factor: float = Field(
+        2.0, gt=1, description="estimated pose noise above this many times the repeatability is worth advice"
+    )
+    start_disagreement_deg: float = Field(0.5, gt=0, description="two-step vs refined rotation worth a note, deg")
+    start_disagreement_mm: float = Field(1.0, gt=0, description="two-step vs refined translation worth a note, mm")
+
+
+@dataclass
+class Verdict:
+    """Grade of a result: ``level`` (green/amber/red), a one-line ``headline`` and the
+    ``reasons`` behind the grade (one per check, each with its own level)."""
+
+    level: Level
+    headline: str
+    reasons: list[tuple[Level, str]] = field(default_factory=list)
+
+
+@dataclass
+class Advice:
+    """One thing to look at: ``key`` names the trigger (stable, for tests and tools),
+    ``level`` how much it matters, ``title`` and ``text`` what to do."""
+
+    key: str
+    level: Level
+    title: str
+    text: str
+
+
+def _worse(a: Level, b: Level) -> Level:
+    return a if _RANK[a] >= _RANK[b] else b
+
+
+def expected_rms_mm(result: CalibrationResult, thresholds: Thresholds | None = None) -> float:
+    """``sqrt(point_noise^2 + robot_repeatability^2)`` (see the module docstring)."""
+    th = thresholds or Thresholds()
+    point = float(result.diagnostics.get("noise", {}).get("point_noise_mm", 0.0) or 0.0)
+    return math.hypot(point, th.robot_repeatability_mm)
+
+
+def _n_observations(result: CalibrationResult) -> int:
+    return result.residuals.n_profiles_used + len(result.flagged)
+
+
+def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> Verdict:
+    """Grade ``result``: the worst of the residual check (RMS against the expected RMS),
+    the uncertainty checks (largest rotation and translation 1-sigma), the share of
+    flagged observations and the convergence of the refinement."""
+    th = thresholds or Thresholds()
+    reasons: list[tuple[Level, str]] = []
+
+    exp = expected_rms_mm(result, th)
+    rms = result.residuals.rms_mm
+    ratio = rms / exp
+    lvl: Level = "red" if ratio > th.residual_ratio_red else "amber" if ratio > th.residual_ratio_amber else "green"
+    reasons.append((lvl, f"residual RMS {rms:.4f} mm is {ratio:.2f} x the expected {exp:.4f} mm "
+                         f"(point noise and robot repeatability {th.robot_repeatability_mm} mm)"))
+
+    rot = max(result.std_rotation_deg)
+    lvl = "red" if rot > th.rotation_std_red_deg else "amber" if rot > th.rotation_std_amber_deg else "green"
+    reasons.append((lvl, f"largest rotation uncertainty {rot:.4f} deg (1-sigma; amber above "
+                         f"{th.rotation_std_amber_deg}, red above {th.rotation_std_red_deg})"))
+
+    tr = max(result.std_translation_mm)
+    lvl = "red" if tr > th.translation_std_red_mm else "amber" if tr > th.translation_std_amber_mm else "green"
+    reasons.append((lvl, f"largest translation uncertainty {tr:.4f} mm (1-sigma; amber above "
+                         f"{th.translation_std_amber_mm}, red above {th.translation_std_red_mm})"))
+
+    n_flag = len(result.flagged)
+    if n_flag:
+        share = n_flag / max(_n_observations(result), 1)
+        lvl = "amber" if share > th.flagged_fraction_amber else "green"
+        reasons.append((lvl, f"{n_flag} of {_n_observations(result)} observations flagged and left out ({share:.0%})"))
+
+    refinement = result.diagnostics.get("refinement", {})
+    if refinement.get("converged") is False:
+        reasons.append(("red", f"the refinement did not converge in {refinement.get('iterations')} iterations"))
+
+    level: Level = "green"
+    for lv, _ in reasons:
+        level = _worse(level, lv)
+    headline = {
+        "green": "Good: residuals as expected and the transform well determined.",
+        "amber": "Usable with care: see the checks and the advice below.",
+        "red": "Do not use yet: see the checks and the advice below.",
+    }[level]
+    return Verdict(level, headline, reasons)
+
+
+def inconsistent_stations(result: CalibrationResult, thresholds: Thresholds | None = None) -> dict[str, float]:
+    """Stations whose consistency RMS (mm) stands out: above ``factor`` x the median over
+    stations and above the floor. ``{label: rms_mm}``."""
+    th = thresholds or Thresholds()
+    cons = result.diagnostics.get("station_consistency", {}) or {}
+    if len(cons) < 2:
+        return {}
+    rms = {label: float(v["rms_mm"]) for label, v in cons.items()}
+    typical = median(rms.values())
+    return {
+        label: v for label, v in rms.items()
+        if v > th.station_inconsistency_factor * typical and v > th.station_inconsistency_floor_mm
+    }
+
+
+_FLAG_CAUSES = [
+    ("inconsistent", "pose read at the wrong moment or paired with the wrong profile",
+     "read the pose only after the robot has stopped (RAPID: a fine point and WaitRob \\InPos before CRobT) "
+     "and check that no reading was lost or repeated in the sequence"),
+    ("only", "the laser line barely touches the sphere",
+     "move that station's sweep so the line crosses the sphere near its middle"),
+    ("do not lie on a circle", "the profile is not the sphere (background, holder, reflections)",
+     "check what the sensor sees at that pose; mask the background or move the sweep"),
+    ("exceeds the sphere radius", "wrong sphere radius or a profile of something else",
+     "check the certified radius in the dataset (mm) and what the sensor sees"),
+    ("usable profiles", "too few usable profiles at that station",
+     "add profiles to that station's sweep"),
+]
+
+
+def _flag_cause(reason: str) -> tuple[str, str]:
+    for needle, cause, todo in _FLAG_CAUSES:
+        if needle in reason:
+            return cause, todo
+    return "see the reason given", "check that observation's profile and pose"
+
+
+def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> list[Advice]:
+    """What to do, from the diagnostics of ``result``; worst first. An empty list means
+    nothing calls for action."""
+    th = thresholds or Thresholds()
+    out: list[Advice] = []
+    a = result.transform_name.split("_from_")[0]
+    diag = result.diagnostics
+    noise = diag.get("noise", {}) or {}
+    cons = diag.get("station_consistency", {}) or {}
+
+    # residuals
+    exp = expected_rms_mm(result, th)
+    ratio = result.residuals.rms_mm / exp
+    bad_stations = inconsistent_stations(result, th)
+    if ratio > th.residual_ratio_amber and not bad_stations:
+        lvl: Level = "red" if ratio > th.residual_ratio_red else "amber"
+        out.append(Advice(
+            "residual_rms_high", lvl, "Residuals larger than expected",
+            f"The residual RMS is {result.residuals.rms_mm:.4f} mm, {ratio:.1f} x the expected {exp:.4f} mm, "
+            "and every station is affected alike. Check the sphere radius in the dataset against the "
+            f"certificate (now {result.sphere_radius_mm:.4f} mm; in mm, not in metres nor a diameter), "
+            "or calibrate with fit_radius=True to see what radius the data prefer; check the sensor exposure "
+            "(a saturated or too dark line biases the points) and that the sphere is clean and matte.",
+        ))
+    pose_t = noise.get("pose_translation_noise_mm")
+    if pose_t is not None and pose_t > th.pose_noise_factor * th.robot_repeatability_mm:
+        out.append(Advice(
+            "pose_noise_high", "amber", "Robot poses scatter more than the robot repeats",
+            f"The data show a robot pose noise of about {pose_t:.3f} mm per axis, more than "
+            f"{th.pose_noise_factor:g} x the repeatability {th.robot_repeatability_mm} mm. Read poses only "
+            "after the robot has stopped (fine point, WaitRob \\InPos), ask the controller for at least 6 "
+            "decimals of the quaternion (3 decimals is about 0.1 deg), read them with tool0 and wobj0, and let "
+            "the robot warm up. A wrong sphere radius looks the same: check it too.",
+        ))
+
+    # stations
+    if bad_stations:
+        typical = median(float(v["rms_mm"]) for v in cons.values())
+        listing = ", ".join(f"{k} ({v:.3f} mm)" for k, v in sorted(bad_stations.items()))
+        out.append(Advice(
+            "station_inconsistent", "amber", "Station(s) inconsistent with the robot's moves",
+            f"Within station(s) {listing} the sphere centre seen by the sensor does not move as the robot "
+            f"says it moved (typical station: {typical:.3f} mm). The likely cause is a pose read before the "
+            "robot settled (use a fine point and WaitRob \\InPos before reading), or a reading paired with "
+            "the wrong profile. Re-acquire that station, or drop it if the others suffice.",
+        ))
+
+    # uncertainty per rotation axis: one weak axis calls for a tilt about it; all axes
+    # alike call for more data (and smaller residuals) overall
+    std_r = list(result.std_rotation_deg)
+    best = min(std_r)
+    weak = [k for k, s in enumerate(std_r)
+            if s > th.axis_imbalance_factor * best and s > 0.2 * th.rotation_std_amber_deg]
+    for k in weak:
+        out.append(Advice(
+            f"rotation_axis_{_AXES[k]}", "red" if std_r[k] > th.rotation_std_red_deg else "amber",
+            f"Rotation about the {a} {_AXES[k]} axis poorly determined",
+            f"Its 1-sigma is {std_r[k]:.4f} deg, {std_r[k] / best:.1f} x the best axis ({best:.4f} deg). Add a "
+            f"station tilted by 20-30 deg about the {a}'s {_AXES[k]} axis, with a sweep across the sphere as for "
+            "the others.",
+        ))
+    if not weak and max(std_r) > th.rotation_std_amber_deg:
+        out.append(Advice(
+            "rotation_uncertain", "red" if max(std_r) > th.rotation_std_red_deg else "amber",
+            "Rotation poorly determined about every axis",
+            f"The rotation 1-sigmas are {', '.join(f'{s:.4f}' for s in std_r)} deg about the {a} x, y, z axes. "
+            "They grow with the residuals: fix large residuals first (see above). Otherwise make the sweeps "
+            "longer and wider (the rotation comes from the robot's moves within a station) and add profiles.",
+        ))
+    std_t = max(result.std_translation_mm)
+    if std_t > th.translation_std_amber_mm:
+        out.append(Advice(
+            "translation_uncertain", "red" if std_t > th.translation_std_red_mm else "amber",
+            "Translation poorly determined",
+            f"The largest translation 1-sigma is {std_t:.4f} mm. The translation comes from changes of "
+            "orientation: add stations with larger tilts (20-45 deg) about different axes, and more profiles "
+            "per sweep.",
+        ))
+
+    # flagged observations
+    if result.flagged:
+        groups: dict[str, list] = {}
+        for f in result.flagged:
+            groups.setdefault(_flag_cause(f.reason), []).append(f)
+        parts = []
+        for (cause, todo), flags in groups.items():
+            which = ", ".join(f"{f.index} (station {f.station})" for f in flags)
+            parts.append(f"Observation(s) {which}: likely {cause}; {todo}.")
+        share = len(result.flagged) / max(_n_observations(result), 1)
+        out.append(Advice(
+            "flagged", "amber" if share > th.flagged_fraction_amber else "green",
+            f"{len(result.flagged)} observation(s) left out",
+            " ".join(parts) + " The result was computed without them.",
+        ))
+
+    # stray points
+    n_rej = result.residuals.n_points_rejected
+    n_all = n_rej + result.residuals.n_points_used
+    if n_all and n_rej / n_all > th.stray_fraction_info:
+        out.append(Advice(
+            "stray_points", "green", "Stray points rejected",
+            f"{n_rej} of {n_all} points ({n_rej / n_all:.1%}) lay off the sphere and were left out "
+            "(reflections, the sphere's edge, the stand or background). A few are normal; many suggest a too "
+            "long exposure, a shiny or dirty sphere, or something else in the field of view.",
+        ))
+
+    # start vs refinement, convergence
+    tsr = diag.get("two_step_vs_refined", {}) or {}
+    if tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm:
+        out.append(Advice(
+            "start_disagrees", "amber", "Two-step start and refinement disagree",
+            f"They differ by {tsr.get('rotation_deg', 0):.3f} deg and {tsr.get('translation_mm', 0):.3f} mm. "
+            "With good data they agree to a few hundredths; a large difference points at bad observations "
+            "that were not caught, or at too little rotation between stations.",
+        ))
+    if (diag.get("refinement", {}) or {}).get("converged") is False:
+        out.append(Advice(
+            "not_converged", "red", "Refinement did not converge",
+            "The estimate may be wrong. Check the dataset (units in mm, one orientation per station) and add "
+            "stations with different tilts.",
+        ))
+    out.sort(key=lambda adv: -_RANK[adv.level])
+    return out

@@ -1,0 +1,459 @@
+"""A self-contained HTML report of a calibration.
+
+:func:`write_report` writes one HTML file that opens offline: the CSS is inlined and
+the figures (PNG, drawn with matplotlib's Agg renderer, no pyplot state touched) are
+embedded as base64 data URIs; the same PNGs are saved next to the HTML file. The report
+shows, top to bottom: the verdict, the transform with its direction and uncertainties,
+what to do when something is off, residual plots, a 3-D view of the sphere with the
+mapped points, the uncertainty, station and flagged-observation tables, an optional
+validation table and the estimator's details. See docs/results.md for a tour.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from collections.abc import Mapping
+from datetime import datetime, timezone
+from importlib import resources
+from pathlib import Path
+from string import Template
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .. import __version__
+from ..errors import InputError
+from ..models import SPHERE_FRAME, CalibrationResult
+from . import export
+from .assess import Thresholds, advice, expected_rms_mm, inconsistent_stations, verdict
+
+__all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
+
+#: Figures of the report, by key: saved as ``<stem>_<key>.png``.
+FIGURE_NAMES = ("residuals_per_profile", "residuals_per_station", "residual_histogram", "sphere_3d")
+
+_DPI = 100
+_MAX_POINTS_3D_PER_PROFILE = 60
+
+
+# --- helpers ----------------------------------------------------------------------------------------
+def _e(value: Any) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def _n(value: float | None, decimals: int = 4) -> str:
+    if value is None:
+        return "&ndash;"
+    return export._fmt(value, decimals)
+
+
+def _station_colours(labels: list[str]) -> dict[str, Any]:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    return {label: cmap(k % 10) for k, label in enumerate(labels)}
+
+
+def _png(fig: Figure) -> bytes:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=_DPI)
+    return buf.getvalue()
+
+
+def mapped_points(solution) -> list[np.ndarray]:
+    """Each used profile's points mapped into the sphere frame through ``A_i X``:
+    ``p = R_A_i (R p_sensor + t) + t_A_i`` with p_sensor = (0, y, z); ``A_i`` is
+    ``base_from_flange_i`` (eye-in-hand) or ``flange_from_base_i`` (eye-to-hand). mm."""
+    prob, ref = solution.problem, solution.refined
+    out = []
+    for i, pts in enumerate(prob.profiles):
+        p_s = np.column_stack([np.zeros(len(pts)), pts])
+        out.append((p_s @ ref.R.T + ref.t) @ prob.R_A[i].T + prob.t_A[i])
+    return out
+
+
+# --- figures ----------------------------------------------------------------------------------------
+def _fig_per_profile(solution, result, colours) -> Figure:
+    prob, ref = solution.problem, solution.refined
+    entries = [(prob.station_labels[prob.station_of[i]], int(prob.obs_index[i]), ref.residuals[i], None)
+               for i in range(prob.n_profiles)]
+    entries += [(f.station, f.index, None, f.reason) for f in result.flagged]
+    order = list(prob.station_labels) + sorted({f.station for f in result.flagged} - set(prob.station_labels))
+    entries.sort(key=lambda e: (order.index(e[0]), e[1]))
+    n = len(entries)
+    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    used = [(k, e) for k, e in enumerate(entries) if e[2] is not None]
+    bp = ax.boxplot([e[2] for _, e in used], positions=[k for k, _ in used], widths=0.6,
+                    showfliers=False, whis=(1, 99), patch_artist=True)
+    for patch, (_, e) in zip(bp["boxes"], used):
+        patch.set_facecolor(colours.get(e[0], "grey"))
+        patch.set_alpha(0.75)
+    for med in bp["medians"]:
+        med.set_color("black")
+    lim = max(float(np.max(np.abs(np.concatenate([e[2] for _, e in used])))), 1e-3)
+    ax.set_ylim(-1.15 * lim, 1.3 * lim)
+    for k, e in enumerate(entries):
+        if e[2] is None:
+            ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
+            ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
+            ax.annotate(f"obs {e[1]}\nflagged", (k, -1.05 * lim), ha="center", va="bottom", fontsize=7,
+                        color="#c5221f")
+    # station separators and labels
+    for k in range(1, n):
+        if entries[k][0] != entries[k - 1][0]:
+            ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
+    starts = [0] + [k for k in range(1, n) if entries[k][0] != entries[k - 1][0]] + [n]
+    for a, b in zip(starts[:-1], starts[1:]):
+        ax.text((a + b - 1) / 2, 1.22 * lim, entries[a][0], ha="center", va="center", fontsize=9, fontweight="bold")
+    ax.axhline(0, color="black", lw=0.6)
+    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
+    ax.set_xlim(-0.7, n - 0.3)
+    ax.set_xlabel("observation index (grouped by station)")
+    ax.set_ylabel("in-plane residual (mm)")
+    ax.set_title("Residuals per profile (box: quartiles, whiskers: 1-99 %; red: flagged and left out)", fontsize=10)
+    return fig
+
+
+def _fig_per_station(solution, result, colours) -> Figure:
+    prob, ref = solution.problem, solution.refined
+    labels = list(prob.station_labels)
+    data = [np.concatenate([ref.residuals[i] for i in np.flatnonzero(prob.station_of == k)]) for k in range(len(labels))]
+    fig = Figure(figsize=(max(5.0, 1.2 * len(labels) + 2.5), 3.8), layout="constrained")
+    ax = fig.add_subplot()
+    bp = ax.boxplot(data, positions=range(len(labels)), widths=0.6, showfliers=False, whis=(1, 99), patch_artist=True)
+    for patch, label in zip(bp["boxes"], labels):
+        patch.set_facecolor(colours[label])
+        patch.set_alpha(0.75)
+    for med in bp["medians"]:
+        med.set_color("black")
+    top = max(float(np.percentile(np.abs(d), 99)) for d in data)
+    for k, label in enumerate(labels):
+        rms = result.residuals.per_station_rms_mm.get(label, float(np.sqrt(np.mean(data[k] ** 2))))
+        ax.text(k, 1.12 * top, f"RMS {rms:.4f}", ha="center", fontsize=8)
+    ax.set_ylim(-1.25 * top, 1.3 * top)
+    ax.axhline(0, color="black", lw=0.6)
+    ax.set_xticks(range(len(labels)), labels)
+    ax.set_xlabel("station")
+    ax.set_ylabel("in-plane residual (mm)")
+    ax.set_title("Residuals per station", fontsize=10)
+    return fig
+
+
+def _fig_histogram(solution, result) -> Figure:
+    res = np.concatenate(solution.refined.residuals)
+    rms = result.residuals.rms_mm
+    point = float(result.diagnostics.get("noise", {}).get("point_noise_mm", 0.0) or 0.0)
+    fig = Figure(figsize=(6.5, 3.8), layout="constrained")
+    ax = fig.add_subplot()
+    lim = max(float(np.max(np.abs(res))), 4 * rms)
+    ax.hist(res, bins=60, range=(-lim, lim), density=True, color="#8ab4f8", edgecolor="white", lw=0.3,
+            label=f"{res.size} residuals")
+    x = np.linspace(-lim, lim, 400)
+    ax.plot(x, np.exp(-0.5 * (x / rms) ** 2) / (rms * np.sqrt(2 * np.pi)), color="#1a73e8", lw=1.6,
+            label=f"normal, sd = residual RMS {rms:.4f} mm")
+    if point > 0:
+        ax.plot(x, np.exp(-0.5 * (x / point) ** 2) / (point * np.sqrt(2 * np.pi)), color="#5f6368", lw=1.2,
+                ls="--", label=f"normal, sd = point noise {point:.4f} mm")
+    ax.set_xlabel("in-plane residual (mm)")
+    ax.set_ylabel("density (1/mm)")
+    ax.set_title("Histogram of the residuals with the expected normal curves", fontsize=10)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _fig_sphere(solution, result, colours) -> Figure:
+    prob, ref = solution.problem, solution.refined
+    pts = mapped_points(solution)
+    c, r = np.asarray(ref.centre, dtype=float), float(ref.radius)
+    frame = SPHERE_FRAME[result.mounting]
+    fig = Figure(figsize=(11, 5.2), layout="constrained")
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
+    sx, sy, sz = c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v), c[2] + r * np.cos(v)
+    for j, (elev, azim) in enumerate([(25, -60), (60, 30)]):
+        ax = fig.add_subplot(1, 2, j + 1, projection="3d")
+        ax.plot_wireframe(sx, sy, sz, color="#9aa0a6", lw=0.4, alpha=0.6)
+        ax.scatter([c[0]], [c[1]], [c[2]], color="black", s=20, marker="+")
+        seen = set()
+        for i, p in enumerate(pts):
+            label = prob.station_labels[prob.station_of[i]]
+            step = max(1, len(p) // _MAX_POINTS_3D_PER_PROFILE)
+            q = p[::step]
+            ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=1.5, color=colours[label], depthshade=False,
+                       label=None if label in seen else f"station {label}")
+            seen.add(label)
+        for setter, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
+            setter(c[k] - 1.15 * r, c[k] + 1.15 * r)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=elev, azim=azim)
+        ax.set_xlabel(f"{frame} x (mm)", fontsize=8)
+        ax.set_ylabel(f"{frame} y (mm)", fontsize=8)
+        ax.set_zlabel(f"{frame} z (mm)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        if j == 0:
+            ax.legend(fontsize=8, markerscale=5, loc="upper left")
+    fig.suptitle(f"Fitted sphere (r = {r:.3f} mm) and every profile mapped into the {frame} frame "
+                 f"through A_i X", fontsize=10)
+    return fig
+
+
+# --- HTML pieces ------------------------------------------------------------------------------------
+def _table(header: list[str], rows: list[list[str]], row_classes: list[str] | None = None) -> str:
+    head = "".join(f"<th>{h}</th>" for h in header)
+    body = []
+    for k, row in enumerate(rows):
+        cls = f' class="{row_classes[k]}"' if row_classes and row_classes[k] else ""
+        body.append(f"<tr{cls}>" + "".join(f"<td>{cell}</td>" for cell in row) + "</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _headline(result: CalibrationResult, ver, th: Thresholds) -> str:
+    name = result.transform_name
+    a, b = export.frames_of(name)
+    inv = export.inverse_name(name)
+    abb = "tooldata.tframe" if result.mounting == "eye_in_hand" else "wobjdata.uframe"
+    x, y, z = result.transform.translation_mm
+    q = result.transform.quaternion_wxyz
+    sr, st = result.std_rotation_deg, result.std_translation_mm
+    reasons = "".join(f'<li><span class="dot {lv}"></span>{_e(text)}</li>' for lv, text in ver.reasons)
+    exp = expected_rms_mm(result, th)
+    point = result.diagnostics.get("noise", {}).get("point_noise_mm")
+    cards = [
+        ("translation (mm)", f"{_n(x)}, {_n(y)}, {_n(z)}"),
+        ("quaternion (w, x, y, z)", ", ".join(_n(v, 6) for v in q)),
+        (f"rotation 1-sigma about {a} x, y, z (deg)", ", ".join(_n(v) for v in sr)),
+        (f"translation 1-sigma along {a} x, y, z (mm)", ", ".join(_n(v) for v in st)),
+        ("residual RMS (mm)", f"{_n(result.residuals.rms_mm)} <span class='muted'>expected {_n(exp)}</span>"),
+        ("sensor point noise (mm)", f"{_n(point)}" + (
+            f" <span class='muted'>RMS / noise {result.residuals.rms_mm / point:.1f}</span>" if point else "")),
+        ("profiles used / flagged", f"{result.residuals.n_profiles_used} / {len(result.flagged)}"),
+        ("points used / rejected", f"{result.residuals.n_points_used} / {result.residuals.n_points_rejected}"),
+    ]
+    card_html = "".join(f'<div class="card"><div class="label">{_e(lbl)}</div><div class="value">{val}</div></div>'
+                        for lbl, val in cards)
+    return f"""
+<div class="verdict {ver.level}" id="verdict">
+  <div class="big">Verdict: {ver.level.upper()} &mdash; {_e(ver.headline)}</div>
+  <ul>{reasons}</ul>
+</div>
+<h2 id="transform">The transform: <code>{_e(name)}</code></h2>
+<p class="direction"><b>{_e(name)}</b> maps points from the <b>{_e(b)}</b> frame into the <b>{_e(a)}</b> frame:
+<code>p_{_e(a)} = R p_{_e(b)} + t</code>; its translation is the origin of {_e(b)} in {_e(a)} (mm).
+Mounting: {_e(result.mounting)}; on an ABB controller this is <code>{abb}</code>.
+Its inverse is <code>{_e(inv)}</code>.</p>
+<div class="cards">{card_html}</div>
+<h3>As 4x4 matrices (mm), both directions</h3>
+<pre>{_e(export.matrix_text(result))}</pre>
+<h3>For the robot controller and for ROS</h3>
+<pre>{_e(export.rapid_declaration(result))}</pre>
+<pre>{_e(export.ros_static_transform_command(result))}</pre>
+<p class="muted">Uncertainties are one standard deviation (double them for about 95 %), after scaling by the
+a-posteriori variance factor {result.variance_factor:.3f}. Rotations are small rotations about the axes of the
+{_e(a)} frame. The files next to this report hold the same numbers (see docs/results.md).</p>
+"""
+
+
+def _advice_html(items) -> str:
+    if not items:
+        return "<p>Nothing calls for action: residuals, uncertainties and stations look as they should.</p>"
+    return "".join(f'<div class="advice {a.level}"><h3><span class="dot {a.level}"></span>{_e(a.title)}</h3>'
+                    f"<p>{_e(a.text)}</p></div>" for a in items)
+
+
+def _uncertainty_table(result: CalibrationResult) -> str:
+    a, b = export.frames_of(result.transform_name)
+    frame = result.sphere_centre_frame
+    rows = []
+    for k, ax in enumerate("xyz"):
+        rows.append([f"rotation about {a} {ax}", "&ndash;", _n(result.std_rotation_deg[k]), "deg"])
+    for k, ax in enumerate("xyz"):
+        rows.append([f"translation along {a} {ax}", _n(result.transform.translation_mm[k]),
+                     _n(result.std_translation_mm[k]), "mm"])
+    for k, ax in enumerate("xyz"):
+        rows.append([f"sphere centre {ax} ({frame} frame)", _n(result.sphere_centre_mm[k]),
+                     _n(result.std_sphere_centre_mm[k]), "mm"])
+    rows.append(["sphere radius" + (" (fitted)" if result.radius_fitted else " (certified, fixed)"),
+                 _n(result.sphere_radius_mm), _n(result.std_sphere_radius_mm) if result.radius_fitted else "fixed",
+                 "mm"])
+    return _table(["quantity", "value", "1-sigma", "unit"], rows)
+
+
+def _station_table(result: CalibrationResult, th: Thresholds) -> str:
+    cons = result.diagnostics.get("station_consistency", {}) or {}
+    per = result.residuals.per_station_rms_mm
+    bad = inconsistent_stations(result, th)
+    flagged_by_station: dict[str, int] = {}
+    for f in result.flagged:
+        flagged_by_station[f.station] = flagged_by_station.get(f.station, 0) + 1
+    labels = list(dict.fromkeys(list(per) + list(cons) + list(flagged_by_station)))
+    rows, classes = [], []
+    for label in labels:
+        c = cons.get(label, {})
+        status = '<span class="dot red"></span>inconsistent' if label in bad else '<span class="dot green"></span>ok'
+        if label not in per:
+            status = '<span class="dot red"></span>not used'
+        rows.append([_e(label), str(c.get("n_profiles", "&ndash;")), _n(per.get(label)), _n(c.get("rms_mm")),
+                     _n(c.get("max_mm")), str(flagged_by_station.get(label, 0)), status])
+        classes.append("bad" if label in bad or label not in per else "")
+    return (_table(["station", "profiles", "residual RMS (mm)", "consistency RMS (mm)", "consistency max (mm)",
+                    "flagged", "status"], rows, classes)
+            + '<p class="muted">Consistency: within a station the robot only translates, so the sphere centre seen '
+              "by the sensor must move exactly as the robot moved; RMS and max of the mismatch.</p>")
+
+
+def _flagged_table(result: CalibrationResult) -> str:
+    if not result.flagged:
+        return "<p>No observation was flagged: every profile was used.</p>"
+    rows = [[str(f.index), _e(f.station), f'<span class="reason">{_e(f.reason)}</span>'] for f in result.flagged]
+    return _table(["observation", "station", "why it was left out"], rows, ["bad"] * len(rows))
+
+
+def _validation_html(validation: Mapping[str, Any]) -> str:
+    if not isinstance(validation, Mapping):
+        raise InputError(f"validation must be a mapping of acceptance figures, got {type(validation).__name__}")
+    columns: list[str] = []
+    for value in validation.values():
+        for key in (value if isinstance(value, Mapping) else {"value": None}):
+            if key not in columns:
+                columns.append(key)
+
+    def cell(v):
+        if isinstance(v, bool):
+            return '<span class="dot green"></span>yes' if v else '<span class="dot red"></span>no'
+        if isinstance(v, (int, float, np.floating)) and not isinstance(v, bool):
+            return _n(float(v)) if isinstance(v, (float, np.floating)) else str(v)
+        return "&ndash;" if v is None else _e(v)
+
+    rows, classes = [], []
+    for name, value in validation.items():
+        row = value if isinstance(value, Mapping) else {"value": value}
+        rows.append([_e(name)] + [cell(row.get(col)) for col in columns])
+        failed = any(row.get(k) is False for k in ("passed", "pass", "ok", "accepted"))
+        classes.append("bad" if failed else "")
+    return _table(["figure"] + [_e(c) for c in columns], rows, classes)
+
+
+def _details_html(result: CalibrationResult) -> str:
+    d = result.diagnostics
+    ref = d.get("refinement", {}) or {}
+    noise = d.get("noise", {}) or {}
+    tsr = d.get("two_step_vs_refined", {}) or {}
+    rows = [
+        ["method", _e(result.method)],
+        ["variance factor (chi&sup2;/dof)", _n(result.variance_factor, 3)],
+        ["refinement", f"{ref.get('iterations', '?')} iterations, converged: {ref.get('converged', '?')}"],
+        ["information condition number", f"{ref.get('information_condition_number', float('nan')):.3g}"],
+        ["orientations (stations)", str(d.get("orientations", "?"))],
+        ["two-step vs refined", f"{_n(tsr.get('rotation_deg'))} deg, {_n(tsr.get('translation_mm'))} mm"],
+        ["noise used (point / pose translation / pose rotation)",
+         f"{_n(noise.get('point_noise_mm'))} mm / {_n(noise.get('pose_translation_noise_mm'))} mm / "
+         f"{_n(noise.get('pose_rotation_noise_deg'))} deg"],
+        ["residual max |e| / 95th percentile", f"{_n(result.residuals.max_abs_mm)} / {_n(result.residuals.p95_abs_mm)} mm"],
+        ["provenance", _e(result.provenance)],
+    ]
+    return "<table>" + "".join(f'<tr><th>{k}</th><td class="text">{v}</td></tr>' for k, v in rows) + "</table>"
+
+
+# --- the report ---------------------------------------------------------------------------------------
+def write_report(
+    solution,
+    out_dir: str | Path,
+    title: str = "spherecal calibration report",
+    validation: Mapping[str, Any] | None = None,
+    *,
+    thresholds: Thresholds | None = None,
+    filename: str = "report.html",
+) -> Path:
+    """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
+    into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
+    it as ``<stem>_<figure>.png`` (:data:`FIGURE_NAMES`). ``validation`` is an optional
+    mapping ``{figure name: value or {column: value}}`` shown as a table (a row whose
+    ``passed`` is False is marked). Returns the path of the HTML file. Overwrites an
+    earlier report of the same name."""
+    result = getattr(solution, "result", None)
+    if not isinstance(result, CalibrationResult) or not hasattr(solution, "problem"):
+        raise InputError(
+            f"write_report needs the Solution returned by spherecal.estimation.solve, got {type(solution).__name__}"
+        )
+    if not filename.endswith(".html") or Path(filename).name != filename:
+        raise InputError(f"filename {filename!r} must be a plain file name ending in .html")
+    if validation is not None and not isinstance(validation, Mapping):
+        raise InputError(f"validation must be a mapping of acceptance figures, got {type(validation).__name__}")
+    th = thresholds or Thresholds()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = filename[: -len(".html")]
+
+    colours = _station_colours(list(solution.problem.station_labels)
+                               + sorted({f.station for f in result.flagged} - set(solution.problem.station_labels)))
+    makers = {
+        "residuals_per_profile": (lambda: _fig_per_profile(solution, result, colours),
+                                  "Residuals of every profile used, grouped by station; flagged observations "
+                                  "(left out of the solution) are marked in red."),
+        "residuals_per_station": (lambda: _fig_per_station(solution, result, colours),
+                                  "Residuals per station. A station clearly wider than the others deserves a look."),
+        "residual_histogram": (lambda: _fig_histogram(solution, result),
+                               "All residuals. Solid: a normal curve with the residual RMS; dashed: with the sensor "
+                               "point noise alone (the gap is the robot's pose noise). Heavy tails mean strays."),
+        "sphere_3d": (lambda: _fig_sphere(solution, result, colours),
+                      "The fitted sphere (wireframe) and the profile points mapped into the sphere frame through "
+                      "A_i X, coloured by station: they should lie on the sphere."),
+    }
+    figures = {}
+    for key, (make, caption) in makers.items():
+        png = _png(make())
+        (out / f"{stem}_{key}.png").write_bytes(png)
+        figures[key] = (base64.b64encode(png).decode("ascii"), caption)
+
+    def fig_html(key):
+        data, caption = figures[key]
+        return (f'<figure id="fig-{key}"><img alt="{_e(key.replace("_", " "))}" '
+                f'src="data:image/png;base64,{data}"><figcaption>{_e(caption)}</figcaption></figure>')
+
+    ver = verdict(result, th)
+    items = advice(result, th)
+    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    nav = ["verdict", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
+    if validation is not None:
+        nav.append("validation")
+    nav.append("details")
+    sections = [
+        f"<h1>{_e(title)}</h1>",
+        f'<p class="sub">{_e(result.mounting)} &middot; {_e(result.transform_name)} &middot; '
+        f"{result.residuals.n_profiles_used} profiles &middot; generated {now} by spherecal {_e(__version__)}</p>",
+        "<nav>" + "".join(f'<a href="#{s}">{s}</a>' for s in nav) + "</nav>",
+        _headline(result, ver, th),
+        '<h2 id="advice">What to do when something is off</h2>',
+        _advice_html(items),
+        '<h2 id="residuals">Residuals</h2>',
+        "<p>A residual is the in-plane distance (mm) of a profile point from the circle where the laser plane cuts "
+        "the fitted sphere.</p>",
+        fig_html("residuals_per_profile"),
+        fig_html("residuals_per_station"),
+        fig_html("residual_histogram"),
+        '<h2 id="sphere">The sphere and the mapped points</h2>',
+        fig_html("sphere_3d"),
+        '<h2 id="uncertainty">Uncertainties</h2>',
+        _uncertainty_table(result),
+        '<h2 id="stations">Stations</h2>',
+        _station_table(result, th),
+        '<h2 id="flagged">Flagged observations</h2>',
+        _flagged_table(result),
+    ]
+    if validation is not None:
+        sections += ['<h2 id="validation">Validation</h2>', _validation_html(validation)]
+    sections += ['<h2 id="details">Details</h2>', _details_html(result),
+                 f"<footer>spherecal {_e(__version__)} &middot; conventions: docs/conventions.md &middot; "
+                 "this report: docs/results.md</footer>"]
+
+    template = Template(resources.files(__package__).joinpath("report.html").read_text(encoding="utf-8"))
+    css = resources.files(__package__).joinpath("report.css").read_text(encoding="utf-8")
+    page = template.substitute(title=_e(title), css=css, body="\n".join(sections), version=_e(__version__))
+    path = out / filename
+    path.write_text(page, encoding="utf-8")
+    return path

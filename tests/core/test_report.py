@@ -1,0 +1,190 @@
+"""The HTML report and the verdict/advice behind it."""
+
+import base64
+import re
+
+import numpy as np
+import pytest
+
+from spherecal.errors import InputError
+from spherecal.estimation import solve
+from spherecal.models import Pose
+from spherecal.report.assess import Thresholds, advice, inconsistent_stations, verdict
+from spherecal.report.html import FIGURE_NAMES, mapped_points, write_report
+from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+
+PLAN = SweepPlan(profiles_per_station=6)
+SHIFTED = 8  # observation whose pose is read 1 mm off
+
+
+def _shift_pose(ds, index, offset_mm):
+    obs = list(ds.observations)
+    o = obs[index]
+    pose = Pose.from_rt(o.base_from_flange.rotation_matrix, o.base_from_flange.translation + offset_mm)
+    obs[index] = o.model_copy(update={"base_from_flange": pose})
+    return ds.model_copy(update={"observations": obs})
+
+
+@pytest.fixture(scope="module")
+def bad_solution():
+    """Eye-in-hand, stray points on a third of the profiles, one pose shifted by 1 mm."""
+    cell = standard_cell("eye_in_hand", seed=3, noise=NoiseModel(stray_profile_fraction=0.3, strays_per_profile=5))
+    ds = _shift_pose(simulate_dataset(cell, PLAN), SHIFTED, [0.0, 1.0, 0.0])
+    return solve(ds)
+
+
+@pytest.fixture(scope="module")
+def bad_report(bad_solution, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bad")
+    validation = {
+        "sphere centre repeatability (mm)": {"value": 0.031, "limit": 0.1, "passed": True},
+        "probe point error (mm)": {"value": 0.42, "limit": 0.2, "passed": False},
+        "check poses": 12,
+    }
+    path = write_report(bad_solution, out, title="Cell 3 <eye-in-hand>", validation=validation)
+    return path, path.read_text(encoding="utf-8")
+
+
+@pytest.fixture(scope="module")
+def clean_solution():
+    return solve(simulate_dataset(standard_cell("eye_to_hand", seed=3), PLAN))
+
+
+# --- the file -----------------------------------------------------------------------------------------
+def test_report_is_written_with_its_figures(bad_report):
+    path, text = bad_report
+    assert path.name == "report.html" and text.startswith("<!DOCTYPE html>")
+    for key in FIGURE_NAMES:
+        png = path.parent / f"report_{key}.png"
+        data = png.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+        # the same image is embedded in the page
+        assert f'src="data:image/png;base64,{base64.b64encode(data).decode()}"' in text
+
+
+def test_report_is_self_contained(bad_report):
+    _, text = bad_report
+    assert not re.search(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:)?//""", text, re.IGNORECASE)
+    assert "http://" not in text and "https://" not in text
+    assert "<link" not in text and "<script" not in text and "@import" not in text
+    # every src is a data URI and every href an anchor in the page
+    assert all(s.startswith("data:image/png;base64,") for s in re.findall(r'src="([^"]*)"', text))
+    anchors = re.findall(r'href="#([^"]+)"', text)
+    assert anchors and all(f'id="{a}"' in text for a in anchors)
+    assert re.findall(r'href="([^"]*)"', text) == [f"#{a}" for a in anchors]
+
+
+def test_report_shows_the_key_numbers(bad_solution, bad_report):
+    _, text = bad_report
+    r = bad_solution.result
+    assert "Cell 3 &lt;eye-in-hand&gt;" in text  # the title, escaped
+    assert "flange_from_sensor" in text and "sensor_from_flange" in text
+    for v in r.transform.translation_mm:
+        assert f"{v:.4f}" in text
+    for v in r.std_rotation_deg + r.std_translation_mm + r.std_sphere_centre_mm:
+        assert f"{v:.4f}" in text
+    assert f"{r.residuals.rms_mm:.4f}" in text
+    for label, cons in r.diagnostics["station_consistency"].items():
+        assert f"<td>{label}</td>" in text and f"{cons['rms_mm']:.4f}" in text
+    assert "PERS tooldata tSensor" in text and "static_transform_publisher" in text
+
+
+def test_report_lists_the_flagged_observation_and_why(bad_solution, bad_report):
+    _, text = bad_report
+    flags = bad_solution.result.flagged
+    assert [f.index for f in flags] == [SHIFTED]
+    assert f"<td>{SHIFTED}</td>" in text
+    assert bad_solution.result.flagged[0].reason.split("(")[0].strip() in text
+    # the advice names the observation and the likely cause
+    assert f"Observation(s) {SHIFTED} (station {flags[0].station}): likely pose read at the wrong moment" in text
+
+
+def test_report_advises_on_stray_points(bad_solution, bad_report):
+    _, text = bad_report
+    assert bad_solution.result.residuals.n_points_rejected > 0
+    assert "Stray points rejected" in text and f"{bad_solution.result.residuals.n_points_rejected} of" in text
+
+
+def test_report_validation_table(bad_report):
+    _, text = bad_report
+    section = text[text.index('id="validation"'):text.index('id="details"')]
+    assert "probe point error (mm)" in section and "0.4200" in section and "check poses" in section
+    assert section.count('<tr class="bad">') == 1  # the row that did not pass
+
+
+def test_report_without_validation_and_other_mounting(clean_solution, tmp_path):
+    path = write_report(clean_solution, tmp_path, filename="cal.html")
+    text = path.read_text()
+    assert 'id="validation"' not in text
+    assert all((tmp_path / f"cal_{k}.png").is_file() for k in FIGURE_NAMES)
+    assert "base_from_sensor" in text and "PERS wobjdata wobjSensor" in text
+    assert 'class="verdict green"' in text and "Nothing calls for action" in text
+
+
+def test_report_rejects_what_is_not_a_solution(clean_solution, tmp_path):
+    with pytest.raises(InputError, match="needs the Solution returned by spherecal.estimation.solve"):
+        write_report(clean_solution.result, tmp_path)
+    with pytest.raises(InputError, match="must be a plain file name ending in .html"):
+        write_report(clean_solution, tmp_path, filename="../x.html")
+    with pytest.raises(InputError, match="validation must be a mapping"):
+        write_report(clean_solution, tmp_path, validation=[1, 2])
+
+
+def test_mapped_points_lie_on_the_fitted_sphere(clean_solution):
+    ref = clean_solution.refined
+    pts = mapped_points(clean_solution)
+    assert len(pts) == clean_solution.problem.n_profiles
+    dist = np.linalg.norm(np.vstack(pts) - ref.centre, axis=1) - ref.radius
+    assert np.sqrt(np.mean(dist**2)) < 3 * clean_solution.result.residuals.rms_mm
+    assert np.abs(dist).max() < 0.3
+
+
+# --- verdict and advice ------------------------------------------------------------------------------------
+def test_clean_data_is_green_with_nothing_to_do(clean_solution):
+    v = verdict(clean_solution.result)
+    assert v.level == "green" and all(level == "green" for level, _ in v.reasons)
+    assert advice(clean_solution.result) == []
+
+
+def test_wrong_sphere_radius_asks_to_check_it():
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=3), PLAN)
+    res = solve(ds.model_copy(update={"sphere_radius_mm": 19.0})).result  # certified 19.1
+    v = verdict(res)
+    assert v.level == "red"
+    items = {a.key: a for a in advice(res)}
+    assert "residual_rms_high" in items and "check the sphere radius" in items["residual_rms_high"].text.lower()
+    assert "fit_radius=True" in items["residual_rms_high"].text
+
+
+def test_a_station_read_before_settling_is_named():
+    ds = simulate_dataset(standard_cell("eye_to_hand", seed=3), PLAN)
+    obs = [o.model_copy(update={"base_from_flange": Pose.from_rt(
+        o.base_from_flange.rotation_matrix, o.base_from_flange.translation + [0.0, 0.15 * (o.index % 6), 0.0])})
+        if o.station == "S2" else o for o in ds.observations]
+    res = solve(ds.model_copy(update={"observations": obs})).result
+    assert list(inconsistent_stations(res)) == ["S2"]
+    items = {a.key: a for a in advice(res)}
+    assert "S2" in items["station_inconsistent"].text and "before the" in items["station_inconsistent"].text
+    assert "residual_rms_high" not in items  # the station explains the residuals
+
+
+def test_one_weak_rotation_axis_asks_for_a_tilt_about_it(clean_solution):
+    res = clean_solution.result.model_copy(update={"std_rotation_deg": (0.01, 0.09, 0.012)})
+    items = {a.key: a for a in advice(res)}
+    assert set(k for k in items if k.startswith("rotation")) == {"rotation_axis_y"}
+    assert "tilted by 20-30 deg about the base's y axis" in items["rotation_axis_y"].text
+    assert verdict(res).level == "amber"
+    # every axis alike: one piece of advice, not three
+    res = clean_solution.result.model_copy(update={"std_rotation_deg": (0.2, 0.21, 0.19)})
+    keys = [a.key for a in advice(res)]
+    assert "rotation_uncertain" in keys and not any(k.startswith("rotation_axis") for k in keys)
+    assert verdict(res).level == "red"
+
+
+def test_thresholds_are_configurable(clean_solution):
+    r = clean_solution.result
+    strict = Thresholds(translation_std_amber_mm=0.5 * max(r.std_translation_mm), translation_std_red_mm=1.0)
+    assert verdict(r, strict).level == "amber"
+    assert [a.key for a in advice(r, strict)] == ["translation_uncertain"]
+    with pytest.raises(ValueError, match="robot_repeatability_mm"):
+        Thresholds(robot_repeatability_mm=0)
