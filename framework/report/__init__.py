@@ -1,1 +1,24 @@
-"""Reports and exports of calibration results."""
+"""Reports and exports of calibration results.
+
+- :mod:`.export`: the result as 4x4 matrices (both directions), xyz + ABB quaternion,
+  a RAPID tooldata/wobjdata declaration, a ROS 2 static transform and JSON, each with a
+  reader; :func:`write_exports` writes them all.
+- :mod:`.assess`: the green/amber/red verdict and the advice driven by the diagnostics.
+- :mod:`.html`: :func:`write_report`, a self-contained HTML report (imports matplotlib,
+  so it is loaded on first use).
+
+See docs/results.md.
+"""
+
+from .assess import Advice, Thresholds, Verdict, advice, verdict
+from .export import write_exports
+
+__all__ = ["Advice", "Thresholds", "Verdict", "advice", "verdict", "write_exports", "write_report"]
+
+
+def __getattr__(name):
+    if name == "write_report":
+        from .html import write_report
+
+        return write_report
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

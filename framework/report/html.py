@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from importlib import resources
@@ -354,7 +355,7 @@ def _details_html(result: CalibrationResult) -> str:
          f"{_n(noise.get('point_noise_mm'))} mm / {_n(noise.get('pose_translation_noise_mm'))} mm / "
          f"{_n(noise.get('pose_rotation_noise_deg'))} deg"],
         ["residual max |e| / 95th percentile", f"{_n(result.residuals.max_abs_mm)} / {_n(result.residuals.p95_abs_mm)} mm"],
-        ["provenance", _e(result.provenance)],
+        ["provenance", _e(json.dumps(result.provenance, default=str))],
     ]
     return "<table>" + "".join(f'<tr><th>{k}</th><td class="text">{v}</td></tr>' for k, v in rows) + "</table>"
 
