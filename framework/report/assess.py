@@ -161,7 +161,7 @@ _FLAG_CAUSES = [
     ("inconsistent", "pose read at the wrong moment or paired with the wrong profile",
      "read the pose only after the robot has stopped (RAPID: a fine point and WaitRob \\InPos before CRobT) "
      "and check that no reading was lost or repeated in the sequence"),
-    ("only", "the laser line barely touches the sphere",
+    ("points (needs", "the laser line barely touches the sphere",
      "move that station's sweep so the line crosses the sphere near its middle"),
     ("do not lie on a circle", "the profile is not the sphere (background, holder, reflections)",
      "check what the sensor sees at that pose; mask the background or move the sweep"),

@@ -8,7 +8,7 @@ import pytest
 
 from spherecal.errors import InputError
 from spherecal.estimation import solve
-from spherecal.models import Pose
+from spherecal.models import ObservationFlag, Pose
 from spherecal.report.assess import Thresholds, advice, inconsistent_stations, verdict
 from spherecal.report.html import FIGURE_NAMES, mapped_points, write_report
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
@@ -179,6 +179,23 @@ def test_one_weak_rotation_axis_asks_for_a_tilt_about_it(clean_solution):
     keys = [a.key for a in advice(res)]
     assert "rotation_uncertain" in keys and not any(k.startswith("rotation_axis") for k in keys)
     assert verdict(res).level == "red"
+
+
+@pytest.mark.parametrize(
+    "reason, cause",
+    [
+        ("only 10 points (needs 20): the line barely touches the sphere or misses it", "barely touches the sphere"),
+        ("station S4 has only 3 usable profiles (needs 4): add profiles to its sweep", "too few usable profiles"),
+        ("points do not lie on a circle (rms 0.800 mm): not the sphere?", "is not the sphere"),
+        ("circle radius 25.000 mm exceeds the sphere radius 19.1 mm: wrong sphere radius", "wrong sphere radius"),
+        ("inconsistent with the other profiles (chi2 53.8 on 3 dof, about 0.674 mm)", "pose read at the wrong moment"),
+    ],
+)
+def test_flag_advice_names_the_likely_cause(clean_solution, reason, cause):
+    flag = ObservationFlag(index=7, station="S3", reason=reason)
+    res = clean_solution.result.model_copy(update={"flagged": [flag]})
+    (item,) = [a for a in advice(res) if a.key == "flagged"]
+    assert item.text.startswith(f"Observation(s) 7 (station S3): likely ") and cause in item.text
 
 
 def test_thresholds_are_configurable(clean_solution):
