@@ -113,6 +113,48 @@ class _Whitener:
         return np.sum(Y**2, axis=1)
 
 
+@dataclass
+class _Linearisation:
+    res: np.ndarray  # (M,) residuals, mm
+    J: np.ndarray  # (M, P) d res / d params
+    W: _Whitener
+    C: np.ndarray  # (n, 3) predicted sensor-frame centres
+    SC: np.ndarray  # (n, 3, 3) their covariance from pose noise
+
+
+class _Points:
+    """All profile points stacked, with the profile of each."""
+
+    def __init__(self, problem: Problem):
+        counts = np.array([len(p) for p in problem.profiles])
+        self.counts = counts
+        self.starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self.pid = np.repeat(np.arange(problem.n_profiles), counts)
+        self.P = np.vstack(problem.profiles)
+
+
+def _pose_cov(noise: NoiseAssumptions) -> np.ndarray:
+    return np.diag([np.radians(noise.pose_rotation_noise_deg) ** 2] * 3 + [noise.pose_translation_noise_mm**2] * 3)
+
+
+def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma) -> _Linearisation:
+    """Residuals, Jacobian and whitening at (R, t, c, r); see the module docstring."""
+    pid = pts.pid
+    u, C = _centres(problem, R, t, c)
+    rho = np.sqrt(np.maximum(r * r - C[:, 0] ** 2, 1e-6))
+    d = pts.P - C[pid, 1:]
+    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    res = dist - rho[pid]
+    G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
+    J = np.einsum("mk,mkp->mp", G, _centre_jacobian(problem, R, u)[pid])
+    if fit_radius:
+        J = np.column_stack([J, -(r / rho)[pid]])
+    Jd = _pose_noise_jacobian(problem, R, c)
+    SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
+    W = _Whitener(G, pid, pts.starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
+    return _Linearisation(res, J, W, C, SC)
+
+
 def refine(
     problem: Problem,
     R,
@@ -129,43 +171,17 @@ def refine(
     t = np.array(t, dtype=float)
     c = np.array(centre, dtype=float)
     r = float(problem.radius_mm)
-    counts = np.array([len(p) for p in problem.profiles])
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pid = np.repeat(np.arange(problem.n_profiles), counts)
-    P = np.vstack(problem.profiles)
+    pts = _Points(problem)
     sigma = max(noise.point_noise_mm, 1e-7)
-    pose_cov = np.diag(
-        [np.radians(noise.pose_rotation_noise_deg) ** 2] * 3 + [noise.pose_translation_noise_mm**2] * 3
-    )
+    pose_cov = _pose_cov(noise)
     n_par = 10 if fit_radius else 9
     scale = 1.0
     converged = False
     it = 0
-
-    def evaluate(R, t, c, r):
-        u, C = _centres(problem, R, t, c)
-        rho2 = r * r - C[:, 0] ** 2
-        rho = np.sqrt(np.maximum(rho2, 1e-6))
-        d = P - C[pid, 1:]
-        dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
-        res = dist - rho[pid]
-        G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
-        return u, C, rho, res, G
-
     for outer in range(4 if estimate_pose_noise else 1):
         for it in range(1, max_iterations + 1):
-            u, C, rho, res, G = evaluate(R, t, c, r)
-            Jc = _centre_jacobian(problem, R, u)
-            J = np.einsum("mk,mkp->mp", G, Jc[pid])
-            if fit_radius:
-                J = np.column_stack([J, -(r / rho)[pid]])
-            Jd = _pose_noise_jacobian(problem, R, c)
-            SC = scale * Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
-            L = np.linalg.cholesky(SC + 1e-18 * np.eye(3))
-            W = _Whitener(G, pid, starts, L, sigma)
-            Jw = W.apply(J)
-            ew = W.apply(res)
-            step = np.linalg.lstsq(Jw, -ew, rcond=None)[0]
+            lin = _linearise(problem, pts, R, t, c, r, fit_radius, scale * pose_cov, sigma)
+            step = np.linalg.lstsq(lin.W.apply(lin.J), -lin.W.apply(lin.res), rcond=None)[0]
             R = geo.matrix_from_rotvec(step[:3]) @ R
             t = t + step[3:6]
             c = c + step[6:9]
@@ -175,38 +191,27 @@ def refine(
                 converged = True
                 break
         # variance component of the pose noise: whitened chi^2 in the profiles' 3-D subspaces
-        u, C, rho, res, G = evaluate(R, t, c, r)
-        Jd = _pose_noise_jacobian(problem, R, c)
-        SC = scale * Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
-        W = _Whitener(G, pid, starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
+        lin = _linearise(problem, pts, R, t, c, r, fit_radius, scale * pose_cov, sigma)
         dof_profiles = 3 * problem.n_profiles - n_par
-        s2_profiles = float(W.profile_chi2(res).sum() / max(dof_profiles, 1))
+        s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
         if not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0 or abs(s2_profiles - 1) < 0.05:
             break
-        # move the assumed pose-noise variance toward what the profiles show
+        # move the assumed pose-noise variance toward what the profiles show, and refit
         scale = float(np.clip(scale * s2_profiles, 1e-8, 1e4))
 
-    u, C, rho, res, G = evaluate(R, t, c, r)
-    Jc = _centre_jacobian(problem, R, u)
-    J = np.einsum("mk,mkp->mp", G, Jc[pid])
-    if fit_radius:
-        J = np.column_stack([J, -(r / rho)[pid]])
-    Jd = _pose_noise_jacobian(problem, R, c)
-    SC = scale * Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
-    W = _Whitener(G, pid, starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
-    Jw = W.apply(J)
-    ew = W.apply(res)
+    lin = _linearise(problem, pts, R, t, c, r, fit_radius, scale * pose_cov, sigma)
+    Jw = lin.W.apply(lin.J)
+    ew = lin.W.apply(lin.res)
     info = Jw.T @ Jw
-    cov = np.linalg.pinv(info)
-    dof = max(len(res) - n_par, 1)
-    vf = float(ew @ ew / dof)
+    dof = max(len(lin.res) - n_par, 1)
     return RefineResult(
-        R, t, c, r, cov, np.split(res, np.cumsum(counts)[:-1]), C, SC, it, converged, vf, scale,
+        R, t, c, r, np.linalg.pinv(info), np.split(lin.res, np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
+        converged, float(ew @ ew / dof), scale,
         {
             "information_condition_number": float(np.linalg.cond(info)),
             "profile_variance_factor": s2_profiles,
             "point_noise_mm_assumed": sigma,
-            "profile_chi2": W.profile_chi2(res).tolist(),
+            "profile_chi2": lin.W.profile_chi2(lin.res).tolist(),
         },
     )
 
@@ -216,24 +221,8 @@ def cramer_rao_bound(problem_true: Problem, R, t, centre, noise: NoiseAssumption
     evaluated at the true parameters on the noise-free profile points of
     ``problem_true`` (poses = true poses). Linearised Gaussian model: Fisher information
     ``sum_i J_i^T Cov_i^-1 J_i``."""
-    counts = np.array([len(p) for p in problem_true.profiles])
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pid = np.repeat(np.arange(problem_true.n_profiles), counts)
-    P = np.vstack(problem_true.profiles)
-    r = problem_true.radius_mm
-    u, C = _centres(problem_true, R, t, centre)
-    rho = np.sqrt(np.maximum(r * r - C[:, 0] ** 2, 1e-6))
-    d = P - C[pid, 1:]
-    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
-    G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
-    J = np.einsum("mk,mkp->mp", G, _centre_jacobian(problem_true, R, u)[pid])
-    if fit_radius:
-        J = np.column_stack([J, -(r / rho)[pid]])
-    pose_cov = np.diag(
-        [np.radians(noise.pose_rotation_noise_deg) ** 2] * 3 + [noise.pose_translation_noise_mm**2] * 3
-    )
-    Jd = _pose_noise_jacobian(problem_true, R, centre)
-    SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
-    W = _Whitener(G, pid, starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), max(noise.point_noise_mm, 1e-9))
-    Jw = W.apply(J)
+    lin = _linearise(problem_true, _Points(problem_true), np.asarray(R, float), np.asarray(t, float),
+                     np.asarray(centre, float), problem_true.radius_mm, fit_radius, _pose_cov(noise),
+                     max(noise.point_noise_mm, 1e-9))
+    Jw = lin.W.apply(lin.J)
     return np.linalg.inv(Jw.T @ Jw)
