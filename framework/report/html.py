@@ -55,8 +55,10 @@ def _n(value: float | None, decimals: int = 4) -> str:
 def _station_colours(labels: list[str]) -> dict[str, Any]:
     from matplotlib import colormaps
 
+    # tab10 without its red (index 3): red marks flagged observations in the figures
     cmap = colormaps["tab10"]
-    return {label: cmap(k % 10) for k, label in enumerate(labels)}
+    palette = [cmap(i) for i in range(10) if i != 3]
+    return {label: palette[k % len(palette)] for k, label in enumerate(labels)}
 
 
 def _png(fig: Figure) -> bytes:
