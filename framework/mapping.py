@@ -23,7 +23,9 @@ numbers (to rounding): ``"numba"`` (a compiled loop, used when numba is installe
 
 from __future__ import annotations
 
+import importlib.util
 import os
+from functools import lru_cache
 from typing import Literal, Sequence
 
 import numpy as np
@@ -32,13 +34,8 @@ from .models import Pose
 
 Backend = Literal["auto", "numba", "numpy"]
 
-try:  # numba is optional: the NumPy backend gives the same numbers, slower
-    import numba as _numba
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    _numba = None
-
-#: True when the compiled backend can be used.
-NUMBA_AVAILABLE = _numba is not None
+#: True when the compiled backend can be used (numba is imported on first use only).
+NUMBA_AVAILABLE = importlib.util.find_spec("numba") is not None
 
 #: Rows per block in the NumPy backend: keeps its scratch buffer in cache.
 _BLOCK_POINTS = 1 << 14
@@ -89,9 +86,13 @@ def frame_from_sensor_stack(
 
 
 # kernels ----------------------------------------------------------------------------
-if NUMBA_AVAILABLE:
+@lru_cache(maxsize=None)
+def _numba_kernels():
+    """Compile (or load from numba's cache) the two loops; imported lazily to keep
+    ``import spherecal.mapping`` light."""
+    import numba
 
-    @_numba.njit(cache=True, nogil=True, boundscheck=False)
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
     def _map_numba(R, t, y, z, out):  # pragma: no cover - compiled
         n, m = y.shape
         for i in range(n):
@@ -111,7 +112,7 @@ if NUMBA_AVAILABLE:
                 out[i, j, 1] = r11 * yy + r12 * zz + t1
                 out[i, j, 2] = r21 * yy + r22 * zz + t2
 
-    @_numba.njit(cache=True, nogil=True, boundscheck=False)
+    @numba.njit(cache=True, nogil=True, boundscheck=False)
     def _map_ragged_numba(R, t, yz, offsets, out):  # pragma: no cover - compiled
         for i in range(len(offsets) - 1):
             r01 = R[i, 0, 1]
@@ -129,6 +130,8 @@ if NUMBA_AVAILABLE:
                 out[j, 0] = r01 * yy + r02 * zz + t0
                 out[j, 1] = r11 * yy + r12 * zz + t1
                 out[j, 2] = r21 * yy + r22 * zz + t2
+
+    return _map_numba, _map_ragged_numba
 
 
 def _map_numpy(R, t, y, z, out) -> None:
@@ -208,7 +211,7 @@ def map_profiles(
             f"got {out.shape} {out.dtype} (contiguous: {out.flags.c_contiguous})"
         )
     if _resolve(backend) == "numba":
-        _map_numba(R, t, np.ascontiguousarray(y), np.ascontiguousarray(z), out)
+        _numba_kernels()[0](R, t, np.ascontiguousarray(y), np.ascontiguousarray(z), out)
     else:
         _map_numpy(R, t, y, z, out)
     return out
@@ -245,7 +248,7 @@ def map_profile_list(
         return out, index
     if _resolve(backend) == "numba":
         yz = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in profiles_mm])
-        _map_ragged_numba(R, t, yz, offsets, out)
+        _numba_kernels()[1](R, t, yz, offsets, out)
     else:
         for i, p in enumerate(profiles_mm):
             if counts[i]:
