@@ -111,6 +111,29 @@ def cmd_simulate(args) -> int:
     return EXIT_OK
 
 
+def cmd_validate(args) -> int:
+    from .config import load_config
+    from .runner import run_validate
+
+    outcome = run_validate(load_config(args.config), out_dir=Path(args.out) if args.out else None,
+                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report)
+    from .validation import format_outcome
+
+    print(format_outcome(outcome))
+    print("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
+    return EXIT_OK if outcome.passed else EXIT_VALIDATION
+
+
+def cmd_scan(args) -> int:
+    from .config import load_config
+    from .runner import run_scan
+
+    path, summary = run_scan(load_config(args.config), out_dir=Path(args.out) if args.out else None,
+                             log=lambda m: print(m, file=sys.stderr))
+    print(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
+    return EXIT_OK
+
+
 def cmd_plugins(args) -> int:
     from .runner import make_host
 
@@ -159,6 +182,22 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--stray-fraction", type=float, default=0.0, help="share of profiles with stray points")
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
     m.set_defaults(func=cmd_simulate)
+
+    v = sub.add_parser("validate", help="acceptance test of a calibration: P_F, P_S, SD, F against the MPEs",
+                       description="Scan the sphere (and a ball bar and a flat, if configured) with the calibrated "
+                       "system at views other than the calibration's; report the figures per position and their "
+                       "maximum; exit 5 when one exceeds its MPE.")
+    v.add_argument("config", help="configuration file (TOML) with a [validation] section")
+    v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
+    v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
+    v.set_defaults(func=cmd_validate)
+
+    n = sub.add_parser("scan", help="scan an object with the calibrated system into a PLY point cloud",
+                       description="Sweep the object of the [scan] section and stream its points, mapped into the "
+                       "frame the object is fixed in (base in eye-in-hand), to a PLY file.")
+    n.add_argument("config", help="configuration file (TOML) with a [scan] section")
+    n.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
+    n.set_defaults(func=cmd_scan)
 
     g = sub.add_parser("plugins", help="list installed robots and sensors with their configuration fields")
     g.set_defaults(func=cmd_plugins)

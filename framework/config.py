@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from .errors import ConfigError
 from .estimation import CalibrationOptions
+from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
 from .sim import NoiseModel, SensorFieldOfView, SweepPlan
 
@@ -105,6 +106,90 @@ class AcquisitionConfig(_Section):
         return self
 
 
+class SweepSite(_Section):
+    """Where and how a validation or scan sweep looks at its target: the sensor tilted by
+    ``tilt_deg`` (rotation vector, about the sensor axes in eye-in-hand, base axes in
+    eye-to-hand) from the reference orientation, the sweep shifted by ``offset_mm`` (y, z)
+    in the sensor's field of view."""
+
+    tilt_deg: Vec3 = Field((0.0, 0.0, 0.0), description="rotation vector from the reference orientation, deg")
+    offset_mm: tuple[float, float] = Field((0.0, 0.0), description="(y, z) shift of the sweep in the sensor frame, mm")
+
+
+def _default_sphere_sites() -> list[SweepSite]:
+    # orientations other than the calibration's (0/30/30/45 deg about x, y, z)
+    return [
+        SweepSite(tilt_deg=(15.0, 15.0, 0.0), offset_mm=(5.0, -10.0)),
+        SweepSite(tilt_deg=(-20.0, 10.0, 25.0), offset_mm=(-8.0, 10.0)),
+        SweepSite(tilt_deg=(10.0, -25.0, -30.0), offset_mm=(0.0, -20.0)),
+        SweepSite(tilt_deg=(-15.0, -15.0, 60.0), offset_mm=(8.0, 0.0)),
+    ]
+
+
+class BallBarConfig(_Section):
+    """A ball bar: two spheres at a certified centre distance, fixed where the reference
+    sphere is fixed (base in eye-in-hand, flange in eye-to-hand)."""
+
+    centre_a_mm: Vec3 = Field(description="rough centre of ball A, mm")
+    centre_b_mm: Vec3 = Field(description="rough centre of ball B, mm")
+    ball_radius_mm: float = Field(gt=0.5, description="radius of the balls, mm")
+    certified_distance_mm: float = Field(gt=0, description="certified centre distance, mm")
+    positions: list[SweepSite] = Field(
+        default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(20.0, 0.0, 30.0)), SweepSite(tilt_deg=(0.0, -20.0, -40.0))],
+        description="views of the bar; at each, ball A is swept at this site and ball B at the next site's orientation",
+    )
+
+
+class FlatConfig(_Section):
+    """A flat (a plate), fixed where the reference sphere is fixed."""
+
+    centre_mm: Vec3 = Field(description="rough centre of the area to sweep, mm")
+    quaternion_wxyz: Vec4 = Field((1.0, 0.0, 0.0, 0.0), description="orientation of the plate (its z: the normal)")
+    length_mm: float = Field(150.0, gt=0, description="size along the plate's x (simulation), mm")
+    width_mm: float = Field(100.0, gt=0, description="size along the plate's y (simulation), mm")
+    sweep_length_mm: float = Field(30.0, gt=0, description="length of each sweep across the flat, mm")
+    positions: list[SweepSite] = Field(
+        default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(10.0, 0.0, 45.0), offset_mm=(0.0, -15.0))],
+        description="views of the flat",
+    )
+
+
+class ValidationConfig(_Section):
+    """`spherecal validate`: scan with the calibrated system at positions other than the
+    calibration's and compare the acceptance figures with the MPEs."""
+
+    result: str | None = Field(None, description="calibration result to validate (default: <output_dir>/result.json)")
+    profiles_per_sweep: int = Field(24, ge=8, description="profiles per sweep")
+    sphere_positions: list[SweepSite] = Field(default_factory=_default_sphere_sites, description="views of the sphere")
+    ball_bar: BallBarConfig | None = None
+    flat: FlatConfig | None = None
+    mpe: MaximumPermissibleErrors = Field(
+        default_factory=lambda: MaximumPermissibleErrors(
+            probing_form_mm=0.25, probing_size_mm=0.06, sphere_spacing_mm=0.1, flatness_mm=0.15
+        ),
+        description="maximum permissible errors, mm",
+    )
+    mpe_centre_spread_mm: float | None = Field(
+        0.1, gt=0, description="MPE of the spread of the sphere centres fitted from the different views, mm"
+    )
+
+
+class ScanConfig(_Section):
+    """`spherecal scan`: sweep an object with the calibrated system, write a PLY."""
+
+    result: str | None = Field(None, description="calibration result (default: <output_dir>/result.json)")
+    object_centre_mm: Vec3 = Field(description="centre of the area to scan, in the frame the object is fixed in, mm")
+    site: SweepSite = Field(default_factory=SweepSite, description="orientation and field-of-view offset")
+    length_mm: float = Field(100.0, gt=0, description="length of each pass (along the sensor's x), mm")
+    step_mm: float = Field(0.5, gt=0, description="distance between profiles, mm")
+    passes: int = Field(1, ge=1, description="parallel passes")
+    pass_spacing_mm: float = Field(20.0, gt=0, description="distance between passes (along the laser line), mm")
+    standoff_z_mm: float = Field(-10.0, description="sensor-frame z of the object's surface at the centre, mm")
+    speed_mm_s: float = Field(50.0, gt=0, description="speed between profiles, mm/s")
+    ply: str = Field("scan.ply", description="output file (relative: in output_dir)")
+    format: Literal["binary_little_endian", "ascii"] = Field("binary_little_endian", description="PLY encoding")
+
+
 class SimulationConfig(_Section):
     """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
 
@@ -117,6 +202,12 @@ class SimulationConfig(_Section):
     )
     noise: NoiseModel = Field(default_factory=NoiseModel, description="sensor and robot noise of the cell")
     fov: SensorFieldOfView = Field(default_factory=SensorFieldOfView, description="the simulated sensor's field of view")
+    scan_object: Literal["none", "flat_plate", "car_door_panel"] = Field(
+        "none", description="object placed at [scan] object_centre_mm (its surface at the centre)"
+    )
+    ball_bar_true_distance_mm: float | None = Field(
+        None, gt=0, description="true centre distance of the simulated ball bar (default: the certified one)"
+    )
 
 
 class RunConfig(_Section):
@@ -134,6 +225,8 @@ class RunConfig(_Section):
     replay: str | None = Field(None, description="a recorded dataset (.jsonl) to calibrate instead of acquiring")
     calibration: CalibrationOptions = Field(default_factory=CalibrationOptions, description="estimator settings")
     simulation: SimulationConfig | None = Field(None, description="simulate the cell instead of using hardware")
+    validation: ValidationConfig | None = Field(None, description="settings of `spherecal validate`")
+    scan: ScanConfig | None = Field(None, description="settings of `spherecal scan`")
 
     @field_validator("robot", "sensor")
     @classmethod

@@ -18,7 +18,8 @@ from .devices import DeviceContext
 from .errors import ConfigError, DegenerateDataError, InputError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
-from .sim import SimulatedCell, standard_cell
+from .models import SPHERE_FRAME
+from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
 JOURNAL_NAME = "journal.jsonl"
 RESULT_NAME = "result.json"
@@ -35,6 +36,25 @@ def make_cell(cfg: RunConfig) -> SimulatedCell | None:
         cell.true_transform = sim.true_transform.pose()
     if sim.sphere_centre_mm is not None:
         cell.sphere_centre_mm = np.asarray(sim.sphere_centre_mm, dtype=float)
+    frame = SPHERE_FRAME[cfg.mounting]
+    v = cfg.validation
+    if v is not None and v.ball_bar is not None:
+        bb = v.ball_bar
+        a, b = np.asarray(bb.centre_a_mm, float), np.asarray(bb.centre_b_mm, float)
+        true = sim.ball_bar_true_distance_mm or bb.certified_distance_mm
+        b = a + (b - a) / np.linalg.norm(b - a) * true  # the simulated bar has its true length
+        cell.add_object(BallBar(a, b, bb.ball_radius_mm, frame=frame, certified_distance_mm=bb.certified_distance_mm))
+    if v is not None and v.flat is not None:
+        f = v.flat
+        cell.add_object(FlatPlate(Pose.from_abb(f.centre_mm, f.quaternion_wxyz), f.length_mm, f.width_mm, frame=frame))
+    if sim.scan_object != "none":
+        if cfg.scan is None:
+            raise ConfigError("simulation.scan_object needs a [scan] section (its object_centre_mm places the object)")
+        at = Pose.from_abb(cfg.scan.object_centre_mm, (1.0, 0.0, 0.0, 0.0))
+        if sim.scan_object == "flat_plate":
+            cell.add_object(FlatPlate(at, 300.0, 200.0, frame=frame, name="scan_plate"))
+        else:
+            cell.add_object(CarDoorPanel(at, frame=frame))
     return cell
 
 
@@ -253,3 +273,110 @@ def truth_check(solution: Solution, dataset: Dataset) -> str | None:
     rot = geo.rotation_angle_deg(true.rotation_matrix, X.rotation_matrix)
     dt = float(np.linalg.norm(true.translation - X.translation))
     return f"simulated truth: error {rot:.4f} deg, {dt:.4f} mm"
+
+
+def _result_for(loaded: LoadedConfig, section, out: Path):
+    cfg = loaded.config
+    path = loaded.resolve(section.result) if section.result else out / RESULT_NAME
+    result = dataio.read_result(path)
+    if result.mounting != cfg.mounting:
+        raise InputError(f"{path}: the result is {result.mounting} but the configuration says {cfg.mounting}")
+    return path, result
+
+
+def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
+                 progress_stream=None, report: bool = True):
+    """``spherecal validate``: scan the artefacts at new views with the calibrated
+    system, compute the acceptance figures, compare with the MPEs."""
+    from .validation import evaluate, measure, plan_validation
+
+    cfg = loaded.config
+    if cfg.validation is None:
+        raise ConfigError(f"{loaded.path}: no [validation] section: say what to validate against which MPEs")
+    if cfg.acquisition is None:
+        raise ConfigError(f"{loaded.path}: validation moves the robot: it needs [acquisition] (speeds, workspace)")
+    out = Path(out_dir) if out_dir is not None else loaded.output_dir
+    result_path, result = _result_for(loaded, cfg.validation, out)
+    X = result.transform
+    sweeps = plan_validation(cfg, X)
+    targets = [t for s in sweeps for t in s.targets]
+    log(f"validating {result_path}: {len(sweeps)} sweeps, {len(targets)} shots")
+    problems = check_targets(targets, cfg.acquisition)
+    if problems:
+        raise InputError("the validation plan breaks the limits; nothing was moved:\n  " + "\n  ".join(problems))
+    host = make_host()
+    cell = make_cell(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    journal = out / "validation-journal.jsonl"
+    if journal.exists():
+        journal.unlink()  # a validation is re-run whole; its journal only records this run
+    with open_devices(loaded, host, cell, log) as (robot, sensor):
+        problems = check_targets(targets, cfg.acquisition, robot)
+        if problems:
+            raise InputError("the validation plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+        with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
+                                  provenance={"source": "spherecal validate", "result": str(result_path)},
+                                  fsync=True) as writer:
+            from datetime import datetime, timezone
+
+            from .models import Observation
+
+            def record(sweep, target, pose, profile):
+                writer.append(Observation(index=writer.next_index, station=f"{sweep.label}-{sweep.kind}",
+                                          timestamp=datetime.now(timezone.utc), base_from_flange=pose,
+                                          profile=profile, target=target.index))
+
+            measured = measure(robot, sensor, sweeps, cfg, log, Progress(len(targets), progress_stream), record)
+    outcome = evaluate(cfg, X, measured)
+    (out / "validation.json").write_text(
+        __import__("json").dumps({"passed": outcome.passed, "figures": outcome.table(),
+                                  "report": outcome.report.model_dump(), "centres_mm": outcome.centres_mm},
+                                 indent=2, default=float)
+    )
+    calib_journal = out / JOURNAL_NAME
+    if report and calib_journal.exists():
+        from .report.html import write_report
+
+        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
+                         host.robot_kinematics(cfg.robot))
+        write_report(solution, out, validation=outcome.table())
+    return outcome
+
+
+def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
+             progress_stream=None):
+    """``spherecal scan``: sweep the object, stream its points to a PLY file."""
+    from .ply import PlyWriter
+    from .scanning import plan_scan, scan
+
+    cfg = loaded.config
+    if cfg.scan is None:
+        raise ConfigError(f"{loaded.path}: no [scan] section: say what to scan")
+    if cfg.acquisition is None:
+        raise ConfigError(f"{loaded.path}: scanning moves the robot: it needs [acquisition] (speeds, workspace)")
+    out = Path(out_dir) if out_dir is not None else loaded.output_dir
+    _, result = _result_for(loaded, cfg.scan, out)
+    targets = plan_scan(cfg, result.transform)
+    problems = check_targets(targets, cfg.acquisition)
+    if problems:
+        raise InputError("the scan plan breaks the limits; nothing was moved:\n  " + "\n  ".join(problems))
+    ply_path = Path(cfg.scan.ply) if Path(cfg.scan.ply).is_absolute() else out / cfg.scan.ply
+    if ply_path.exists():
+        raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
+    host = make_host()
+    cell = make_cell(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    log(f"scan: {len(targets)} profiles into {ply_path}")
+    frame = SPHERE_FRAME[cfg.mounting]
+    with open_devices(loaded, host, cell, log) as (robot, sensor):
+        problems = check_targets(targets, cfg.acquisition, robot)
+        if problems:
+            raise InputError("the scan plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+        from .scanning import scan as do_scan
+
+        with PlyWriter(ply_path, format=cfg.scan.format, with_profile=True, frame=frame,
+                       comments=(f"spherecal scan, {result.transform_name} from {cfg.output_dir}",)) as writer:
+            summary = do_scan(robot, sensor, targets, result.transform, cfg, writer, log,
+                              Progress(len(targets), progress_stream))
+    log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in {frame} frame")
+    return ply_path, summary

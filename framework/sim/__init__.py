@@ -2,9 +2,15 @@
 simulated devices."""
 
 from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, standard_cell
+from .objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
 from .planner import SweepPlan, plan_stations, simulate_dataset
 
 __all__ = [
+    "BallBar",
+    "CarDoorPanel",
+    "FlatPlate",
+    "SceneObject",
+    "Sphere",
     "NoiseModel",
     "SensorFieldOfView",
     "SimulatedCell",

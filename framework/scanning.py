@@ -1,0 +1,66 @@
+"""Scanning with the calibrated system: sweep an object, map every profile through the
+calibrated transform into the frame the object is fixed in (base in eye-in-hand, flange
+in eye-to-hand) and stream the points to a PLY file, profile by profile, so memory stays
+bounded however long the scan."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from . import geometry as geo
+from .acquisition import Progress, Target, take_shot
+from .config import RunConfig
+from .mapping import frame_from_sensor_stack, map_profile_list
+from .models import SPHERE_FRAME, Pose
+from .ply import PlyWriter
+from .sim.planner import SweepPlan, plan_stations
+
+
+def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
+    """Parallel pure-translation passes over ``[scan] object_centre_mm``."""
+    sc = cfg.scan
+    acq = cfg.acquisition
+    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz) if acq else None
+    n = int(round(sc.length_mm / sc.step_mm)) + 1
+    targets: list[Target] = []
+    for j in range(sc.passes):
+        dy = sc.site.offset_mm[0] + (j - (sc.passes - 1) / 2) * sc.pass_spacing_mm
+        plan = SweepPlan(profiles_per_station=max(n, 4), sweep_fraction=0.5, lateral_amplitude_mm=0.0,
+                         standoff_z_mm=sc.standoff_z_mm, station_offsets_mm=[(dy, sc.site.offset_mm[1])],
+                         tilts_deg=[sc.site.tilt_deg])
+        (_, poses), = plan_stations(cfg.mounting, X, sc.object_centre_mm, sc.length_mm, plan, R_ref)
+        targets += [Target(len(targets) + k, f"pass{j + 1}", p, k == 0) for k, p in enumerate(poses)]
+    return targets
+
+
+@dataclass
+class ScanSummary:
+    profiles: int = 0
+    points: int = 0
+    empty_profiles: int = 0
+
+
+def scan(robot, sensor, targets: list[Target], X: Pose, cfg: RunConfig, writer: PlyWriter,
+         log: Callable[[str], None] = print, progress: Progress | None = None) -> ScanSummary:
+    """Take every target and append its mapped points to ``writer`` straight away."""
+    acq = cfg.acquisition
+    frame = SPHERE_FRAME[cfg.mounting]
+    summary = ScanSummary()
+    progress = progress or Progress(len(targets))
+    for n, t in enumerate(targets, start=1):
+        speed = acq.approach_speed_mm_s if t.first_of_station else min(cfg.scan.speed_mm_s, acq.max_speed_mm_s)
+        robot.move_linear(t.pose, speed)
+        pose, _j, profile, _ = take_shot(robot, sensor, acq, log)
+        if profile is None:
+            summary.empty_profiles += 1
+        else:
+            R, tt = frame_from_sensor_stack(cfg.mounting, pose.rotation_matrix[None], pose.translation[None], X, frame)
+            pts, _ = map_profile_list(R, tt, [profile.points_mm])
+            writer.write(pts, profile=np.full(len(pts), t.index, dtype=np.uint32))
+            summary.profiles += 1
+            summary.points += len(pts)
+        progress.update(n, t.station)
+    return summary

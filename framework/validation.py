@@ -1,0 +1,187 @@
+"""Validation with the calibrated system: sweeps at views other than the calibration's,
+points mapped through the calibrated transform into the frame the artefacts are fixed
+in, and the acceptance figures of docs/validation-and-scanning.md (P_F, P_S, SD, F) plus
+the spread of the sphere centres fitted from the different views (which catches a
+translation error that no single view can show)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from . import geometry as geo
+from .acquisition import Progress, Target, take_shot
+from .config import RunConfig, SweepSite
+from .errors import DegenerateDataError
+from .mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
+from .metrology import (
+    AcceptanceReport,
+    acceptance_report,
+    flatness_error,
+    probing_errors,
+    sphere_spacing_error,
+)
+from .models import SPHERE_FRAME, Pose
+from .sim.planner import SweepPlan, plan_stations
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One validation sweep: a group label, what it looks at, and its targets."""
+
+    label: str
+    kind: str  # "sphere", "ball_a", "ball_b", "flat"
+    targets: list[Target]
+
+
+def _sweep(cfg: RunConfig, X: Pose, label: str, kind: str, centre, half_length_mm: float, site: SweepSite,
+           n: int, first_index: int) -> Sweep:
+    acq = cfg.acquisition
+    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz) if acq else None
+    plan = SweepPlan(profiles_per_station=n, sweep_fraction=0.9, lateral_amplitude_mm=0.0,
+                     standoff_z_mm=-20.0 if kind != "flat" else -10.0,
+                     station_offsets_mm=[site.offset_mm], tilts_deg=[site.tilt_deg])
+    (_, poses), = plan_stations(cfg.mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
+    return Sweep(label, kind, [Target(first_index + k, label, p, k == 0) for k, p in enumerate(poses)])
+
+
+def plan_validation(cfg: RunConfig, X: Pose) -> list[Sweep]:
+    """The validation sweeps, planned with the calibrated transform ``X``."""
+    v = cfg.validation
+    n = v.profiles_per_sweep
+    r = cfg.sphere.radius_mm
+    centre = cfg.acquisition.sphere_centre_mm if cfg.acquisition else None
+    sweeps: list[Sweep] = []
+    count = lambda: sum(len(s.targets) for s in sweeps)  # noqa: E731
+    if centre is not None:
+        for k, site in enumerate(v.sphere_positions):
+            sweeps.append(_sweep(cfg, X, f"P{k + 1}", "sphere", centre, 0.9 * r, site, n, count()))
+    if v.ball_bar is not None:
+        bb = v.ball_bar
+        for k, site in enumerate(bb.positions):
+            other = bb.positions[(k + 1) % len(bb.positions)]
+            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site, n, count()))
+            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other, n, count()))
+    if v.flat is not None:
+        for k, site in enumerate(v.flat.positions):
+            sweeps.append(_sweep(cfg, X, f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site, n, count()))
+    if not sweeps:
+        raise DegenerateDataError("nothing to validate: give [acquisition] sphere_centre_mm, [validation.ball_bar] or [validation.flat]")
+    return sweeps
+
+
+@dataclass
+class Measured:
+    """Poses and profiles of one sweep."""
+
+    sweep: Sweep
+    poses: list[Pose] = field(default_factory=list)
+    profiles: list[np.ndarray] = field(default_factory=list)
+
+
+def measure(robot, sensor, sweeps: list[Sweep], cfg: RunConfig, log: Callable[[str], None] = print,
+            progress: Progress | None = None, on_shot: Callable | None = None) -> list[Measured]:
+    """Move through every sweep and take its profiles (poses read before and after)."""
+    acq = cfg.acquisition
+    total = sum(len(s.targets) for s in sweeps)
+    progress = progress or Progress(total)
+    out, done = [], 0
+    for sw in sweeps:
+        m = Measured(sw)
+        for t in sw.targets:
+            robot.move_linear(t.pose, acq.approach_speed_mm_s if t.first_of_station else acq.speed_mm_s)
+            pose, _joints, profile, _ = take_shot(robot, sensor, acq, log)
+            if profile is not None:
+                m.poses.append(pose)
+                m.profiles.append(profile.points_mm)
+                if on_shot is not None:
+                    on_shot(sw, t, pose, profile)
+            done += 1
+            progress.update(done, sw.label)
+        out.append(m)
+    return out
+
+
+def points_in_object_frame(mounting: str, X: Pose, poses: list[Pose], profiles: list[np.ndarray]) -> np.ndarray:
+    """All points of a sweep mapped through the calibrated X into the frame the
+    artefacts are fixed in (base in eye-in-hand, flange in eye-to-hand), (N, 3) mm."""
+    R0, t0 = rt_from_poses(poses)
+    R, t = frame_from_sensor_stack(mounting, R0, t0, X, SPHERE_FRAME[mounting])
+    pts, _ = map_profile_list(R, t, profiles)
+    return pts
+
+
+@dataclass
+class ValidationOutcome:
+    report: AcceptanceReport
+    centre_spread_mm: float | None
+    centre_spread_passed: bool | None
+    centres_mm: dict[str, list[float]]
+    mpe_centre_spread_mm: float | None = None
+
+    @property
+    def passed(self) -> bool:
+        verdicts = [self.report.passed, self.centre_spread_passed]
+        return all(v is not False for v in verdicts)
+
+    def table(self) -> dict[str, dict]:
+        """Rows for the HTML report and the console: one per figure."""
+        rows = {}
+        for v in self.report.verdicts:
+            if v.n_positions:
+                rows[v.figure] = {"max error (mm)": v.max_error_mm, "worst position": v.worst_position,
+                                  "positions": v.n_positions, "MPE (mm)": v.mpe_mm, "passed": v.passed}
+        if self.centre_spread_mm is not None:
+            rows["centre spread"] = {"max error (mm)": self.centre_spread_mm, "worst position": None,
+                                     "positions": len(self.centres_mm), "MPE (mm)": self.mpe_centre_spread_mm, "passed": self.centre_spread_passed}
+        return rows
+
+
+def evaluate(cfg: RunConfig, X: Pose, measured: list[Measured]) -> ValidationOutcome:
+    """The acceptance figures from the measured sweeps."""
+    v = cfg.validation
+    probing, spacing, flatness = [], [], []
+    centres: dict[str, list[float]] = {}
+    balls: dict[str, dict[str, np.ndarray]] = {}
+    for m in measured:
+        if not m.profiles:
+            raise DegenerateDataError(f"validation sweep {m.sweep.label} ({m.sweep.kind}) saw nothing: check its position")
+        pts = points_in_object_frame(cfg.mounting, X, m.poses, m.profiles)
+        if m.sweep.kind == "sphere":
+            pr = probing_errors(pts, 2 * cfg.sphere.radius_mm, position=m.sweep.label)
+            probing.append(pr)
+            centres[m.sweep.label] = list(pr.fit.centre_mm)
+        elif m.sweep.kind in ("ball_a", "ball_b"):
+            balls.setdefault(m.sweep.label, {})[m.sweep.kind] = pts
+        else:
+            flatness.append(flatness_error(pts, position=m.sweep.label))
+    for label, pair in balls.items():
+        spacing.append(sphere_spacing_error(pair["ball_a"], pair["ball_b"], v.ball_bar.certified_distance_mm, position=label))
+    report = acceptance_report(v.mpe, probing=probing, sphere_spacing=spacing, flatness=flatness)
+    spread = passed = None
+    if len(centres) >= 2:
+        c = np.array(list(centres.values()))
+        spread = float(np.linalg.norm(c - c.mean(axis=0), axis=1).max())
+        passed = None if v.mpe_centre_spread_mm is None else spread <= v.mpe_centre_spread_mm
+    return ValidationOutcome(report, spread, passed, centres, v.mpe_centre_spread_mm)
+
+
+def format_outcome(outcome: ValidationOutcome) -> str:
+    lines = [f"{'figure':14s} {'max error (mm)':>15s} {'worst':>6s} {'MPE (mm)':>9s}  verdict"]
+    for name, row in outcome.table().items():
+        mpe = "-" if row["MPE (mm)"] is None else f"{row['MPE (mm)']:.4f}"
+        verdict = {True: "pass", False: "FAIL", None: "not judged"}[row["passed"]]
+        lines.append(f"{name:14s} {row['max error (mm)']:15.4f} {row['worst position'] or '-':>6s} {mpe:>9s}  {verdict}")
+    for pr in outcome.report.probing:
+        lines.append(f"  {pr.position}: P_F {pr.probing_form_error_mm:.4f} mm, P_S {pr.probing_size_error_mm:+.4f} mm "
+                     f"({pr.fit.n_points_used} points used, {pr.fit.n_points_dropped} dropped)")
+    for sd in outcome.report.sphere_spacing:
+        lines.append(f"  {sd.position}: SD {sd.sphere_spacing_error_mm:+.4f} mm "
+                     f"({sd.fit_a.n_points_used}+{sd.fit_b.n_points_used} points used, "
+                     f"{sd.fit_a.n_points_dropped + sd.fit_b.n_points_dropped} dropped)")
+    for f in outcome.report.flatness:
+        lines.append(f"  {f.position}: F {f.flatness_error_mm:.4f} mm ({f.fit.n_points_used} points used, "
+                     f"{f.fit.n_points_dropped} dropped)")
+    return "\n".join(lines)

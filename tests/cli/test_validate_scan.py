@@ -1,0 +1,179 @@
+"""spherecal validate and spherecal scan on the simulated cell."""
+
+import json
+
+import numpy as np
+import pytest
+
+from spherecal import dataio
+from spherecal import geometry as geo
+from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, EXIT_VALIDATION, main
+from spherecal.config import load_config
+from spherecal.models import Pose
+from spherecal.ply import read_ply, read_ply_header
+from spherecal.runner import make_cell
+from spherecal.sim import NoiseModel
+
+
+def write_result_with(out, cfg_path, transform: Pose):
+    """A result.json that claims ``transform`` (built from a quick solve of a simulated
+    dataset so that every other field is genuine)."""
+    from spherecal.estimation import calibrate
+    from spherecal.sim import SweepPlan, simulate_dataset
+
+    cell = make_cell(load_config(cfg_path).config)
+    result = calibrate(simulate_dataset(cell, SweepPlan(profiles_per_station=6)))
+    out.mkdir(parents=True, exist_ok=True)
+    dataio.write_result(out / "result.json", result.model_copy(update={"transform": transform}), overwrite=True)
+    return cell.true_transform
+
+
+@pytest.fixture
+def cfg_path(sim_config):
+    return sim_config("sim-eye-in-hand.toml")
+
+
+def test_validate_with_the_true_calibration_passes(cfg_path, capsys):
+    out = cfg_path.parent / "out"
+    cell = make_cell(load_config(cfg_path).config)
+    write_result_with(out, cfg_path, cell.true_transform)
+    assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert "validation passed" in printed and "points used" in printed
+    v = json.loads((out / "validation.json").read_text())
+    assert v["passed"] is True
+    rep = v["report"]
+    # P_S and SD within what the noise explains: their spread over many simulated
+    # validations (point and pose noise, no calibration error), found by Monte Carlo
+    sd_ps, sd_sd = noise_spread(load_config(cfg_path).config, cell.true_transform)
+    assert len(rep["probing"]) == 4 and len(rep["sphere_spacing"]) == 3
+    assert all(abs(p["probing_size_error_mm"]) < 4 * sd_ps for p in rep["probing"])
+    assert all(abs(s["sphere_spacing_error_mm"]) < 4 * sd_sd for s in rep["sphere_spacing"])
+    assert sd_ps < 0.03 and sd_sd < 0.03
+    assert all(f["flatness_error_mm"] < 0.15 for f in rep["flatness"])
+    assert v["figures"]["centre spread"]["max error (mm)"] < 0.05
+
+
+def noise_spread(cfg, X, seeds=10):
+    """RMS of P_S and SD over simulated validations with the true calibration."""
+    from spherecal.validation import Measured, evaluate, plan_validation
+
+    ps, sd = [], []
+    for seed in range(100, 100 + seeds):
+        cell = make_cell(cfg.model_copy(update={"simulation": cfg.simulation.model_copy(update={"seed": seed})}))
+        cell.noise_per_pose = False
+        measured = []
+        for sweep in plan_validation(cfg, X):
+            poses, profiles = cell.scan([t.pose for t in sweep.targets])
+            keep = [k for k, p in enumerate(profiles) if len(p)]
+            measured.append(Measured(sweep, [poses[k] for k in keep], [profiles[k] for k in keep]))
+        report = evaluate(cfg, X, measured).report
+        ps += [p.probing_size_error_mm for p in report.probing]
+        sd += [s.sphere_spacing_error_mm for s in report.sphere_spacing]
+    return float(np.sqrt(np.mean(np.square(ps)))), float(np.sqrt(np.mean(np.square(sd))))
+
+
+def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, capsys):
+    """X off by 0.3 mm: each view sees the sphere shifted by R0_k dt, so the fitted
+    centres spread and the ball bar (balls seen from different views) changes length by
+    the predicted amounts."""
+    out = cfg_path.parent / "out"
+    cfg = load_config(cfg_path).config
+    true = make_cell(cfg).true_transform
+    dt = np.array([0.3, 0.0, 0.0])
+    write_result_with(out, cfg_path, Pose.from_rt(true.rotation_matrix, true.translation + dt))
+    assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_VALIDATION
+    assert "FAILED" in capsys.readouterr().out
+    v = json.loads((out / "validation.json").read_text())
+
+    from spherecal.validation import plan_validation
+
+    sweeps = plan_validation(cfg, true)
+    R0 = {s.label + s.kind: s.targets[0].pose.rotation_matrix for s in sweeps}
+    shifts = np.array([R0[f"P{k}sphere"] @ dt for k in range(1, 5)])
+    predicted_spread = np.linalg.norm(shifts - shifts.mean(axis=0), axis=1).max()
+    assert v["figures"]["centre spread"]["max error (mm)"] == pytest.approx(predicted_spread, abs=0.02)
+    assert predicted_spread > 0.1
+    bb = cfg.validation.ball_bar
+    u = np.subtract(bb.centre_b_mm, bb.centre_a_mm)
+    u /= np.linalg.norm(u)
+    for s in v["report"]["sphere_spacing"]:
+        k = s["position"]
+        predicted = (R0[k + "ball_b"] @ dt - R0[k + "ball_a"] @ dt) @ u
+        assert s["sphere_spacing_error_mm"] == pytest.approx(predicted, abs=0.02)
+
+
+def test_a_rotated_calibration_is_caught(cfg_path):
+    """X off by 0.5 deg about the sensor's y. A laser-plane point (0, y, z) is then mapped
+    off by delta * z along the sensor's x, so each view sees the sphere moved by about
+    R0_k X (delta * mean z, 0, 0), mean z over the points that view sees; the views'
+    centres spread accordingly."""
+    out = cfg_path.parent / "out"
+    cfg = load_config(cfg_path).config
+    cell = make_cell(cfg)
+    true = cell.true_transform
+    delta = np.radians(0.5)
+    wrong = Pose.from_rt(true.rotation_matrix @ geo.matrix_from_rotvec([0, delta, 0]), true.translation)
+    write_result_with(out, cfg_path, wrong)
+    assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_VALIDATION
+    v = json.loads((out / "validation.json").read_text())
+
+    from spherecal.validation import plan_validation
+
+    shifts = []
+    for sweep in [s for s in plan_validation(cfg, true) if s.kind == "sphere"]:
+        mean_z = np.concatenate([cell.ideal_profile(t.pose)[:, 1] for t in sweep.targets]).mean()
+        shifts.append(sweep.targets[0].pose.rotation_matrix @ true.rotation_matrix @ [delta * mean_z, 0.0, 0.0])
+    shifts = np.array(shifts)
+    predicted = np.linalg.norm(shifts - shifts.mean(axis=0), axis=1).max()
+    assert predicted > 0.1
+    assert v["figures"]["centre spread"]["max error (mm)"] == pytest.approx(predicted, abs=0.03)
+    assert v["figures"]["centre spread"]["passed"] is False
+
+
+def test_validate_needs_a_result(cfg_path, capsys):
+    assert main(["validate", str(cfg_path)]) == EXIT_DATA
+    assert "result.json" in capsys.readouterr().err
+
+
+def test_validate_needs_its_section(sim_config, capsys):
+    cfg = sim_config("sim-eye-to-hand.toml")
+    assert main(["validate", str(cfg)]) == EXIT_USAGE
+    assert "no [validation] section" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fmt", ["binary_little_endian", "ascii"])
+def test_scan_a_flat_plate_into_ply(sim_config, fmt, capsys):
+    cfg_path = sim_config("sim-eye-in-hand.toml", **{
+        r'^scan_object = "car_door_panel".*$': 'scan_object = "flat_plate"',
+        r"^passes = 2$": f'passes = 2\nformat = "{fmt}"',
+    })
+    out = cfg_path.parent / "out"
+    true = make_cell(load_config(cfg_path).config).true_transform
+    write_result_with(out, cfg_path, true)
+    assert main(["scan", str(cfg_path)]) == EXIT_OK
+    printed = capsys.readouterr().out
+    n = int(printed.split()[1])
+    header = read_ply_header(out / "scan.ply")
+    assert header.vertex_count == n and header.format == fmt
+    v = read_ply(out / "scan.ply")
+    xyz = np.column_stack([v["x"], v["y"], v["z"]]).astype(float)
+    assert len(xyz) == n > 50_000
+    # the plate's surface is the plane z = 380 mm in base: points land on it within noise,
+    # but for the simulated stray points (reflections on 10 % of the profiles, 4 each)
+    off = np.abs(xyz[:, 2] - 380.0) > 0.12
+    assert off.sum() <= 0.1 * 162 * 4 * 3
+    assert abs(np.median(xyz[:, 2]) - 380.0) < 0.01
+    assert set(np.unique(v["profile"])) == set(range(162))
+    assert main(["scan", str(cfg_path)]) == EXIT_DATA  # never overwrites
+
+
+def test_scan_the_car_door_panel(cfg_path, capsys):
+    out = cfg_path.parent / "out"
+    true = make_cell(load_config(cfg_path).config).true_transform
+    write_result_with(out, cfg_path, true)
+    assert main(["scan", str(cfg_path)]) == EXIT_OK
+    v = read_ply(out / "scan.ply")
+    z = np.asarray(v["z"], dtype=float)
+    # a curved panel: its height varies across the scanned area by more than the noise
+    assert len(z) > 50_000 and np.ptp(z) > 0.5
