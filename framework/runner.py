@@ -90,6 +90,15 @@ def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Ca
         robot.close()
 
 
+def _check_plan(targets, acq, what: str = "plan", robot=None) -> None:
+    """Raise before any motion when a target breaks the configured limits (or, with
+    ``robot``, the robot plugin's own limits)."""
+    problems = check_targets(targets, acq, robot)
+    if problems:
+        limits = "the robot's limits" if robot is not None else "the limits"
+        raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
+
+
 @dataclass
 class Outcome:
     """What a calibrate/solve run produced."""
@@ -141,17 +150,13 @@ def run_calibrate(
         if not manual:
             log(f"plan: {len(targets)} shots in {len(set(t.station for t in targets))} stations")
             log(describe_plan(targets))
-            problems = check_targets(targets, acq)
-            if problems:
-                raise InputError("the plan breaks the limits; nothing was moved:\n  " + "\n  ".join(problems))
+            _check_plan(targets, acq, "plan")
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
             if not manual:
                 cell = make_cell(cfg)
                 with open_devices(loaded, host, cell, log) as (robot, _sensor):
-                    problems = check_targets(targets, acq, robot)
-                if problems:
-                    raise InputError("the plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+                    _check_plan(targets, acq, "plan", robot=robot)
                 log("plan checked against the robot's own limits too")
             return outcome
         if journal.exists() and not resume:
@@ -182,9 +187,7 @@ def run_calibrate(
             )
         with open_devices(loaded, host, cell, log) as (robot, sensor):
             if not manual:
-                problems = check_targets(targets, acq, robot)
-                if problems:
-                    raise InputError("the plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+                _check_plan(targets, acq, "plan", robot=robot)
             with dataio.DatasetWriter(
                 journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                 provenance=provenance, resume=journal.exists(), fsync=True,
@@ -301,9 +304,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     sweeps = plan_validation(cfg, X)
     targets = [t for s in sweeps for t in s.targets]
     log(f"validating {result_path}: {len(sweeps)} sweeps, {len(targets)} shots")
-    problems = check_targets(targets, cfg.acquisition)
-    if problems:
-        raise InputError("the validation plan breaks the limits; nothing was moved:\n  " + "\n  ".join(problems))
+    _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
     cell = make_cell(cfg)
     out.mkdir(parents=True, exist_ok=True)
@@ -311,9 +312,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     if journal.exists():
         journal.unlink()  # a validation is re-run whole; its journal only records this run
     with open_devices(loaded, host, cell, log) as (robot, sensor):
-        problems = check_targets(targets, cfg.acquisition, robot)
-        if problems:
-            raise InputError("the validation plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
+        _check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
         with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                                   provenance={"source": "spherecal validate", "result": str(result_path)},
                                   fsync=True) as writer:
@@ -357,9 +356,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     _, result = _result_for(loaded, cfg.scan, out)
     targets = plan_scan(cfg, result.transform)
-    problems = check_targets(targets, cfg.acquisition)
-    if problems:
-        raise InputError("the scan plan breaks the limits; nothing was moved:\n  " + "\n  ".join(problems))
+    _check_plan(targets, cfg.acquisition, "scan plan")
     ply_path = Path(cfg.scan.ply) if Path(cfg.scan.ply).is_absolute() else out / cfg.scan.ply
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
@@ -369,14 +366,10 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     log(f"scan: {len(targets)} profiles into {ply_path}")
     frame = SPHERE_FRAME[cfg.mounting]
     with open_devices(loaded, host, cell, log) as (robot, sensor):
-        problems = check_targets(targets, cfg.acquisition, robot)
-        if problems:
-            raise InputError("the scan plan breaks the robot's limits; nothing was moved:\n  " + "\n  ".join(problems))
-        from .scanning import scan as do_scan
-
+        _check_plan(targets, cfg.acquisition, "scan plan", robot=robot)
         with PlyWriter(ply_path, format=cfg.scan.format, with_profile=True, frame=frame,
                        comments=(f"spherecal scan, {result.transform_name} from {cfg.output_dir}",)) as writer:
-            summary = do_scan(robot, sensor, targets, result.transform, cfg, writer, log,
+            summary = scan(robot, sensor, targets, result.transform, cfg, writer, log,
                               Progress(len(targets), progress_stream))
     log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in {frame} frame")
     return ply_path, summary
