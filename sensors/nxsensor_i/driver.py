@@ -36,6 +36,8 @@ _LIBUSB_ERROR_NO_DEVICE = -4
 _LIBUSB_ERROR_PIPE = -9
 _LIBUSB_ERROR_ACCESS = -3
 _LIBUSB_ERROR_BUSY = -6
+#: How long to wait for a late frame before a new trigger, ms (after a read timed out).
+LATE_FRAME_WAIT_MS = 50
 
 
 def _is_no_device(exc: usb.core.USBError) -> bool:
@@ -87,6 +89,7 @@ class NxSensorDriver:
         self._streaming = False
         self._closed = False
         self.frames_dropped = 0
+        self._frames_owed = 0  # triggered frames not read yet (their read timed out)
         self._open()
 
     # --- naming ------------------------------------------------------------------------
@@ -323,10 +326,30 @@ class NxSensorDriver:
             raise DeviceError(f"{self.device_name}: cannot read a single profile while streaming; stop the stream first")
 
         def once():
+            self._drain_late_frames()
             self._command_raw(Command("trigger"))
-            return self._read_frame_raw()
+            self._frames_owed += 1
+            frame = self._read_frame_raw()
+            self._frames_owed -= 1
+            return frame
 
         return self._attempt("reading a profile", once)
+
+    def _drain_late_frames(self) -> None:
+        """After a read timed out, its frame may still arrive: read and discard such
+        late frames before the next trigger, so that a profile is never paired with a
+        later robot pose."""
+        while self._frames_owed > 0:
+            try:
+                frame = self._read_frame_raw(timeout_ms=min(self.config.timeout_ms, LATE_FRAME_WAIT_MS))
+            except usb.core.USBTimeoutError:
+                break
+            except (FrameFormatError, usb.core.USBError):
+                pass
+            else:
+                self._log(f"{self.device_name}: discarded late frame {frame.frame_counter}")
+            self._frames_owed -= 1
+        self._frames_owed = 0
 
     def read_profile(self) -> Profile | None:
         """One profile on request: (y, z) mm in the sensor frame; None when the line saw

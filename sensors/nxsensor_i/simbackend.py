@@ -110,6 +110,7 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         self._power_on_state()
         # faults
         self._timeouts_pending = 0
+        self._late_pending = 0
         self._stalls_pending = 0
         self._corruptions: list[CorruptionKind] = []
         self._drops_pending = 0
@@ -129,6 +130,11 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
     def inject_timeouts(self, n: int = 1) -> None:
         """The next ``n`` bulk reads time out; a profile waiting to be read is lost."""
         self._timeouts_pending += n
+
+    def inject_late_frames(self, n: int = 1) -> None:
+        """The next ``n`` bulk reads time out although a profile is on its way: the
+        profile stays queued and is delivered to a later read (a slow device)."""
+        self._late_pending += n
 
     def inject_stalls(self, n: int = 1) -> None:
         """The bulk IN endpoint halts on the next ``n`` reads (EPIPE until cleared)."""
@@ -321,6 +327,10 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
             self._stalls_pending -= 1
             self._halted.add(ep)
             raise _pipe()
+        if self._late_pending and self._queue:
+            self._late_pending -= 1
+            self._wait(timeout)
+            raise _timeout()
         if self._timeouts_pending:
             self._timeouts_pending -= 1
             if self._queue:

@@ -150,8 +150,21 @@ def test_recovers_from_a_transient_timeout(driver, backend, logs):
     assert any("timeout while reading a profile; retrying" in m for m in logs)
 
 
+def test_a_late_frame_is_never_paired_with_the_next_pose(driver, backend, cell):
+    """A read times out but its frame arrives later: the driver discards it before the
+    next trigger, so the profile of the next shot is measured at the next pose."""
+    backend.inject_late_frames(1)
+    first = driver.read_profile()
+    assert first is not None  # recovered by re-triggering at the same pose
+    pose = cell.current_base_from_flange
+    cell.move_flange_to(Pose.from_rt(pose.rotation_matrix, pose.translation + [3.0, 0.0, 0.0]))
+    second = driver.read_profile()
+    assert np.max(np.abs(second.points_mm - backend.measured[-1][1])) <= HALF_COUNT_MM
+    assert not np.allclose(second.points_mm[:5], first.points_mm[:5], atol=0.1)
+
+
 def test_persistent_timeout_is_a_clear_device_error(driver, backend):
-    backend.inject_timeouts(2)
+    backend.inject_timeouts(3)  # the first read, then the retry's wait for a late frame and its read
     with pytest.raises(DeviceError, match=r"nxSensor-I \(USB 04b4:5a01\): no answer within timeout_ms = 50 ms "
                                           r"\(2 attempts\) while reading a profile"):
         driver.read_profile()
