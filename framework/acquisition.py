@@ -27,12 +27,22 @@ from .sim.planner import plan_stations
 
 @dataclass(frozen=True)
 class Target:
-    """One planned shot: flange pose ``base_from_flange`` (mm) in a station."""
+    """One planned shot: flange pose ``base_from_flange`` (mm) in a station, and the
+    speed of the linear move that reaches it (mm/s)."""
 
     index: int
     station: str
     pose: Pose
     first_of_station: bool
+    speed_mm_s: float
+
+
+def targets_from_poses(poses: list[Pose], station: str, first_index: int, approach_mm_s: float, speed_mm_s: float) -> list[Target]:
+    """Targets of one pure-translation sweep: the first reached at the approach speed."""
+    return [
+        Target(first_index + k, station, p, k == 0, approach_mm_s if k == 0 else speed_mm_s)
+        for k, p in enumerate(poses)
+    ]
 
 
 def plan_targets(cfg: RunConfig) -> list[Target]:
@@ -45,10 +55,9 @@ def plan_targets(cfg: RunConfig) -> list[Target]:
     stations = plan_stations(
         cfg.mounting, cfg.nominal_transform.pose(), acq.sphere_centre_mm, cfg.sphere.radius_mm, acq.sweep, R_ref
     )
-    targets = []
+    targets: list[Target] = []
     for label, poses in stations:
-        for k, pose in enumerate(poses):
-            targets.append(Target(len(targets), label, pose, k == 0))
+        targets += targets_from_poses(poses, label, len(targets), acq.approach_speed_mm_s, acq.speed_mm_s)
     return targets
 
 
@@ -58,7 +67,9 @@ def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> 
     problems = []
     check = getattr(robot, "check_target", None) if robot is not None else None
     for t in targets:
-        speed = acq.approach_speed_mm_s if t.first_of_station else acq.speed_mm_s
+        if t.speed_mm_s > acq.max_speed_mm_s:
+            problems.append(f"target {t.index} (station {t.station}): speed {t.speed_mm_s} mm/s exceeds "
+                            f"acquisition.max_speed_mm_s = {acq.max_speed_mm_s}")
         if not acq.workspace.contains(t.pose.translation):
             problems.append(
                 f"target {t.index} (station {t.station}) at {np.round(t.pose.translation, 1).tolist()} mm is outside "
@@ -66,7 +77,7 @@ def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> 
             )
         if check is not None:
             try:
-                check(t.pose, speed)
+                check(t.pose, t.speed_mm_s)
             except SpherecalError as exc:
                 problems.append(f"target {t.index} (station {t.station}): {exc}")
     return problems
@@ -152,6 +163,14 @@ def take_shot(robot, sensor, acq: AcquisitionConfig, log: Callable[[str], None])
     )
 
 
+def move_and_shoot(robot, sensor, target: Target, acq: AcquisitionConfig, log: Callable[[str], None]):
+    """Move to ``target``, let the robot settle, take the shot (see :func:`take_shot`)."""
+    robot.move_linear(target.pose, target.speed_mm_s)
+    if acq.settle_s:
+        time.sleep(acq.settle_s)
+    return take_shot(robot, sensor, acq, log)
+
+
 def acquire(
     robot,
     sensor,
@@ -170,11 +189,7 @@ def acquire(
     progress = progress or Progress(len(targets))
     progress.update(len(targets) - len(todo), "resumed" if done_targets else "")
     for n, t in enumerate(todo, start=len(targets) - len(todo) + 1):
-        speed = acq.approach_speed_mm_s if t.first_of_station else acq.speed_mm_s
-        robot.move_linear(t.pose, speed)
-        if acq.settle_s:
-            time.sleep(acq.settle_s)
-        pose, joints, profile, retakes = take_shot(robot, sensor, acq, log)
+        pose, joints, profile, retakes = move_and_shoot(robot, sensor, t, acq, log)
         report.retakes += retakes
         if profile is None:
             report.skipped.append(f"target {t.index} (station {t.station}): the sensor saw nothing (sphere out of view?)")
@@ -204,13 +219,17 @@ def acquire_manual(
     ask: Callable[[str], str] = input,
     log: Callable[[str], None] = print,
     on_observation: Callable[[Observation], None] | None = None,
+    rotation_tolerance_deg: float = 0.05,
+    first_station: int = 1,
 ) -> AcquisitionReport:
     """The operator jogs the robot; each Enter captures a shot. Commands: Enter =
     capture, ``s`` = start a new station (new orientation), ``q`` = finish.
     Within a station only translations are allowed: a capture whose orientation differs
-    from the station's first is refused with a message."""
+    from the station's first by more than ``rotation_tolerance_deg`` (the estimator's
+    station tolerance) is refused with a message. Stations are labelled M1, M2, ...
+    from ``first_station`` (a resumed session continues the numbering)."""
     report = AcquisitionReport()
-    station_no = 1
+    station_no = first_station
     first: Pose | None = None
     log("Manual acquisition: jog the robot so that the laser line crosses the sphere.\n"
         "  Enter: capture   s: new station (new orientation)   q: finish")
@@ -233,7 +252,7 @@ def acquire_manual(
         report.retakes += retakes
         if first is not None:
             ang = geo.rotation_angle_deg(first.rotation_matrix, pose.rotation_matrix)
-            if ang > acq.pose_agreement_deg * 2.5:
+            if ang > rotation_tolerance_deg:
                 log(f"  refused: orientation differs from the station's first shot by {ang:.3f} deg; "
                     "within a station jog by translations only, or press s to start a new station")
                 continue

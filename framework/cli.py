@@ -6,10 +6,10 @@ Exit codes (scripts may rely on them; docs/cli.md):
   1  internal error (a bug: please report it with the traceback)
   2  usage or configuration error (bad arguments, bad TOML, unknown keys, bad plugin settings)
   3  data error (bad or degenerate data, a plan outside the limits, an unreadable dataset)
-  4  device error (robot or sensor: timeout, disconnect, protocol); the journal keeps what was taken
+  4  device error (robot or sensor: timeout, disconnect, protocol); what was taken is kept
   5  validation failed (an acceptance figure exceeds its MPE)
   6  plugin error (a plugin failed to load or misbehaved)
-  130 interrupted (Ctrl-C); the journal keeps what was taken, continue with --resume
+  130 interrupted (Ctrl-C); what was taken is kept (calibrate: continue with --resume)
 """
 
 from __future__ import annotations
@@ -204,13 +204,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _after_failure(command: str) -> str:
+    """What to do after a run stopped half-way, per command."""
+    if command == "calibrate":
+        return "; what was taken is in the journal: continue with --resume"
+    if command == "validate":
+        return "; the shots taken are in the validation journal; run the validation again"
+    if command == "scan":
+        return "; the PLY holds the profiles taken so far; set [scan] ply to a new name and scan again"
+    return ""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
     except KeyboardInterrupt:
-        _err("interrupted; what was taken is in the journal: continue with --resume")
+        _err("interrupted" + _after_failure(args.command))
         return EXIT_INTERRUPTED
     except ConfigError as exc:
         _err(str(exc))
@@ -219,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         _err(str(exc))
         return EXIT_DATA
     except DeviceError as exc:
-        _err(f"{exc}\nwhat was taken is in the journal: fix the device and continue with --resume")
+        _err(f"{exc}\n" + _after_failure(args.command).lstrip("; "))
         return EXIT_DEVICE
     except PluginError as exc:
         _err(str(exc))

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import ConfigError
 from .estimation import CalibrationOptions
@@ -26,6 +26,17 @@ Vec3 = tuple[float, float, float]
 Vec4 = tuple[float, float, float, float]
 
 
+def _unit_quaternion(v: Vec4) -> Vec4:
+    n = float(np.linalg.norm(v))
+    if abs(n - 1.0) > 1e-3:
+        raise ValueError(f"quaternion {list(v)} has norm {n:.6f}; give a unit quaternion (w, x, y, z)")
+    return v
+
+
+#: A unit quaternion (w, x, y, z), checked where it is read.
+UnitQuaternion = Annotated[Vec4, AfterValidator(_unit_quaternion)]
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -34,18 +45,10 @@ class TransformConfig(_Section):
     """A rigid transform written by hand: translation in mm, quaternion (w, x, y, z)."""
 
     translation_mm: Vec3 = Field(description="translation, mm")
-    quaternion_wxyz: Vec4 = Field(description="rotation, unit quaternion, scalar first (ABB order)")
+    quaternion_wxyz: UnitQuaternion = Field(description="rotation, unit quaternion, scalar first (ABB order)")
 
     def pose(self) -> Pose:
         return Pose.from_abb(self.translation_mm, self.quaternion_wxyz)
-
-    @field_validator("quaternion_wxyz")
-    @classmethod
-    def _unit(cls, v):
-        n = float(np.linalg.norm(v))
-        if abs(n - 1.0) > 1e-3:
-            raise ValueError(f"quaternion_wxyz {list(v)} has norm {n:.6f}; give a unit quaternion (w, x, y, z)")
-        return v
 
 
 class SphereConfig(_Section):
@@ -85,7 +88,7 @@ class AcquisitionConfig(_Section):
     sphere_centre_mm: Vec3 = Field(
         description="rough sphere centre: in base (eye_in_hand) or in the flange frame (eye_to_hand), mm"
     )
-    reference_flange_quaternion_wxyz: Vec4 = Field(
+    reference_flange_quaternion_wxyz: UnitQuaternion = Field(
         (0.0, 0.0, 1.0, 0.0), description="flange orientation of the first station, base_from_flange, (w, x, y, z)"
     )
     sweep: SweepPlan = Field(default_factory=SweepPlan, description="stations and sweeps")
@@ -144,7 +147,7 @@ class FlatConfig(_Section):
     """A flat (a plate), fixed where the reference sphere is fixed."""
 
     centre_mm: Vec3 = Field(description="rough centre of the area to sweep, mm")
-    quaternion_wxyz: Vec4 = Field((1.0, 0.0, 0.0, 0.0), description="orientation of the plate (its z: the normal)")
+    quaternion_wxyz: UnitQuaternion = Field((1.0, 0.0, 0.0, 0.0), description="orientation of the plate (its z: the normal)")
     length_mm: float = Field(150.0, gt=0, description="size along the plate's x (simulation), mm")
     width_mm: float = Field(100.0, gt=0, description="size along the plate's y (simulation), mm")
     sweep_length_mm: float = Field(30.0, gt=0, description="length of each sweep across the flat, mm")
@@ -152,6 +155,19 @@ class FlatConfig(_Section):
         default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(10.0, 0.0, 45.0), offset_mm=(0.0, -15.0))],
         description="views of the flat",
     )
+
+
+class MpeConfig(_Section):
+    """Maximum permissible errors, mm. Each has its own default; a figure is judged
+    against its MPE whenever it is measured."""
+
+    probing_form_mm: float = Field(0.25, gt=0, description="MPE of P_F, mm")
+    probing_size_mm: float = Field(0.06, gt=0, description="MPE of |P_S|, mm")
+    sphere_spacing_mm: float = Field(0.1, gt=0, description="MPE of |SD|, mm")
+    flatness_mm: float = Field(0.15, gt=0, description="MPE of F, mm")
+
+    def as_metrology(self) -> MaximumPermissibleErrors:
+        return MaximumPermissibleErrors(**self.model_dump())
 
 
 class ValidationConfig(_Section):
@@ -163,12 +179,7 @@ class ValidationConfig(_Section):
     sphere_positions: list[SweepSite] = Field(default_factory=_default_sphere_sites, description="views of the sphere")
     ball_bar: BallBarConfig | None = None
     flat: FlatConfig | None = None
-    mpe: MaximumPermissibleErrors = Field(
-        default_factory=lambda: MaximumPermissibleErrors(
-            probing_form_mm=0.25, probing_size_mm=0.06, sphere_spacing_mm=0.1, flatness_mm=0.15
-        ),
-        description="maximum permissible errors, mm",
-    )
+    mpe: MpeConfig = Field(default_factory=MpeConfig, description="maximum permissible errors, mm")
     mpe_centre_spread_mm: float | None = Field(
         0.1, gt=0, description="MPE of the spread of the sphere centres fitted from the different views, mm"
     )
@@ -239,6 +250,13 @@ class RunConfig(_Section):
     def _source(self):
         if (self.acquisition is None) == (self.replay is None):
             raise ValueError("give exactly one of [acquisition] (acquire with the devices) or replay = '<dataset>'")
+        if self.calibration.nominal_transform is not None:
+            raise ValueError("calibration.nominal_transform: give the rough transform as [nominal_transform] instead")
+        if self.scan is not None and self.acquisition is not None and self.scan.speed_mm_s > self.acquisition.max_speed_mm_s:
+            raise ValueError(
+                f"scan.speed_mm_s = {self.scan.speed_mm_s} exceeds acquisition.max_speed_mm_s = "
+                f"{self.acquisition.max_speed_mm_s}"
+            )
         return self
 
 

@@ -15,7 +15,7 @@ from . import dataio
 from .acquisition import Progress, acquire, acquire_manual, check_targets, describe_plan, plan_targets
 from .config import LoadedConfig, RunConfig
 from .devices import DeviceContext
-from .errors import ConfigError, DegenerateDataError, InputError
+from .errors import ConfigError, InputError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME
@@ -88,6 +88,18 @@ def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Ca
         with contextlib.suppress(Exception):
             sensor.close()
         robot.close()
+
+
+def plan_digest(targets) -> str:
+    """A short fingerprint of a plan (every target's station, pose and speed), stored in
+    the journal so that --resume can refuse a journal taken with another plan."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for t in targets:
+        h.update(f"{t.index}|{t.station}|{t.speed_mm_s:.6f}|".encode())
+        h.update(np.round(np.concatenate([t.pose.translation_mm, t.pose.quaternion_wxyz]), 6).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _check_plan(targets, acq, what: str = "plan", robot=None) -> None:
@@ -166,13 +178,25 @@ def run_calibrate(
             )
         out.mkdir(parents=True, exist_ok=True)
         done: set[int] = set()
+        digest = "manual" if manual else plan_digest(targets)
+        first_station = 1
         if resume and journal.exists():
             previous = dataio.read_dataset(journal)
+            taken_with = previous.provenance.get("plan_digest")
+            if taken_with != digest:
+                raise InputError(
+                    f"{journal} was taken with another plan ({taken_with}, now {digest}): the configuration's "
+                    "acquisition, nominal transform or mode changed since; resume with the configuration it was "
+                    "taken with, or start a new run in another output_dir"
+                )
             done = {o.target for o in previous.observations if o.target is not None}
+            labels = [o.station for o in previous.observations if o.station[1:].isdigit()]
+            first_station = 1 + max((int(lb[1:]) for lb in labels), default=0)
             log(f"resuming {journal}: {len(previous.observations)} observations already taken")
         cell = make_cell(cfg)
         provenance = {
             "source": "spherecal calibrate",
+            "plan_digest": digest,
             "config": str(loaded.path),
             "robot": cfg.robot["type"],
             "sensor": cfg.sensor["type"],
@@ -194,7 +218,9 @@ def run_calibrate(
             ) as writer:
                 notify = lambda obs: host.observation_taken(observation=obs)  # noqa: E731
                 if manual:
-                    rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify)
+                    rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
+                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance_deg,
+                                         first_station=first_station)
                 else:
                     rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,
                                   Progress(len(targets), progress_stream))
@@ -308,16 +334,15 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     host = make_host()
     cell = make_cell(cfg)
     out.mkdir(parents=True, exist_ok=True)
-    journal = out / "validation-journal.jsonl"
-    if journal.exists():
-        journal.unlink()  # a validation is re-run whole; its journal only records this run
+    from datetime import datetime, timezone
+
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
+    journal = out / f"validation-{stamp}.jsonl"  # one journal per validation run; none is overwritten
     with open_devices(loaded, host, cell, log) as (robot, sensor):
         _check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
         with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                                   provenance={"source": "spherecal validate", "result": str(result_path)},
                                   fsync=True) as writer:
-            from datetime import datetime, timezone
-
             from .models import Observation
 
             def record(sweep, target, pose, profile):
@@ -327,18 +352,23 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 
             measured = measure(robot, sensor, sweeps, cfg, log, Progress(len(targets), progress_stream), record)
     outcome = evaluate(cfg, X, measured)
-    (out / "validation.json").write_text(
-        __import__("json").dumps({"passed": outcome.passed, "figures": outcome.table(),
-                                  "report": outcome.report.model_dump(), "centres_mm": outcome.centres_mm},
-                                 indent=2, default=float)
-    )
+    import json
+
+    text = json.dumps({"passed": outcome.passed, "result": str(result_path), "journal": journal.name,
+                       "figures": outcome.table(), "report": outcome.report.model_dump(),
+                       "centres_mm": outcome.centres_mm}, indent=2, default=float)
+    (out / f"validation-{stamp}.json").write_text(text)
+    (out / "validation.json").write_text(text)  # the latest run, for scripts
     calib_journal = out / JOURNAL_NAME
     if report and calib_journal.exists():
-        from .report.html import write_report
+        # the report shows the calibration's residuals: only when that calibration is the one validated
+        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg), host.robot_kinematics(cfg.robot))
+        if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
+            from .report.html import write_report
 
-        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
-                         host.robot_kinematics(cfg.robot))
-        write_report(solution, out, validation=outcome.table())
+            write_report(solution, out, validation=outcome.table())
+        else:
+            log(f"report.html not updated: {result_path} is not the calibration of {calib_journal}")
     return outcome
 
 

@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 
 from . import geometry as geo
-from .acquisition import Progress, Target, take_shot
+from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
 from .config import RunConfig
 from .mapping import frame_from_sensor_stack, map_profile_list
 from .models import SPHERE_FRAME, Pose
@@ -23,7 +23,7 @@ def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
     """Parallel pure-translation passes over ``[scan] object_centre_mm``."""
     sc = cfg.scan
     acq = cfg.acquisition
-    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz) if acq else None
+    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
     n = int(round(sc.length_mm / sc.step_mm)) + 1
     targets: list[Target] = []
     for j in range(sc.passes):
@@ -32,7 +32,7 @@ def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
                          standoff_z_mm=sc.standoff_z_mm, station_offsets_mm=[(dy, sc.site.offset_mm[1])],
                          tilts_deg=[sc.site.tilt_deg])
         (_, poses), = plan_stations(cfg.mounting, X, sc.object_centre_mm, sc.length_mm, plan, R_ref)
-        targets += [Target(len(targets) + k, f"pass{j + 1}", p, k == 0) for k, p in enumerate(poses)]
+        targets += targets_from_poses(poses, f"pass{j + 1}", len(targets), acq.approach_speed_mm_s, sc.speed_mm_s)
     return targets
 
 
@@ -51,9 +51,7 @@ def scan(robot, sensor, targets: list[Target], X: Pose, cfg: RunConfig, writer: 
     summary = ScanSummary()
     progress = progress or Progress(len(targets))
     for n, t in enumerate(targets, start=1):
-        speed = acq.approach_speed_mm_s if t.first_of_station else min(cfg.scan.speed_mm_s, acq.max_speed_mm_s)
-        robot.move_linear(t.pose, speed)
-        pose, _j, profile, _ = take_shot(robot, sensor, acq, log)
+        pose, _j, profile, _ = move_and_shoot(robot, sensor, t, acq, log)
         if profile is None:
             summary.empty_profiles += 1
         else:

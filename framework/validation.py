@@ -12,7 +12,7 @@ from typing import Callable
 import numpy as np
 
 from . import geometry as geo
-from .acquisition import Progress, Target, take_shot
+from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
 from .config import RunConfig, SweepSite
 from .errors import DegenerateDataError
 from .mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
@@ -39,12 +39,12 @@ class Sweep:
 def _sweep(cfg: RunConfig, X: Pose, label: str, kind: str, centre, half_length_mm: float, site: SweepSite,
            n: int, first_index: int) -> Sweep:
     acq = cfg.acquisition
-    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz) if acq else None
+    R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
     plan = SweepPlan(profiles_per_station=n, sweep_fraction=0.9, lateral_amplitude_mm=0.0,
                      standoff_z_mm=-20.0 if kind != "flat" else -10.0,
                      station_offsets_mm=[site.offset_mm], tilts_deg=[site.tilt_deg])
     (_, poses), = plan_stations(cfg.mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
-    return Sweep(label, kind, [Target(first_index + k, label, p, k == 0) for k, p in enumerate(poses)])
+    return Sweep(label, kind, targets_from_poses(poses, label, first_index, acq.approach_speed_mm_s, acq.speed_mm_s))
 
 
 def plan_validation(cfg: RunConfig, X: Pose) -> list[Sweep]:
@@ -91,8 +91,7 @@ def measure(robot, sensor, sweeps: list[Sweep], cfg: RunConfig, log: Callable[[s
     for sw in sweeps:
         m = Measured(sw)
         for t in sw.targets:
-            robot.move_linear(t.pose, acq.approach_speed_mm_s if t.first_of_station else acq.speed_mm_s)
-            pose, _joints, profile, _ = take_shot(robot, sensor, acq, log)
+            pose, _joints, profile, _ = move_and_shoot(robot, sensor, t, acq, log)
             if profile is not None:
                 m.poses.append(pose)
                 m.profiles.append(profile.points_mm)
@@ -159,7 +158,7 @@ def evaluate(cfg: RunConfig, X: Pose, measured: list[Measured]) -> ValidationOut
             flatness.append(flatness_error(pts, position=m.sweep.label))
     for label, pair in balls.items():
         spacing.append(sphere_spacing_error(pair["ball_a"], pair["ball_b"], v.ball_bar.certified_distance_mm, position=label))
-    report = acceptance_report(v.mpe, probing=probing, sphere_spacing=spacing, flatness=flatness)
+    report = acceptance_report(v.mpe.as_metrology(), probing=probing, sphere_spacing=spacing, flatness=flatness)
     spread = passed = None
     if len(centres) >= 2:
         c = np.array(list(centres.values()))

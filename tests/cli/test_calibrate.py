@@ -104,6 +104,28 @@ def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path):
     assert np.allclose(a.transform.as_matrix(), b.transform.as_matrix(), atol=1e-9)
 
 
+def test_resume_refuses_a_journal_taken_with_another_plan(sim_config, monkeypatch, capsys):
+    import spherecal.acquisition as acq
+
+    real = acq.take_shot
+    calls = {"n": 0}
+
+    def stop_after_five(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(acq, "take_shot", stop_after_five)
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
+    monkeypatch.setattr(acq, "take_shot", real)
+    cfg.write_text(cfg.read_text().replace("profiles_per_station = 10", "profiles_per_station = 12"))
+    assert main(["calibrate", str(cfg), "--resume", "--no-report"]) == EXIT_DATA
+    assert "was taken with another plan" in capsys.readouterr().err
+    assert len(dataio.read_dataset(cfg.parent / "out" / "journal.jsonl").observations) == 5
+
+
 def test_interrupt_keeps_the_journal(sim_config, monkeypatch, capsys):
     import spherecal.acquisition as acq
 
@@ -137,6 +159,11 @@ def test_interrupt_keeps_the_journal(sim_config, monkeypatch, capsys):
         ({r'^mounting = "eye_in_hand"': "mounting = 'eye_in_hand'\nreplay = 'x.jsonl'"}, "exactly one of [acquisition]"),
         ({r"^quaternion_wxyz = .*$": "quaternion_wxyz = [1.0, 1.0, 0.0, 0.0]"}, "nominal_transform.quaternion_wxyz"),
         ({r"^\[sphere\]": "[sphere"}, "not valid TOML"),
+        ({r"^\[acquisition\]$": "[acquisition]\nreference_flange_quaternion_wxyz = [0, 0, 2, 0]"},
+         "acquisition.reference_flange_quaternion_wxyz: Value error, quaternion [0.0, 0.0, 2.0, 0.0] has norm 2.000000"),
+        ({r"^\[calibration\]$": "[calibration]\nnominal_transform = {translation_mm = [0, 0, 0], quaternion_wxyz = [1, 0, 0, 0]}"},
+         "give the rough transform as [nominal_transform] instead"),
+        ({r"^length_mm = 80.0$": "length_mm = 80.0\nspeed_mm_s = 500.0"}, "scan.speed_mm_s = 500.0 exceeds acquisition.max_speed_mm_s"),
     ],
 )
 def test_bad_configurations_name_the_path(sim_config, capsys, replace, message):

@@ -95,13 +95,13 @@ def test_manual_mode_captures_on_enter_and_refuses_rotation_within_a_station(tmp
     acq = AcquisitionConfig(sphere_centre_mm=(0, 0, 0), workspace=WorkspaceConfig(min_mm=(-1, -1, -1), max_mm=(1, 1, 1)))
     try:
         with dataio.DatasetWriter(tmp_path / "j.jsonl", mounting="eye_in_hand", sphere_radius_mm=19.1) as w:
-            rep = acquire_manual(robot, sensor, w, acq, ask=ask, log=log.append)
+            rep = acquire_manual(robot, sensor, w, acq, ask=ask, log=log.append, first_station=3)
     finally:
         sensor.close()
         robot.close()
     ds = dataio.read_dataset(tmp_path / "j.jsonl")
     assert rep.taken == 10
-    assert [o.station for o in ds.observations] == ["M1"] * 5 + ["M2"] * 5
+    assert [o.station for o in ds.observations] == ["M3"] * 5 + ["M4"] * 5  # a resumed session numbers on
     assert any("refused: orientation differs" in m for m in log)
 
 

@@ -12,7 +12,6 @@ from spherecal.config import load_config
 from spherecal.models import Pose
 from spherecal.ply import read_ply, read_ply_header
 from spherecal.runner import make_cell
-from spherecal.sim import NoiseModel
 
 
 def write_result_with(out, cfg_path, transform: Pose):
@@ -131,6 +130,46 @@ def test_a_rotated_calibration_is_caught(cfg_path):
     assert v["figures"]["centre spread"]["passed"] is False
 
 
+def test_a_partial_mpe_section_keeps_the_other_defaults():
+    from spherecal.config import ValidationConfig
+
+    v = ValidationConfig.model_validate({"mpe": {"probing_form_mm": 0.3}})
+    m = v.mpe.as_metrology()
+    assert (m.probing_form_mm, m.probing_size_mm, m.sphere_spacing_mm, m.flatness_mm) == (0.3, 0.06, 0.1, 0.15)
+
+
+ETH_EXTRA = """
+[validation]
+profiles_per_sweep = 16
+
+[scan]
+object_centre_mm = [0.0, 150.0, 250.0]
+length_mm = 40.0
+step_mm = 1.0
+"""
+
+
+def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
+    """Eye-to-hand end to end: the sphere and a plate ride on the flange; validation
+    and scan map points into the flange frame."""
+    cfg_path = sim_config("sim-eye-to-hand.toml", **{r"^seed = 2$": 'seed = 2\nscan_object = "flat_plate"'})
+    cfg_path.write_text(cfg_path.read_text() + ETH_EXTRA)
+    out = cfg_path.parent / "out"
+    assert main(["calibrate", str(cfg_path), "--no-report"]) == EXIT_OK
+    assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
+    assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
+    assert len(list(out.glob("validation-*.jsonl"))) == 2  # a re-run keeps the earlier run's shots
+    v = json.loads((out / "validation.json").read_text())
+    assert v["passed"] and len(v["report"]["probing"]) == 4
+    assert v["figures"]["centre spread"]["max error (mm)"] < 0.05
+    assert main(["scan", str(cfg_path)]) == EXIT_OK
+    ply = read_ply(out / "scan.ply")
+    assert read_ply_header(out / "scan.ply").comments  # says which frame
+    z = np.asarray(ply["z"], dtype=float)
+    # the plate is the plane z = 250 mm of the flange frame
+    assert len(z) > 5000 and np.median(np.abs(z - 250.0)) < 0.03
+
+
 def test_validate_needs_a_result(cfg_path, capsys):
     assert main(["validate", str(cfg_path)]) == EXIT_DATA
     assert "result.json" in capsys.readouterr().err
@@ -138,6 +177,7 @@ def test_validate_needs_a_result(cfg_path, capsys):
 
 def test_validate_needs_its_section(sim_config, capsys):
     cfg = sim_config("sim-eye-to-hand.toml")
+    assert "[validation]" not in cfg.read_text()
     assert main(["validate", str(cfg)]) == EXIT_USAGE
     assert "no [validation] section" in capsys.readouterr().err
 

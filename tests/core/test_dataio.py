@@ -585,9 +585,7 @@ def test_result_with_nan_is_refused_with_its_field(tmp_path):
 
 
 def test_real_result_round_trip(tmp_path):
-    estimation = pytest.importorskip("spherecal.estimation")
-    if not hasattr(estimation, "calibrate"):
-        pytest.skip("spherecal.estimation.calibrate not available yet")
+    from spherecal import estimation
     ds = simulate_dataset(standard_cell("eye_in_hand", seed=2))
     write_dataset(tmp_path / "d.jsonl", ds)
     result = estimation.calibrate(read_dataset(tmp_path / "d.jsonl"))
