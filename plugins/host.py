@@ -33,8 +33,8 @@ import inspect
 import os
 import re
 import types
-from dataclasses import dataclass, field
-from importlib import import_module, metadata
+from dataclasses import dataclass
+from importlib import metadata
 from typing import Any, Callable, Iterable, Literal, Mapping, Sequence
 
 import pluggy

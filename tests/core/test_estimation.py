@@ -8,7 +8,7 @@ from spherecal.errors import DegenerateDataError, InputError
 from spherecal.estimation import CalibrationOptions, calibrate, solve
 from spherecal.estimation.circle import fit_circle
 from spherecal.estimation.problem import build_problem
-from spherecal.estimation.twostep import station_centres, two_step
+from spherecal.estimation.twostep import two_step
 from spherecal.models import Dataset, Observation, Pose, Profile
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 

@@ -8,7 +8,7 @@ import importlib.util
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.devices import DeviceContext, RobotType, SensorType
+from spherecal.devices import DeviceContext, RobotType
 from spherecal.errors import ConfigError, DeviceError, PluginError
 from spherecal.models import Observation, Pose, Profile
 from spherecal.plugins import hookimpl
