@@ -313,6 +313,18 @@ def _result_for(loaded: LoadedConfig, section, out: Path):
     return path, result
 
 
+def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, out_dir: Path | None):
+    """What validate and scan both need first: their section, the acquisition settings,
+    the output folder and the calibration result in it."""
+    cfg = loaded.config
+    if section is None:
+        raise ConfigError(f"{loaded.path}: {missing}")
+    if cfg.acquisition is None:
+        raise ConfigError(f"{loaded.path}: {moving} moves the robot: it needs [acquisition] (speeds, workspace)")
+    out = Path(out_dir) if out_dir is not None else loaded.output_dir
+    return (out, *_result_for(loaded, section, out))
+
+
 def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
                  progress_stream=None, report: bool = True):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
@@ -320,12 +332,9 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     from .validation import evaluate, measure, plan_validation
 
     cfg = loaded.config
-    if cfg.validation is None:
-        raise ConfigError(f"{loaded.path}: no [validation] section: say what to validate against which MPEs")
-    if cfg.acquisition is None:
-        raise ConfigError(f"{loaded.path}: validation moves the robot: it needs [acquisition] (speeds, workspace)")
-    out = Path(out_dir) if out_dir is not None else loaded.output_dir
-    result_path, result = _result_for(loaded, cfg.validation, out)
+    out, result_path, result = _calibrated_setup(
+        loaded, cfg.validation, "no [validation] section: say what to validate against which MPEs", "validation", out_dir
+    )
     X = result.transform
     sweeps = plan_validation(cfg, X)
     targets = [t for s in sweeps for t in s.targets]
@@ -379,12 +388,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     from .scanning import plan_scan, scan
 
     cfg = loaded.config
-    if cfg.scan is None:
-        raise ConfigError(f"{loaded.path}: no [scan] section: say what to scan")
-    if cfg.acquisition is None:
-        raise ConfigError(f"{loaded.path}: scanning moves the robot: it needs [acquisition] (speeds, workspace)")
-    out = Path(out_dir) if out_dir is not None else loaded.output_dir
-    _, result = _result_for(loaded, cfg.scan, out)
+    out, _, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning", out_dir)
     targets = plan_scan(cfg, result.transform)
     _check_plan(targets, cfg.acquisition, "scan plan")
     ply_path = Path(cfg.scan.ply) if Path(cfg.scan.ply).is_absolute() else out / cfg.scan.ply
