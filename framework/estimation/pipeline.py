@@ -4,7 +4,7 @@ refinement, outlier rejection, diagnostics."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -14,7 +14,7 @@ from ..errors import DegenerateDataError
 from ..models import SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, ObservationFlag, Pose, ResidualStats
 from .circle import CircleFit, fit_circle
 from .problem import Problem, build_problem
-from .refine import NoiseAssumptions, RefineResult, refine
+from .refine import NoiseAssumptions, RefineResult, StationEffects, refine
 from .twostep import TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
@@ -48,6 +48,30 @@ class CalibrationOptions(BaseModel):
     station_rotation_tolerance_deg: float = Field(
         0.05, gt=0, description="observations of one station may differ in orientation by at most this"
     )
+    robot_error_model: Literal["station", "none"] = Field(
+        "station", description="'station': the robot's systematic error is a pose offset shared by the shots of "
+        "a station, estimated and marginalised (docs/estimation.md); 'none': the robot has pose noise only"
+    )
+    station_rotation_error_deg: float | None = Field(
+        None, ge=0, le=5, description="station-to-station robot orientation error, per axis, deg (None: estimated)"
+    )
+    station_translation_error_mm: float | None = Field(
+        None, ge=0, le=50, description="station-to-station robot position error, per axis, mm (None: estimated)"
+    )
+    robot_accuracy_mm: float = Field(
+        0.75, ge=0, le=50, description="the robot's position error shared by every station of the plan, per axis, "
+        "1 sigma, mm (an uncalibrated industrial arm: 0.3-1.2); one sphere location cannot measure it, so it "
+        "enters the uncertainty only (docs/estimation.md)"
+    )
+    robot_accuracy_deg: float = Field(
+        0.06, ge=0, le=5, description="the robot's orientation error shared by every station, per axis, 1 sigma, deg"
+    )
+
+    def station_effects(self) -> StationEffects:
+        return StationEffects(
+            self.robot_error_model == "station", self.station_rotation_error_deg,
+            self.station_translation_error_mm, self.robot_accuracy_deg, self.robot_accuracy_mm,
+        )
 
 
 @dataclass
@@ -133,7 +157,8 @@ def solve(
 
     clean = sub.with_profiles([p[sub_fits[j].inliers] for j, p in enumerate(sub.profiles)])
     say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points")
-    ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise)
+    ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
+                     station_effects=opt.station_effects())
 
     # stray points the circle fits kept: trim on the joint residuals and refit once
     all_res = np.concatenate(ref.residuals)
@@ -143,7 +168,8 @@ def solve(
     if any(not k.all() for k in keep_pts):
         n_point_rejected += sum(int((~k).sum()) for k in keep_pts)
         clean = clean.with_profiles([p[k] for p, k in zip(clean.profiles, keep_pts)])
-        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise)
+        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
+                     station_effects=opt.station_effects())
 
     # profiles inconsistent with the rest (a pose read at the wrong moment, a bad pairing)
     max_reject = int(opt.max_rejected_profile_fraction * clean.n_profiles)
@@ -168,7 +194,8 @@ def solve(
                     f"station {clean.station_labels[k]} has fewer than {opt.min_profiles_per_station} consistent "
                     "profiles left after rejecting inconsistent ones: re-acquire it"
                 )
-        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise)
+        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
+                     station_effects=opt.station_effects())
 
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     return Solution(result, clean, ts, ref, fits)

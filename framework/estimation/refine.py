@@ -18,12 +18,12 @@ component) unless fixed. The covariance is ``(J_w^T J_w)^-1`` of the whitened pr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .. import geometry as geo
-from .problem import Problem
+from .problem import Problem, sphere_frame_from_base
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,10 @@ class RefineResult:
     variance_factor: float
     pose_noise_scale: float
     diagnostics: dict = field(default_factory=dict)
+    covariance_without_robot_error: np.ndarray | None = None  # as if the station offsets were known
+    covariance_robot_frame: np.ndarray | None = None  # without the robot's common error (relative to its frame)
+    station_offsets: np.ndarray | None = None  # (K, 6) estimated (omega rad, tau mm) per station
+    station_effect_scales: tuple[float, float] = (0.0, 0.0)  # station-to-station s_rot (rad), s_trans (mm)
 
 
 def _centres(problem: Problem, R, t, c):
@@ -120,6 +124,8 @@ class _Linearisation:
     W: _Whitener
     C: np.ndarray  # (n, 3) predicted sensor-frame centres
     SC: np.ndarray  # (n, 3, 3) their covariance from pose noise
+    G: np.ndarray  # (M, 3) d res / d C per point
+    Jd: np.ndarray  # (n, 3, 6) d C / d(pose error) per profile
 
 
 class _Points:
@@ -152,7 +158,96 @@ def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma) -
     Jd = _pose_noise_jacobian(problem, R, c)
     SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
     W = _Whitener(G, pid, pts.starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
-    return _Linearisation(res, J, W, C, SC)
+    return _Linearisation(res, J, W, C, SC, G, Jd)
+
+
+@dataclass(frozen=True)
+class StationEffects:
+    """Systematic robot error shared by the shots of a station (a random effect).
+
+    Station k's flange poses are off by one small pose error ``delta_k = (omega_k,
+    tau_k)``, rotation (rad, base axes, about the flange) and translation (mm, base), on
+    top of the per-shot pose noise: ``R0 <- exp(omega_k) R0``, ``t0 <- t0 + tau_k``.
+    Prior: ``delta_k = delta_common + delta'_k``. ``delta'_k`` is independent per
+    station with per-axis standard deviations ``(rotation_deg, translation_mm)``,
+    estimated from the data by REML unless given: the station-to-station inconsistency
+    is its evidence. ``delta_common`` is shared by every station, per-axis standard
+    deviations ``(common_rotation_deg, common_translation_mm)``: the robot's error over
+    the calibration region, which one sphere location cannot measure (it moves the
+    sphere centre or the transform as a whole), so it enters as prior uncertainty only,
+    from the robot's stated accuracy."""
+
+    enabled: bool = True
+    rotation_deg: float | None = None
+    translation_mm: float | None = None
+    common_rotation_deg: float = 0.0
+    common_translation_mm: float = 0.0
+
+
+#: Bounds of the estimated station-effect scales (rad, mm).
+_SCALE_BOUNDS = ((1e-7, np.radians(5.0)), (1e-5, 50.0))
+
+
+class _StationPrior:
+    """A square root ``L`` (6K x 6K+6) of the prior covariance of the stacked station
+    offsets: ``Sigma = L L^T = I (x) diag(s) ^2 + 11^T (x) diag(a)^2`` with per-axis
+    scales s (station-to-station) and a (common)."""
+
+    def __init__(self, n_stations: int, common_rad_mm: tuple[float, float]):
+        self.K = n_stations
+        self.common = np.kron(np.ones((n_stations, 1)), np.diag([common_rad_mm[0]] * 3 + [common_rad_mm[1]] * 3))
+
+    def L(self, s_rot: float, s_trans: float, with_common: bool = False) -> np.ndarray:
+        own = np.kron(np.eye(self.K), np.diag([s_rot] * 3 + [s_trans] * 3))
+        return np.hstack([own, self.common if with_common else 0.0 * self.common])
+
+
+def _apply_station_offsets(problem: Problem, delta: np.ndarray) -> Problem:
+    """``problem`` with station k's flange poses moved by ``delta[k]`` (see StationEffects)."""
+    if not np.any(delta):
+        return problem
+    d = delta[problem.station_of]
+    R0 = geo.matrix_from_rotvec(d[:, :3]) @ problem.R0
+    t0 = problem.t0 + d[:, 3:]
+    R_A, t_A = sphere_frame_from_base(problem.mounting, R0, t0)
+    return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
+
+
+def _neg2_reml(L, A_tt, A_td, A_dd, b_t, b_d, yy) -> float:
+    """-2 x REML log-likelihood of the linearised model ``y = J_t b + J_d delta + e``,
+    e ~ N(0, I), delta ~ N(0, L L^T), from its normal-equation blocks (Woodbury and
+    Sylvester keep every matrix small and stable as L -> 0)."""
+    B = np.eye(L.shape[1]) + L.T @ A_dd @ L
+    cB = np.linalg.cholesky(B)
+    logdet_V = 2.0 * np.sum(np.log(np.diag(cB)))
+
+    def Cinv(u):  # (Sigma^-1 + A_dd)^-1 u = L B^-1 L^T u
+        return L @ np.linalg.solve(B, L.T @ u)
+
+    XVX = A_tt - A_td @ Cinv(A_td.T)
+    XVy = b_t - A_td @ Cinv(b_d)
+    yVy = yy - b_d @ Cinv(b_d)
+    sign, logdet_X = np.linalg.slogdet(XVX)
+    if sign <= 0:
+        return np.inf
+    quad = yVy - XVy @ np.linalg.solve(XVX, XVy)
+    return float(logdet_V + logdet_X + quad)
+
+
+def _station_blocks(Jw_t, Jw_d, yw, station_rows):
+    """Normal-equation blocks with the station effects' columns kept per station."""
+    K = len(station_rows)
+    p = Jw_t.shape[1]
+    A_td = np.zeros((p, 6 * K))
+    A_dd = np.zeros((6 * K, 6 * K))
+    b_d = np.zeros(6 * K)
+    for k, rows in enumerate(station_rows):
+        Jd = Jw_d[rows]
+        sl = slice(6 * k, 6 * k + 6)
+        A_td[:, sl] = Jw_t[rows].T @ Jd
+        A_dd[sl, sl] = Jd.T @ Jd
+        b_d[sl] = Jd.T @ yw[rows]
+    return Jw_t.T @ Jw_t, A_td, A_dd, Jw_t.T @ yw, b_d
 
 
 def refine(
@@ -165,8 +260,18 @@ def refine(
     estimate_pose_noise: bool = True,
     max_iterations: int = 50,
     tolerance: float = 1e-10,
+    station_effects: StationEffects | None = None,
 ) -> RefineResult:
-    """Gauss-Newton over all points of ``problem.profiles`` (already cleaned)."""
+    """Gauss-Newton over all points of ``problem.profiles`` (already cleaned).
+
+    With ``station_effects`` enabled (and two or more stations) each station's flange
+    poses carry one shared, unknown pose error with a Gaussian prior (see
+    :class:`StationEffects`): the fit estimates the transform with those offsets
+    marginalised, and their scale by restricted maximum likelihood (REML) on the
+    linearised model. The covariance is that of the transform with the offsets
+    integrated out."""
+    from scipy.optimize import minimize
+
     R = np.array(R, dtype=float)
     t = np.array(t, dtype=float)
     c = np.array(centre, dtype=float)
@@ -175,45 +280,131 @@ def refine(
     sigma = max(noise.point_noise_mm, 1e-7)
     pose_cov = _pose_cov(noise)
     n_par = 10 if fit_radius else 9
+    K = len(problem.station_labels)
+    se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
+    delta = np.zeros((K, 6))
+    station_rows = [np.flatnonzero(problem.station_of[pts.pid] == k) for k in range(K)]
+    prior = _StationPrior(K, (np.radians(se.common_rotation_deg), se.common_translation_mm)) if se else None
+    fixed = (None if se is None else
+             (None if se.rotation_deg is None else np.radians(se.rotation_deg),
+              se.translation_mm))
+    s_hat = np.array([np.radians(0.01), 0.1])  # start of the station-effect scales
     scale = 1.0
     converged = False
     it = 0
+    s2_profiles = 1.0
+
+    def linearise(scale_):
+        return _linearise(_apply_station_offsets(problem, delta), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma)
+
     for outer in range(4 if estimate_pose_noise else 1):
         for it in range(1, max_iterations + 1):
-            lin = _linearise(problem, pts, R, t, c, r, fit_radius, scale * pose_cov, sigma)
-            step = np.linalg.lstsq(lin.W.apply(lin.J), -lin.W.apply(lin.res), rcond=None)[0]
+            lin = linearise(scale)
+            Jw = lin.W.apply(lin.J)
+            ew = lin.W.apply(lin.res)
+            if se is None:
+                step = np.linalg.lstsq(Jw, -ew, rcond=None)[0]
+            else:
+                Jw_d = lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
+                yw = -ew + _stack_station_effect(Jw_d, delta, problem.station_of[pts.pid])
+                A_tt, A_td, A_dd, b_t, b_d = _station_blocks(Jw, Jw_d, yw, station_rows)
+                yy = float(yw @ yw)
+                free = [i for i in range(2) if fixed[i] is None]
+                if free:
+                    def objective(log_s):
+                        sv = s_hat.copy()
+                        sv[free] = np.exp(log_s)
+                        for i in range(2):
+                            if fixed[i] is not None:
+                                sv[i] = fixed[i]
+                        return _neg2_reml(prior.L(*sv), A_tt, A_td, A_dd, b_t, b_d, yy)
+
+                    lo = [np.log(_SCALE_BOUNDS[i][0]) for i in free]
+                    hi = [np.log(_SCALE_BOUNDS[i][1]) for i in free]
+                    x0 = np.clip(np.log(s_hat[free]), lo, hi)
+                    best = minimize(objective, x0, method="L-BFGS-B", bounds=list(zip(lo, hi)))
+                    s_hat[free] = np.exp(best.x)
+                for i in range(2):
+                    if fixed[i] is not None:
+                        s_hat[i] = fixed[i]
+                Lp = prior.L(*s_hat, with_common=False)
+                # MAP step in (d theta, eta) with delta = L eta: normal matrix stays regular as L -> 0
+                N = np.block([[A_tt, A_td @ Lp], [Lp.T @ A_td.T, Lp.T @ A_dd @ Lp + np.eye(Lp.shape[1])]])
+                sol = np.linalg.solve(N, np.concatenate([b_t, Lp.T @ b_d]))
+                step = sol[:n_par]
+                new_delta = (Lp @ sol[n_par:]).reshape(K, 6)
+                step_delta = np.abs(new_delta - delta).max()
+                delta = new_delta
             R = geo.matrix_from_rotvec(step[:3]) @ R
             t = t + step[3:6]
             c = c + step[6:9]
             if fit_radius:
                 r = r + step[9]
-            if np.abs(step[:3]).max() < tolerance and np.abs(step[3:]).max() < tolerance * 1e3:
+            small = np.abs(step[:3]).max() < tolerance and np.abs(step[3:]).max() < tolerance * 1e3
+            if se is not None:
+                small = small and step_delta < tolerance * 1e3
+            if small:
                 converged = True
                 break
         # variance component of the pose noise: whitened chi^2 in the profiles' 3-D subspaces
-        lin = _linearise(problem, pts, R, t, c, r, fit_radius, scale * pose_cov, sigma)
-        dof_profiles = 3 * problem.n_profiles - n_par
+        lin = linearise(scale)
+        dof_profiles = 3 * problem.n_profiles - n_par - (6 * K if se else 0)
         s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
         if not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0 or abs(s2_profiles - 1) < 0.05:
             break
         # move the assumed pose-noise variance toward what the profiles show, and refit
         scale = float(np.clip(scale * s2_profiles, 1e-8, 1e4))
 
-    lin = _linearise(problem, pts, R, t, c, r, fit_radius, scale * pose_cov, sigma)
+    lin = linearise(scale)
     Jw = lin.W.apply(lin.J)
     ew = lin.W.apply(lin.res)
     info = Jw.T @ Jw
+    cov_fixed = np.linalg.pinv(info)  # with the station offsets known (no systematic error)
+    diagnostics = {
+        "information_condition_number": float(np.linalg.cond(info)),
+        "profile_variance_factor": s2_profiles,
+        "point_noise_mm_assumed": sigma,
+        "profile_chi2": lin.W.profile_chi2(lin.res).tolist(),
+    }
+    cov = cov_robot_frame = cov_fixed
+    if se is not None:
+        Jw_d = lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
+        A_tt, A_td, A_dd, _, _ = _station_blocks(Jw, Jw_d, np.zeros(len(ew)), station_rows)
+        # GLS covariance with the station-to-station offsets integrated out ...
+        Lp = prior.L(*s_hat, with_common=False)
+        B = np.eye(Lp.shape[1]) + Lp.T @ A_dd @ Lp
+
+        def Cinv(u):
+            return Lp @ np.linalg.solve(B, Lp.T @ u)
+
+        cov_robot_frame = np.linalg.pinv(A_tt - A_td @ Cinv(A_td.T))
+        # ... plus the common offset as a 'consider' parameter: not estimated (one sphere
+        # location cannot tell it), its prior spread propagated through the estimator
+        sum_cols = np.kron(np.ones((K, 1)), np.eye(6))  # the common offset moves every station
+        A_tc, A_dc = A_td @ sum_cols, A_dd @ sum_cols
+        S = cov_robot_frame @ (A_tc - A_td @ Cinv(A_dc))
+        common = np.diag([np.radians(se.common_rotation_deg) ** 2] * 3 + [se.common_translation_mm**2] * 3)
+        cov = cov_robot_frame + S @ common @ S.T
+        diagnostics["station_effects"] = {
+            "rotation_deg": float(np.degrees(s_hat[0])),
+            "translation_mm": float(s_hat[1]),
+            "estimated": [fixed[0] is None, fixed[1] is None],
+            "common_rotation_deg": se.common_rotation_deg,
+            "common_translation_mm": se.common_translation_mm,
+            "offsets": {lab: {"rotation_deg": np.degrees(delta[k, :3]).tolist(), "translation_mm": delta[k, 3:].tolist()}
+                        for k, lab in enumerate(problem.station_labels)},
+        }
     dof = max(len(lin.res) - n_par, 1)
     return RefineResult(
-        R, t, c, r, np.linalg.pinv(info), np.split(lin.res, np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
-        converged, float(ew @ ew / dof), scale,
-        {
-            "information_condition_number": float(np.linalg.cond(info)),
-            "profile_variance_factor": s2_profiles,
-            "point_noise_mm_assumed": sigma,
-            "profile_chi2": lin.W.profile_chi2(lin.res).tolist(),
-        },
+        R, t, c, r, cov, np.split(lin.res, np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
+        converged, float(ew @ ew / dof), scale, diagnostics, covariance_without_robot_error=cov_fixed,
+        covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=(float(s_hat[0]), float(s_hat[1])) if se else (0.0, 0.0),
     )
+
+
+def _stack_station_effect(Jw_d, delta, station_of_point):
+    """J_d delta per point (whitened), for the station of each point."""
+    return np.einsum("mp,mp->m", Jw_d, delta[station_of_point])
 
 
 def cramer_rao_bound(problem_true: Problem, R, t, centre, noise: NoiseAssumptions, fit_radius: bool = False) -> np.ndarray:

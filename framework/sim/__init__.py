@@ -4,6 +4,7 @@ simulated devices."""
 from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, standard_cell
 from .objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
 from .planner import SweepPlan, plan_stations, simulate_dataset
+from .robot_error import RobotErrorModel, SimulatedArm
 
 __all__ = [
     "BallBar",
@@ -12,6 +13,8 @@ __all__ = [
     "SceneObject",
     "Sphere",
     "NoiseModel",
+    "RobotErrorModel",
+    "SimulatedArm",
     "SensorFieldOfView",
     "SimulatedCell",
     "standard_cell",

@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from .. import geometry as geo
 from ..models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
 from .objects import BallBar, SceneObject, Sphere
+from .robot_error import RobotErrorModel, SimulatedArm
 
 
 class SensorFieldOfView(BaseModel):
@@ -92,6 +93,7 @@ class SimulatedCell:
         noise: NoiseModel | None = None,
         seed: int | None = 0,
         base_from_flange: Pose | None = None,
+        robot_error: RobotErrorModel | None = None,
     ):
         if mounting not in TRANSFORM_NAME:
             raise ValueError(f"mounting must be one of {sorted(TRANSFORM_NAME)}, got {mounting!r}")
@@ -109,6 +111,22 @@ class SimulatedCell:
         #: interrupted and resumed simulated acquisition reproduces an uninterrupted one.
         self.noise_per_pose = False
         self.current_base_from_flange = base_from_flange or Pose.identity()
+        #: The arm's geometric error (None: the arm is exactly its nominal model).
+        self.robot_error = robot_error
+        #: Set by :meth:`attach_arm`: the simulated arm with its true geometry.
+        self.arm: SimulatedArm | None = None
+
+    def attach_arm(self, kinematics) -> SimulatedArm:
+        """Give the cell a robot arm described by a plugin's
+        :class:`~spherecal.kinematics.ArmKinematics`. Its true geometry carries
+        ``robot_error`` (drawn once, from the cell's seed unless the model has its own);
+        simulated controllers and :func:`~spherecal.sim.simulate_dataset` then move the
+        flange to where the true geometry puts it and report the nominal model's pose."""
+        error = self.robot_error if self.robot_error is not None else RobotErrorModel(
+            joint_zero_offset_deg=(0, 0), link_length_mm=(0, 0), link_offset_mm=(0, 0), axis_tilt_deg=(0, 0)
+        )
+        self.arm = SimulatedArm(kinematics, error, self.seed)
+        return self.arm
 
     # scene -----------------------------------------------------------------------------
     @property
@@ -327,13 +345,18 @@ def standard_cell(
     noise: NoiseModel | None = None,
     fov: SensorFieldOfView | None = None,
     sphere_radius_mm: float = 19.1,
+    robot_error: RobotErrorModel | None = None,
+    arm=None,
 ) -> SimulatedCell:
     """An IRB 2400-sized cell with a generic (not axis-aligned) true transform.
 
     Eye-in-hand: the sensor sits about 160 mm out from the flange looking along the
     flange's z; the sphere stands at (1100, 150, 400) mm in base. Eye-to-hand: the
     sensor hangs at about (1250, -200, 900) mm in base looking down; the sphere is on a
-    150 mm stylus on the flange's z axis."""
+    150 mm stylus on the flange's z axis.
+
+    ``arm`` (a robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) attaches a
+    simulated arm, with ``robot_error`` in its true geometry when given."""
     if mounting == "eye_in_hand":
         R = _rot([180.0, 0.0, 0.0]) @ _rot([2.0, -4.0, 31.0])
         X = Pose.from_rt(R, [42.5, -18.3, 163.7])
@@ -342,4 +365,9 @@ def standard_cell(
         R = _rot([0.0, 180.0, 0.0]) @ _rot([3.0, 5.0, -20.0])
         X = Pose.from_rt(R, [1250.0, -200.0, 900.0])
         centre = [4.2, -2.7, 151.3]
-    return SimulatedCell(mounting, X, centre, sphere_radius_mm, fov=fov, noise=noise, seed=seed)
+    cell = SimulatedCell(mounting, X, centre, sphere_radius_mm, fov=fov, noise=noise, seed=seed, robot_error=robot_error)
+    if arm is not None:
+        cell.attach_arm(arm)
+    elif robot_error is not None:
+        raise ValueError("standard_cell: robot_error needs an arm (a robot plugin's kinematics) to act on")
+    return cell

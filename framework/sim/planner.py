@@ -108,9 +108,18 @@ def simulate_dataset(
     )
     t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
     obs = []
+    arm = cell.arm
+    joints = None
+    flange_errors = []
     for label, poses in stations:
         for pose in poses:
-            cell.move_flange_to(pose)
+            if arm is not None:  # the controller's nominal IK, the arm's true geometry
+                joints = arm.joints_for(pose, joints)
+                true_pose, commanded = arm.true_flange_pose(joints), arm.nominal_flange_pose(joints)
+                flange_errors.append(arm.flange_error(joints))
+            else:
+                true_pose = commanded = pose
+            cell.move_flange_to(true_pose)
             pts = cell.measure_profile()
             if len(pts) < max(min_points, 1):
                 continue
@@ -119,10 +128,16 @@ def simulate_dataset(
                     index=len(obs),
                     station=label,
                     timestamp=t0 + timedelta(seconds=2 * len(obs)),
-                    base_from_flange=cell.report_pose(pose),
+                    base_from_flange=cell.report_pose(commanded),
+                    joints_deg=None if joints is None else tuple(float(j) for j in joints),
                     profile=Profile.from_points(pts),
                 )
             )
+    robot = {}
+    if arm is not None:
+        e = np.array(flange_errors)
+        robot = {"robot_error": arm.error.model_dump(), "flange_error_mm_range": [float(e[:, 0].min()), float(e[:, 0].max())],
+                 "flange_error_deg_range": [float(e[:, 1].min()), float(e[:, 1].max())]}
     return Dataset(
         mounting=cell.mounting,
         sphere_radius_mm=cell.sphere_radius_mm,
@@ -135,5 +150,6 @@ def simulate_dataset(
             "noise": cell.noise.model_dump(),
             "fov": cell.fov.model_dump(),
             "plan": plan.model_dump(),
+            **robot,
         },
     )

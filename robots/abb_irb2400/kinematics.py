@@ -38,6 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from spherecal import geometry as geo
 from spherecal.errors import ConfigError, InputError
+from spherecal.kinematics import SerialChain
 from spherecal.models import Pose
 
 JOINT_COUNT = 6
@@ -160,6 +161,20 @@ class Irb2400Kinematics:
         self.data = self.model.createData()
         self.tool0_id = self.model.getFrameId("tool0")
         self._R_j6_from_tool0 = geo.matrix_from_rotvec(np.radians(self.geometry.tool0_rotvec_deg))
+
+    @property
+    def chain(self) -> SerialChain:
+        """The nominal geometry as a brand-free :class:`~spherecal.kinematics.SerialChain`
+        (model joint convention, rad; see ``model_joints_rad``): each joint placed at its
+        ``offset_mm`` with no rotation, turning about its own x, y or z axis; tool0 turned
+        by ``tool0_rotvec_deg`` on joint 6."""
+        placements = np.repeat(np.eye(4)[None], JOINT_COUNT, axis=0)
+        for i, spec in enumerate(self.geometry.joints):
+            placements[i, :3, 3] = spec.offset_mm
+        axes = np.array([np.eye(3)["xyz".index(spec.axis)] for spec in self.geometry.joints])
+        flange = np.eye(4)
+        flange[:3, :3] = self._R_j6_from_tool0
+        return SerialChain(placements, axes, flange)
 
     def _build_model(self) -> pin.Model:
         model = pin.Model()

@@ -1,0 +1,83 @@
+"""The error to expect of a point measured at a new pose, with its budget.
+
+A point p (sensor frame) measured at robot pose i lands in the frame the sphere is fixed
+in (base in eye-in-hand, flange in eye-to-hand) at ``q = A_i X p`` (see :mod:`.problem`).
+Its error there has four independent parts, each propagated to first order:
+
+- the transform X and the sphere centre c, jointly: the error is that of q relative to
+  where the calibration puts the same point of the scene (a point on the sphere: the
+  fitted sphere), so X and c enter with their correlation, relative to the robot's frame
+  (the common robot error excluded: it moves every pose alike, and the fitted sphere or
+  transform with them);
+- the robot's station-to-station error: a new pose is a new draw of the station offset
+  (per-axis ``s_rot``, ``s_trans`` as the fit estimated them from the inconsistency
+  between stations);
+- the robot's per-shot pose noise (as rescaled by the fit);
+- the sensor's point noise (each of y and z).
+
+Evaluated at the sensor-frame point where the sphere was seen (the mean of the used
+profile points) and at every pose of the calibration, then averaged: "a new pose" means
+one like the calibration's. The k = 2 figure is twice the RMS 3-D error, mm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import geometry as geo
+from .problem import Problem
+from .refine import NoiseAssumptions, RefineResult, _pose_cov
+
+
+def _jacobians(problem: Problem, R: np.ndarray, t: np.ndarray, p: np.ndarray):
+    """d(q - c)/d(w, t, c) (n, 3, 9), dq/d(omega, tau) of the flange pose (n, 3, 6) and
+    dq/dp (n, 3, 3)."""
+    n = problem.n_profiles
+    R0, t0 = problem.R0, problem.t0
+    Rp = R @ p
+    x = Rp + t  # the point in the frame X maps into (flange or base)
+    JX = np.zeros((n, 3, 9))
+    JX[:, :, 6:9] = -np.eye(3)  # relative to the fitted sphere centre
+    JR = np.empty((n, 3, 6))
+    if problem.mounting == "eye_in_hand":
+        JX[:, :, :3] = R0 @ -geo.skew(Rp)
+        JX[:, :, 3:6] = R0
+        JR[:, :, :3] = -geo.skew(np.einsum("nij,j->ni", R0, x))
+        JR[:, :, 3:] = np.eye(3)
+        Jp = R0 @ R
+    else:
+        R0T = np.swapaxes(R0, 1, 2)
+        JX[:, :, :3] = R0T @ -geo.skew(Rp)
+        JX[:, :, 3:6] = R0T
+        JR[:, :, :3] = R0T @ geo.skew(x - t0)
+        JR[:, :, 3:] = -R0T
+        Jp = R0T @ R
+    return JX, JR, Jp
+
+
+def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumptions, shots_averaged: int = 1) -> dict:
+    """RMS 3-D error (mm, k = 1) of a point measured at a new pose, per part, and the
+    k = 2 total; ``shots_averaged`` > 1 gives the error of a quantity averaged over that
+    many shots of one station (a sphere centre fitted from a sweep): the per-shot pose
+    noise and the point noise average out, the station's offset does not."""
+    pts = np.vstack(problem.profiles)
+    p = np.array([0.0, *pts.mean(axis=0)])
+    JX, JR, Jp = _jacobians(problem, ref.R, ref.t, p)
+    cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
+    s_rot, s_trans = ref.station_effect_scales
+    S_station = np.diag([s_rot**2] * 3 + [s_trans**2] * 3)
+    S_shot = _pose_cov(noise) * ref.pose_noise_scale / shots_averaged
+    S_point = np.diag([0.0, 1.0, 1.0]) * noise.point_noise_mm**2 / shots_averaged
+
+    def rms(J, S):
+        return float(np.sqrt(np.mean(np.einsum("nij,jk,nik->n", J, S, J))))
+
+    parts = {
+        "transform_and_sphere_mm": rms(JX, cov_X),
+        "robot_station_to_station_mm": rms(JR, S_station),
+        "robot_pose_noise_mm": rms(JR, S_shot),
+        "sensor_point_noise_mm": 0.0 if shots_averaged > 1 else rms(Jp, S_point),
+    }
+    total = float(np.sqrt(sum(v**2 for v in parts.values())))
+    return {"k2_mm": 2.0 * total, "rms_mm": total, "parts_rms_mm": parts,
+            "sensor_point_mm": p.tolist(), "shots_averaged": shots_averaged}

@@ -1,0 +1,116 @@
+"""A simulated robot with a real robot's systematic error.
+
+A real arm differs from its controller's nominal model: joint zero offsets, link lengths
+and offsets, small axis tilts. The controller turns a target into joints with its
+nominal model, the arm goes where its *true* geometry puts it, and the controller
+reports the pose of its nominal model at the actual joints. So the reported pose is
+(nearly) the commanded one, and the flange is off by 0.5-2 mm and 0.05-0.15 deg by an
+amount that changes slowly over the joint space (see ``shared/reference/method.md``,
+"Robot error"). :class:`SimulatedArm` does exactly that on the geometry a robot plugin
+describes (:class:`~spherecal.kinematics.ArmKinematics`); it knows no robot brand.
+
+The error of a particular arm is drawn once from :class:`RobotErrorModel` (magnitudes
+uniform in the given ranges, signs and directions random) and stays fixed: it is the
+arm's geometry, not noise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from .. import geometry as geo
+from ..kinematics import ArmKinematics, SerialChain
+from ..models import Pose
+
+
+def _range(lo_default: float, hi_default: float, what: str):
+    return Field(
+        (lo_default, hi_default),
+        description=f"{what}: each error's magnitude is drawn uniformly from this range, with a random sign",
+    )
+
+
+class RobotErrorModel(BaseModel):
+    """Geometric error of the simulated arm (defaults: an uncalibrated IRB 2400-class
+    arm, flange 0.5-2 mm and 0.03-0.15 deg off its nominal pose)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    joint_zero_offset_deg: tuple[float, float] = _range(0.02, 0.05, "zero offset of every joint, deg")
+    link_length_mm: tuple[float, float] = _range(0.1, 0.3, "error of each joint placement along the link, mm")
+    link_offset_mm: tuple[float, float] = _range(0.0, 0.2, "error of each joint placement across the link, mm")
+    axis_tilt_deg: tuple[float, float] = _range(0.0, 0.02, "tilt of every joint axis, deg")
+    seed: int | None = Field(
+        None, ge=0, le=2**63 - 1, description="seed of this arm's errors (default: the cell's seed)"
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        for name in ("joint_zero_offset_deg", "link_length_mm", "link_offset_mm", "axis_tilt_deg"):
+            lo, hi = getattr(self, name)
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi <= 100):
+                raise ValueError(f"{name}: expected 0 <= low <= high <= 100, got ({lo}, {hi})")
+        return self
+
+
+def _signed(rng: np.random.Generator, rng_range: tuple[float, float], size) -> np.ndarray:
+    lo, hi = rng_range
+    return rng.uniform(lo, hi, size) * rng.choice([-1.0, 1.0], size)
+
+
+def perturbed_chain(chain: SerialChain, model: RobotErrorModel, rng: np.random.Generator) -> tuple[SerialChain, np.ndarray]:
+    """The true geometry of one arm: ``chain`` with errors drawn from ``model``, and the
+    joint zero offsets (rad) to add to the model angles. Joint placements move along
+    the link (the direction to the joint from its parent) by ``link_length_mm`` and across
+    it by ``link_offset_mm``; every joint axis tilts by ``axis_tilt_deg`` about a random
+    direction perpendicular to it. The flange placement itself is exact (the sensor or
+    sphere transform is measured relative to the real flange)."""
+    n = chain.n_joints
+    P = chain.placements.copy()
+    for i in range(n):
+        t = P[i, :3, 3]
+        along = t / np.linalg.norm(t) if np.linalg.norm(t) > 1e-9 else chain.axes[i]
+        across = np.cross(along, rng.normal(size=3))
+        across /= max(np.linalg.norm(across), 1e-12)
+        P[i, :3, 3] = t + _signed(rng, model.link_length_mm, 1)[0] * along + _signed(rng, model.link_offset_mm, 1)[0] * across
+        # tilt the joint's axis: rotate its frame about a direction perpendicular to the axis
+        a = chain.axes[i]
+        perp = np.cross(a, rng.normal(size=3))
+        perp /= max(np.linalg.norm(perp), 1e-12)
+        tilt = np.radians(_signed(rng, model.axis_tilt_deg, 1)[0])
+        P[i, :3, :3] = P[i, :3, :3] @ geo.matrix_from_rotvec(tilt * perp)
+    zero_offsets_rad = np.radians(_signed(rng, model.joint_zero_offset_deg, n))
+    return SerialChain(P, chain.axes.copy(), chain.flange_placement.copy()), zero_offsets_rad
+
+
+class SimulatedArm:
+    """A robot arm whose true geometry differs from its controller's nominal model.
+
+    ``kinematics`` is the robot plugin's nominal model; the true chain is drawn from
+    ``error`` with ``seed``. Joints in and out are degrees, controller convention."""
+
+    def __init__(self, kinematics: ArmKinematics, error: RobotErrorModel, seed: int | None = 0):
+        self.kinematics = kinematics
+        self.error = error
+        rng = np.random.default_rng(error.seed if error.seed is not None else [seed or 0, 0x5EED])
+        self.true_chain, self.zero_offsets_rad = perturbed_chain(kinematics.chain, error, rng)
+
+    def nominal_flange_pose(self, joints_deg) -> Pose:
+        """What the controller reports at these joints: its nominal model's pose."""
+        return self.kinematics.flange_pose_from_joints(joints_deg, check_limits=False)
+
+    def true_flange_pose(self, joints_deg) -> Pose:
+        """Where the flange really is at these joints."""
+        q = self.kinematics.model_joints_rad(joints_deg) + self.zero_offsets_rad
+        return self.true_chain.flange_pose(q)
+
+    def joints_for(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
+        """The joints the controller chooses for a target (nominal inverse kinematics)."""
+        return self.kinematics.joints_from_flange_pose(base_from_flange, seed_joints_deg)
+
+    def flange_error(self, joints_deg) -> tuple[float, float]:
+        """(mm, deg) between the true and the reported flange pose at these joints."""
+        a, b = self.true_flange_pose(joints_deg), self.nominal_flange_pose(joints_deg)
+        return (float(np.linalg.norm(a.translation - b.translation)),
+                geo.rotation_angle_deg(a.rotation_matrix, b.rotation_matrix))
