@@ -17,6 +17,7 @@ from pydantic import BaseModel
 from .models import Pose, Profile
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .kinematics import ArmKinematics
     from .sim.cell import SimulatedCell
 
 
@@ -73,13 +74,17 @@ class RobotType:
     ``factory(config, context)`` returns a connected :class:`Robot`; ``config`` is an
     instance of ``config_model`` validated by the host. ``flange_pose_from_joints`` is
     the forward kinematics ``joints_deg -> base_from_flange`` (or None when the robot
-    only reports poses); the core uses it for observations that carry joints only."""
+    only reports poses); the core uses it for observations that carry joints only.
+    ``arm_kinematics(config)`` describes the arm's nominal geometry as an
+    :class:`~spherecal.kinematics.ArmKinematics` (or None when unknown); the simulated
+    cell uses it to give a simulated arm a real arm's geometric error."""
 
     name: str
     config_model: type[BaseModel]
     factory: Callable[[BaseModel, DeviceContext], Robot]
     description: str = ""
     flange_pose_from_joints: Callable[[BaseModel, np.ndarray], Pose] | None = None
+    arm_kinematics: Callable[[BaseModel], "ArmKinematics"] | None = None
 
 
 @dataclass(frozen=True)

@@ -254,6 +254,36 @@ class ResidualStats(BaseModel):
     per_station_rms_mm: dict[str, float]
 
 
+class RobotErrorSummary(BaseModel):
+    """The robot's systematic error as the fit saw it, and what it means for a point.
+
+    The robot's error is modelled as a pose offset shared by the shots of a station
+    (docs/estimation.md): its station-to-station part, per axis and 1 sigma, is
+    estimated from how the stations disagree; the part common to every station cannot
+    be seen from one sphere location and is the robot's stated (or assumed) accuracy."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    model: Literal["station", "none"]
+    station_rotation_deg: float = Field(description="station-to-station orientation error, per axis, 1 sigma, deg")
+    station_translation_mm: float = Field(description="station-to-station position error, per axis, 1 sigma, mm")
+    estimated: bool = Field(description="True when the two figures above were estimated from the data")
+    common_rotation_deg: float = Field(description="assumed error shared by every station, per axis, 1 sigma, deg")
+    common_translation_mm: float = Field(description="assumed error shared by every station, per axis, 1 sigma, mm")
+    std_rotation_deg_robot_frame: tuple[float, float, float] = Field(
+        description="1-sigma of the rotation relative to the robot's own frame (common error left out), deg"
+    )
+    std_translation_mm_robot_frame: tuple[float, float, float] = Field(
+        description="1-sigma of the translation relative to the robot's own frame, mm"
+    )
+    point_error_k2_mm: float = Field(
+        description="expected error (k = 2, 3-D) of a point measured at a new pose like the calibration's, "
+        "relative to where the calibration puts it, mm"
+    )
+    point_error_parts_rms_mm: dict[str, float] = Field(description="its parts, RMS 3-D, k = 1, mm")
+    dominant: str = Field(description="the part that dominates the point error")
+
+
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.
 
@@ -279,13 +309,14 @@ class CalibrationResult(BaseModel):
     std_sphere_radius_mm: float | None = None
     covariance: list[list[float]] = Field(
         description="covariance of (rotation about target axes rad x3, translation mm x3, "
-        "sphere centre mm x3[, radius mm]) after scaling by the a-posteriori variance factor"
+        "sphere centre mm x3[, radius mm]), including the robot's systematic error (robot_error)"
     )
     variance_factor: float = Field(description="chi^2 / dof of the whitened residuals")
     residuals: ResidualStats
     flagged: list[ObservationFlag] = Field(default_factory=list)
     method: str
     two_step_transform: Pose | None = None
+    robot_error: RobotErrorSummary | None = None
     diagnostics: dict[str, Any] = Field(default_factory=dict)
     provenance: dict[str, Any] = Field(default_factory=dict)
 

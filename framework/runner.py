@@ -285,8 +285,26 @@ def summary(solution: Solution) -> str:
         f"residuals: RMS {r.residuals.rms_mm:.4f} mm over {r.residuals.n_points_used} points of "
         f"{r.residuals.n_profiles_used} profiles; {r.residuals.n_points_rejected} stray points rejected",
     ]
+    re = r.robot_error
+    if re is not None:
+        lines.append(
+            f"  std relative to the robot's own frame: rotation {', '.join(f'{v:.4f}' for v in re.std_rotation_deg_robot_frame)}"
+            f" deg; translation {', '.join(f'{v:.4f}' for v in re.std_translation_mm_robot_frame)} mm (the std above "
+            f"adds the robot's assumed accuracy {re.common_translation_mm:g} mm, {re.common_rotation_deg:g} deg per axis)"
+        )
+        from .estimation.pipeline import POINT_ERROR_PARTS
+
+        lines.append(
+            f"a point measured at a new pose: expected error {re.point_error_k2_mm:.3f} mm (k = 2), mostly from "
+            f"{POINT_ERROR_PARTS.get(re.dominant, re.dominant)}; stations disagree by {re.station_translation_mm:.3f} mm "
+            f"and {re.station_rotation_deg:.4f} deg per axis"
+        )
     for f in r.flagged:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
+    from .report.assess import verdict
+
+    v = verdict(r)
+    lines.append(f"verdict: {v.level.upper()}: {v.headline}")
     return "\n".join(lines)
 
 

@@ -663,6 +663,15 @@ class PluginHost:
 
         return flange_pose_from_joints
 
+    def arm_kinematics(self, section: Mapping[str, Any], path: str = "robot"):
+        """The configured robot's :class:`~spherecal.kinematics.ArmKinematics` (its
+        nominal geometry, inverse kinematics and joint convention), or None when the
+        robot type does not describe its arm."""
+        type_name = self._type_of("robot", section, path)
+        config = self.validate_robot_config(type_name, section, path)
+        describe = self.registry.robot_type(type_name).arm_kinematics
+        return None if describe is None else describe(config)
+
     # listing ---------------------------------------------------------------------------
     def describe(self) -> list[DeviceDescription]:
         """Every installed robot and sensor type with its configuration fields, robots

@@ -11,8 +11,11 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .. import geometry as geo
 from ..errors import DegenerateDataError
-from ..models import SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, ObservationFlag, Pose, ResidualStats
+from ..models import (
+    SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, ObservationFlag, Pose, ResidualStats, RobotErrorSummary,
+)
 from .circle import CircleFit, fit_circle
+from .prediction import point_error_budget
 from .problem import Problem, build_problem
 from .refine import NoiseAssumptions, RefineResult, StationEffects, refine
 from .twostep import TwoStepResult, two_step
@@ -239,6 +242,36 @@ def ts_obs_index(ts: TwoStepResult, i: int) -> int:
     return ts.diagnostics["obs_index"][i]
 
 
+#: Names of the point-error parts, as the terminal and the report say them.
+POINT_ERROR_PARTS = {
+    "transform_and_sphere_mm": "the calibration (transform and sphere)",
+    "robot_station_to_station_mm": "the robot's systematic error",
+    "robot_pose_noise_mm": "the robot's repeatability",
+    "sensor_point_noise_mm": "the sensor's point noise",
+}
+
+
+def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumptions, opt) -> RobotErrorSummary:
+    budget = point_error_budget(clean, ref, noise)
+    parts = budget["parts_rms_mm"]
+    se = ref.diagnostics.get("station_effects")
+    cov = ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance
+    sd = np.sqrt(np.maximum(np.diag(cov)[:6], 0.0))
+    return RobotErrorSummary(
+        model="station" if se else "none",
+        station_rotation_deg=float(np.degrees(ref.station_effect_scales[0])),
+        station_translation_mm=float(ref.station_effect_scales[1]),
+        estimated=bool(se and all(se["estimated"])),
+        common_rotation_deg=float(se["common_rotation_deg"]) if se else 0.0,
+        common_translation_mm=float(se["common_translation_mm"]) if se else 0.0,
+        std_rotation_deg_robot_frame=tuple(np.degrees(sd[:3]).tolist()),
+        std_translation_mm_robot_frame=tuple(sd[3:6].tolist()),
+        point_error_k2_mm=budget["k2_mm"],
+        point_error_parts_rms_mm=parts,
+        dominant=max(parts, key=parts.get),
+    )
+
+
 def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt) -> CalibrationResult:
     cov = ref.covariance * 1.0
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -249,6 +282,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
         per_station[label] = float(np.sqrt(np.mean(e**2)))
     mode = dataset.mounting
     return CalibrationResult(
+        robot_error=_robot_error_summary(clean, ref, noise, opt),
         mounting=mode,
         transform_name=TRANSFORM_NAME[mode],
         transform=Pose.from_rt(ref.R, ref.t),

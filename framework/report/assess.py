@@ -59,6 +59,13 @@ class Thresholds(BaseModel):
     )
     start_disagreement_deg: float = Field(0.5, gt=0, description="two-step vs refined rotation worth a note, deg")
     start_disagreement_mm: float = Field(1.0, gt=0, description="two-step vs refined translation worth a note, mm")
+    robot_error_share_amber: float = Field(
+        0.5, gt=0, le=1, description="the robot's systematic error above this share of the point error's variance: "
+        "amber, 'robot error dominates'"
+    )
+    robot_error_floor_mm: float = Field(
+        0.03, ge=0, description="... when it is also above this RMS, mm (below it the robot is as good as clean)"
+    )
 
 
 @dataclass
@@ -111,15 +118,31 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     reasons.append((lvl, f"residual RMS {rms:.4f} mm is {ratio:.2f} x the expected {exp:.4f} mm "
                          f"(point noise and robot repeatability {th.robot_repeatability_mm} mm)"))
 
-    rot = max(result.std_rotation_deg)
+    # what the calibration determines: relative to the robot's own frame (the error the
+    # robot shares over every station is its accuracy, reported apart, not graded here)
+    re = result.robot_error
+    std_rot = re.std_rotation_deg_robot_frame if re else result.std_rotation_deg
+    std_tr = re.std_translation_mm_robot_frame if re else result.std_translation_mm
+    rel = " relative to the robot's frame" if re else ""
+    rot = max(std_rot)
     lvl = "red" if rot > th.rotation_std_red_deg else "amber" if rot > th.rotation_std_amber_deg else "green"
-    reasons.append((lvl, f"largest rotation uncertainty {rot:.4f} deg (1-sigma; amber above "
+    reasons.append((lvl, f"largest rotation uncertainty{rel} {rot:.4f} deg (1-sigma; amber above "
                          f"{th.rotation_std_amber_deg}, red above {th.rotation_std_red_deg})"))
 
-    tr = max(result.std_translation_mm)
+    tr = max(std_tr)
     lvl = "red" if tr > th.translation_std_red_mm else "amber" if tr > th.translation_std_amber_mm else "green"
-    reasons.append((lvl, f"largest translation uncertainty {tr:.4f} mm (1-sigma; amber above "
+    reasons.append((lvl, f"largest translation uncertainty{rel} {tr:.4f} mm (1-sigma; amber above "
                          f"{th.translation_std_amber_mm}, red above {th.translation_std_red_mm})"))
+
+    robot_dominates = robot_error_dominates(result, th)
+    if re is not None:
+        parts = re.point_error_parts_rms_mm
+        robot = parts.get("robot_station_to_station_mm", 0.0)
+        share = robot**2 / max(sum(v**2 for v in parts.values()), 1e-300)
+        lvl = "amber" if robot_dominates else "green"
+        reasons.append((lvl, f"a point measured at a new pose: expected error {re.point_error_k2_mm:.3f} mm (k = 2); "
+                             f"the robot's systematic error is {share:.0%} of it ({robot:.3f} mm RMS; stations disagree by "
+                             f"{re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg per axis)"))
 
     n_flag = len(result.flagged)
     if n_flag:
@@ -135,11 +158,27 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     for lv, _ in reasons:
         level = _worse(level, lv)
     headline = {
-        "green": "Good: residuals as expected and the transform well determined.",
+        "green": "Good: a clean cell; residuals as expected and the transform well determined.",
         "amber": "Usable with care: see the checks and the advice below.",
         "red": "Do not use yet: see the checks and the advice below.",
     }[level]
+    if robot_dominates and level != "red":
+        headline = ("Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
+                    "own geometric error limits this result (see the advice).")
     return Verdict(level, headline, reasons)
+
+
+def robot_error_dominates(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
+    """True when the robot's systematic (station-to-station) error is the larger share of
+    the expected point error and above the floor: the cell is not clean."""
+    th = thresholds or Thresholds()
+    re = result.robot_error
+    if re is None:
+        return False
+    parts = re.point_error_parts_rms_mm
+    robot = parts.get("robot_station_to_station_mm", 0.0)
+    share = robot**2 / max(sum(v**2 for v in parts.values()), 1e-300)
+    return share > th.robot_error_share_amber and robot > th.robot_error_floor_mm
 
 
 def inconsistent_stations(result: CalibrationResult, thresholds: Thresholds | None = None) -> dict[str, float]:
@@ -188,6 +227,20 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
     diag = result.diagnostics
     noise = diag.get("noise", {}) or {}
     cons = diag.get("station_consistency", {}) or {}
+
+    if robot_error_dominates(result, th):
+        re = result.robot_error
+        out.append(Advice(
+            "robot_error_dominates", "amber", "The robot's own geometric error limits this calibration",
+            f"The stations disagree by about {re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg "
+            "per axis, more than the noise explains: the robot's flange is not where its controller says, by an "
+            "amount that changes with the joints. The result allows for it (its uncertainty includes it) and is "
+            f"as good as this robot allows; expect {re.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a "
+            "new pose like these. To do better: calibrate the robot's kinematics (or use its absolute-accuracy "
+            "option), keep the stations' orientations close to those the cell will work in, and give the robot's "
+            "known accuracy (calibration.robot_accuracy_mm / robot_accuracy_deg) if it is better than the "
+            f"assumed {re.common_translation_mm:g} mm / {re.common_rotation_deg:g} deg.",
+        ))
 
     # residuals
     exp = expected_rms_mm(result, th)

@@ -51,12 +51,18 @@ def flange_pose_from_joints(config: AbbIrb2400Config, joints_deg: np.ndarray) ->
     return kinematics_for(config.geometry, config.j23_coupled).flange_pose_from_joints(joints_deg)
 
 
+def arm_kinematics(config: AbbIrb2400Config):
+    """The arm's nominal geometry, inverse kinematics and joint convention."""
+    return kinematics_for(config.geometry, config.j23_coupled)
+
+
 ROBOT_TYPE = RobotType(
     name=NAME,
     config_model=AbbIrb2400Config,
     factory=create_robot,
     description=DESCRIPTION,
     flange_pose_from_joints=flange_pose_from_joints,
+    arm_kinematics=arm_kinematics,
 )
 
 
