@@ -116,6 +116,15 @@ class SimulatedIrb2400:
             self.line = b""
         return self._serve_read(None)
 
+    def jog(self, joints_deg) -> None:
+        """The operator jogs the arm to ``joints_deg`` (controller convention): a new
+        standstill, so the next reading draws a new position error. No request is
+        served and the staged target stays."""
+        self.joints_deg = self.kin.check_joint_limits(joints_deg, "jog: joints_deg")
+        self._reported = self._reported_joints = None
+        if self.cell is not None:
+            self.cell.move_flange_to(self.true_flange_pose())
+
     def _serve_read(self, line: bytes | None) -> bytes | None:
         """One turn of the loop; ``line`` is what the read returned, None if it ended
         without a line."""
@@ -392,6 +401,16 @@ class SimulatorServer:
                 setattr(self.faults, name, n - 1)
                 return True
             return False
+
+    def send_unsolicited(self, data: bytes) -> None:
+        """Send ``data`` now, unasked (a stale reply left from an earlier session). On a
+        pty it waits in the device's input queue even before the driver opens it."""
+        if self._master is not None:
+            os.write(self._master, data)
+        elif self._conn is not None:
+            self._conn.sendall(data)
+        else:
+            raise DeviceError("simulated controller: no link to send on yet")
 
     def _serve_line(self, line: bytes, send) -> None:
         with self._lock:

@@ -55,7 +55,7 @@ def _moved_then_jogged(model):
     assert _reply(ctl, P.movl_request(11, 100.0, 10)).kind == "OK"
     np.testing.assert_allclose(ctl.true_flange_pose().translation_mm, TARGET.translation_mm, atol=1e-6)
     jogged = KIN.joints_from_flange_pose(JOGGED_TO, seed_joints_deg=ctl.joints_deg)
-    ctl.joints_deg = jogged
+    ctl.jog(jogged)
     return ctl, jogged
 
 
@@ -134,7 +134,7 @@ def test_read_timeouts_between_requests_over_the_wire(model):
     with SimulatorServer(ctl, "pty") as srv, AbbIrb2400Robot(config, url=srv.url, kinematics=KIN) as robot:
         robot.move_linear(TARGET, 100.0)
         jogged = KIN.joints_from_flange_pose(JOGGED_TO, seed_joints_deg=ctl.joints_deg)
-        ctl.joints_deg = jogged  # the server thread is idle, waiting for a line
+        ctl.jog(jogged)  # the server thread is idle, waiting for a line
         srv.faults.read_timeouts = 2
         assert robot.ping() == P.PROTOCOL_VERSION
         stale = robot.stale_replies
