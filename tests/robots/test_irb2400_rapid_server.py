@@ -22,6 +22,7 @@ an excerpt of the server as it was before these rules.
 from __future__ import annotations
 
 import re
+import textwrap
 from dataclasses import dataclass, field
 from importlib import resources
 
@@ -282,6 +283,25 @@ def test_the_checker_rejects_the_old_server():
         "MoveToTarget: SkipWarn hides the error",
     ]:
         assert any(expected in p for p in problems), (expected, problems)
+
+
+# --- the loading instructions of the docs ------------------------------------------------------
+def test_the_docs_load_the_server_with_valid_names():
+    """The RAPID the docs give for loading calls the module's public, parameterless entry
+    routine by its plain name (``SpherecalServer:main`` is not RAPID)."""
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "robot-abb-irb2400.md").read_text()
+    assert "SpherecalServer:main" not in doc
+    snippet = re.search(r"^( +)MODULE MainModule\n(.*?)^\1ENDMODULE\n", doc, re.M | re.S)
+    assert snippet, "the docs lost their MainModule example"
+    decls, routines = parse(textwrap.dedent(snippet[0]))
+    assert [name for _, name, _ in decls] == ["main"]
+    calls = re.findall(r"^\s*(\w+);", routines["main"].body, re.M)
+    assert calls == ["spherecal_server_main"]
+    assert re.search(r"^  PROC spherecal_server_main\(\)$", MODULE_TEXT, re.M)  # global, no parameters
+    for name in PUBLIC_ROUTINES:
+        assert f"`{name}`" in doc
 
 
 # --- rapidchecker (optional) --------------------------------------------------------------------
