@@ -63,7 +63,7 @@ class SimulatedControllerSettings(BaseModel):
 
 
 class AbbIrb2400Config(BaseModel):
-    """ABB IRB 2400 on an S4C/IRC5 controller running ``SpherecalServer.mod``, talking the
+    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod``, talking the
     spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -73,7 +73,7 @@ class AbbIrb2400Config(BaseModel):
         description="serial device path (/dev/ttyS0, /dev/ttyUSB0, COM1) or pyserial URL "
         "(socket://host:port, rfc2217://...); ignored in simulated runs",
     )
-    baudrate: int = Field(9600, gt=0, description="serial speed, baud; must match the controller's com1 setting")
+    baudrate: int = Field(9600, gt=0, description="serial speed, baud; must match the controller's serial port setting")
     parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
     stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
     timeout_s: float = Field(2.0, gt=0, description="time to wait for a reply (besides a move's duration), s")

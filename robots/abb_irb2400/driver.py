@@ -9,8 +9,13 @@ Replies whose seq does not match the request (late replies of an earlier attempt
 discarded; a corrupted line (checksum or syntax) or a timeout makes the driver resend
 the request with a fresh seq, up to ``retries`` times, then raise
 :class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
-DeviceError at once. Requests are idempotent (a MOVL names its staged target), so a
-resend never makes the robot do something twice.
+DeviceError at once. Requests are idempotent (a MOVL names its staged target, and the
+controller moves to a target once), so a resend never makes the robot move twice.
+
+Replies of an earlier session: on open the driver discards whatever waits on the link,
+and it starts its sequence numbers at a random value, so that a reply of an earlier
+session still on its way is discarded as stale by its seq (unless it carries, by a
+1-in-1000 chance, the very seq this session waits for, with the expected kind).
 
 Speed, workspace and joint limits (the latter through inverse kinematics) are checked
 before anything is sent.
@@ -19,6 +24,7 @@ before anything is sent.
 from __future__ import annotations
 
 import math
+import secrets
 import time
 from typing import Callable
 
@@ -40,6 +46,12 @@ _POLL_S = 0.05
 _MAX_PENDING = 4 * P.MAX_LINE_CHARS
 
 
+def _initial_seq() -> int:
+    """A random sequence number to start a session from (the first request carries the
+    next one)."""
+    return secrets.randbelow(P.SEQ_MODULUS)
+
+
 class AbbIrb2400Robot:
     """A connected IRB 2400 (implements :class:`spherecal.devices.Robot`).
 
@@ -58,7 +70,7 @@ class AbbIrb2400Robot:
         self.url = url or config.port
         self.kin = kinematics or kinematics_for(config.geometry, config.j23_coupled)
         self._on_close = on_close
-        self._seq = 0
+        self._seq = _initial_seq()
         self._buffer = bytearray()
         self._closed = False
         self.stale_replies = 0  #: replies discarded because their seq did not match
@@ -81,6 +93,12 @@ class AbbIrb2400Robot:
             raise DeviceError(
                 f"IRB 2400: cannot open {self.url!r} ({exc}); check robot.port and that the device exists"
             ) from exc
+        # a reply of an earlier session may wait on the link: never take it for ours
+        # (pyserial's own backends flush on open too; do not depend on it)
+        try:
+            self._serial.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            self._lost(exc)
 
     # Robot protocol ----------------------------------------------------------------
     def read_joints_deg(self) -> np.ndarray:

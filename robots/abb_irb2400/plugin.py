@@ -22,7 +22,7 @@ from .simulator import start_simulator
 
 NAME = "abb_irb2400"
 DESCRIPTION = (
-    "ABB IRB 2400 on an S4C/IRC5 controller running SpherecalServer.mod over a serial line "
+    "ABB IRB 2400 on an IRC5 or S4C+ controller running SpherecalServer.mod over a serial line "
     "(spherecal line protocol; simulated controller on localhost in simulated runs)"
 )
 

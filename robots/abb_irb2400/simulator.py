@@ -10,8 +10,15 @@ replies, corrupted bytes, a disconnect).
 Moves: a ``MOVL`` target becomes joints by inverse kinematics (the solution nearest the
 current joints, as the RAPID server's ``MoveL ... ConfL\\Off``); the true flange pose
 (forward kinematics of those joints) goes to ``cell.move_flange_to`` when a
-SimulatedCell is given. ``GETJ`` reports controller-convention joints (plus optional
-noise); ``GETP`` the forward kinematics of the joints through the pose noise.
+SimulatedCell is given. A staged target is moved to once, as in the RAPID server: a
+``MOVL`` naming a target already reached answers OK without moving. ``GETJ`` reports
+controller-convention joints (plus optional noise); ``GETP`` the forward kinematics of
+the joints through the pose noise.
+
+The read loop: :meth:`SimulatedIrb2400.handle` is one turn of the RAPID server's loop
+(clear the line, read one, serve it), and :meth:`~SimulatedIrb2400.read_timeout` and
+:meth:`~SimulatedIrb2400.restart` model a read that ends without a line, so that tests
+can show a line is never served twice (the old server served its last line again).
 """
 
 from __future__ import annotations
@@ -73,8 +80,67 @@ class SimulatedIrb2400:
         """``base_from_flange`` where the simulated robot really is."""
         return self.kin.flange_pose_from_joints(self.joints_deg, check_limits=False)
 
-    # replies -------------------------------------------------------------------------
+    # the RAPID server's read loop -------------------------------------------------------
+    # SpherecalServer.mod loops: ``line := "";``, ``line := ReadStr(channel
+    # \Time:=WAIT_MAX);``, serve the line. A read that ends without a line (the
+    # ERR_DEV_MAXTIME timeout, or the program stopped in the read and started again)
+    # serves nothing; the loop reads again. Class attributes are the initial values.
+    line: bytes = b""  #: the RAPID ``line`` variable: the last line read, b"" after a failed read
+    reads_without_line: int = 0  #: reads that ended without a line (timeouts, restarts)
+    _reached: int | None = None  #: seq of the staged target once it has been moved to
+
     def handle(self, line: bytes) -> bytes:
+        """One turn of the server's loop with ``line`` read: the reply to it (both with
+        their LF)."""
+        reply = self._serve_read(line)
+        assert reply is not None  # a line read is always answered
+        return reply
+
+    def read_timeout(self) -> bytes | None:
+        """The read ends without a line (``ERR_DEV_MAXTIME``): the server logs it and
+        reads again. Returns what the server sends (None: nothing; only a model of the
+        old server's ``TRYNEXT`` sends something, see the tests)."""
+        return self._serve_read(None)
+
+    def restart(self, pp_to_main: bool = False) -> bytes | None:
+        """The operator stops the program and starts it again while the server waits
+        for a request (where it spends its time between requests): the read starts
+        again and nothing is served. With ``pp_to_main`` the program is reset first: the
+        module's data return to their initial values, so no target is staged (the
+        server also clears its input buffer, which this class does not hold). Returns
+        what the server sends, as :meth:`read_timeout`. A stop during a move is not
+        modelled: the controller finishes an interrupted move on restart."""
+        if pp_to_main:
+            self.staged = None
+            self._reached = None
+            self.line = b""
+        return self._serve_read(None)
+
+    def jog(self, joints_deg) -> None:
+        """The operator jogs the arm to ``joints_deg`` (controller convention): a new
+        standstill, so the next reading draws a new position error. No request is
+        served and the staged target stays."""
+        self.joints_deg = self.kin.check_joint_limits(joints_deg, "jog: joints_deg")
+        self._reported = self._reported_joints = None
+        if self.cell is not None:
+            self.cell.move_flange_to(self.true_flange_pose())
+
+    def _serve_read(self, line: bytes | None) -> bytes | None:
+        """One turn of the loop; ``line`` is what the read returned, None if it ended
+        without a line."""
+        self.line = b""  # line := "";
+        if line is None:  # the read failed: haveLine is FALSE, nothing is served
+            self.reads_without_line += 1
+            return None
+        self.line = line  # line := ReadStr(...);
+        return self._serve(self.line)
+
+    def _target_reached(self, target_seq: int) -> bool:
+        """Has the target staged under ``target_seq`` been moved to already?"""
+        return self._reached == target_seq
+
+    # replies -------------------------------------------------------------------------
+    def _serve(self, line: bytes) -> bytes:
         """The reply line to one request line (both with their LF)."""
         try:
             msg = P.decode_request(line)
@@ -110,6 +176,7 @@ class SimulatedIrb2400:
             return P.pose_reply(msg.seq, pose)
         if msg.kind == "TGT":
             self.staged = (msg.seq, P.parse_target_request(msg))
+            self._reached = None
             return P.ok_reply(msg.seq)
         if msg.kind == "MOVL":
             return self._move(msg)
@@ -136,6 +203,10 @@ class SimulatedIrb2400:
         if self.staged is None or self.staged[0] != target_seq:
             have = "none" if self.staged is None else self.staged[0]
             return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET, f"no target {target_seq} staged (have {have})")
+        if self._target_reached(target_seq):
+            # moved there already (a MOVL resent after a lost reply, or left in the buffer):
+            # never move to the same target twice, the arm may have been jogged since
+            return P.ok_reply(msg.seq)
         target = self.staged[1]
         try:
             joints = self.kin.joints_from_flange_pose(target, seed_joints_deg=self.joints_deg)
@@ -148,6 +219,7 @@ class SimulatedIrb2400:
         self.joints_deg = joints
         self._reported = self._reported_joints = None  # a new standstill: new position error
         self.moves += 1
+        self._reached = target_seq
         if self.cell is not None:
             self.cell.move_flange_to(self.true_flange_pose())
         return P.ok_reply(msg.seq)
@@ -167,6 +239,9 @@ class Faults:
     truncate_replies: int = 0  #: send only the first half of the next N replies (no LF)
     corrupt_replies: int = 0  #: flip one byte in the next N replies
     only_kinds: tuple[str, ...] = ()  #: if set, the counters above apply only to these request kinds
+    #: before the next request is read, N reads end without a line (ERR_DEV_MAXTIME), as
+    #: after N quiet spells; not limited by only_kinds
+    read_timeouts: int = 0
 
 
 class SimulatorServer:
@@ -327,7 +402,23 @@ class SimulatorServer:
                 return True
             return False
 
+    def send_unsolicited(self, data: bytes) -> None:
+        """Send ``data`` now, unasked (a stale reply left from an earlier session). On a
+        pty it waits in the device's input queue even before the driver opens it."""
+        if self._master is not None:
+            os.write(self._master, data)
+        elif self._conn is not None:
+            self._conn.sendall(data)
+        else:
+            raise DeviceError("simulated controller: no link to send on yet")
+
     def _serve_line(self, line: bytes, send) -> None:
+        with self._lock:
+            timeouts, self.faults.read_timeouts = self.faults.read_timeouts, 0
+        for _ in range(timeouts):
+            sent = self.controller.read_timeout()
+            if sent is not None:  # only a model of the old server sends anything here
+                send(sent)
         kind = line.split(b" ", 1)[0].decode("ascii", "replace")
         if self._take("drop_requests", kind):
             return

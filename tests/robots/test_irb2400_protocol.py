@@ -143,5 +143,7 @@ def test_rapid_server_uses_the_same_version_and_error_codes():
     for code in P.ErrorCode:
         assert consts[f"E_{code.name}"] == code.value, code
     # it reads the flange as tool0 in wobj0, waits in position, and prints enough decimals
-    assert "CRobT(\\Tool:=tool0 \\WObj:=wobj0)" in text and "WaitRob \\InPos" in text
+    # (WaitTime \InPos, 0 rather than WaitRob \InPos, which the S4C+ lacks)
+    assert "CRobT(\\Tool:=tool0 \\WObj:=wobj0)" in text and "WaitTime \\InPos, 0;" in text
+    assert not re.search(r"^\s*WaitRob\b", text, re.M)
     assert "NumToStr(p.rot.q1, 6)" in text and "NumToStr(j.robax.rax_1, 4)" in text

@@ -1,5 +1,5 @@
 MODULE SpherecalServer
-  !------------------------------------------------------------------------
+  !----------------------------------------------------------------------
   ! spherecal line protocol server, protocol version 1.
   !
   ! Serves the PC (spherecal, plugin abb_irb2400) over a serial channel.
@@ -17,44 +17,145 @@ MODULE SpherecalServer
   ! RAPID num is a 32-bit float: about 7 significant digits, so
   ! 1234.567 mm is resolved to about 0.0001 mm and a quaternion
   ! component to about 1E-7.
-  !------------------------------------------------------------------------
+  !
+  ! Entry routine: spherecal_server_main. Call it from your main, or make
+  ! it the entry routine of the task. The optional event routine
+  ! spherecal_server_on_stop tells the PC at once when the program stops
+  ! during a move. Every other name here is LOCAL to this module, so it
+  ! cannot clash with the names of your own modules.
+  !
+  ! Safety rules (checked by tests/robots/test_irb2400_rapid_server.py):
+  ! - the line is cleared before every read, and the read waits for ever
+  !   (\Time:=WAIT_MAX): a line is served once, when it arrives;
+  ! - no error handler uses RETRY or TRYNEXT, so nothing is run again
+  !   after an error, least of all a move; a failed read serves nothing;
+  ! - a target is moved to once: a MOVL naming a target already reached
+  !   answers OK without moving;
+  ! - no SkipWarn: every error stays in the event log.
+  !
+  ! Controllers: IRC5 (RobotWare 5, 6) and S4C+ (RobotWare 4). Only
+  ! CHANNEL_NAME differs. Not yet run on either; see the docs.
+  !----------------------------------------------------------------------
 
-  ! Serial channel as named in the system parameters (Communication).
-  CONST string CHANNEL_NAME := "com1:";
-  CONST num PROTOCOL_VERSION := 1;
+  ! Serial channel: the transmission protocol named in the system
+  ! parameters (Communication), with a colon. IRC5: "COM1:"; S4C+: "sio1:".
+  LOCAL CONST string CHANNEL_NAME := "COM1:";
+  LOCAL CONST num PROTOCOL_VERSION := 1;
   ! Largest TCP speed a MOVL may ask for, mm/s.
-  CONST num MAX_SPEED := 1000;
+  LOCAL CONST num MAX_SPEED := 1000;
   ! Error codes (ErrorCode in protocol.py).
-  CONST num E_CHECKSUM := 1;
-  CONST num E_SYNTAX := 2;
-  CONST num E_RANGE := 3;
-  CONST num E_NO_TARGET := 4;
-  CONST num E_UNREACHABLE := 5;
-  CONST num E_MOTION := 6;
+  LOCAL CONST num E_CHECKSUM := 1;
+  LOCAL CONST num E_SYNTAX := 2;
+  LOCAL CONST num E_RANGE := 3;
+  LOCAL CONST num E_NO_TARGET := 4;
+  LOCAL CONST num E_UNREACHABLE := 5;
+  LOCAL CONST num E_MOTION := 6;
 
-  VAR iodev channel;
-  VAR string fields{10};
-  VAR num nFields := 0;
-  VAR robtarget target;
-  VAR num targetSeq := -1;
-  VAR speeddata moveSpeed := [100, 500, 5000, 1000];
+  LOCAL VAR iodev channel;
+  LOCAL VAR bool channelOpen := FALSE;
+  ! The request line being served, and whether the last read gave one.
+  LOCAL VAR string line := "";
+  LOCAL VAR bool haveLine := FALSE;
+  LOCAL VAR string fields{10};
+  LOCAL VAR num nFields := 0;
+  ! The staged target, its seq, and whether it has been moved to.
+  LOCAL VAR robtarget target;
+  LOCAL VAR num targetSeq := -1;
+  LOCAL VAR bool targetReached := FALSE;
+  ! The seq of the MOVL being executed ("" when no move is under way).
+  LOCAL VAR string movingSeq := "";
+  LOCAL VAR speeddata moveSpeed := [100, 500, 5000, 1000];
 
-  PROC main()
-    VAR string line;
+  ! --- entry -------------------------------------------------------------
+  PROC spherecal_server_main()
+    ! Serves for ever; leaves only through an error it cannot recover from
+    ! (the error is then in the event log and the program stops).
+    OpenChannel;
     ConfL \Off;
-    Open CHANNEL_NAME, channel \Bin;
     ClearIOBuff channel;
+    movingSeq := "";
     WHILE TRUE DO
-      line := ReadStr(channel \RemoveCR);
-      Serve line;
+      ReadRequest;
+      IF haveLine Serve line;
     ENDWHILE
-  ERROR
-    ! A channel error: skip it and keep serving.
-    TRYNEXT;
   ENDPROC
 
-  ! --- framing -------------------------------------------------------------
-  FUNC string Checksum(string body)
+  PROC spherecal_server_on_stop()
+    ! Optional event routine for STOP and QSTOP (system parameters,
+    ! Controller, Event Routine): if the program stops during a move, the
+    ! PC gets ERR 6 now instead of waiting for its timeout. If the program
+    ! is started again, the controller finishes the interrupted move and
+    ! then sends its OK, which the PC discards as stale.
+    IF movingSeq <> "" THEN
+      ReplyError movingSeq, E_MOTION, "program stopped during the move";
+      movingSeq := "";
+    ENDIF
+  ENDPROC
+
+  ! --- channel -----------------------------------------------------------
+  LOCAL PROC OpenChannel()
+    IF channelOpen THEN
+      ! Called again without a program reset: start from a fresh channel.
+      Close channel;
+      channelOpen := FALSE;
+    ENDIF
+    Open CHANNEL_NAME, channel \Bin;
+    channelOpen := TRUE;
+  ERROR
+    TEST ERRNO
+    CASE ERR_FILEOPEN:
+      ! A configuration fault. Say so and end the program: serving
+      ! without a channel would spin without ever waiting.
+      ErrWrite "SpherecalServer: no serial channel",
+        "Open " + CHANNEL_NAME + " failed."
+        \RL2:="Set CHANNEL_NAME in SpherecalServer to the"
+        \RL3:="transmission protocol (Communication topic).";
+      EXIT;
+    DEFAULT:
+      ChannelFailed "Open", ERRNO;
+    ENDTEST
+  ENDPROC
+
+  LOCAL PROC ChannelFailed(string what, num err)
+    ! The channel does not work: say so in the event log and end the
+    ! program (no loop may go on without a channel, and nothing is
+    ! retried). Start again with PP to main once the fault is fixed.
+    ErrWrite "SpherecalServer: serial channel failed",
+      what + " on " + CHANNEL_NAME + ": error " + NumToStr(err, 0);
+    EXIT;
+  ENDPROC
+
+  LOCAL PROC ReadRequest()
+    ! One line, waiting for ever. The line is cleared first, so a read
+    ! that fails can never leave the previous line behind to be served.
+    haveLine := FALSE;
+    line := "";
+    line := ReadStr(channel \Time:=WAIT_MAX);
+    haveLine := TRUE;
+    ! A CR before the LF is ignored (done here: S4C+ lacks \RemoveCR).
+    IF StrLen(line) > 0 THEN
+      IF StrPart(line, StrLen(line), 1) = "\0D" THEN
+        line := StrPart(line, 1, StrLen(line) - 1);
+      ENDIF
+    ENDIF
+  ERROR
+    TEST ERRNO
+    CASE ERR_DEV_MAXTIME:
+      ! No line for WAIT_MAX seconds: log it and return with haveLine
+      ! FALSE; the loop serves nothing and reads again.
+      haveLine := FALSE;
+      ErrWrite \W, "SpherecalServer: no request",
+        "No line within WAIT_MAX s; reading again.";
+      RETURN;
+    DEFAULT:
+      ! The channel failed: no reply can reach the PC.
+      haveLine := FALSE;
+      ChannelFailed "ReadStr", ERRNO;
+    ENDTEST
+  ENDPROC
+
+  ! --- framing -----------------------------------------------------------
+  LOCAL FUNC string Checksum(string body)
     VAR byte x := 0;
     VAR string hex;
     FOR i FROM 1 TO StrLen(body) DO
@@ -65,17 +166,17 @@ MODULE SpherecalServer
     RETURN hex;
   ENDFUNC
 
-  PROC Reply(string body)
+  LOCAL PROC Reply(string body)
     ! body + "*XX" is at most 80 characters; the LF goes separately.
     WriteStrBin channel, body + "*" + Checksum(body);
     WriteStrBin channel, "\0A";
   ENDPROC
 
-  PROC ReplyError(string seqText, num code, string text)
+  LOCAL PROC ReplyError(string seqText, num code, string text)
     Reply "ERR " + seqText + " " + NumToStr(code, 0) + " " + text;
   ENDPROC
 
-  PROC Split(string body)
+  LOCAL PROC Split(string body)
     VAR num pos := 1;
     VAR num space;
     nFields := 0;
@@ -87,20 +188,22 @@ MODULE SpherecalServer
     ENDWHILE
   ENDPROC
 
-  ! --- requests ------------------------------------------------------------
-  PROC Serve(string line)
+  ! --- requests ----------------------------------------------------------
+  LOCAL PROC Serve(string request)
     VAR num star;
     VAR string body;
     VAR string kind;
-    VAR string seqText;
+    VAR string seqText := "-";
     VAR num seq;
-    star := StrFind(line, 1, "*");
-    IF star < 2 OR StrLen(line) - star <> 2 THEN
+    VAR num want;
+    star := StrFind(request, 1, "*");
+    IF star < 2 OR StrLen(request) - star <> 2 THEN
       ReplyError "-", E_SYNTAX, "no checksum";
       RETURN;
     ENDIF
-    body := StrPart(line, 1, star - 1);
-    IF StrMap(StrPart(line, star + 1, 2), "abcdef", "ABCDEF") <> Checksum(body) THEN
+    body := StrPart(request, 1, star - 1);
+    IF StrMap(StrPart(request, star + 1, 2), "abcdef", "ABCDEF")
+        <> Checksum(body) THEN
       ReplyError "-", E_CHECKSUM, "bad checksum";
       RETURN;
     ENDIF
@@ -110,6 +213,14 @@ MODULE SpherecalServer
       RETURN;
     ENDIF
     kind := fields{1};
+    ! The seq is echoed in every reply: 1 to 3 digits, so that no reply
+    ! can outgrow a RAPID string.
+    IF StrLen(fields{2}) < 1 OR StrLen(fields{2}) > 3
+        OR StrFind(fields{2}, 1, STR_DIGIT \NotInSet) <= StrLen(fields{2})
+        THEN
+      ReplyError "-", E_SYNTAX, "bad sequence number";
+      RETURN;
+    ENDIF
     seqText := fields{2};
     IF NOT StrToVal(seqText, seq) THEN
       ReplyError "-", E_SYNTAX, "bad sequence number";
@@ -117,47 +228,73 @@ MODULE SpherecalServer
     ENDIF
     TEST kind
     CASE "PING":
-      IF nFields <> 2 GOTO wrongCount;
-      Reply "PONG " + seqText + " " + NumToStr(PROTOCOL_VERSION, 0);
+      want := 2;
     CASE "GETJ":
-      IF nFields <> 2 GOTO wrongCount;
-      SendJoints seqText;
+      want := 2;
     CASE "GETP":
-      IF nFields <> 2 GOTO wrongCount;
-      SendPose seqText;
+      want := 2;
     CASE "TGT":
-      IF nFields <> 9 GOTO wrongCount;
-      StageTarget seq, seqText;
+      want := 9;
     CASE "MOVL":
-      IF nFields <> 4 GOTO wrongCount;
-      MoveToTarget seqText;
+      want := 4;
     DEFAULT:
       ReplyError seqText, E_SYNTAX, "unknown request";
+      RETURN;
     ENDTEST
-    RETURN;
-  wrongCount:
-    ReplyError seqText, E_SYNTAX, "wrong number of fields";
+    IF nFields <> want THEN
+      ReplyError seqText, E_SYNTAX, "wrong number of fields";
+      RETURN;
+    ENDIF
+    TEST kind
+    CASE "PING":
+      Reply "PONG " + seqText + " " + NumToStr(PROTOCOL_VERSION, 0);
+    CASE "GETJ":
+      SendJoints seqText;
+    CASE "GETP":
+      SendPose seqText;
+    CASE "TGT":
+      StageTarget seq, seqText;
+    CASE "MOVL":
+      MoveToTarget seqText;
+    ENDTEST
+  ERROR
+    TEST ERRNO
+    CASE ERR_FILEACC:
+      ! The channel failed while replying: nothing can reach the PC.
+      ChannelFailed "WriteStrBin", ERRNO;
+    DEFAULT:
+      ! Any other error of this request: log it, answer it, and serve
+      ! the next line. The request is not run again.
+      ErrWrite \W, "SpherecalServer: request failed",
+        "Seq " + seqText + ": error " + NumToStr(ERRNO, 0);
+      ReplyError seqText, E_SYNTAX, "request failed, error "
+        + NumToStr(ERRNO, 0);
+      RETURN;
+    ENDTEST
   ENDPROC
 
-  PROC SendJoints(string seqText)
+  LOCAL PROC SendJoints(string seqText)
     VAR jointtarget j;
-    WaitRob \InPos;
+    ! WaitTime \InPos rather than WaitRob: the S4C+ has no WaitRob.
+    WaitTime \InPos, 0;
     j := CJointT();
-    Reply "J " + seqText + " " + NumToStr(j.robax.rax_1, 4) + " " + NumToStr(j.robax.rax_2, 4)
-      + " " + NumToStr(j.robax.rax_3, 4) + " " + NumToStr(j.robax.rax_4, 4)
-      + " " + NumToStr(j.robax.rax_5, 4) + " " + NumToStr(j.robax.rax_6, 4);
+    Reply "J " + seqText + " " + NumToStr(j.robax.rax_1, 4)
+      + " " + NumToStr(j.robax.rax_2, 4) + " " + NumToStr(j.robax.rax_3, 4)
+      + " " + NumToStr(j.robax.rax_4, 4) + " " + NumToStr(j.robax.rax_5, 4)
+      + " " + NumToStr(j.robax.rax_6, 4);
   ENDPROC
 
-  PROC SendPose(string seqText)
+  LOCAL PROC SendPose(string seqText)
     VAR robtarget p;
-    WaitRob \InPos;
+    WaitTime \InPos, 0;
     p := CRobT(\Tool:=tool0 \WObj:=wobj0);
-    Reply "P " + seqText + " " + NumToStr(p.trans.x, 3) + " " + NumToStr(p.trans.y, 3)
-      + " " + NumToStr(p.trans.z, 3) + " " + NumToStr(p.rot.q1, 6) + " " + NumToStr(p.rot.q2, 6)
+    Reply "P " + seqText + " " + NumToStr(p.trans.x, 3)
+      + " " + NumToStr(p.trans.y, 3) + " " + NumToStr(p.trans.z, 3)
+      + " " + NumToStr(p.rot.q1, 6) + " " + NumToStr(p.rot.q2, 6)
       + " " + NumToStr(p.rot.q3, 6) + " " + NumToStr(p.rot.q4, 6);
   ENDPROC
 
-  PROC StageTarget(num seq, string seqText)
+  LOCAL PROC StageTarget(num seq, string seqText)
     VAR num v{7};
     VAR robtarget now;
     FOR i FROM 1 TO 7 DO
@@ -171,20 +308,28 @@ MODULE SpherecalServer
     target.trans := [v{1}, v{2}, v{3}];
     target.rot := NOrient([v{4}, v{5}, v{6}, v{7}]);
     targetSeq := seq;
+    targetReached := FALSE;
     Reply "OK " + seqText;
   ENDPROC
 
-  FUNC bool Reachable(robtarget t)
+  LOCAL FUNC bool Reachable(robtarget t)
     VAR jointtarget j;
     j := CalcJointT(t, tool0 \WObj:=wobj0);
     RETURN TRUE;
   ERROR
-    ! ERR_ROBLIMIT (and, on newer RobotWare, ERR_OUTSIDE_REACH).
-    SkipWarn;
-    RETURN FALSE;
+    TEST ERRNO
+    CASE ERR_ROBLIMIT:
+      ! Out of reach or beyond a joint limit. The controller's warning
+      ! stays in the event log; the PC gets code 5.
+      RETURN FALSE;
+    DEFAULT:
+      ! Any other error (ERR_OUTSIDE_REACH on newer RobotWare) goes to
+      ! MoveToTarget, which answers code 6 with the error number.
+      RAISE;
+    ENDTEST
   ENDFUNC
 
-  PROC MoveToTarget(string seqText)
+  LOCAL PROC MoveToTarget(string seqText)
     VAR num speed;
     VAR num tseq;
     IF NOT StrToVal(fields{3}, speed) OR NOT StrToVal(fields{4}, tseq) THEN
@@ -192,24 +337,50 @@ MODULE SpherecalServer
       RETURN;
     ENDIF
     IF speed <= 0 OR speed > MAX_SPEED THEN
-      ReplyError seqText, E_RANGE, "speed outside 0.." + NumToStr(MAX_SPEED, 0);
+      ReplyError seqText, E_RANGE, "speed outside 0.."
+        + NumToStr(MAX_SPEED, 0);
       RETURN;
     ENDIF
     IF tseq <> targetSeq THEN
-      ReplyError seqText, E_NO_TARGET, "no target " + fields{4} + " staged";
+      ReplyError seqText, E_NO_TARGET, "no such target staged";
+      RETURN;
+    ENDIF
+    IF targetReached THEN
+      ! Moved there already: a MOVL resent after a lost reply, or one left
+      ! over in the buffer. Never move to the same target twice (the arm
+      ! may have been jogged since).
+      Reply "OK " + seqText;
       RETURN;
     ENDIF
     IF NOT Reachable(target) THEN
-      ReplyError seqText, E_UNREACHABLE, "target out of reach or beyond a joint limit";
+      ReplyError seqText, E_UNREACHABLE,
+        "target out of reach or beyond a joint limit";
       RETURN;
     ENDIF
     moveSpeed.v_tcp := speed;
+    movingSeq := seqText;
     MoveL target, moveSpeed, fine, tool0 \WObj:=wobj0;
-    WaitRob \InPos;
+    WaitTime \InPos, 0;
+    targetReached := TRUE;
+    movingSeq := "";
     Reply "OK " + seqText;
   ERROR
-    SkipWarn;
-    ReplyError seqText, E_MOTION, "motion error " + NumToStr(ERRNO, 0);
-    RETURN;
+    ! Errors that reach this handler (a motion error that stops the
+    ! program does not): clear what is left of the move and answer.
+    ! Never RETRY or TRYNEXT here: either would move without a request.
+    movingSeq := "";
+    TEST ERRNO
+    CASE ERR_FILEACC:
+      ! The channel failed while replying: nothing can reach the PC.
+      ChannelFailed "WriteStrBin", ERRNO;
+    DEFAULT:
+      StopMove;
+      ClearPath;
+      StartMove;
+      ErrWrite \W, "SpherecalServer: move failed",
+        "MOVL " + seqText + ": error " + NumToStr(ERRNO, 0);
+      ReplyError seqText, E_MOTION, "motion error " + NumToStr(ERRNO, 0);
+      RETURN;
+    ENDTEST
   ENDPROC
 ENDMODULE
