@@ -20,7 +20,7 @@ from .errors import ConfigError
 from .estimation import CalibrationOptions
 from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
-from .sim import NoiseModel, SensorFieldOfView, SweepPlan
+from .sim import NoiseModel, RobotErrorModel, SensorFieldOfView, SweepPlan
 
 Vec3 = tuple[float, float, float]
 Vec4 = tuple[float, float, float, float]
@@ -212,6 +212,10 @@ class SimulationConfig(_Section):
         None, description="true sphere centre, base (eye_in_hand) or flange (eye_to_hand), mm (default: standard cell's)"
     )
     noise: NoiseModel = Field(default_factory=NoiseModel, description="sensor and robot noise of the cell")
+    robot_error: RobotErrorModel | None = Field(
+        None, description="geometric error of the simulated arm (a real arm's systematic error); absent: the arm "
+        "is exactly its nominal model"
+    )
     fov: SensorFieldOfView = Field(default_factory=SensorFieldOfView, description="the simulated sensor's field of view")
     scan_object: Literal["none", "flat_plate", "car_door_panel"] = Field(
         "none", description="object placed at [scan] object_centre_mm (its surface at the centre)"

@@ -32,6 +32,7 @@ def make_cell(cfg: RunConfig) -> SimulatedCell | None:
         return None
     cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=sim.fov, sphere_radius_mm=cfg.sphere.radius_mm)
     cell.noise_per_pose = True  # a resumed run reproduces an uninterrupted one
+    cell.robot_error = sim.robot_error  # the simulated controller gives its arm this error
     if sim.true_transform is not None:
         cell.true_transform = sim.true_transform.pose()
     if sim.sphere_centre_mm is not None:

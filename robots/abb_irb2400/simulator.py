@@ -73,11 +73,22 @@ class SimulatedIrb2400:
         # pose noise is the robot's positioning error, drawn once per move, not per read.
         self._reported: Pose | None = None
         self._reported_joints: np.ndarray | None = None
+        # The arm's true geometry: the cell's (with its geometric error) when it has one.
+        self.arm = None
         if cell is not None:
+            self.arm = cell.arm if cell.arm is not None else (
+                cell.attach_arm(self.kin) if cell.robot_error is not None else None)
             cell.move_flange_to(self.true_flange_pose())
 
     def true_flange_pose(self) -> Pose:
-        """``base_from_flange`` where the simulated robot really is."""
+        """``base_from_flange`` where the simulated robot really is: its true geometry
+        (with the cell's robot error) at its joints."""
+        if self.arm is not None:
+            return self.arm.true_flange_pose(self.joints_deg)
+        return self.nominal_flange_pose()
+
+    def nominal_flange_pose(self) -> Pose:
+        """What the controller computes at its joints: the nominal model's pose."""
         return self.kin.flange_pose_from_joints(self.joints_deg, check_limits=False)
 
     # the RAPID server's read loop -------------------------------------------------------
@@ -183,7 +194,7 @@ class SimulatedIrb2400:
         raise P.ProtocolError(f"unhandled request {msg.kind}")  # pragma: no cover
 
     def _reported_pose(self) -> Pose:
-        true = self.true_flange_pose()
+        true = self.nominal_flange_pose()  # a controller reports its model's pose of the actual joints
         s = self.settings
         if s.pose_noise == "cell":
             return self.cell.report_pose(true) if self.cell is not None else true
