@@ -121,8 +121,7 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     # what the calibration determines: relative to the robot's own frame (the error the
     # robot shares over every station is its accuracy, reported apart, not graded here)
     re = result.robot_error
-    std_rot = re.std_rotation_deg_robot_frame if re else result.std_rotation_deg
-    std_tr = re.std_translation_mm_robot_frame if re else result.std_translation_mm
+    std_rot, std_tr = calibration_std(result)
     rel = " relative to the robot's frame" if re else ""
     rot = max(std_rot)
     lvl = "red" if rot > th.rotation_std_red_deg else "amber" if rot > th.rotation_std_amber_deg else "green"
@@ -166,6 +165,17 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         headline = ("Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
                     "own geometric error limits this result (see the advice).")
     return Verdict(level, headline, reasons)
+
+
+def calibration_std(result: CalibrationResult) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """1-sigma of the rotation (deg) and translation (mm) that the calibration itself
+    determines: relative to the robot's own frame when the result has a robot error
+    model (the error the robot shares over every station is its accuracy, not the
+    calibration's), else the reported ones."""
+    re = result.robot_error
+    if re is None:
+        return tuple(result.std_rotation_deg), tuple(result.std_translation_mm)
+    return tuple(re.std_rotation_deg_robot_frame), tuple(re.std_translation_mm_robot_frame)
 
 
 def robot_error_dominates(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
@@ -281,7 +291,7 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
 
     # uncertainty per rotation axis: one weak axis calls for a tilt about it; all axes
     # alike call for more data (and smaller residuals) overall
-    std_r = list(result.std_rotation_deg)
+    std_r = list(calibration_std(result)[0])
     best = min(std_r)
     weak = [k for k, s in enumerate(std_r)
             if s > th.axis_imbalance_factor * best and s > 0.2 * th.rotation_std_amber_deg]
@@ -301,7 +311,7 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             "They grow with the residuals: fix large residuals first (see above). Otherwise make the sweeps "
             "longer and wider (the rotation comes from the robot's moves within a station) and add profiles.",
         ))
-    std_t = max(result.std_translation_mm)
+    std_t = max(calibration_std(result)[1])
     if std_t > th.translation_std_amber_mm:
         out.append(Advice(
             "translation_uncertain", "red" if std_t > th.translation_std_red_mm else "amber",

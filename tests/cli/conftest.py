@@ -6,10 +6,18 @@ import pytest
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
-def example_config(tmp_path: Path, name: str, **replace: str) -> Path:
+#: The example cells' simulated arm error section (removed by ``exact_arm=True``).
+ROBOT_ERROR_SECTION = r"(?m)^\[simulation\.robot_error\]\n(?:[a-z_]+ = .*\n)+"
+
+
+def example_config(tmp_path: Path, name: str, exact_arm: bool = False, **replace: str) -> Path:
     """A copy of an example configuration writing into tmp_path; ``replace`` maps a
-    regular expression to its replacement in the text."""
+    regular expression to its replacement in the text. ``exact_arm``: without the
+    simulated arm's geometric error (for tests of figures in a clean cell)."""
     text = (EXAMPLES / name).read_text()
+    if exact_arm:
+        text, n = re.subn(ROBOT_ERROR_SECTION, "", text)
+        assert n == 1, f"no [simulation.robot_error] section in {name}"
     text = re.sub(r'(?m)^output_dir = .*$', 'output_dir = "out"', text)
     for pattern, repl in replace.items():
         text, n = re.subn(pattern, repl, text, flags=re.M)

@@ -9,7 +9,7 @@ import pytest
 from spherecal.errors import InputError
 from spherecal.estimation import solve
 from spherecal.models import ObservationFlag, Pose
-from spherecal.report.assess import Thresholds, advice, inconsistent_stations, verdict
+from spherecal.report.assess import Thresholds, advice, calibration_std, inconsistent_stations, verdict
 from spherecal.report.html import FIGURE_NAMES, mapped_points, write_report
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 
@@ -168,14 +168,27 @@ def test_a_station_read_before_settling_is_named():
     assert "residual_rms_high" not in items  # the station explains the residuals
 
 
+def _with_std(result, rot=None, tr=None):
+    """``result`` with the calibration's own standard deviations replaced (both the
+    reported ones and those relative to the robot's frame, which the verdict grades)."""
+    upd, re_upd = {}, {}
+    if rot is not None:
+        upd["std_rotation_deg"] = re_upd["std_rotation_deg_robot_frame"] = rot
+    if tr is not None:
+        upd["std_translation_mm"] = re_upd["std_translation_mm_robot_frame"] = tr
+    if result.robot_error is not None:
+        upd["robot_error"] = result.robot_error.model_copy(update=re_upd)
+    return result.model_copy(update=upd)
+
+
 def test_one_weak_rotation_axis_asks_for_a_tilt_about_it(clean_solution):
-    res = clean_solution.result.model_copy(update={"std_rotation_deg": (0.01, 0.09, 0.012)})
+    res = _with_std(clean_solution.result, rot=(0.01, 0.09, 0.012))
     items = {a.key: a for a in advice(res)}
     assert set(k for k in items if k.startswith("rotation")) == {"rotation_axis_y"}
     assert "tilted by 20-30 deg about the base's y axis" in items["rotation_axis_y"].text
     assert verdict(res).level == "amber"
     # every axis alike: one piece of advice, not three
-    res = clean_solution.result.model_copy(update={"std_rotation_deg": (0.2, 0.21, 0.19)})
+    res = _with_std(clean_solution.result, rot=(0.2, 0.21, 0.19))
     keys = [a.key for a in advice(res)]
     assert "rotation_uncertain" in keys and not any(k.startswith("rotation_axis") for k in keys)
     assert verdict(res).level == "red"
@@ -200,7 +213,7 @@ def test_flag_advice_names_the_likely_cause(clean_solution, reason, cause):
 
 def test_thresholds_are_configurable(clean_solution):
     r = clean_solution.result
-    strict = Thresholds(translation_std_amber_mm=0.5 * max(r.std_translation_mm), translation_std_red_mm=1.0)
+    strict = Thresholds(translation_std_amber_mm=0.5 * max(calibration_std(r)[1]), translation_std_red_mm=1.0)
     assert verdict(r, strict).level == "amber"
     assert [a.key for a in advice(r, strict)] == ["translation_uncertain"]
     with pytest.raises(ValueError, match="robot_repeatability_mm"):
