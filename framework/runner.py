@@ -219,7 +219,7 @@ def run_calibrate(
                 notify = lambda obs: host.observation_taken(observation=obs)  # noqa: E731
                 if manual:
                     rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
-                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance_deg,
+                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance(),
                                          first_station=first_station)
                 else:
                     rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,
