@@ -65,7 +65,7 @@ def cmd_solve(args) -> int:
     from . import dataio
     from .estimation import CalibrationOptions
     from .models import Pose
-    from .runner import solve_and_write, summary, truth_check
+    from .runner import solve_and_write, solve_kinematics, summary, truth_check
 
     dataset = dataio.read_dataset(args.dataset)
     nominal = None
@@ -74,15 +74,32 @@ def cmd_solve(args) -> int:
         if len(v) != 7:
             raise ConfigError("--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)")
         nominal = Pose.from_abb(v[:3], v[3:])
-    options = CalibrationOptions(fit_radius=args.fit_radius, nominal_transform=nominal)
+    fk, dataset = solve_kinematics(
+        dataset, args.robot, Path(args.robot_config) if args.robot_config else None, args.pose_from
+    )
+    options = CalibrationOptions(
+        fit_radius=args.fit_radius, nominal_transform=nominal,
+        station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
+    )
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
-    solution = solve_and_write(dataset, options, out, log=lambda m: print(m, file=sys.stderr), report=not args.no_report)
+    solution = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
+                               report=not args.no_report)
     print(summary(solution))
     check = truth_check(solution, dataset)
     if check:
         print(check)
     print(f"results in {out}")
     return EXIT_OK
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be greater than 0, got {text}")
+    return v
 
 
 def cmd_simulate(args) -> int:
@@ -163,11 +180,24 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
     c.set_defaults(func=cmd_calibrate)
 
-    s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)")
+    s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)",
+                       description="Calibrate a recorded dataset without devices and write the result, exports "
+                       "and report. Flange poses are the reported base_from_flange; observations with joint "
+                       "readings only go through the robot plugin's forward kinematics (--robot).")
     s.add_argument("dataset", help="dataset file (.jsonl)")
     s.add_argument("--out", help="output folder (default: <dataset>.calibration next to it)")
     s.add_argument("--fit-radius", action="store_true", help="estimate the sphere radius too")
     s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data")
+    s.add_argument("--robot", metavar="TYPE", help="robot type whose kinematics computes flange poses from joints_deg "
+                   "(default: the robot the dataset's provenance names; `spherecal plugins` lists them)")
+    s.add_argument("--robot-config", metavar="FILE.toml", help="the robot's settings (its [robot] table, e.g. "
+                   "the calibration configuration); default: the plugin's defaults")
+    s.add_argument("--pose-from", choices=["reported", "joints"], default="reported",
+                   help="reported (default): each observation's base_from_flange, kinematics only where it is "
+                   "missing; joints: every flange pose from joints_deg through the robot's kinematics")
+    s.add_argument("--station-rotation-tolerance-deg", type=_positive_float, metavar="DEG",
+                   help="a shot turned more than this from its station's orientation is left out "
+                   "(default: derived from the orientation read noise)")
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
     s.set_defaults(func=cmd_solve)
 

@@ -15,7 +15,7 @@ from . import dataio
 from .acquisition import Progress, acquire, acquire_manual, check_targets, describe_plan, plan_targets
 from .config import LoadedConfig, RunConfig
 from .devices import DeviceContext
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, SpherecalError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME
@@ -220,7 +220,7 @@ def run_calibrate(
                 notify = lambda obs: host.observation_taken(observation=obs)  # noqa: E731
                 if manual:
                     rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
-                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance_deg,
+                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance(),
                                          first_station=first_station)
                 else:
                     rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,
@@ -241,6 +241,87 @@ def run_calibrate(
 
 def written_files(out: Path) -> dict[str, Path]:
     return {p.name: p for p in sorted(out.iterdir()) if p.is_file()} if out.exists() else {}
+
+
+def _provenance_robot_type(dataset: Dataset) -> str | None:
+    """The robot type a dataset's provenance names (``"robot": "abb_irb2400"`` as
+    ``spherecal calibrate`` writes it, or ``"robot": {"type": ...}``), or None."""
+    robot = dataset.provenance.get("robot")
+    if isinstance(robot, dict):
+        robot = robot.get("type")
+    return robot if isinstance(robot, str) and robot else None
+
+
+def read_robot_section(path: Path) -> dict:
+    """A robot section from a TOML file: its ``[robot]`` table (a spherecal configuration)
+    or, without one, the whole file (the plugin's settings, ``type`` optional)."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the robot configuration ({exc.strerror or exc})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    section = data.get("robot", data)
+    if not isinstance(section, dict):
+        raise ConfigError(f"{path}: robot: expected a table of robot settings")
+    return dict(section)
+
+
+def solve_kinematics(
+    dataset: Dataset,
+    robot_type: str | None = None,
+    robot_config: Path | None = None,
+    pose_from: str = "reported",
+    host=None,
+) -> tuple[Callable | None, Dataset]:
+    """Forward kinematics for ``spherecal solve`` and the dataset to solve.
+
+    The robot type is ``robot_type`` (``--robot``), else the ``type`` in ``robot_config``
+    (``--robot-config``), else the one the dataset's provenance names; its settings are
+    those of ``robot_config`` or the plugin's defaults. An explicitly named type is always
+    checked (an unknown one is a :class:`ConfigError` naming the installed ones); the
+    provenance's only when kinematics is needed. ``pose_from``: ``"reported"`` uses each
+    observation's ``base_from_flange`` and kinematics only for observations without one;
+    ``"joints"`` computes every flange pose from ``joints_deg``."""
+    if pose_from not in ("reported", "joints"):
+        raise ConfigError(f"--pose-from: expected 'reported' or 'joints', got {pose_from!r}")
+    section = read_robot_section(robot_config) if robot_config is not None else {}
+    given = section.pop("type", None)
+    if robot_type is not None and given is not None and given != robot_type:
+        raise ConfigError(f"--robot {robot_type} but {robot_config} says type = {given!r}: give one robot type")
+    name, where = (robot_type, "--robot") if robot_type else (given, f"{robot_config}: robot.type")
+    needed = pose_from == "joints" or any(o.base_from_flange is None for o in dataset.observations)
+    if name is None:
+        name, where = _provenance_robot_type(dataset), "the dataset's provenance robot"
+        if name is None or not needed:
+            if pose_from == "joints":
+                raise ConfigError("--pose-from joints needs the robot's kinematics: give --robot TYPE "
+                                  "(`spherecal plugins` lists the robot types)")
+            return None, dataset
+    host = host or make_host()
+    host.registry.robot_type(name, path=where)
+    path = f"{robot_config}: robot" if robot_config is not None else "robot"
+    fk = host.robot_kinematics({"type": name, **section}, path=path)
+    if fk is None:
+        if needed:
+            raise ConfigError(f"{where}: robot type '{name}' has no forward kinematics; observations need "
+                              "base_from_flange, or a robot type whose plugin computes poses from joints")
+        return None, dataset
+    if pose_from == "joints":
+        obs = []
+        for o in dataset.observations:
+            if o.joints_deg is None:
+                raise InputError(f"observation {o.index} (station {o.station}) has no joints_deg: "
+                                 "--pose-from joints needs joint readings in every observation")
+            try:
+                pose = fk(np.asarray(o.joints_deg, dtype=float))
+            except SpherecalError as exc:
+                raise InputError(f"observation {o.index} (station {o.station}): joints_deg: {exc}") from None
+            obs.append(o.model_copy(update={"base_from_flange": pose}))
+        dataset = dataset.model_copy(update={"observations": obs})
+    return fk, dataset
 
 
 def solve_and_write(

@@ -16,12 +16,20 @@ from ..models import (
 )
 from .circle import CircleFit, fit_circle
 from .prediction import point_error_budget
-from .problem import Problem, build_problem
+from .problem import Problem, build_problem, derived_station_rotation_tolerance_deg, screen_station_orientations
 from .refine import NoiseAssumptions, RefineResult, StationEffects, refine
 from .twostep import TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
 CHI2_3DOF_1E4 = 21.108
+#: Before the joint fit, a profile whose sphere centre moved more than this many robust
+#: SDs off the robot's move is left out (mis-pairs in the simulator: 30-130; clean data:
+#: at most 8). Smaller inconsistencies are judged by the joint fit's chi^2 test.
+GROSS_MOVE_OUTLIER_SDS = 20.0
+#: Floor of the robust scale of those residuals, mm.
+_MIN_MOVE_SCALE_MM = 0.002
+#: Median of the chi distribution with 3 degrees of freedom.
+_CHI3_MEDIAN = 1.5382
 
 
 class CalibrationOptions(BaseModel):
@@ -44,12 +52,19 @@ class CalibrationOptions(BaseModel):
         CHI2_3DOF_1E4, gt=0, description="profiles whose whitened chi^2 (3 dof) exceeds this are left out"
     )
     max_rejected_profile_fraction: float = Field(0.2, ge=0, le=1, description="stop rejecting profiles beyond this share")
+    max_stray_point_fraction: float = Field(
+        0.3, gt=0, le=1, description="a profile with a larger share of its points beyond point_outlier_k robust SDs "
+        "of the sphere the other profiles agree on is left out and flagged (its pose is wrong, not its points)"
+    )
     nominal_transform: Pose | None = Field(
         None, description="rough X (flange_from_sensor or base_from_sensor), used only to choose between "
         "solutions the data cannot tell apart"
     )
-    station_rotation_tolerance_deg: float = Field(
-        0.05, gt=0, description="observations of one station may differ in orientation by at most this"
+    station_rotation_tolerance_deg: float | None = Field(
+        None, gt=0, description="a shot turned more than this from its station's mean orientation is left out "
+        "(or, with enough like it, split off as a station of its own), deg; None: derived from the orientation "
+        "read noise, max(0.02, 4 sqrt(3) s) with s the larger of pose_rotation_noise_deg and the scatter the "
+        "stations show"
     )
     robot_error_model: Literal["station", "none"] = Field(
         "station", description="'station': the robot's systematic error is a pose offset shared by the shots of "
@@ -75,6 +90,13 @@ class CalibrationOptions(BaseModel):
             self.robot_error_model == "station", self.station_rotation_error_deg,
             self.station_translation_error_mm, self.robot_accuracy_deg, self.robot_accuracy_mm,
         )
+
+    def station_rotation_tolerance(self) -> float:
+        """The station rotation tolerance in deg: the configured one, or the one derived
+        from ``pose_rotation_noise_deg`` alone (before any data are seen)."""
+        if self.station_rotation_tolerance_deg is not None:
+            return self.station_rotation_tolerance_deg
+        return derived_station_rotation_tolerance_deg(self.pose_rotation_noise_deg)
 
 
 @dataclass
@@ -104,9 +126,19 @@ def solve(
     """Calibrate ``dataset``; see the package docstring for the steps."""
     opt = options or CalibrationOptions()
     say = progress or (lambda msg: None)
-    problem = build_problem(dataset, flange_pose_from_joints, opt.station_rotation_tolerance_deg)
+    problem = build_problem(dataset, flange_pose_from_joints)
+    original_points = {int(i): len(p) for i, p in zip(problem.obs_index, problem.profiles)}
+    # within a station the robot may only translate: turned shots are left out or split off
+    ori = screen_station_orientations(
+        problem, opt.station_rotation_tolerance_deg, opt.pose_rotation_noise_deg, opt.estimate_pose_noise,
+        opt.min_profiles_per_station,
+    )
+    problem = ori.problem
+    flags: list[ObservationFlag] = list(ori.flags)
+    for note in ori.notes:
+        say(note)
+    hint = _turned_hint(ori.flags, ori.diagnostics["tolerance_deg"])
     r = problem.radius_mm
-    flags: list[ObservationFlag] = []
 
     say(f"fitting circles to {problem.n_profiles} profiles")
     fits: dict[int, CircleFit] = {}
@@ -129,26 +161,39 @@ def solve(
             "no profile shows the sphere (every profile was left out: "
             f"{flags[0].reason if flags else 'none'}): check that the plan puts the sphere in the field of view"
         )
-    # stations with too few usable profiles
-    for k, label in enumerate(problem.station_labels):
-        members = [i for i in np.flatnonzero(problem.station_of == k) if i in fits]
-        if 0 < len(members) < opt.min_profiles_per_station:
-            for i in members:
-                flags.append(_flag(problem, i, f"station {label} has only {len(members)} usable profiles "
-                                               f"(needs {opt.min_profiles_per_station}): add profiles to its sweep"))
-                del fits[i]
-    used = np.array(sorted(fits))
-    if len(used) == 0:
+    _drop_thin_stations_of_fits(problem, fits, flags, opt, "")
+    if not fits:
         raise DegenerateDataError(
-            f"no station has {opt.min_profiles_per_station} usable profiles: add profiles to each sweep"
+            f"no station has {opt.min_profiles_per_station} usable profiles: add profiles to each sweep{hint}"
         )
-    sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
-    sub_fits = {j: fits[i] for j, i in enumerate(used)}
 
+    # profiles grossly inconsistent with the robot's moves (a pose read at the wrong moment,
+    # a mis-paired shot): left out worst first, the two-step redone each time, before they
+    # can pull the joint refinement away
     say("two-step solution (rotation from translations, translation from orientations)")
     nominal_R = opt.nominal_transform.rotation_matrix if opt.nominal_transform is not None else None
-    ts = two_step(sub, sub_fits, nominal_R)
-    orientations = len(sub.station_labels)
+    max_reject = int(opt.max_rejected_profile_fraction * len(fits))
+    rejected = 0
+    while True:
+        used = np.array(sorted(fits))
+        sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
+        sub_fits = {j: fits[i] for j, i in enumerate(used)}
+        ts = two_step(sub, sub_fits, nominal_R)
+        worst = None if rejected >= max_reject else _worst_move_outlier(ts)
+        if worst is None or worst[1] <= GROSS_MOVE_OUTLIER_SDS:
+            break
+        j, sds, off_mm, scale_mm = worst
+        flags.append(_flag(sub, j, f"inconsistent with the other profiles: its sphere centre is {off_mm:.3f} mm off "
+                                   f"where the robot motion puts it ({sds:.0f} robust SDs of {scale_mm:.3f} mm): "
+                                   "a pose read at the wrong moment or a mis-paired shot"))
+        del fits[int(used[j])]
+        rejected += 1
+        _drop_thin_stations_of_fits(problem, fits, flags, opt, "left once others were left out ")
+        if not fits:
+            raise DegenerateDataError(
+                f"no station has {opt.min_profiles_per_station} consistent profiles: check the pairing of poses "
+                f"and profiles and re-acquire{hint}"
+            )
 
     if opt.point_noise_mm is not None:
         sigma = opt.point_noise_mm
@@ -163,45 +208,145 @@ def solve(
     ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      station_effects=opt.station_effects())
 
-    # stray points the circle fits kept: trim on the joint residuals and refit once
-    all_res = np.concatenate(ref.residuals)
-    scale = max(1.4826 * np.median(np.abs(all_res)), noise.point_noise_mm)
-    keep_pts = [np.abs(e) <= opt.point_outlier_k * scale for e in ref.residuals]
-    n_point_rejected = sum(int((~f.inliers).sum()) for f in sub_fits.values())
+    # stray points the circle fits kept: trim on the joint residuals and refit once. A
+    # profile that would lose too many points (or keep too few) has no strays: its pose is
+    # wrong. It is left out and flagged (worst first, refitting after each), never refitted
+    # empty; once the rejection budget is spent, only profiles that would keep too few
+    # points are left out, the others are trimmed.
+    while True:
+        all_res = np.concatenate(ref.residuals)
+        limit = opt.point_outlier_k * max(1.4826 * np.median(np.abs(all_res)), noise.point_noise_mm)
+        keep_pts = [np.abs(e) <= limit for e in ref.residuals]
+        lost = np.array([int((~k).sum()) for k in keep_pts])
+        counts = np.array([len(k) for k in keep_pts])
+        too_few = counts - lost < opt.min_points_per_profile
+        bad = too_few | (lost > opt.max_stray_point_fraction * counts)
+        if rejected < max_reject and bad.any():
+            drop = [int(np.argmax(np.where(bad, lost / counts, -1.0)))]
+        elif too_few.any():
+            drop = np.flatnonzero(too_few).tolist()
+        else:
+            break
+        keep = np.ones(clean.n_profiles, dtype=bool)
+        for j in drop:
+            keep[j] = False
+            flags.append(_flag(clean, j, f"inconsistent with the other profiles: {lost[j]} of {counts[j]} points "
+                                         f"({lost[j] / counts[j]:.0%}) lie far from the sphere they agree on (beyond "
+                                         f"{limit:.3f} mm): a pose read at the wrong moment or a mis-paired shot"))
+        rejected += len(drop)
+        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
+        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
+                     station_effects=opt.station_effects())
     if any(not k.all() for k in keep_pts):
-        n_point_rejected += sum(int((~k).sum()) for k in keep_pts)
         clean = clean.with_profiles([p[k] for p, k in zip(clean.profiles, keep_pts)])
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      station_effects=opt.station_effects())
 
     # profiles inconsistent with the rest (a pose read at the wrong moment, a bad pairing)
-    max_reject = int(opt.max_rejected_profile_fraction * clean.n_profiles)
-    rejected = 0
     while rejected < max_reject:
         chi2 = np.asarray(ref.diagnostics["profile_chi2"])
         worst = int(np.argmax(chi2))
         if chi2[worst] <= opt.profile_outlier_chi2:
             break
-        station = clean.station_labels[clean.station_of[worst]]
         shift = float(np.sqrt(chi2[worst] * np.trace(ref.centre_cov[worst]) / 3))
         flags.append(_flag(clean, worst, f"inconsistent with the other profiles (chi2 {chi2[worst]:.1f} on 3 dof, "
-                                         f"about {shift:.3f} mm): a pose read at the wrong moment or a bad pairing",
-                           station))
+                                         f"about {shift:.3f} mm): a pose read at the wrong moment or a bad pairing"))
         keep = np.ones(clean.n_profiles, dtype=bool)
         keep[worst] = False
-        clean = clean.subset(keep)
+        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
         rejected += 1
-        for k in range(len(clean.station_labels)):
-            if np.sum(clean.station_of == k) < opt.min_profiles_per_station:
-                raise DegenerateDataError(
-                    f"station {clean.station_labels[k]} has fewer than {opt.min_profiles_per_station} consistent "
-                    "profiles left after rejecting inconsistent ones: re-acquire it"
-                )
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      station_effects=opt.station_effects())
 
+    n_point_rejected = sum(original_points[int(i)] - len(p) for i, p in zip(clean.obs_index, clean.profiles))
+    orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
+    result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
     return Solution(result, clean, ts, ref, fits)
+
+
+def _turned_hint(turned: list[ObservationFlag], tolerance_deg: float) -> str:
+    if not turned:
+        return ""
+    return (f"; {len(turned)} shot(s) were left out because they turned within their station (beyond "
+            f"{tolerance_deg:.3f} deg): keep each station's orientation fixed, or, if the robot's orientation "
+            "readings are noisier than that, set calibration.pose_rotation_noise_deg or "
+            "station_rotation_tolerance_deg (spherecal solve --station-rotation-tolerance-deg)")
+
+
+def _thin_stations(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> np.ndarray:
+    """Leave out (flagged) the profiles of stations with fewer than the minimum of kept
+    profiles; returns the updated ``keep``."""
+    keep = keep.copy()
+    for k, label in enumerate(problem.station_labels):
+        members = np.flatnonzero((problem.station_of == k) & keep)
+        if 0 < len(members) < opt.min_profiles_per_station:
+            for i in members:
+                flags.append(_flag(problem, i, f"station {label} has only {len(members)} usable profiles {context}"
+                                               f"(needs {opt.min_profiles_per_station}): add profiles to its sweep"))
+            keep[members] = False
+    return keep
+
+
+def _drop_thin_stations_of_fits(problem: Problem, fits: dict, flags: list[ObservationFlag], opt, context: str) -> None:
+    keep = _thin_stations(problem, np.isin(np.arange(problem.n_profiles), list(fits)), flags, opt, context)
+    for i in list(fits):
+        if not keep[i]:
+            del fits[i]
+
+
+def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> Problem:
+    """``problem`` without the profiles not kept (already flagged) and without the
+    stations left too thin (flagged here); raises when what is left cannot determine
+    the transform."""
+    if keep.all():
+        return problem
+    keep = _thin_stations(problem, keep, flags, opt, context)
+    left = problem.subset(keep)
+    if left.n_profiles == 0:
+        raise DegenerateDataError(
+            f"no station has {opt.min_profiles_per_station} consistent profiles: check the pairing of poses and "
+            "profiles and re-acquire"
+        )
+    dropped = sorted(set(problem.station_labels) - set(left.station_labels))
+    if dropped:
+        Rs = [left.R_A[np.flatnonzero(left.station_of == k)[0]] for k in range(len(left.station_labels))]
+        M = np.vstack([np.hstack([R, -np.eye(3)]) for R in Rs])
+        sv = np.linalg.svd(M, compute_uv=False)
+        if len(sv) < 6 or sv[-1] < 1e-3 * sv[0]:
+            raise DegenerateDataError(
+                f"after leaving out station(s) {', '.join(dropped)} (too few consistent profiles), the stations "
+                f"left ({', '.join(left.station_labels)}) do not determine the translation: re-acquire the "
+                "stations left out, or add stations tilted about two different axes"
+            )
+    return left
+
+
+def _worst_move_outlier(ts: TwoStepResult):
+    """The profile whose sphere centre (circle fit, side of the laser plane resolved)
+    moved least like the robot: within a station the centre must move in the sensor frame
+    by the robot's displacement rotated by the two-step rotation. Residuals are taken
+    about the station's median, so one bad profile does not shift the others; the scale
+    is robust, pooled over the stations (per axis, from the median residual length).
+    Returns ``(profile, residual in robust SDs, residual mm, scale mm)`` or None."""
+    rows = []
+    for st in ts.stations:
+        if len(st.profiles) == 0:
+            continue
+        # a station whose moves span less than 3-D leaves two mirror candidates; the one
+        # that agrees with the pooled rotation is the one to judge its profiles by
+        best = None
+        for cand in st.candidates:
+            e = cand @ ts.R.T - st.d
+            e = np.linalg.norm(e - np.median(e, axis=0), axis=1)
+            if best is None or np.median(e) < np.median(best):
+                best = e
+        rows.extend(zip(st.profiles.tolist(), best.tolist()))
+    if not rows:
+        return None
+    scale = max(float(np.median([e for _, e in rows])) / _CHI3_MEDIAN, _MIN_MOVE_SCALE_MM)
+    i, e = max(rows, key=lambda r: r[1])
+    return int(i), e / scale, e, scale
 
 
 def calibrate(

@@ -15,8 +15,8 @@ from typing import Callable
 import numpy as np
 
 from .. import geometry as geo
-from ..errors import DegenerateDataError, InputError
-from ..models import Dataset, Pose
+from ..errors import DegenerateDataError, InputError, SpherecalError
+from ..models import Dataset, ObservationFlag, Pose
 
 
 @dataclass
@@ -74,13 +74,12 @@ def sphere_frame_from_base(mounting: str, R0: np.ndarray, t0: np.ndarray) -> tup
 def build_problem(
     dataset: Dataset,
     flange_pose_from_joints: Callable[[np.ndarray], Pose] | None = None,
-    station_rotation_tolerance_deg: float = 0.05,
 ) -> Problem:
     """Arrays from a dataset, with the checks that need the whole dataset.
 
-    Raises :class:`InputError` for lengths that look like metres, a station whose
-    observations do not share one orientation, or an observation without a usable pose;
-    :class:`DegenerateDataError` for an empty dataset."""
+    Raises :class:`InputError` for lengths that look like metres or an observation
+    without a usable pose; :class:`DegenerateDataError` for an empty dataset. Whether
+    each station keeps one orientation is checked by :func:`screen_station_orientations`."""
     obs = dataset.observations
     if not obs:
         raise DegenerateDataError("the dataset has no observations: acquire some profiles first")
@@ -91,9 +90,13 @@ def build_problem(
             if flange_pose_from_joints is None:
                 raise InputError(
                     f"observation {o.index} (station {o.station}) has joint readings but no flange pose, "
-                    "and no forward kinematics was given: calibrate with the robot plugin's model"
+                    "and no forward kinematics was given: calibrate with the robot plugin's model "
+                    "(spherecal solve --robot TYPE; `spherecal plugins` lists the robot types)"
                 )
-            pose = flange_pose_from_joints(np.asarray(o.joints_deg, dtype=float))
+            try:
+                pose = flange_pose_from_joints(np.asarray(o.joints_deg, dtype=float))
+            except SpherecalError as exc:
+                raise InputError(f"observation {o.index} (station {o.station}): joints_deg: {exc}") from None
         R0.append(pose.rotation_matrix)
         t0.append(pose.translation)
     R0 = np.array(R0)
@@ -103,26 +106,178 @@ def build_problem(
 
     labels: list[str] = []
     station_of = np.empty(len(obs), dtype=int)
-    first_of: dict[str, int] = {}
     for i, o in enumerate(obs):
-        if o.station not in first_of:
-            first_of[o.station] = i
+        if o.station not in labels:
             labels.append(o.station)
         station_of[i] = labels.index(o.station)
-        j = first_of[o.station]
-        angle = geo.rotation_angle_deg(R0[j], R0[i])
-        if angle > station_rotation_tolerance_deg:
-            raise InputError(
-                f"station {o.station!r} mixes orientations: observation {o.index} is rotated "
-                f"{angle:.3f} deg from observation {obs[j].index} (tolerance "
-                f"{station_rotation_tolerance_deg} deg); within a station the robot may only "
-                "translate: give each orientation its own station label"
-            )
     R_A, t_A = sphere_frame_from_base(dataset.mounting, R0, t0)
     return Problem(
         dataset.mounting, dataset.sphere_radius_mm, R0, t0, R_A, t_A, profiles,
         np.array([o.index for o in obs]), station_of, labels,
     )
+
+
+# --- one orientation per station ------------------------------------------------------------
+#: Floor of the derived station rotation tolerance, deg.
+STATION_ROTATION_FLOOR_DEG = 0.02
+#: The derived tolerance is this many times the typical angle (s sqrt(3)) of one shot's
+#: orientation reading from the station's mean, s being the per-axis read noise.
+STATION_ROTATION_K = 4.0
+#: The scatter the stations show may raise the derived tolerance up to this, deg: beyond
+#: it the pure-translation start degrades (0.1 deg is 0.35 mm at 200 mm), so a robot whose
+#: readings scatter more must be told so (pose_rotation_noise_deg or the tolerance).
+STATION_ROTATION_SEEN_CAP_DEG = 0.1
+#: Median of the chi distribution with 3 degrees of freedom (sqrt of chi^2_3's median).
+_CHI3_MEDIAN = 1.5382
+
+
+def derived_station_rotation_tolerance_deg(rotation_noise_deg: float) -> float:
+    """``max(floor, k s sqrt(3))``: with per-axis orientation read noise s (deg), the
+    angle between one shot and its station's mean is about s sqrt(3) (chi with 3 degrees
+    of freedom); k = 4 leaves a shot of pure jitter beyond the tolerance with a
+    probability far below 1e-6."""
+    return max(STATION_ROTATION_FLOOR_DEG, STATION_ROTATION_K * float(rotation_noise_deg) * np.sqrt(3.0))
+
+
+@dataclass
+class OrientationScreening:
+    """What :func:`screen_station_orientations` did: the problem without the turned
+    shots (split stations relabelled), their flags, and a summary for the result."""
+
+    problem: Problem
+    flags: list[ObservationFlag]
+    diagnostics: dict
+    notes: list[str]
+
+
+def chordal_mean(Rs: np.ndarray) -> np.ndarray:
+    """The rotation closest (Frobenius) to the mean of the matrices ``Rs`` (n, 3, 3)."""
+    U, _, Vt = np.linalg.svd(np.mean(Rs, axis=0))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+def _angles_deg(R: np.ndarray, Rs: np.ndarray) -> np.ndarray:
+    """Angle (deg) between R and each of Rs (n, 3, 3)."""
+    c = (np.einsum("ij,nij->n", R, Rs) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _clusters(Rs: np.ndarray, tolerance_deg: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Groups of shots whose orientations lie within ``tolerance_deg`` of their group's
+    chordal mean, largest first: ``[(positions, mean rotation), ...]``."""
+    n = len(Rs)
+    D = np.array([_angles_deg(R, Rs) for R in Rs])
+    remaining = np.ones(n, dtype=bool)
+    groups = []
+    while remaining.any():
+        rem = np.flatnonzero(remaining)
+        sub = D[np.ix_(rem, rem)]
+        counts = (sub <= tolerance_deg).sum(axis=1)
+        best = counts == counts.max()
+        seed = rem[np.flatnonzero(best)[np.argmin(np.median(sub[best], axis=1))]]
+        members = rem[D[seed, rem] <= tolerance_deg]
+        mean = Rs[seed]
+        for _ in range(5):
+            mean = chordal_mean(Rs[members])
+            new = rem[_angles_deg(mean, Rs[rem]) <= tolerance_deg]
+            if len(new) == 0 or np.array_equal(new, members):
+                break
+            members = new
+        groups.append((members, mean))
+        remaining[members] = False
+    groups.sort(key=lambda g: -len(g[0]))
+    return groups
+
+
+def screen_station_orientations(
+    problem: Problem,
+    tolerance_deg: float | None = None,
+    rotation_noise_deg: float = 0.0,
+    estimate_noise: bool = True,
+    min_profiles_per_station: int = 4,
+) -> OrientationScreening:
+    """Within a station the robot may only translate. Each shot's orientation is
+    compared with its station's robust mean orientation (the chordal mean of the largest
+    group of shots within the tolerance of each other). Shots beyond the tolerance are
+    left out and flagged with their angle, unless they form a group of their own with at
+    least ``min_profiles_per_station`` shots: that group becomes a station of its own,
+    labelled ``<station>/b`` (``/c``, ...). Nothing is refused here.
+
+    ``tolerance_deg`` None derives it (:func:`derived_station_rotation_tolerance_deg`)
+    from the per-axis orientation read noise ``rotation_noise_deg``; with
+    ``estimate_noise`` the scatter the stations show (median pairwise angle within
+    stations, which a minority of turned shots hardly moves) may raise it, up to
+    :data:`STATION_ROTATION_SEEN_CAP_DEG`."""
+    R0 = problem.R0
+    pair_angles = []
+    for k in range(len(problem.station_labels)):
+        idx = np.flatnonzero(problem.station_of == k)
+        if len(idx) > 1:
+            D = np.array([_angles_deg(R0[i], R0[idx]) for i in idx])
+            pair_angles.append(D[np.triu_indices(len(idx), 1)])
+    pairs = np.concatenate(pair_angles) if pair_angles else np.zeros(0)
+    noise_seen = float(np.median(pairs) / (np.sqrt(2.0) * _CHI3_MEDIAN)) if len(pairs) >= 10 else 0.0
+    derived = tolerance_deg is None
+    if derived:
+        tolerance_deg = derived_station_rotation_tolerance_deg(rotation_noise_deg)
+        if estimate_noise:
+            tolerance_deg = max(tolerance_deg, min(derived_station_rotation_tolerance_deg(noise_seen),
+                                                   STATION_ROTATION_SEEN_CAP_DEG))
+
+    keep = np.ones(problem.n_profiles, dtype=bool)
+    station_of = problem.station_of.copy()
+    labels: list[str] = []
+    new_of_old: dict[int, int] = {}
+    flags: list[ObservationFlag] = []
+    notes: list[str] = []
+    split: dict[str, list[str]] = {}
+    spread: dict[str, float] = {}
+    for k, label in enumerate(problem.station_labels):
+        idx = np.flatnonzero(problem.station_of == k)
+        groups = _clusters(R0[idx], tolerance_deg)
+        main_members, main_mean = groups[0]
+        labels.append(label)
+        new_of_old[k] = len(labels) - 1
+        station_of[idx[main_members]] = len(labels) - 1
+        spread[label] = float(_angles_deg(main_mean, R0[idx[main_members]]).max())
+        for members, mean in groups[1:]:
+            turn = geo.rotation_angle_deg(main_mean, mean)
+            if len(members) >= min_profiles_per_station:
+                new_label = f"{label}/{chr(ord('a') + len(split.get(label, [label])))}"
+                split.setdefault(label, [label]).append(new_label)
+                labels.append(new_label)
+                station_of[idx[members]] = len(labels) - 1
+                spread[new_label] = float(_angles_deg(mean, R0[idx[members]]).max())
+                notes.append(
+                    f"station {label}: observations {', '.join(str(problem.obs_index[i]) for i in idx[members])} "
+                    f"are turned {turn:.3f} deg from the station's other shots (tolerance {tolerance_deg:.3f} deg); "
+                    f"solved as a station of their own, {new_label}"
+                )
+                continue
+            angles = _angles_deg(main_mean, R0[idx[members]])
+            for i, a in zip(idx[members], angles):
+                keep[i] = False
+                flags.append(ObservationFlag(
+                    index=int(problem.obs_index[i]), station=label,
+                    reason=f"turned {a:.3f} deg from the orientation of its station "
+                           f"(tolerance {tolerance_deg:.3f} deg): "
+                           "within a station the robot may only translate",
+                ))
+    shaped = Problem(
+        problem.mounting, problem.radius_mm, problem.R0, problem.t0, problem.R_A, problem.t_A,
+        problem.profiles, problem.obs_index, station_of, labels,
+    )
+    diagnostics = {
+        "tolerance_deg": float(tolerance_deg),
+        "tolerance_derived": derived,
+        "rotation_noise_seen_deg": noise_seen,
+        "max_angle_to_station_mean_deg": spread,
+        "split_stations": split,
+        "turned_observations": sorted(f.index for f in flags),
+        "notes": notes,
+    }
+    return OrientationScreening(shaped.subset(keep) if not keep.all() else shaped, flags, diagnostics, notes)
 
 
 def _check_units(dataset: Dataset, t0: np.ndarray, profiles: list[np.ndarray]) -> None:

@@ -218,6 +218,9 @@ _FLAG_CAUSES = [
      "check the certified radius in the dataset (mm) and what the sensor sees"),
     ("usable profiles", "too few usable profiles at that station",
      "add profiles to that station's sweep"),
+    ("turned", "the robot turned within a station (only translations are allowed there)",
+     "keep each station's orientation fixed during its sweep (linear moves, no reorientation); if the "
+     "orientation readings are noisier than assumed, set calibration.pose_rotation_noise_deg"),
 ]
 
 

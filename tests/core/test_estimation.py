@@ -247,13 +247,6 @@ def test_empty_dataset():
 
 
 # --- bad input -------------------------------------------------------------------------------------
-def test_station_with_mixed_orientations_names_it(mounting):
-    ds = simulate_dataset(standard_cell(mounting, seed=0))
-    obs = [o.model_copy(update={"station": "S1"}) if o.station == "S2" else o for o in ds.observations]
-    with pytest.raises(InputError, match=r"station 'S1' mixes orientations: observation 10 is rotated 30\.0"):
-        calibrate(ds.model_copy(update={"observations": obs}))
-
-
 def test_profiles_in_metres_are_refused(mounting):
     ds = simulate_dataset(standard_cell(mounting, seed=0))
     obs = [o.model_copy(update={"profile": Profile.from_points(o.profile.points_mm / 1000)}) for o in ds.observations]
