@@ -143,6 +143,9 @@ ETH_EXTRA = """
 [validation]
 profiles_per_sweep = 16
 
+[validation.mpe]
+probing_size_mm = 0.1  # |P_S| of 16-profile sweeps reaches 0.07 mm here with a 0.003 mm calibration
+
 [scan]
 object_centre_mm = [0.0, 150.0, 250.0]
 length_mm = 40.0
@@ -153,7 +156,8 @@ step_mm = 1.0
 def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
     """Eye-to-hand end to end: the sphere and a plate ride on the flange; validation
     and scan map points into the flange frame."""
-    cfg_path = sim_config("sim-eye-to-hand.toml", **{r"^seed = 2$": 'seed = 2\nscan_object = "flat_plate"'})
+    cfg_path = sim_config("sim-eye-to-hand.toml", exact_arm=True,
+                          **{r"^seed = 2$": 'seed = 2\nscan_object = "flat_plate"'})
     cfg_path.write_text(cfg_path.read_text() + ETH_EXTRA)
     out = cfg_path.parent / "out"
     assert main(["calibrate", str(cfg_path), "--no-report"]) == EXIT_OK
@@ -185,7 +189,7 @@ def test_validate_needs_its_section(sim_config, capsys):
 
 @pytest.mark.parametrize("fmt", ["binary_little_endian", "ascii"])
 def test_scan_a_flat_plate_into_ply(sim_config, fmt, capsys):
-    cfg_path = sim_config("sim-eye-in-hand.toml", **{
+    cfg_path = sim_config("sim-eye-in-hand.toml", exact_arm=True, **{
         r'^scan_object = "car_door_panel".*$': 'scan_object = "flat_plate"',
         r"^passes = 2$": f'passes = 2\nformat = "{fmt}"',
     })
