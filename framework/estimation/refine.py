@@ -188,18 +188,11 @@ class StationEffects:
 _SCALE_BOUNDS = ((1e-7, np.radians(5.0)), (1e-5, 50.0))
 
 
-class _StationPrior:
-    """A square root ``L`` (6K x 6K+6) of the prior covariance of the stacked station
-    offsets: ``Sigma = L L^T = I (x) diag(s) ^2 + 11^T (x) diag(a)^2`` with per-axis
-    scales s (station-to-station) and a (common)."""
-
-    def __init__(self, n_stations: int, common_rad_mm: tuple[float, float]):
-        self.K = n_stations
-        self.common = np.kron(np.ones((n_stations, 1)), np.diag([common_rad_mm[0]] * 3 + [common_rad_mm[1]] * 3))
-
-    def L(self, s_rot: float, s_trans: float, with_common: bool = False) -> np.ndarray:
-        own = np.kron(np.eye(self.K), np.diag([s_rot] * 3 + [s_trans] * 3))
-        return np.hstack([own, self.common if with_common else 0.0 * self.common])
+def _station_sqrt_cov(n_stations: int, s_rot: float, s_trans: float) -> np.ndarray:
+    """A square root ``L`` of the prior covariance of the stacked station-to-station
+    offsets (6K,): ``L L^T = I (x) diag(s_rot^2 I3, s_trans^2 I3)``. (The common part is
+    a consider parameter, handled in the covariance only.)"""
+    return np.kron(np.eye(n_stations), np.diag([s_rot] * 3 + [s_trans] * 3))
 
 
 def _apply_station_offsets(problem: Problem, delta: np.ndarray) -> Problem:
@@ -284,7 +277,6 @@ def refine(
     se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
     delta = np.zeros((K, 6))
     station_rows = [np.flatnonzero(problem.station_of[pts.pid] == k) for k in range(K)]
-    prior = _StationPrior(K, (np.radians(se.common_rotation_deg), se.common_translation_mm)) if se else None
     fixed = (None if se is None else
              (None if se.rotation_deg is None else np.radians(se.rotation_deg),
               se.translation_mm))
@@ -317,7 +309,7 @@ def refine(
                         for i in range(2):
                             if fixed[i] is not None:
                                 sv[i] = fixed[i]
-                        return _neg2_reml(prior.L(*sv), A_tt, A_td, A_dd, b_t, b_d, yy)
+                        return _neg2_reml(_station_sqrt_cov(K, *sv), A_tt, A_td, A_dd, b_t, b_d, yy)
 
                     lo = [np.log(_SCALE_BOUNDS[i][0]) for i in free]
                     hi = [np.log(_SCALE_BOUNDS[i][1]) for i in free]
@@ -327,7 +319,7 @@ def refine(
                 for i in range(2):
                     if fixed[i] is not None:
                         s_hat[i] = fixed[i]
-                Lp = prior.L(*s_hat, with_common=False)
+                Lp = _station_sqrt_cov(K, *s_hat)
                 # MAP step in (d theta, eta) with delta = L eta: normal matrix stays regular as L -> 0
                 N = np.block([[A_tt, A_td @ Lp], [Lp.T @ A_td.T, Lp.T @ A_dd @ Lp + np.eye(Lp.shape[1])]])
                 sol = np.linalg.solve(N, np.concatenate([b_t, Lp.T @ b_d]))
@@ -371,7 +363,7 @@ def refine(
         Jw_d = lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
         A_tt, A_td, A_dd, _, _ = _station_blocks(Jw, Jw_d, np.zeros(len(ew)), station_rows)
         # GLS covariance with the station-to-station offsets integrated out ...
-        Lp = prior.L(*s_hat, with_common=False)
+        Lp = _station_sqrt_cov(K, *s_hat)
         B = np.eye(Lp.shape[1]) + Lp.T @ A_dd @ Lp
 
         def Cinv(u):
