@@ -45,9 +45,11 @@ from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.problem import build_problem
 from spherecal.estimation.refine import NoiseAssumptions, cramer_rao_bound
-from spherecal.estimation.twostep import fit_sphere_fixed_radius, points_3d
+from spherecal.estimation.twostep import fit_sphere_fixed_radius
+from spherecal.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell
+from spherecal.validation import points_in_object_frame
 
 PLANS = {
     "A": (SweepPlan(), 19.1),
@@ -96,14 +98,12 @@ def new_view_errors(cell, sol) -> list[float]:
     by: dict[str, list] = {}
     for o in views.observations:
         by.setdefault(o.station, []).append(o)
+    X = Pose.from_rt(ref.R, ref.t)
     out = []
     for obs in by.values():
-        q = []
-        for o in obs:
-            P = points_3d(o.profile.points_mm) @ ref.R.T + ref.t
-            R0, t0 = o.base_from_flange.rotation_matrix, o.base_from_flange.translation
-            q.append(P @ R0.T + t0 if cell.mounting == "eye_in_hand" else (P - t0) @ R0)
-        c = fit_sphere_fixed_radius(np.vstack(q), cell.sphere_radius_mm, ref.centre)
+        q = points_in_object_frame(cell.mounting, X, [o.base_from_flange for o in obs],
+                                   [o.profile.points_mm for o in obs])
+        c = fit_sphere_fixed_radius(q, cell.sphere_radius_mm, ref.centre)
         out.append(float(np.linalg.norm(c - ref.centre)))
     return out
 

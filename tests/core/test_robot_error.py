@@ -11,11 +11,13 @@ from spherecal import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.refine import NoiseAssumptions
-from spherecal.estimation.twostep import fit_sphere_fixed_radius, points_3d
+from spherecal.estimation.twostep import fit_sphere_fixed_radius
 from spherecal.kinematics import SerialChain
+from spherecal.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.report.assess import robot_error_dominates, verdict
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
+from spherecal.validation import points_in_object_frame
 
 NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02)
 OPTIONS = CalibrationOptions(pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.0)
@@ -141,13 +143,10 @@ def test_predicted_error_at_new_poses_matches_the_truth(mounting, kin):
         by: dict[str, list] = {}
         for o in simulate_dataset(cell, NEW_VIEWS).observations:
             by.setdefault(o.station, []).append(o)
+        X = Pose.from_rt(ref.R, ref.t)
         for obs in by.values():
-            q = []
-            for o in obs:
-                P = points_3d(o.profile.points_mm) @ ref.R.T + ref.t
-                R0, t0 = o.base_from_flange.rotation_matrix, o.base_from_flange.translation
-                q.append(P @ R0.T + t0 if mounting == "eye_in_hand" else (P - t0) @ R0)
-            c = fit_sphere_fixed_radius(np.vstack(q), cell.sphere_radius_mm, ref.centre)
+            q = points_in_object_frame(mounting, X, [o.base_from_flange for o in obs], [o.profile.points_mm for o in obs])
+            c = fit_sphere_fixed_radius(q, cell.sphere_radius_mm, ref.centre)
             meas.append(float(np.linalg.norm(c - ref.centre)))
     ratio = np.sqrt(np.mean(np.square(pred))) / np.sqrt(np.mean(np.square(meas)))
     assert 1 / 1.5 < ratio < 1.5, ratio
