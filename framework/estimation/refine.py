@@ -297,7 +297,7 @@ def refine(
             if se is None:
                 step = np.linalg.lstsq(Jw, -ew, rcond=None)[0]
             else:
-                Jw_d = lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
+                Jw_d = _station_jacobian(lin, pts)
                 yw = -ew + _stack_station_effect(Jw_d, delta, problem.station_of[pts.pid])
                 A_tt, A_td, A_dd, b_t, b_d = _station_blocks(Jw, Jw_d, yw, station_rows)
                 yy = float(yw @ yw)
@@ -360,7 +360,7 @@ def refine(
     }
     cov = cov_robot_frame = cov_fixed
     if se is not None:
-        Jw_d = lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
+        Jw_d = _station_jacobian(lin, pts)
         A_tt, A_td, A_dd, _, _ = _station_blocks(Jw, Jw_d, np.zeros(len(ew)), station_rows)
         # GLS covariance with the station-to-station offsets integrated out ...
         Lp = _station_sqrt_cov(K, *s_hat)
@@ -392,6 +392,11 @@ def refine(
         converged, float(ew @ ew / dof), scale, diagnostics, covariance_without_robot_error=cov_fixed,
         covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=(float(s_hat[0]), float(s_hat[1])) if se else (0.0, 0.0),
     )
+
+
+def _station_jacobian(lin: "_Linearisation", pts: _Points) -> np.ndarray:
+    """Whitened d res / d(station offset), (M, 6): each point against its station's offset."""
+    return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
 
 
 def _stack_station_effect(Jw_d, delta, station_of_point):
