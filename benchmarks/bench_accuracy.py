@@ -11,8 +11,16 @@ per shot, and:
   (``spherecal.sim.RobotErrorModel`` defaults: joint zero offsets 0.02-0.05 deg, link
   lengths 0.1-0.3 mm, offsets up to 0.2 mm, axis tilts up to 0.02 deg; the flange is
   0.5-2 mm and 0.03-0.16 deg off its reported pose); a new arm per seed;
-- ``systematic+``: that, plus orientation read noise 0.01 deg per axis and stray points
-  on 20 % of the profiles.
+- ``systematic+``: that, plus what no kinematic model holds: gravity sag of every joint
+  (0.01-0.03 deg per metre of lever, changing with the configuration), orientation read
+  noise 0.01 deg per axis and stray points on 20 % of the profiles;
+- ``systematic x3``: an arm three times worse than the estimator's stated prior
+  (joint zero offsets 0.06-0.15 deg, link lengths 0.3-0.9 mm, offsets up to 0.6 mm, tilts
+  up to 0.06 deg): the data must widen the prior.
+
+Two robot error models (``--models``): ``kinematic``, the default when the joints and the
+robot's kinematics are known (the arm's geometric error parameters, marginalised), and
+``station`` (one pose offset per station: what is left when only poses are known).
 
 Two plans: ``A`` the default (4 stations tilted 30/30/45 deg, 10 profiles each, sphere
 r = 19.1 mm) and ``B`` (5 stations tilted 15-25 deg about other axes, 8 profiles each,
@@ -81,13 +89,23 @@ def irb2400_kinematics():
     return PluginHost().arm_kinematics({"type": "abb_irb2400"})
 
 
-def scenario_world(name: str, seed: int):
+SCENARIOS = ("random", "systematic", "systematic+", "systematic x3")
+
+
+def scenario_world(name: str, seed: int, model: str = "kinematic"):
     strays = 0.2 if name == "systematic+" else 0.0
     rot = 0.01 if name == "systematic+" else 0.0
     noise = NoiseModel(point_noise_mm=POINT_NOISE_MM, pose_translation_noise_mm=POSE_NOISE_MM,
                        pose_rotation_noise_deg=rot, stray_profile_fraction=strays)
-    error = None if name == "random" else RobotErrorModel()
-    opts = CalibrationOptions(pose_translation_noise_mm=POSE_NOISE_MM, pose_rotation_noise_deg=max(rot, 0.002))
+    error = {
+        "random": None,
+        "systematic": RobotErrorModel(),
+        "systematic+": RobotErrorModel(joint_compliance_deg_per_m=(0.01, 0.03)),
+        "systematic x3": RobotErrorModel(joint_zero_offset_deg=(0.06, 0.15), link_length_mm=(0.3, 0.9),
+                                         link_offset_mm=(0.0, 0.6), axis_tilt_deg=(0.0, 0.06)),
+    }[name]
+    opts = CalibrationOptions(pose_translation_noise_mm=POSE_NOISE_MM, pose_rotation_noise_deg=max(rot, 0.002),
+                              robot_error_model=model)
     return noise, error, opts
 
 
@@ -108,16 +126,16 @@ def new_view_errors(cell, sol) -> list[float]:
     return out
 
 
-def run(mounting: str, scenario: str, plan_name: str, seeds: int, kin) -> dict:
+def run(mounting: str, scenario: str, plan_name: str, seeds: int, kin, model: str = "kinematic") -> dict:
     plan, radius = PLANS[plan_name]
     err = {"two_step": ([], []), "refined": ([], [])}
     nees, z, times, pred, meas = [], [], [], [], []
     for seed in range(seeds):
-        noise, error, opts = scenario_world(scenario, seed)
+        noise, error, opts = scenario_world(scenario, seed, model)
         cell = standard_cell(mounting, seed=seed, noise=noise, sphere_radius_mm=radius, robot_error=error, arm=kin)
         ds = simulate_dataset(cell, plan)
         t0 = time.perf_counter()
-        sol = solve(ds, opts)
+        sol = solve(ds, opts, kinematics=kin)
         times.append(time.perf_counter() - t0)
         X = cell.true_transform
         for name, (R, t) in {"two_step": (sol.two_step.R, sol.two_step.t), "refined": (sol.refined.R, sol.refined.t)}.items():
@@ -157,30 +175,31 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=50)
     ap.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand", "both"], default="both")
-    ap.add_argument("--scenarios", nargs="+", default=["random", "systematic", "systematic+"])
+    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
+    ap.add_argument("--models", nargs="+", default=["kinematic", "station"], choices=["kinematic", "station"])
     ap.add_argument("--plans", nargs="+", default=["A", "B"])
     args = ap.parse_args()
     kin = irb2400_kinematics()
     modes = ["eye_in_hand", "eye_to_hand"] if args.mounting == "both" else [args.mounting]
     print(f"{args.seeds} seeds per row; errors are RMS over seeds; NEES honest = 6; coverage: share of |error| <= 3 sd")
-    head = (f"{'mode':12s}{'scenario':13s}{'plan':5s}{'2-step deg':>11s}{'refined deg':>12s}{'ratio':>6s}"
+    head = (f"{'mode':12s}{'model':10s}{'scenario':14s}{'plan':5s}{'2-step deg':>11s}{'refined deg':>12s}{'ratio':>6s}"
             f"{'2-step mm':>10s}{'refined mm':>11s}{'ratio':>6s}{'NEES':>7s}{'cov3':>6s}{'pred mm':>8s}{'meas mm':>8s}"
             f"{'p/m':>5s}{'s':>6s}")
     print(head)
-    for mode in modes:
-        for scenario in args.scenarios:
-            for plan in args.plans:
-                r = run(mode, scenario, plan, args.seeds, kin)
-                (r2, t2), (rr, tr) = r["two_step"], r["refined"]
-                print(f"{mode:12s}{scenario:13s}{plan:5s}{r2:11.4f}{rr:12.4f}{rr / r2:6.2f}{t2:10.4f}{tr:11.4f}{tr / t2:6.2f}"
-                      f"{r['nees_mean']:7.1f}{r['coverage_3sigma_min']:6.2f}{r['predicted_new_view_rms_mm']:8.4f}"
-                      f"{r['measured_new_view_rms_mm']:8.4f}"
-                      f"{r['predicted_new_view_rms_mm'] / r['measured_new_view_rms_mm']:5.2f}{r['median_solve_s']:6.2f}",
-                      flush=True)
-                if "bound" in r:
-                    rb, tb = r["bound"]
-                    print(f"{'':30s}Cramer-Rao bound {rb:.4f} deg, {tb:.4f} mm; refined / bound {rr / rb:.2f}, {tr / tb:.2f}",
-                          flush=True)
+    rows = [(mode, model, scenario, plan) for mode in modes for model in args.models for scenario in args.scenarios
+            for plan in args.plans if not (model == "station" and scenario == "random")]
+    for mode, model, scenario, plan in rows:
+        r = run(mode, scenario, plan, args.seeds, kin, model)
+        (r2, t2), (rr, tr) = r["two_step"], r["refined"]
+        print(f"{mode:12s}{model:10s}{scenario:14s}{plan:5s}{r2:11.4f}{rr:12.4f}{rr / r2:6.2f}{t2:10.4f}{tr:11.4f}{tr / t2:6.2f}"
+              f"{r['nees_mean']:7.1f}{r['coverage_3sigma_min']:6.2f}{r['predicted_new_view_rms_mm']:8.4f}"
+              f"{r['measured_new_view_rms_mm']:8.4f}"
+              f"{r['predicted_new_view_rms_mm'] / r['measured_new_view_rms_mm']:5.2f}{r['median_solve_s']:6.2f}",
+              flush=True)
+        if "bound" in r:
+            rb, tb = r["bound"]
+            print(f"{'':44s}Cramer-Rao bound {rb:.4f} deg, {tb:.4f} mm; refined / bound {rr / rb:.2f}, {tr / tb:.2f}",
+                  flush=True)
 
 
 if __name__ == "__main__":

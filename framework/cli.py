@@ -74,7 +74,7 @@ def cmd_solve(args) -> int:
         if len(v) != 7:
             raise ConfigError("--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)")
         nominal = Pose.from_abb(v[:3], v[3:])
-    fk, dataset = solve_kinematics(
+    fk, dataset, arm = solve_kinematics(
         dataset, args.robot, Path(args.robot_config) if args.robot_config else None, args.pose_from
     )
     options = CalibrationOptions(
@@ -83,7 +83,7 @@ def cmd_solve(args) -> int:
     )
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
     solution = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
-                               report=not args.no_report)
+                               report=not args.no_report, kinematics=arm)
     print(summary(solution))
     check = truth_check(solution, dataset)
     if check:

@@ -103,3 +103,87 @@ class ArmKinematics(Protocol):
     def joints_from_flange_pose(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
         """Controller joints (deg) that reach the pose, nearest the seed; raises an
         :class:`~spherecal.errors.InputError` when out of reach."""
+
+
+# --- geometric error parameters ------------------------------------------------------------
+#
+# A real arm differs from its nominal chain by small changes to each joint's placement.
+# Joint i gets six error parameters, in this order:
+#
+#   zero_offset  rotation about the joint's own axis (rad): the joint's zero is off;
+#   x, y, z      translation of the joint's origin (mm), in its parent's frame;
+#   tilt_u/v     rotation of the joint's frame (rad) about two directions perpendicular to
+#                its axis (``error_tilt_basis``): the axis is tilted.
+#
+# The true placement is ``Trans(d) P_i Exp(phi)``, ``phi = tilt_u u + tilt_v v + zero a``.
+# The joint axis stays ``axes[i]`` in the (rotated) joint frame, so a chain with errors is
+# again a :class:`SerialChain`, with only its placements changed and the joint zero
+# offsets folded into them. The flange placement has no error parameters: its error is
+# the same at every pose, and the hand-eye transform (or the sphere on the flange)
+# absorbs it.
+
+ERROR_PARAMETERS_PER_JOINT = ("zero_offset", "x", "y", "z", "tilt_u", "tilt_v")
+#: Which of the six are angles (rad); the others are lengths (mm).
+ERROR_PARAMETER_IS_ANGLE = (True, False, False, False, True, True)
+
+
+def error_tilt_basis(axis) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit directions ``u, v`` perpendicular to ``axis`` and to each other, chosen
+    deterministically: ``u = normalise(axis x e_k)``, ``e_k`` the coordinate axis least
+    aligned with ``axis``; ``v = axis x u``."""
+    a = np.asarray(axis, dtype=float)
+    e = np.zeros(3)
+    e[int(np.argmin(np.abs(a)))] = 1.0
+    u = np.cross(a, e)
+    u /= np.linalg.norm(u)
+    return u, np.cross(a, u)
+
+
+def error_parameter_names(chain: SerialChain, joint_names: list[str] | None = None) -> list[str]:
+    """``joint_<i>.<parameter>`` for every error parameter of ``chain``, in order."""
+    names = joint_names or [f"joint_{i + 1}" for i in range(chain.n_joints)]
+    return [f"{j}.{p}" for j in names for p in ERROR_PARAMETERS_PER_JOINT]
+
+
+def _joint_error_rotation(axis: np.ndarray, params: np.ndarray) -> np.ndarray:
+    u, v = error_tilt_basis(axis)
+    phi = params[0] * axis + params[4] * u + params[5] * v
+    return _axis_angle_matrices(phi / max(np.linalg.norm(phi), 1e-300), np.array([np.linalg.norm(phi)]))[0]
+
+
+def chain_with_errors(chain: SerialChain, errors) -> SerialChain:
+    """``chain`` with the geometric errors ``errors`` ((6 n,), see above; rad and mm)
+    applied exactly: ``P_i <- Trans(d_i) P_i Exp(phi_i)``."""
+    e = np.asarray(errors, dtype=float).reshape(chain.n_joints, len(ERROR_PARAMETERS_PER_JOINT))
+    P = chain.placements.copy()
+    for i in range(chain.n_joints):
+        P[i, :3, 3] += e[i, 1:4]
+        P[i, :3, :3] = P[i, :3, :3] @ _joint_error_rotation(chain.axes[i], e[i])
+    return SerialChain(P, chain.axes.copy(), chain.flange_placement.copy())
+
+
+def flange_error_jacobian(chain: SerialChain, q_rad) -> np.ndarray:
+    """d(flange pose error)/d(error parameters) at joint vectors ``q_rad`` (N, n): (N, 6,
+    6 n). The pose error is ``(omega, tau)``: a rotation ``omega`` (rad, base axes) of the
+    flange about its own origin and a translation ``tau`` (mm, base frame), i.e.
+    ``R <- exp(omega) R``, ``t <- t + tau``. First order, at ``chain`` as it is."""
+    Q = np.atleast_2d(np.asarray(q_rad, dtype=float))
+    N, n = len(Q), chain.n_joints
+    T_flange = chain.flange_matrices(Q)
+    p_f = T_flange[:, :3, 3]
+    out = np.zeros((N, 6, 6 * n))
+    T = np.broadcast_to(np.eye(4), (N, 4, 4)).copy()
+    for i in range(n):
+        parent_R = T[:, :3, :3].copy()
+        T = T @ chain.placements[i]  # the joint's frame at zero angle (before it turns)
+        Rj, o = T[:, :3, :3], T[:, :3, 3]
+        lever = p_f - o
+        u, v = error_tilt_basis(chain.axes[i])
+        base = 6 * i
+        for col, direction in ((0, chain.axes[i]), (4, u), (5, v)):
+            w = Rj @ direction  # (N, 3) the rotation axis in base
+            out[:, :3, base + col] = w
+            out[:, 3:, base + col] = np.cross(w, lever)
+        out[:, 3:, base + 1:base + 4] = parent_R  # translation of the joint origin, parent frame
+        T[:, :3, :3] = T[:, :3, :3] @ _axis_angle_matrices(chain.axes[i], Q[:, i])
+    return out

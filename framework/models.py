@@ -254,17 +254,38 @@ class ResidualStats(BaseModel):
     per_station_rms_mm: dict[str, float]
 
 
+class KinematicParameter(BaseModel):
+    """One geometric error parameter of the arm (docs/estimation.md, "Kinematic model"),
+    in the robot model's joint frames: angles in deg, lengths in mm."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(description="joint_<i>.<zero_offset | x | y | z | tilt_u | tilt_v>")
+    unit: Literal["deg", "mm"]
+    value: float = Field(description="estimate (identified) or posterior mean (marginalised)")
+    std: float = Field(description="its standard deviation, 1 sigma")
+    identifiable: bool = Field(description="the data tell it apart from the transform, the sphere and the "
+                               "parameters before it")
+    identified: bool = Field(description="estimated without prior (kinematic calibration)")
+
+
 class RobotErrorSummary(BaseModel):
     """The robot's systematic error as the fit saw it, and what it means for a point.
 
-    The robot's error is modelled as a pose offset shared by the shots of a station
+    With joint readings and the robot's kinematics the error is the arm's geometric error
+    (zero offsets, joint origins, axis tilts), marginalised or, with identify_kinematics,
+    estimated; without them, a pose offset shared by the shots of a station
     (docs/estimation.md): its station-to-station part, per axis and 1 sigma, is
     estimated from how the stations disagree; the part common to every station cannot
     be seen from one sphere location and is the robot's stated (or assumed) accuracy."""
 
     model_config = ConfigDict(extra="forbid")
 
-    model: Literal["station", "none"]
+    model: Literal["kinematic", "station", "kinematic+station", "none"]
+    kinematic_parameters: list[KinematicParameter] | None = Field(
+        None, description="the arm's geometric error parameters (kinematic model only)")
+    kinematic_prior_scale: float | None = Field(
+        None, description="factor on the stated prior spread the data showed (1: the stated spread holds)")
     station_rotation_deg: float = Field(description="station-to-station orientation error, per axis, 1 sigma, deg")
     station_translation_mm: float = Field(description="station-to-station position error, per axis, 1 sigma, mm")
     estimated: bool = Field(description="True when the two figures above were estimated from the data")

@@ -143,6 +143,7 @@ def run_calibrate(
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
     fk = _in_file(loaded, host.robot_kinematics, cfg.robot)
+    arm = _in_file(loaded, host.arm_kinematics, cfg.robot)
     _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
     outcome = Outcome()
 
@@ -232,7 +233,7 @@ def run_calibrate(
         host.acquisition_finished(dataset=dataset)
         outcome.files["journal"] = journal
 
-    solution = solve_and_write(dataset, calibration_options(cfg), out, fk, log, report=report)
+    solution = solve_and_write(dataset, calibration_options(cfg), out, fk, log, report=report, kinematics=arm)
     host.calibration_finished(result=solution.result, dataset=dataset)
     outcome.solution = solution
     outcome.files.update(written_files(out))
@@ -275,8 +276,10 @@ def solve_kinematics(
     robot_config: Path | None = None,
     pose_from: str = "reported",
     host=None,
-) -> tuple[Callable | None, Dataset]:
-    """Forward kinematics for ``spherecal solve`` and the dataset to solve.
+) -> tuple[Callable | None, Dataset, object | None]:
+    """Forward kinematics for ``spherecal solve``, the dataset to solve, and the robot's
+    :class:`~spherecal.kinematics.ArmKinematics` when its plugin describes the arm (for
+    the kinematic robot error model; None otherwise).
 
     The robot type is ``robot_type`` (``--robot``), else the ``type`` in ``robot_config``
     (``--robot-config``), else the one the dataset's provenance names; its settings are
@@ -299,7 +302,7 @@ def solve_kinematics(
             if pose_from == "joints":
                 raise ConfigError("--pose-from joints needs the robot's kinematics: give --robot TYPE "
                                   "(`spherecal plugins` lists the robot types)")
-            return None, dataset
+            return None, dataset, _provenance_arm(name, dataset, host)
     host = host or make_host()
     host.registry.robot_type(name, path=where)
     path = f"{robot_config}: robot" if robot_config is not None else "robot"
@@ -308,7 +311,7 @@ def solve_kinematics(
         if needed:
             raise ConfigError(f"{where}: robot type '{name}' has no forward kinematics; observations need "
                               "base_from_flange, or a robot type whose plugin computes poses from joints")
-        return None, dataset
+        return None, dataset, None
     if pose_from == "joints":
         obs = []
         for o in dataset.observations:
@@ -321,7 +324,20 @@ def solve_kinematics(
                 raise InputError(f"observation {o.index} (station {o.station}): joints_deg: {exc}") from None
             obs.append(o.model_copy(update={"base_from_flange": pose}))
         dataset = dataset.model_copy(update={"observations": obs})
-    return fk, dataset
+    return fk, dataset, host.arm_kinematics({"type": name, **section}, path=path)
+
+
+def _provenance_arm(name: str | None, dataset: Dataset, host):
+    """The arm kinematics of the robot type the dataset's provenance names, when the
+    observations carry joints and that type is installed with default settings; else None
+    (the estimator then models the robot's error per station)."""
+    if name is None or any(o.joints_deg is None for o in dataset.observations):
+        return None
+    host = host or make_host()
+    try:
+        return host.arm_kinematics({"type": name})
+    except SpherecalError:
+        return None
 
 
 def solve_and_write(
@@ -331,9 +347,11 @@ def solve_and_write(
     fk=None,
     log: Callable[[str], None] = print,
     report: bool = True,
+    kinematics=None,
 ) -> Solution:
-    """Solve ``dataset`` and write ``result.json``, the exports and the HTML report in ``out``."""
-    solution = solve(dataset, options, fk, progress=log)
+    """Solve ``dataset`` and write ``result.json``, the exports and the HTML report in
+    ``out``. ``kinematics``: the robot's arm model, for the kinematic robot error model."""
+    solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
     from .report.export import write_exports
 
     out.mkdir(parents=True, exist_ok=True)
@@ -369,17 +387,29 @@ def summary(solution: Solution) -> str:
     ]
     re = r.robot_error
     if re is not None:
-        lines.append(
-            f"  std relative to the robot's own frame: rotation {', '.join(f'{v:.4f}' for v in re.std_rotation_deg_robot_frame)}"
-            f" deg; translation {', '.join(f'{v:.4f}' for v in re.std_translation_mm_robot_frame)} mm (the std above "
-            f"adds the robot's assumed accuracy {re.common_translation_mm:g} mm, {re.common_rotation_deg:g} deg per axis)"
-        )
         from .estimation.pipeline import POINT_ERROR_PARTS
 
+        rot = ", ".join(f"{v:.4f}" for v in re.std_rotation_deg_robot_frame)
+        trans = ", ".join(f"{v:.4f}" for v in re.std_translation_mm_robot_frame)
+        if re.kinematic_parameters is not None:
+            n_seen = sum(p.identifiable for p in re.kinematic_parameters)
+            n_cal = sum(p.identified for p in re.kinematic_parameters)
+            how = (f"{n_cal} of its {len(re.kinematic_parameters)} geometric parameters identified" if n_cal else
+                   f"{n_seen} of its {len(re.kinematic_parameters)} geometric parameters seen by the data, all "
+                   f"marginalised (prior spread x {re.kinematic_prior_scale:.2f})")
+            lines.append(f"robot error: the arm's geometry (kinematic model), {how}")
+            lines.append(f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the "
+                         "std above adds the geometric errors no data from one sphere location can see)")
+        else:
+            lines.append(
+                f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the std above "
+                f"adds the robot's assumed accuracy {re.common_translation_mm:g} mm, {re.common_rotation_deg:g} deg "
+                "per axis)"
+            )
         lines.append(
             f"a point measured at a new pose: expected error {re.point_error_k2_mm:.3f} mm (k = 2), mostly from "
-            f"{POINT_ERROR_PARTS.get(re.dominant, re.dominant)}; stations disagree by {re.station_translation_mm:.3f} mm "
-            f"and {re.station_rotation_deg:.4f} deg per axis"
+            f"{POINT_ERROR_PARTS.get(re.dominant, re.dominant)}; the robot's error differs between stations by "
+            f"{re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg per axis"
         )
     for f in r.flagged:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
@@ -471,7 +501,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     calib_journal = out / JOURNAL_NAME
     if report and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
-        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg), host.robot_kinematics(cfg.robot))
+        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg), host.robot_kinematics(cfg.robot),
+                         kinematics=host.arm_kinematics(cfg.robot))
         if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
             from .report.html import write_report
 

@@ -10,14 +10,16 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from .. import geometry as geo
-from ..errors import DegenerateDataError
+from ..errors import DegenerateDataError, InputError
+from ..kinematics import ArmKinematics
 from ..models import (
-    SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, ObservationFlag, Pose, ResidualStats, RobotErrorSummary,
+    SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, KinematicParameter, ObservationFlag, Pose, ResidualStats,
+    RobotErrorSummary,
 )
 from .circle import CircleFit, fit_circle
 from .prediction import point_error_budget
 from .problem import Problem, build_problem, derived_station_rotation_tolerance_deg, screen_station_orientations
-from .refine import NoiseAssumptions, RefineResult, StationEffects, refine
+from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
 from .twostep import TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
@@ -66,9 +68,25 @@ class CalibrationOptions(BaseModel):
         "read noise, max(0.02, 4 sqrt(3) s) with s the larger of pose_rotation_noise_deg and the scatter the "
         "stations show"
     )
-    robot_error_model: Literal["station", "none"] = Field(
-        "station", description="'station': the robot's systematic error is a pose offset shared by the shots of "
-        "a station, estimated and marginalised (docs/estimation.md); 'none': the robot has pose noise only"
+    robot_error_model: Literal["auto", "kinematic", "station", "kinematic+station", "none"] = Field(
+        "auto", description="the robot's systematic error (docs/estimation.md): 'kinematic': the arm's geometric "
+        "error (joint zero offsets, joint origins, axis tilts), from each shot's joints through the robot's "
+        "kinematics, marginalised; 'station': a pose offset shared by the shots of a station, marginalised; "
+        "'kinematic+station': both; 'none': pose noise only; 'auto': kinematic when the joints and the robot's "
+        "kinematics are known, else station"
+    )
+    identify_kinematics: bool = Field(
+        False, description="estimate the arm's identifiable geometric errors (kinematic calibration, "
+        "docs/estimation.md); needs joint readings and the robot's kinematics"
+    )
+    kinematic_prior_zero_offset_deg: float = Field(
+        0.05, ge=0, le=5, description="spread of each joint's zero offset on an uncalibrated arm, 1 sigma, deg"
+    )
+    kinematic_prior_length_mm: float = Field(
+        0.3, ge=0, le=50, description="spread of each joint origin's position, per axis, 1 sigma, mm"
+    )
+    kinematic_prior_tilt_deg: float = Field(
+        0.02, ge=0, le=5, description="spread of each joint axis' tilt, per direction, 1 sigma, deg"
     )
     station_rotation_error_deg: float | None = Field(
         None, ge=0, le=5, description="station-to-station robot orientation error, per axis, deg (None: estimated)"
@@ -85,11 +103,23 @@ class CalibrationOptions(BaseModel):
         0.06, ge=0, le=5, description="the robot's orientation error shared by every station, per axis, 1 sigma, deg"
     )
 
-    def station_effects(self) -> StationEffects:
+    def uses_kinematic_model(self, joints_known: bool) -> bool:
+        return self.identify_kinematics or self.robot_error_model in ("kinematic", "kinematic+station") or (
+            self.robot_error_model == "auto" and joints_known)
+
+    def station_effects(self, joints_known: bool = False) -> StationEffects:
+        on = self.robot_error_model in ("station", "kinematic+station") or (
+            self.robot_error_model == "auto" and not self.uses_kinematic_model(joints_known))
         return StationEffects(
-            self.robot_error_model == "station", self.station_rotation_error_deg,
+            on, self.station_rotation_error_deg,
             self.station_translation_error_mm, self.robot_accuracy_deg, self.robot_accuracy_mm,
         )
+
+    def kinematic_effects(self, chain) -> KinematicEffects:
+        per_joint = [np.radians(self.kinematic_prior_zero_offset_deg)] + [self.kinematic_prior_length_mm] * 3 + [
+            np.radians(self.kinematic_prior_tilt_deg)] * 2
+        return KinematicEffects(chain, np.tile(per_joint, chain.n_joints), estimate_scale=True,
+                                identify=self.identify_kinematics)
 
     def station_rotation_tolerance(self) -> float:
         """The station rotation tolerance in deg: the configured one, or the one derived
@@ -122,11 +152,29 @@ def solve(
     options: CalibrationOptions | None = None,
     flange_pose_from_joints: Callable[[np.ndarray], Pose] | None = None,
     progress: Callable[[str], None] | None = None,
+    kinematics: ArmKinematics | None = None,
 ) -> Solution:
-    """Calibrate ``dataset``; see the package docstring for the steps."""
+    """Calibrate ``dataset``; see the package docstring for the steps. ``kinematics``
+    (the robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) gives flange poses
+    from joint readings where a pose is missing, and, with joints on every observation,
+    the kinematic robot error model."""
     opt = options or CalibrationOptions()
     say = progress or (lambda msg: None)
-    problem = build_problem(dataset, flange_pose_from_joints)
+    if kinematics is not None and flange_pose_from_joints is None:
+        flange_pose_from_joints = kinematics.flange_pose_from_joints
+    problem = build_problem(dataset, flange_pose_from_joints,
+                            kinematics.model_joints_rad if kinematics is not None else None)
+    if opt.identify_kinematics and problem.q_rad is None:
+        raise InputError(
+            "identify_kinematics needs joint readings (joints_deg) on every observation and the robot's kinematics "
+            "(spherecal solve --robot TYPE)"
+        )
+    joints_known = problem.q_rad is not None
+    robot_effects = {
+        "station_effects": opt.station_effects(joints_known),
+        "kinematic_effects": opt.kinematic_effects(kinematics.chain)
+        if kinematics is not None and opt.uses_kinematic_model(joints_known) and joints_known else None,
+    }
     original_points = {int(i): len(p) for i, p in zip(problem.obs_index, problem.profiles)}
     # within a station the robot may only translate: turned shots are left out or split off
     ori = screen_station_orientations(
@@ -206,7 +254,7 @@ def solve(
     clean = sub.with_profiles([p[sub_fits[j].inliers] for j, p in enumerate(sub.profiles)])
     say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points")
     ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     station_effects=opt.station_effects())
+                     **robot_effects)
 
     # stray points the circle fits kept: trim on the joint residuals and refit once. A
     # profile that would lose too many points (or keep too few) has no strays: its pose is
@@ -236,11 +284,11 @@ def solve(
         rejected += len(drop)
         clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     station_effects=opt.station_effects())
+                     **robot_effects)
     if any(not k.all() for k in keep_pts):
         clean = clean.with_profiles([p[k] for p, k in zip(clean.profiles, keep_pts)])
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     station_effects=opt.station_effects())
+                     **robot_effects)
 
     # profiles inconsistent with the rest (a pose read at the wrong moment, a bad pairing)
     while rejected < max_reject:
@@ -256,7 +304,7 @@ def solve(
         clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
         rejected += 1
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     station_effects=opt.station_effects())
+                     **robot_effects)
 
     n_point_rejected = sum(original_points[int(i)] - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
@@ -400,10 +448,22 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
     budget = point_error_budget(clean, ref, noise)
     parts = budget["parts_rms_mm"]
     se = ref.diagnostics.get("station_effects")
+    ke = ref.diagnostics.get("kinematic_effects")
     cov = ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance
     sd = np.sqrt(np.maximum(np.diag(cov)[:6], 0.0))
+    params = None
+    if ke:
+        params = []
+        for k, name in enumerate(ke["names"]):
+            angle = name.endswith(("zero_offset", "tilt_u", "tilt_v"))
+            f = float(np.degrees(1.0)) if angle else 1.0
+            params.append(KinematicParameter(
+                name=name, unit="deg" if angle else "mm", value=ke["estimate"][k] * f, std=ke["sd"][k] * f,
+                identifiable=ke["identifiable"][k], identified=ke["identified"][k]))
     return RobotErrorSummary(
-        model="station" if se else "none",
+        model=("kinematic+station" if se else "kinematic") if ke else ("station" if se else "none"),
+        kinematic_parameters=params,
+        kinematic_prior_scale=ke["prior_scale"] if ke else None,
         station_rotation_deg=float(np.degrees(ref.station_effect_scales[0])),
         station_translation_mm=float(ref.station_effect_scales[1]),
         estimated=bool(se and all(se["estimated"])),

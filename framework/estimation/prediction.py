@@ -9,9 +9,12 @@ Its error there has four independent parts, each propagated to first order:
   fitted sphere), so X and c enter with their correlation, relative to the robot's frame
   (the common robot error excluded: it moves every pose alike, and the fitted sphere or
   transform with them);
-- the robot's station-to-station error: a new pose is a new draw of the station offset
-  (per-axis ``s_rot``, ``s_trans`` as the fit estimated them from the inconsistency
-  between stations);
+- the robot's systematic error: with the station model, a new pose is a new draw of the
+  station offset (per-axis ``s_rot``, ``s_trans`` as the fit estimated them from the
+  inconsistency between stations); with the kinematic model, the arm's geometric error
+  at the pose, less what the fitted transform and sphere absorbed of it (both move with
+  the same parameters, so the part common to every pose cancels): the square of the
+  estimated error plus its posterior variance;
 - the robot's per-shot pose noise (as rescaled by the fit);
 - the sensor's point noise (each of y and z).
 
@@ -63,7 +66,11 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     pts = np.vstack(problem.profiles)
     p = np.array([0.0, *pts.mean(axis=0)])
     JX, JR, Jp = _jacobians(problem, ref.R, ref.t, p)
-    cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
+    kt = ref.kinematic_terms
+    if kt is not None:
+        cov_X = ref.covariance_without_robot_error[:9, :9]  # the noise's share; the robot's is below
+    else:
+        cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
     s_rot, s_trans = ref.station_effect_scales
     S_station = np.diag([s_rot**2] * 3 + [s_trans**2] * 3)
     S_shot = _pose_cov(noise) * ref.pose_noise_scale / shots_averaged
@@ -72,9 +79,16 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     def rms(J, S):
         return float(np.sqrt(np.mean(np.einsum("nij,jk,nik->n", J, S, J))))
 
+    if kt is not None:
+        B = JR @ kt["design"] - JX @ kt["influence"][:9]
+        # this arm's error as the fit sees it (posterior mean), and what it does not know of it
+        mean = np.einsum("nij,j->ni", B, kt["posterior_mean"])
+        robot = float(np.sqrt(np.mean(np.sum(mean**2, axis=1) + np.einsum("nij,jk,nik->n", B, kt["posterior_cov"], B))))
+    else:
+        robot = rms(JR, S_station)
     parts = {
         "transform_and_sphere_mm": rms(JX, cov_X),
-        "robot_station_to_station_mm": rms(JR, S_station),
+        "robot_station_to_station_mm": robot,
         "robot_pose_noise_mm": rms(JR, S_shot),
         "sensor_point_noise_mm": 0.0 if shots_averaged > 1 else rms(Jp, S_point),
     }

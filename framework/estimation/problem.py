@@ -33,6 +33,7 @@ class Problem:
     obs_index: np.ndarray  # (n,) observation index of each profile
     station_of: np.ndarray  # (n,) station number of each profile
     station_labels: list[str]
+    q_rad: np.ndarray | None = None  # (n, joints) model joint angles of each shot, when known
 
     @property
     def n_profiles(self) -> int:
@@ -54,13 +55,14 @@ class Problem:
             self.obs_index[keep],
             np.array([remap[s] for s in self.station_of[keep]], dtype=int),
             [self.station_labels[i] for i in labels_used],
+            None if self.q_rad is None else self.q_rad[keep],
         )
 
     def with_profiles(self, profiles: list[np.ndarray]) -> "Problem":
         """The same problem with other point sets (e.g. stray points removed)."""
         return Problem(
             self.mounting, self.radius_mm, self.R0, self.t0, self.R_A, self.t_A, profiles,
-            self.obs_index, self.station_of, self.station_labels,
+            self.obs_index, self.station_of, self.station_labels, self.q_rad,
         )
 
 
@@ -74,8 +76,14 @@ def sphere_frame_from_base(mounting: str, R0: np.ndarray, t0: np.ndarray) -> tup
 def build_problem(
     dataset: Dataset,
     flange_pose_from_joints: Callable[[np.ndarray], Pose] | None = None,
+    model_joints_rad: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Problem:
     """Arrays from a dataset, with the checks that need the whole dataset.
+
+    With ``model_joints_rad`` (the robot's conversion of controller joints, deg, to its
+    chain's model angles, rad) and joint readings on every observation, the problem
+    carries each shot's joints (:attr:`Problem.q_rad`) for the kinematic robot error
+    model.
 
     Raises :class:`InputError` for lengths that look like metres or an observation
     without a usable pose; :class:`DegenerateDataError` for an empty dataset. Whether
@@ -111,9 +119,12 @@ def build_problem(
             labels.append(o.station)
         station_of[i] = labels.index(o.station)
     R_A, t_A = sphere_frame_from_base(dataset.mounting, R0, t0)
+    q_rad = None
+    if model_joints_rad is not None and all(o.joints_deg is not None for o in obs):
+        q_rad = np.array([model_joints_rad(np.asarray(o.joints_deg, dtype=float)) for o in obs])
     return Problem(
         dataset.mounting, dataset.sphere_radius_mm, R0, t0, R_A, t_A, profiles,
-        np.array([o.index for o in obs]), station_of, labels,
+        np.array([o.index for o in obs]), station_of, labels, q_rad,
     )
 
 
@@ -266,7 +277,7 @@ def screen_station_orientations(
                 ))
     shaped = Problem(
         problem.mounting, problem.radius_mm, problem.R0, problem.t0, problem.R_A, problem.t_A,
-        problem.profiles, problem.obs_index, station_of, labels,
+        problem.profiles, problem.obs_index, station_of, labels, problem.q_rad,
     )
     diagnostics = {
         "tolerance_deg": float(tolerance_deg),

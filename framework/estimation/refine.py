@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import geometry as geo
+from ..kinematics import SerialChain, chain_with_errors, error_parameter_names, flange_error_jacobian
 from .problem import Problem, sphere_frame_from_base
 
 
@@ -54,6 +55,12 @@ class RefineResult:
     covariance_robot_frame: np.ndarray | None = None  # without the robot's common error (relative to its frame)
     station_offsets: np.ndarray | None = None  # (K, 6) estimated (omega rad, tau mm) per station
     station_effect_scales: tuple[float, float] = (0.0, 0.0)  # station-to-station s_rot (rad), s_trans (mm)
+    kinematic_errors: np.ndarray | None = None  # (6 n,) estimated geometric errors (rad, mm)
+    kinematic_sd: np.ndarray | None = None  # (6 n,) their standard deviations
+    # the marginalised kinematic parameters' effect on the result, for the point-error budget:
+    # design (n, 6, q) at each shot, influence (P, q) of their true values on the estimate,
+    # prior covariance (q, q), posterior mean (q,) and covariance (q, q)
+    kinematic_terms: dict | None = None
 
 
 def _centres(problem: Problem, R, t, c):
@@ -184,8 +191,64 @@ class StationEffects:
     common_translation_mm: float = 0.0
 
 
-#: Bounds of the estimated station-effect scales (rad, mm).
+@dataclass(frozen=True)
+class KinematicEffects:
+    """Systematic robot error as the arm's geometric error (needs each shot's joints).
+
+    The flange pose of shot i is off by ``K(q_i) kappa``: ``kappa`` (6 per joint, see
+    :mod:`spherecal.kinematics`) are the arm's joint zero offsets, joint origin
+    displacements and axis tilts, ``K`` their first-order effect on the flange pose at the
+    shot's joints, applied exactly through the chain. Unlike a per-station offset, this
+    ties the error of every shot to every other through the arm's geometry, including its
+    change along a sweep.
+
+    ``prior_sd`` (rad and mm, per parameter) is the spread of an uncalibrated arm; the
+    fit scales it by a factor estimated from the data (REML) unless ``estimate_scale`` is
+    False. With ``identify`` the parameters the data determine (the identifiability test
+    of :func:`identifiable_kinematic_parameters`) are estimated without prior (kinematic
+    calibration); the others keep their prior, unscaled, and only widen the covariance."""
+
+    chain: SerialChain
+    prior_sd: np.ndarray
+    estimate_scale: bool = True
+    identify: bool = False
+
+
+#: Bounds of the estimated station-effect scales (rad, mm) and of the kinematic prior's factor.
 _SCALE_BOUNDS = ((1e-7, np.radians(5.0)), (1e-5, 50.0))
+_KIN_SCALE_BOUNDS = (1.0, 30.0)  # the stated prior is a floor
+#: Relative size below which a kinematic parameter's effect, once the transform, sphere
+#: and the parameters before it are projected out, counts as not identifiable.
+IDENTIFIABILITY_TOLERANCE = 1e-4
+
+
+def identifiable_kinematic_parameters(J_fixed: np.ndarray, J_kin: np.ndarray, prior_sd: np.ndarray,
+                                      tolerance: float = IDENTIFIABILITY_TOLERANCE):
+    """Which kinematic parameters the data can tell apart from the transform, the sphere
+    and each other: Gram-Schmidt in parameter order over the columns of ``J_kin`` (scaled
+    by ``prior_sd``), after projecting out those of ``J_fixed``. A parameter whose column
+    keeps less than ``tolerance`` of its norm is not identifiable. Returns the mask and,
+    per parameter, that kept share (1: independent, 0: fully absorbed)."""
+    A = np.asarray(J_fixed, float)
+    B = np.asarray(J_kin, float) * np.asarray(prior_sd, float)
+    Qf, _ = np.linalg.qr(A)
+    B = B - Qf @ (Qf.T @ B)
+    kept: list[np.ndarray] = []
+    share = np.zeros(B.shape[1])
+    mask = np.zeros(B.shape[1], dtype=bool)
+    ref = max(np.linalg.norm(np.asarray(J_kin, float) * prior_sd, axis=0).max(), 1e-300)
+    for k in range(B.shape[1]):
+        b = B[:, k].copy()
+        for q in kept:
+            b -= q * (q @ b)
+        for q in kept:  # twice is enough (numerical re-orthogonalisation)
+            b -= q * (q @ b)
+        norm_full = np.linalg.norm(np.asarray(J_kin, float)[:, k] * prior_sd[k])
+        share[k] = np.linalg.norm(b) / max(norm_full, 1e-300)
+        if np.linalg.norm(b) > tolerance * ref and share[k] > tolerance:
+            mask[k] = True
+            kept.append(b / np.linalg.norm(b))
+    return mask, share
 
 
 def _station_sqrt_cov(n_stations: int, s_rot: float, s_trans: float) -> np.ndarray:
@@ -202,6 +265,20 @@ def _apply_station_offsets(problem: Problem, delta: np.ndarray) -> Problem:
     d = delta[problem.station_of]
     R0 = geo.matrix_from_rotvec(d[:, :3]) @ problem.R0
     t0 = problem.t0 + d[:, 3:]
+    R_A, t_A = sphere_frame_from_base(problem.mounting, R0, t0)
+    return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
+
+
+def _apply_kinematic_errors(problem: Problem, chain: SerialChain, kappa: np.ndarray) -> Problem:
+    """``problem`` with each reported flange pose corrected by what the geometric errors
+    ``kappa`` change at its joints: ``R0 <- R_k R_n^T R0``, ``t0 <- t0 + t_k - t_n`` (k:
+    the chain with errors, n: the nominal chain). Exact for poses the nominal model reports."""
+    if not np.any(kappa):
+        return problem
+    Tn = chain.flange_matrices(problem.q_rad)
+    Tk = chain_with_errors(chain, kappa).flange_matrices(problem.q_rad)
+    R0 = Tk[:, :3, :3] @ np.swapaxes(Tn[:, :3, :3], 1, 2) @ problem.R0
+    t0 = problem.t0 + Tk[:, :3, 3] - Tn[:, :3, 3]
     R_A, t_A = sphere_frame_from_base(problem.mounting, R0, t0)
     return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
 
@@ -227,20 +304,35 @@ def _neg2_reml(L, A_tt, A_td, A_dd, b_t, b_d, yy) -> float:
     return float(logdet_V + logdet_X + quad)
 
 
-def _station_blocks(Jw_t, Jw_d, yw, station_rows):
-    """Normal-equation blocks with the station effects' columns kept per station."""
-    K = len(station_rows)
+def _effect_blocks(Jw_t, Jw_s, Jw_k, yw, station_rows):
+    """Normal-equation blocks of ``y = J_t b + [J_s | J_k] d + e``: the station offsets'
+    columns (``Jw_s`` (M, 6), each point against its own station's six) kept per station,
+    then the dense kinematic columns ``Jw_k`` (M, q). Either may be None."""
+    K = len(station_rows) if Jw_s is not None else 0
+    q = Jw_k.shape[1] if Jw_k is not None else 0
     p = Jw_t.shape[1]
-    A_td = np.zeros((p, 6 * K))
-    A_dd = np.zeros((6 * K, 6 * K))
-    b_d = np.zeros(6 * K)
-    for k, rows in enumerate(station_rows):
-        Jd = Jw_d[rows]
+    A_td = np.zeros((p, 6 * K + q))
+    A_dd = np.zeros((6 * K + q, 6 * K + q))
+    b_d = np.zeros(6 * K + q)
+    for k, rows in enumerate(station_rows[:K]):
+        Jd = Jw_s[rows]
         sl = slice(6 * k, 6 * k + 6)
         A_td[:, sl] = Jw_t[rows].T @ Jd
         A_dd[sl, sl] = Jd.T @ Jd
         b_d[sl] = Jd.T @ yw[rows]
+        if q:
+            A_dd[sl, 6 * K:] = Jd.T @ Jw_k[rows]
+            A_dd[6 * K:, sl] = A_dd[sl, 6 * K:].T
+    if q:
+        A_td[:, 6 * K:] = Jw_t.T @ Jw_k
+        A_dd[6 * K:, 6 * K:] = Jw_k.T @ Jw_k
+        b_d[6 * K:] = Jw_k.T @ yw
     return Jw_t.T @ Jw_t, A_td, A_dd, Jw_t.T @ yw, b_d
+
+
+def _station_blocks(Jw_t, Jw_d, yw, station_rows):
+    """Normal-equation blocks with the station effects' columns kept per station."""
+    return _effect_blocks(Jw_t, Jw_d, None, yw, station_rows)
 
 
 def refine(
@@ -254,15 +346,17 @@ def refine(
     max_iterations: int = 50,
     tolerance: float = 1e-10,
     station_effects: StationEffects | None = None,
+    kinematic_effects: KinematicEffects | None = None,
 ) -> RefineResult:
     """Gauss-Newton over all points of ``problem.profiles`` (already cleaned).
 
     With ``station_effects`` enabled (and two or more stations) each station's flange
     poses carry one shared, unknown pose error with a Gaussian prior (see
-    :class:`StationEffects`): the fit estimates the transform with those offsets
-    marginalised, and their scale by restricted maximum likelihood (REML) on the
-    linearised model. The covariance is that of the transform with the offsets
-    integrated out."""
+    :class:`StationEffects`); with ``kinematic_effects`` (and joints in the problem) every
+    pose carries the error of the arm's geometry (see :class:`KinematicEffects`). The fit
+    estimates the transform with those errors marginalised, and their scales by
+    restricted maximum likelihood (REML) on the linearised model. The covariance is that
+    of the transform with the errors integrated out."""
     from scipy.optimize import minimize
 
     R = np.array(R, dtype=float)
@@ -272,75 +366,193 @@ def refine(
     pts = _Points(problem)
     sigma = max(noise.point_noise_mm, 1e-7)
     pose_cov = _pose_cov(noise)
-    n_par = 10 if fit_radius else 9
+    n_geo = 10 if fit_radius else 9
     K = len(problem.station_labels)
     se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
+    ke = kinematic_effects if kinematic_effects is not None and problem.q_rad is not None else None
     delta = np.zeros((K, 6))
     station_rows = [np.flatnonzero(problem.station_of[pts.pid] == k) for k in range(K)]
     fixed = (None if se is None else
              (None if se.rotation_deg is None else np.radians(se.rotation_deg),
               se.translation_mm))
     s_hat = np.array([np.radians(0.01), 0.1])  # start of the station-effect scales
+    # kinematic parameters: identified (fixed effects, in the parameter vector) or random
+    n_kin = 0 if ke is None else 6 * ke.chain.n_joints
+    kappa = np.zeros(n_kin)
+    kin_prior = np.zeros(n_kin) if ke is None else np.asarray(ke.prior_sd, dtype=float)
+    kin_identifiable = np.zeros(n_kin, dtype=bool)
+    kin_share = np.zeros(n_kin)
+    if ke is not None:
+        lin0 = _linearise(problem, pts, R, t, c, r, fit_radius, pose_cov, sigma)
+        Jc_geo, Jc_kin = _centre_design(problem, R, t, c, fit_radius, lin0, ke.chain, kappa)
+        kin_identifiable, kin_share = identifiable_kinematic_parameters(Jc_geo, Jc_kin, kin_prior)
+    id_cols = np.flatnonzero(kin_identifiable) if ke is not None and ke.identify else np.array([], dtype=int)
+    rand_cols = np.setdiff1d(np.arange(n_kin), id_cols)
+    rand_cols = rand_cols[kin_prior[rand_cols] > 0]
+    lam = 1.0
+    n_par = n_geo + len(id_cols)
     scale = 1.0
     converged = False
     it = 0
     s2_profiles = 1.0
+    step_delta = 0.0
+
+    def current(problem_):
+        p = problem_
+        if ke is not None:
+            p = _apply_kinematic_errors(p, ke.chain, kappa)
+        return _apply_station_offsets(p, delta)
 
     def linearise(scale_):
-        return _linearise(_apply_station_offsets(problem, delta), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma)
+        return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma)
+
+    def kin_point_columns(lin):
+        """Whitened d res / d kappa (M, n_kin)."""
+        Kc = lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad)  # (n, 3, n_kin)
+        return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, Kc[pts.pid]))
+
+    def sqrt_prior(sv, lam_):
+        blocks = []
+        if se is not None:
+            blocks.append(_station_sqrt_cov(K, *sv))
+        if len(rand_cols):
+            # the data scale the prior where they see the parameters; where they cannot
+            # (absorbed by the transform or the sphere), the stated prior stands
+            # the data scale the prior of the parameters they see (seen_kin); the others
+            # keep the stated spread
+            blocks.append(np.diag(lam_ * kin_prior[rand_cols]))
+        if not blocks:
+            return np.zeros((0, 0))
+        out = np.zeros((sum(b.shape[0] for b in blocks),) * 2)
+        i = 0
+        for b in blocks:
+            out[i:i + len(b), i:i + len(b)] = b
+            i += len(b)
+        return out
+
+    def design(lin):
+        """Whitened fixed-effect columns, station columns, random kinematic columns."""
+        Jw = lin.W.apply(lin.J)
+        Jw_s = _station_jacobian(lin, pts) if se is not None else None
+        Jw_k = None
+        if ke is not None:
+            Jk = kin_point_columns(lin)
+            if len(id_cols):
+                Jw = np.column_stack([Jw, Jk[:, id_cols]])
+            Jw_k = Jk[:, rand_cols] if len(rand_cols) else None
+        return Jw, Jw_s, Jw_k
+
+    # the prior's scale: the stated spread is a floor, the data may widen it (REML)
+    estimate_lam = (ke is not None and ke.estimate_scale and not ke.identify
+                    and bool(np.any(kin_identifiable[rand_cols])))
+    any_random = se is not None or len(rand_cols) > 0
+    free = [i for i in range(2) if se is not None and fixed[i] is None]
+
+    def state():
+        return R, t, c, r, delta.copy(), kappa.copy()
+
+    def penalised_cost(lin_, sv, lam_):
+        """The MAP objective: whitened residuals plus the random effects against their prior."""
+        ew_ = lin_.W.apply(lin_.res)
+        cost = float(ew_ @ ew_)
+        if any_random:
+            d = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]])
+            sd = np.diag(sqrt_prior(sv, lam_))
+            cost += float(np.sum(np.where(sd > 0, d / np.where(sd > 0, sd, 1.0), 0.0) ** 2))
+        return cost
 
     for outer in range(4 if estimate_pose_noise else 1):
+        lin = None
+        near = False  # scales are re-estimated only near a solution, where the linearisation holds
         for it in range(1, max_iterations + 1):
-            lin = linearise(scale)
-            Jw = lin.W.apply(lin.J)
+            lin = lin if lin is not None else linearise(scale)
             ew = lin.W.apply(lin.res)
-            if se is None:
+            Jw, Jw_s, Jw_k = design(lin)
+            if not any_random:
                 step = np.linalg.lstsq(Jw, -ew, rcond=None)[0]
+                d_new = None
             else:
-                Jw_d = _station_jacobian(lin, pts)
-                yw = -ew + _stack_station_effect(Jw_d, delta, problem.station_of[pts.pid])
-                A_tt, A_td, A_dd, b_t, b_d = _station_blocks(Jw, Jw_d, yw, station_rows)
+                yw = -ew
+                if Jw_s is not None:
+                    yw = yw + _stack_station_effect(Jw_s, delta, problem.station_of[pts.pid])
+                if Jw_k is not None:
+                    yw = yw + Jw_k @ kappa[rand_cols]
+                A_tt, A_td, A_dd, b_t, b_d = _effect_blocks(Jw, Jw_s, Jw_k, yw, station_rows)
                 yy = float(yw @ yw)
-                free = [i for i in range(2) if fixed[i] is None]
-                if free:
-                    def objective(log_s):
+                # the station scales from the start (as they always were); the kinematic
+                # prior's factor only near a solution (far from it the misfit of the start
+                # would pass for robot error and blow the prior up)
+                if free or (estimate_lam and near):
+                    def unpack(x):
                         sv = s_hat.copy()
-                        sv[free] = np.exp(log_s)
+                        sv[free] = np.exp(x[:len(free)])
                         for i in range(2):
-                            if fixed[i] is not None:
+                            if se is not None and fixed[i] is not None:
                                 sv[i] = fixed[i]
-                        return _neg2_reml(_station_sqrt_cov(K, *sv), A_tt, A_td, A_dd, b_t, b_d, yy)
+                        return sv, (float(np.exp(x[-1])) if lam_now else lam)
 
-                    lo = [np.log(_SCALE_BOUNDS[i][0]) for i in free]
-                    hi = [np.log(_SCALE_BOUNDS[i][1]) for i in free]
-                    x0 = np.clip(np.log(s_hat[free]), lo, hi)
-                    best = minimize(objective, x0, method="L-BFGS-B", bounds=list(zip(lo, hi)))
-                    s_hat[free] = np.exp(best.x)
-                for i in range(2):
-                    if fixed[i] is not None:
-                        s_hat[i] = fixed[i]
-                Lp = _station_sqrt_cov(K, *s_hat)
-                # MAP step in (d theta, eta) with delta = L eta: normal matrix stays regular as L -> 0
+                    lam_now = estimate_lam and near
+
+                    def objective(x):
+                        sv, lam_ = unpack(x)
+                        return _neg2_reml(sqrt_prior(sv, lam_), A_tt, A_td, A_dd, b_t, b_d, yy)
+
+                    bounds = [(np.log(_SCALE_BOUNDS[i][0]), np.log(_SCALE_BOUNDS[i][1])) for i in free]
+                    x0 = [np.log(s_hat[i]) for i in free]
+                    if lam_now:
+                        bounds.append((np.log(_KIN_SCALE_BOUNDS[0]), np.log(_KIN_SCALE_BOUNDS[1])))
+                        x0.append(np.log(lam))
+                    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
+                    best = minimize(objective, x0, method="L-BFGS-B", bounds=bounds)
+                    s_hat, lam = unpack(best.x)
+                if se is not None:
+                    for i in range(2):
+                        if fixed[i] is not None:
+                            s_hat[i] = fixed[i]
+                Lp = sqrt_prior(s_hat, lam)
+                # MAP step in (d theta, eta) with d = L eta: normal matrix stays regular as L -> 0
                 N = np.block([[A_tt, A_td @ Lp], [Lp.T @ A_td.T, Lp.T @ A_dd @ Lp + np.eye(Lp.shape[1])]])
                 sol = np.linalg.solve(N, np.concatenate([b_t, Lp.T @ b_d]))
                 step = sol[:n_par]
-                new_delta = (Lp @ sol[n_par:]).reshape(K, 6)
-                step_delta = np.abs(new_delta - delta).max()
-                delta = new_delta
-            R = geo.matrix_from_rotvec(step[:3]) @ R
-            t = t + step[3:6]
-            c = c + step[6:9]
-            if fit_radius:
-                r = r + step[9]
-            small = np.abs(step[:3]).max() < tolerance and np.abs(step[3:]).max() < tolerance * 1e3
-            if se is not None:
+                d_new = Lp @ sol[n_par:]
+            # take the step, halved while it makes the penalised cost worse (far from the
+            # solution the linearisation can overshoot)
+            before = state()
+            cost0 = penalised_cost(lin, s_hat, lam)
+            d_old = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]]) if any_random else None
+            frac = 1.0
+            for _ in range(12):
+                R, t, c, r, delta, kappa = before[0], before[1], before[2], before[3], before[4].copy(), before[5].copy()
+                R = geo.matrix_from_rotvec(frac * step[:3]) @ R
+                t = t + frac * step[3:6]
+                c = c + frac * step[6:9]
+                if fit_radius:
+                    r = r + frac * step[9]
+                if len(id_cols):
+                    kappa[id_cols] += frac * step[n_geo:]
+                if d_new is not None:
+                    d = d_old + frac * (d_new - d_old)
+                    if se is not None:
+                        delta = d[:6 * K].reshape(K, 6)
+                    if len(rand_cols):
+                        kappa[rand_cols] = d[6 * K if se is not None else 0:]
+                lin = linearise(scale)
+                if penalised_cost(lin, s_hat, lam) <= cost0 * (1 + 1e-9) + 1e-12:
+                    break
+                frac *= 0.5
+            step_delta = 0.0 if d_new is None else float(np.abs(frac * (d_new - d_old)).max())
+            small = np.abs(frac * step[:3]).max() < tolerance and np.abs(frac * step[3:]).max() < tolerance * 1e3
+            if any_random:
                 small = small and step_delta < tolerance * 1e3
-            if small:
+            was_near = near
+            near = near or (np.abs(frac * step[:3]).max() < 1e-5 and np.abs(frac * step[3:6]).max() < 1e-2)
+            if small and (was_near or not estimate_lam):
                 converged = True
                 break
         # variance component of the pose noise: whitened chi^2 in the profiles' 3-D subspaces
         lin = linearise(scale)
-        dof_profiles = 3 * problem.n_profiles - n_par - (6 * K if se else 0)
+        n_effects = (6 * K if se else 0) + int(np.count_nonzero(kin_identifiable))
+        dof_profiles = 3 * problem.n_profiles - n_geo - n_effects
         s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
         if not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0 or abs(s2_profiles - 1) < 0.05:
             break
@@ -348,50 +560,117 @@ def refine(
         scale = float(np.clip(scale * s2_profiles, 1e-8, 1e4))
 
     lin = linearise(scale)
-    Jw = lin.W.apply(lin.J)
     ew = lin.W.apply(lin.res)
+    Jw, Jw_s, Jw_k = design(lin)
     info = Jw.T @ Jw
-    cov_fixed = np.linalg.pinv(info)  # with the station offsets known (no systematic error)
+    cov_fixed = np.linalg.pinv(info)  # with the random robot errors known (none)
     diagnostics = {
-        "information_condition_number": float(np.linalg.cond(info)),
+        "information_condition_number": float(np.linalg.cond(info[:n_geo, :n_geo])),
         "profile_variance_factor": s2_profiles,
         "point_noise_mm_assumed": sigma,
         "profile_chi2": lin.W.profile_chi2(lin.res).tolist(),
     }
     cov = cov_robot_frame = cov_fixed
+    kin_posterior_sd = np.zeros(n_kin)
+    kinematic_terms = None
+    A_tr, A_rr = _effect_blocks(Jw, Jw_s, Jw_k, np.zeros(len(ew)), station_rows)[1:3]
+    A_tt = info
+    n_rand = (6 * K if se is not None else 0) + len(rand_cols)
+    Lp = sqrt_prior(s_hat, lam)
+    if n_rand:
+        # GLS covariance with the random robot errors integrated out
+        B = np.eye(n_rand) + Lp.T @ A_rr @ Lp
+        Cinv = Lp @ np.linalg.solve(B, Lp.T)
+        cov_robot_frame = np.linalg.pinv(A_tt - A_tr @ Cinv @ A_tr.T)
+    else:
+        Cinv = np.zeros((0, 0))
+    cov = cov_robot_frame
+    off = 6 * K if se is not None else 0
+    hidden = ~kin_identifiable[rand_cols] if len(rand_cols) else np.zeros(0, dtype=bool)
+    if hidden.any():
+        # relative to the robot's own frame: without the parameters one sphere location
+        # cannot see at all (they move every pose alike; the transform or the sphere
+        # absorbs them)
+        L_rf = Lp.copy()
+        L_rf[off + np.flatnonzero(hidden), off + np.flatnonzero(hidden)] = 0.0
+        B_rf = np.eye(n_rand) + L_rf.T @ A_rr @ L_rf
+        cov_robot_frame = np.linalg.pinv(A_tt - A_tr @ (L_rf @ np.linalg.solve(B_rf, L_rf.T)) @ A_tr.T)
+
+    def consider(cols_t, cols_d, prior_cov):
+        """Covariance added by parameters left at zero in the fit, with prior ``prior_cov``,
+        and their influence on the estimate."""
+        S = cov @ (cols_t - A_tr @ Cinv @ cols_d)
+        return S @ prior_cov @ S.T, S
+
+    if ke is not None and len(rand_cols):
+        Lk = Lp[off:, off:]
+        S_rr = A_rr - A_tr.T @ np.linalg.pinv(A_tt) @ A_tr
+        post = Lk @ np.linalg.solve(np.eye(len(Lk)) + Lk.T @ S_rr[off:, off:] @ Lk, Lk.T)
+        kin_posterior_sd[rand_cols] = np.sqrt(np.maximum(np.diag(post), 0.0))
+        # how the arm's true geometric error moves the estimate (GLS with it marginalised)
+        kinematic_terms = {
+            "design": flange_error_jacobian(ke.chain, problem.q_rad)[:, :, rand_cols],
+            "influence": cov @ (A_tr[:, off:] - A_tr @ Cinv @ A_rr[:, off:]),
+            "posterior_mean": kappa[rand_cols].copy(),
+            "posterior_cov": post,
+        }
     if se is not None:
-        Jw_d = _station_jacobian(lin, pts)
-        A_tt, A_td, A_dd, _, _ = _station_blocks(Jw, Jw_d, np.zeros(len(ew)), station_rows)
-        # GLS covariance with the station-to-station offsets integrated out ...
-        Lp = _station_sqrt_cov(K, *s_hat)
-        B = np.eye(Lp.shape[1]) + Lp.T @ A_dd @ Lp
-
-        def Cinv(u):
-            return Lp @ np.linalg.solve(B, Lp.T @ u)
-
-        cov_robot_frame = np.linalg.pinv(A_tt - A_td @ Cinv(A_td.T))
-        # ... plus the common offset as a 'consider' parameter: not estimated (one sphere
-        # location cannot tell it), its prior spread propagated through the estimator
-        sum_cols = np.kron(np.ones((K, 1)), np.eye(6))  # the common offset moves every station
-        A_tc, A_dc = A_td @ sum_cols, A_dd @ sum_cols
-        S = cov_robot_frame @ (A_tc - A_td @ Cinv(A_dc))
-        common = np.diag([np.radians(se.common_rotation_deg) ** 2] * 3 + [se.common_translation_mm**2] * 3)
-        cov = cov_robot_frame + S @ common @ S.T
+        if ke is None:
+            # the common offset as a 'consider' parameter: not estimated (one sphere
+            # location cannot tell it), its prior spread propagated through the estimator
+            sum_cols = np.kron(np.ones((K, 1)), np.eye(6))  # the common offset moves every station
+            common = np.diag([np.radians(se.common_rotation_deg) ** 2] * 3 + [se.common_translation_mm**2] * 3)
+            cov_robot_frame = cov
+            cov = cov + consider(A_tr[:, :6 * K] @ sum_cols, A_rr[:, :6 * K] @ sum_cols, common)[0]
         diagnostics["station_effects"] = {
             "rotation_deg": float(np.degrees(s_hat[0])),
             "translation_mm": float(s_hat[1]),
             "estimated": [fixed[0] is None, fixed[1] is None],
-            "common_rotation_deg": se.common_rotation_deg,
-            "common_translation_mm": se.common_translation_mm,
+            "common_rotation_deg": se.common_rotation_deg if ke is None else 0.0,
+            "common_translation_mm": se.common_translation_mm if ke is None else 0.0,
             "offsets": {lab: {"rotation_deg": np.degrees(delta[k, :3]).tolist(), "translation_mm": delta[k, 3:].tolist()}
                         for k, lab in enumerate(problem.station_labels)},
         }
+    if len(id_cols):
+        kin_posterior_sd[id_cols] = np.sqrt(np.maximum(np.diag(cov)[n_geo:], 0.0))
+    if ke is not None:
+        diagnostics["kinematic_effects"] = {
+            "names": error_parameter_names(ke.chain),
+            "estimate": kappa.tolist(),
+            "sd": kin_posterior_sd.tolist(),
+            "identifiable": kin_identifiable.tolist(),
+            "independent_share": kin_share.tolist(),
+            "identified": [bool(i in set(id_cols.tolist())) for i in range(n_kin)],
+            "prior_sd": kin_prior.tolist(),
+            "prior_scale": float(lam),
+            "prior_scale_estimated": bool(estimate_lam),
+        }
+    station_scales = (float(s_hat[0]), float(s_hat[1])) if se else (0.0, 0.0)
+    if ke is not None and not ke.identify:
+        # the station-to-station part of the robot's error, as the estimated geometry shows it
+        E = flange_error_jacobian(ke.chain, problem.q_rad) @ kappa
+        E = E - E.mean(axis=0)
+        kin_scales = (float(np.sqrt(np.mean(E[:, :3] ** 2))), float(np.sqrt(np.mean(E[:, 3:] ** 2))))
+        station_scales = tuple(float(np.hypot(a, b)) for a, b in zip(station_scales, kin_scales))
     dof = max(len(lin.res) - n_par, 1)
     return RefineResult(
         R, t, c, r, cov, np.split(lin.res, np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
         converged, float(ew @ ew / dof), scale, diagnostics, covariance_without_robot_error=cov_fixed,
-        covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=(float(s_hat[0]), float(s_hat[1])) if se else (0.0, 0.0),
+        covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=station_scales,
+        kinematic_errors=kappa if ke is not None else None,
+        kinematic_sd=kin_posterior_sd if ke is not None else None, kinematic_terms=kinematic_terms,
     )
+
+
+def _centre_design(problem, R, t, c, fit_radius, lin, chain, kappa):
+    """Per-profile sphere-centre Jacobians, stacked (3 n, .): of the transform, sphere
+    (and radius) and of the kinematic parameters; noise-free, for identifiability."""
+    u, _ = _centres(problem, R, t, c)
+    Jg = _centre_jacobian(problem, R, u)
+    if fit_radius:
+        Jg = np.concatenate([Jg, np.zeros((len(Jg), 3, 1))], axis=2)
+    Jk = lin.Jd @ flange_error_jacobian(chain_with_errors(chain, kappa), problem.q_rad)
+    return Jg.reshape(-1, Jg.shape[2]), Jk.reshape(-1, Jk.shape[2])
 
 
 def _station_jacobian(lin: "_Linearisation", pts: _Points) -> np.ndarray:

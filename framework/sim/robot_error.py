@@ -41,13 +41,19 @@ class RobotErrorModel(BaseModel):
     link_length_mm: tuple[float, float] = _range(0.1, 0.3, "error of each joint placement along the link, mm")
     link_offset_mm: tuple[float, float] = _range(0.0, 0.2, "error of each joint placement across the link, mm")
     axis_tilt_deg: tuple[float, float] = _range(0.0, 0.02, "tilt of every joint axis, deg")
+    joint_compliance_deg_per_m: tuple[float, float] = Field(
+        (0.0, 0.0), description="gravity sag of every joint: it turns by this much (deg) per metre of "
+        "horizontal lever from its axis to the flange (drawn uniformly per joint, always with gravity). Not a "
+        "geometric error: it changes with the arm's configuration, so no kinematic model holds it"
+    )
     seed: int | None = Field(
         None, ge=0, le=2**63 - 1, description="seed of this arm's errors (default: the cell's seed)"
     )
 
     @model_validator(mode="after")
     def _ordered(self):
-        for name in ("joint_zero_offset_deg", "link_length_mm", "link_offset_mm", "axis_tilt_deg"):
+        for name in ("joint_zero_offset_deg", "link_length_mm", "link_offset_mm", "axis_tilt_deg",
+                     "joint_compliance_deg_per_m"):
             lo, hi = getattr(self, name)
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi <= 100):
                 raise ValueError(f"{name}: expected 0 <= low <= high <= 100, got ({lo}, {hi})")
@@ -95,6 +101,8 @@ class SimulatedArm:
         self.error = error
         rng = np.random.default_rng(error.seed if error.seed is not None else [seed or 0, 0x5EED])
         self.true_chain, self.zero_offsets_rad = perturbed_chain(kinematics.chain, error, rng)
+        self.compliance_rad_per_mm = np.radians(rng.uniform(*error.joint_compliance_deg_per_m,
+                                                            self.true_chain.n_joints)) / 1000.0
 
     def nominal_flange_pose(self, joints_deg) -> Pose:
         """What the controller reports at these joints: its nominal model's pose."""
@@ -103,7 +111,24 @@ class SimulatedArm:
     def true_flange_pose(self, joints_deg) -> Pose:
         """Where the flange really is at these joints."""
         q = self.kinematics.model_joints_rad(joints_deg) + self.zero_offsets_rad
+        if np.any(self.compliance_rad_per_mm):
+            q = q + self._sag_rad(q)
         return self.true_chain.flange_pose(q)
+
+    def _sag_rad(self, q: np.ndarray) -> np.ndarray:
+        """Each joint's gravity sag (rad): compliance x the gravity moment of a load at
+        the flange about the joint's axis (lever in mm), signed to turn with gravity."""
+        chain = self.true_chain
+        p_f = chain.flange_matrices(q)[:3, 3]
+        T = np.eye(4)
+        sag = np.zeros(chain.n_joints)
+        down = np.array([0.0, 0.0, -1.0])
+        for i in range(chain.n_joints):
+            T = T @ chain.placements[i]
+            axis = T[:3, :3] @ chain.axes[i]
+            sag[i] = self.compliance_rad_per_mm[i] * float(axis @ np.cross(p_f - T[:3, 3], down))
+            T[:3, :3] = T[:3, :3] @ geo.matrix_from_rotvec(chain.axes[i] * q[i])
+        return sag
 
     def joints_for(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
         """The joints the controller chooses for a target (nominal inverse kinematics)."""

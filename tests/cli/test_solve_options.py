@@ -49,7 +49,10 @@ def test_joints_only_dataset_solves_with_robot(tmp_path, capsys, mounting):
     assert "simulated truth: error" in capsys.readouterr().out
     rot, trans, result = _errors(out, ds)
     assert rot < 4 * np.linalg.norm(result.std_rotation_deg) and trans < 4 * np.linalg.norm(result.std_translation_mm)
-    assert rot < 0.1 and trans < 0.1
+    # with joints and the robot's kinematics the arm's geometric error is modelled (its
+    # stated spread marginalised): on this exact simulated arm that costs some precision
+    assert result.robot_error.model == "kinematic"
+    assert rot < 0.1 and trans < 0.3
 
 
 def test_joints_only_dataset_uses_the_robot_its_provenance_names(tmp_path):
