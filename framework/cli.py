@@ -9,6 +9,8 @@ Exit codes (scripts may rely on them; docs/cli.md):
   4  device error (robot or sensor: timeout, disconnect, protocol); what was taken is kept
   5  validation failed (an acceptance figure exceeds its MPE)
   6  plugin error (a plugin failed to load or misbehaved)
+  7  the result is RED (do not use it): the verdict says why; result.json and the exports
+     are written only with --force (the report always)
   130 interrupted (Ctrl-C); what was taken is kept (calibrate: continue with --resume)
 """
 
@@ -29,6 +31,7 @@ EXIT_DATA = 3
 EXIT_DEVICE = 4
 EXIT_VALIDATION = 5
 EXIT_PLUGIN = 6
+EXIT_RED = 7
 EXIT_INTERRUPTED = 130
 
 
@@ -44,11 +47,11 @@ def cmd_calibrate(args) -> int:
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
-        report=not args.no_report,
+        report=not args.no_report, force=args.force,
     )
     if outcome.solution is None:
         return EXIT_OK
-    print(summary(outcome.solution))
+    print(summary(outcome.solution, outcome.verdict))
     from . import dataio
 
     journal = outcome.files.get("journal")
@@ -57,8 +60,21 @@ def cmd_calibrate(args) -> int:
         if check:
             print(check)
     out = Path(args.out) if args.out else loaded.output_dir
-    print(f"results in {out}")
-    return EXIT_OK
+    return _finish(out, outcome.verdict, outcome.exports_written)
+
+
+def _finish(out: Path, graded, written: bool) -> int:
+    """The last line of calibrate and solve, and the exit code: a RED result exits 7."""
+    if graded.level != "red":
+        print(f"results in {out}")
+        return EXIT_OK
+    if written:
+        print(f"results in {out} (written with --force although the result is RED: do not use it in production)")
+    else:
+        print(f"the result is RED: result.json and the exports were NOT written (report in {out}); fix the cause "
+              "and run again, or give --force to write them anyway")
+    _err("the result is RED (exit 7): see the verdict above")
+    return EXIT_RED
 
 
 def cmd_solve(args) -> int:
@@ -82,14 +98,13 @@ def cmd_solve(args) -> int:
         station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
     )
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
-    solution = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
-                               report=not args.no_report)
-    print(summary(solution))
+    solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
+                                                report=not args.no_report, force=args.force)
+    print(summary(solution, graded))
     check = truth_check(solution, dataset)
     if check:
         print(check)
-    print(f"results in {out}")
-    return EXIT_OK
+    return _finish(out, graded, written)
 
 
 def _positive_float(text: str) -> float:
@@ -178,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--manual", action="store_true", help="the operator jogs the robot; Enter captures")
     c.add_argument("--out", help="output folder (default: output_dir of the configuration)")
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    c.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
+                   "RED (the exit code is still 7)")
     c.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)",
@@ -199,6 +216,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a shot turned more than this from its station's orientation is left out "
                    "(default: derived from the orientation read noise)")
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
+                   "RED (the exit code is still 7)")
     s.set_defaults(func=cmd_solve)
 
     m = sub.add_parser("simulate", help="write a dataset from the simulated cell")

@@ -19,6 +19,7 @@ from .errors import ConfigError, InputError, SpherecalError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME
+from .report.assess import Verdict
 from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
 JOURNAL_NAME = "journal.jsonl"
@@ -119,6 +120,9 @@ class Outcome:
     solution: Solution | None = None
     files: dict[str, Path] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    verdict: "Verdict | None" = None
+    #: False when the result is RED and was not written (no ``force``)
+    exports_written: bool = False
 
 
 def calibration_options(cfg: RunConfig) -> CalibrationOptions:
@@ -136,9 +140,11 @@ def run_calibrate(
     ask: Callable[[str], str] = input,
     progress_stream=None,
     report: bool = True,
+    force: bool = False,
 ) -> Outcome:
     """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
-    recorded dataset), solve, write the result, exports and report."""
+    recorded dataset), solve, write the result, exports and report. A RED result's
+    ``result.json`` and exports are written only with ``force`` (its report always)."""
     cfg = loaded.config
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
@@ -232,7 +238,8 @@ def run_calibrate(
         host.acquisition_finished(dataset=dataset)
         outcome.files["journal"] = journal
 
-    solution = solve_and_write(dataset, calibration_options(cfg), out, fk, log, report=report)
+    solution, outcome.verdict, outcome.exports_written = solve_and_write(
+        dataset, calibration_options(cfg), out, fk, log, report=report, force=force)
     host.calibration_finished(result=solution.result, dataset=dataset)
     outcome.solution = solution
     outcome.files.update(written_files(out))
@@ -331,25 +338,124 @@ def solve_and_write(
     fk=None,
     log: Callable[[str], None] = print,
     report: bool = True,
-) -> Solution:
-    """Solve ``dataset`` and write ``result.json``, the exports and the HTML report in ``out``."""
+    force: bool = False,
+) -> tuple[Solution, "Verdict", bool]:
+    """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
+    ``result.json``, the exports and the HTML report in ``out``. A RED result's
+    ``result.json`` and exports are written only with ``force``; its report is written
+    (it says why). Returns the solution, its verdict and whether the result and exports
+    were written."""
     solution = solve(dataset, options, fk, progress=log)
+    graded = assess_solution(solution, dataset, options, fk, log)
     from .report.export import write_exports
 
     out.mkdir(parents=True, exist_ok=True)
-    write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
+    written = graded.level != "red" or force
+    if written:
+        write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
     if report:
         try:
             from .report.html import write_report
         except ImportError:  # pragma: no cover
             write_report = None
         if write_report is not None:
-            write_report(solution, out)
-    return solution
+            write_report(solution, out, verdict_override=graded)
+    return solution, graded, written
 
 
-def summary(solution: Solution) -> str:
-    """The result in a few lines: both directions, xyz + ABB quaternion, uncertainties."""
+def _other_mounting(mounting: str) -> str:
+    return "eye_to_hand" if mounting == "eye_in_hand" else "eye_in_hand"
+
+
+def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
+                    log: Callable[[str], None] = print) -> "Verdict":
+    """The verdict of ``solution`` (:func:`spherecal.report.assess.verdict`); for a RED
+    one, the likely cause named where the data can tell it:
+
+    - an absurd solution (residuals many times the noise) solved again with the other
+      mounting: when that fits, the dataset's mounting label is wrong;
+    - residuals above the expected with the certified radius: solved again with the
+      radius fitted; when the data prefer another radius, it is named.
+
+    Each check costs one more solve, and only for a RED result."""
+    from .report.assess import Thresholds, expected_rms_mm, is_absurd, verdict
+
+    th = Thresholds()
+    v = verdict(solution.result, th)
+    if v.level != "red":
+        return v
+    result = solution.result
+    ratio = result.residuals.rms_mm / expected_rms_mm(result, th)
+    causes: list[str] = []
+    if is_absurd(result, th):
+        other = _other_mounting(dataset.mounting)
+        log(f"the result is absurd: checking whether the data are {other} data")
+        try:
+            alt = solve(dataset.model_copy(update={"mounting": other}),
+                        options.model_copy(update={"nominal_transform": None}), fk).result
+        except SpherecalError:
+            alt = None
+        if alt is not None and not is_absurd(alt, th):
+            alt_ratio = alt.residuals.rms_mm / expected_rms_mm(alt, th)
+            causes.append(
+                f"the dataset's mounting is probably wrong: it says {dataset.mounting}, but solved as {other} the "
+                f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({alt_ratio:.2f} x the expected; "
+                f"here {ratio:.3g} x). Check the sensor's mounting and the 'mounting' of the configuration or dataset"
+            )
+    if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
+        log("residuals above the expected: checking which sphere radius the data prefer")
+        try:
+            alt = solve(dataset, options.model_copy(update={"fit_radius": True}), fk).result
+        except SpherecalError:
+            alt = None
+        if alt is not None and alt.std_sphere_radius_mm is not None:
+            given, fitted = result.sphere_radius_mm, alt.sphere_radius_mm
+            if abs(fitted - given) > max(5 * alt.std_sphere_radius_mm, 0.01) and alt.residuals.rms_mm < 0.7 * result.residuals.rms_mm:
+                causes.append(
+                    f"the sphere radius is probably wrong: the data prefer {fitted:.3f} mm (1-sigma "
+                    f"{alt.std_sphere_radius_mm:.3f} mm; residual RMS then {alt.residuals.rms_mm:.4f} mm) but "
+                    f"{given:g} mm was given. Check the certificate (radius in mm, not the diameter)"
+                )
+    re = result.robot_error
+    if not causes and re is not None and len(dataset.observations) and re.station_translation_mm > 0.1:
+        causes.extend(_odd_station(solution, dataset, options, fk, log, th))
+    if causes:
+        v.reasons.extend(("red", "likely cause: " + c) for c in causes)
+        v.headline = f"{v.headline} Likely cause: {causes[0].split(':')[0]}."
+    return v
+
+
+def _odd_station(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk, log, th) -> list[str]:
+    """The station whose leaving out makes the others agree, when there is one: each
+    station left out in turn (one solve each)."""
+    from .report.assess import verdict
+
+    result = solution.result
+    labels = list(solution.problem.station_labels)
+    if len(labels) < 4:
+        return []
+    log(f"the stations disagree by {result.robot_error.station_translation_mm:.3f} mm: leaving each out in turn")
+    best = None
+    for label in labels:
+        keep = [o for o in dataset.observations if o.station != label]
+        try:
+            alt = solve(dataset.model_copy(update={"observations": keep}), options, fk).result
+        except SpherecalError:
+            continue
+        spread = alt.robot_error.station_translation_mm if alt.robot_error is not None else 0.0
+        if best is None or spread < best[1]:
+            best = (label, spread, verdict(alt, th).level)
+    if best is None or best[2] == "red" or best[1] > result.robot_error.station_translation_mm / 3:
+        return []
+    return [f"station {best[0]} disagrees with the others: without it they agree to {best[1]:.3f} mm (with it "
+            f"{result.robot_error.station_translation_mm:.3f} mm). Its profiles or poses are offset (the sensor or "
+            "the sphere moved, another tool or work object, a pose read in another frame): re-acquire that station"]
+
+
+def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
+    """The result in a few lines: both directions, xyz + ABB quaternion, uncertainties,
+    and the verdict (``graded``, else computed from the result), with the reasons for a
+    RED one."""
     r = solution.result
     X = r.transform
     inv = X.inverse()
@@ -385,8 +491,10 @@ def summary(solution: Solution) -> str:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
     from .report.assess import verdict
 
-    v = verdict(r)
+    v = graded or verdict(r)
     lines.append(f"verdict: {v.level.upper()}: {v.headline}")
+    if v.level == "red":
+        lines.extend(f"  red: {text}" for lvl, text in v.reasons if lvl == "red")
     return "\n".join(lines)
 
 

@@ -30,7 +30,7 @@ from .. import __version__
 from ..errors import InputError
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
-from .assess import Thresholds, advice, expected_rms_mm, inconsistent_stations, verdict
+from .assess import Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
 
 __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
 
@@ -371,13 +371,15 @@ def write_report(
     *,
     thresholds: Thresholds | None = None,
     filename: str = "report.html",
+    verdict_override: Verdict | None = None,
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
     it as ``<stem>_<figure>.png`` (:data:`FIGURE_NAMES`). ``validation`` is an optional
     mapping ``{figure name: value or {column: value}}`` shown as a table (a row whose
-    ``passed`` is False is marked). Returns the path of the HTML file. Overwrites an
-    earlier report of the same name."""
+    ``passed`` is False is marked). ``verdict_override``: the verdict to show (e.g. with
+    the likely cause the runner found), else the result's own. Returns the path of the
+    HTML file. Overwrites an earlier report of the same name."""
     result = getattr(solution, "result", None)
     if not isinstance(result, CalibrationResult) or not hasattr(solution, "problem"):
         raise InputError(
@@ -418,7 +420,7 @@ def write_report(
         return (f'<figure id="fig-{key}"><img alt="{_e(key.replace("_", " "))}" '
                 f'src="data:image/png;base64,{data}"><figcaption>{_e(caption)}</figcaption></figure>')
 
-    ver = verdict(result, th)
+    ver = verdict_override or verdict(result, th)
     items = advice(result, th)
     now = datetime.now(timezone.utc).isoformat(timespec="seconds")
     nav = ["verdict", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
