@@ -22,7 +22,7 @@ import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
+from .errors import FileWriteError, ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -49,6 +49,10 @@ def cmd_calibrate(args) -> int:
         out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
         report=not args.no_report, force=args.force,
     )
+    if outcome.finished:
+        print(f"{Path(args.out) if args.out else loaded.output_dir} holds a finished run: nothing to resume; its "
+              "result, exports and report were left as they are")
+        return EXIT_OK
     if outcome.solution is None:
         return EXIT_OK
     print(summary(outcome.solution, outcome.verdict))
@@ -60,10 +64,11 @@ def cmd_calibrate(args) -> int:
         if check:
             print(check)
     out = Path(args.out) if args.out else loaded.output_dir
-    return _finish(out, outcome.verdict, outcome.exports_written)
+    return _finish(out, outcome.verdict, outcome.exports_written,
+                   "--resume --force" if outcome.files.get("journal") else "--force")
 
 
-def _finish(out: Path, graded, written: bool) -> int:
+def _finish(out: Path, graded, written: bool, force: str = "--force") -> int:
     """The last line of calibrate and solve, and the exit code: a RED result exits 7."""
     if graded.level != "red":
         print(f"results in {out}")
@@ -72,7 +77,7 @@ def _finish(out: Path, graded, written: bool) -> int:
         print(f"results in {out} (written with --force although the result is RED: do not use it in production)")
     else:
         print(f"the result is RED: result.json and the exports were NOT written (report in {out}); fix the cause "
-              "and run again, or give --force to write them anyway")
+              f"and run again, or give {force} to write them anyway")
     _err("the result is RED (exit 7): see the verdict above")
     return EXIT_RED
 
@@ -98,6 +103,11 @@ def cmd_solve(args) -> int:
         station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
     )
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
+    if not args.overwrite:
+        from .runner import check_output_folder
+
+        check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
+                            "exports and report")
     solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
                                                 report=not args.no_report, force=args.force)
     print(summary(solution, graded))
@@ -218,6 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
     s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
+    s.add_argument("--overwrite", action="store_true", help="replace the result, exports and report already in the "
+                   "output folder (default: refuse)")
     s.set_defaults(func=cmd_solve)
 
     m = sub.add_parser("simulate", help="write a dataset from the simulated cell")
@@ -275,6 +287,9 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         _err(str(exc))
         return EXIT_USAGE
+    except FileWriteError as exc:
+        _err(f"{exc}" + _after_failure(args.command))
+        return EXIT_DATA
     except (InputError, DegenerateDataError, DatasetFileError, FileExistsError) as exc:
         _err(str(exc))
         return EXIT_DATA
@@ -284,11 +299,20 @@ def main(argv: list[str] | None = None) -> int:
     except PluginError as exc:
         _err(str(exc))
         return EXIT_PLUGIN
+    except OSError as exc:
+        if exc.filename:  # a file that cannot be read or written (a full disk, no permission): name it
+            _err(f"{exc.filename}: {exc.strerror or exc}" + _after_failure(args.command))
+            return EXIT_DATA
+        return _internal(args, exc)
     except Exception as exc:  # noqa: BLE001
-        if args.debug:
-            traceback.print_exc()
-        _err(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback; please report it)")
-        return EXIT_INTERNAL
+        return _internal(args, exc)
+
+
+def _internal(args, exc: BaseException) -> int:
+    if args.debug:
+        traceback.print_exc()
+    _err(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback; please report it)")
+    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

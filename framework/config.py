@@ -197,7 +197,11 @@ class ScanConfig(_Section):
     pass_spacing_mm: float = Field(20.0, gt=0, description="distance between passes (along the laser line), mm")
     standoff_z_mm: float = Field(-10.0, description="sensor-frame z of the object's surface at the centre, mm")
     speed_mm_s: float = Field(50.0, gt=0, description="speed between profiles, mm/s")
-    ply: str = Field("scan.ply", description="output file (relative: in output_dir)")
+    ply: str = Field("scan.ply", description="output file (relative: in output_dir); a path outside output_dir "
+                     "(absolute, or through '..') needs ply_outside_output_dir = true")
+    ply_outside_output_dir: bool = Field(
+        False, description="allow scan.ply to lie outside output_dir (an absolute path or one through '..')"
+    )
     format: Literal["binary_little_endian", "ascii"] = Field("binary_little_endian", description="PLY encoding")
 
 

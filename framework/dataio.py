@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from . import __version__
-from .errors import DatasetFileError, InputError
+from .errors import DatasetFileError, FileWriteError, InputError
 from .models import CalibrationResult, Dataset, MountingMode, Observation, Pose
 
 try:  # optional accelerator: parses full-precision floats about 7x faster than json
@@ -646,10 +646,15 @@ class DatasetWriter:
         return h
 
     def _write(self, data: bytes) -> None:
-        self._file.write(data)
-        self._file.flush()
-        if self.fsync:
-            os.fsync(self._file.fileno())
+        try:
+            self._file.write(data)
+            self._file.flush()
+            if self.fsync:
+                os.fsync(self._file.fileno())
+        except OSError as exc:  # a full disk, a removed medium: name the file
+            raise FileWriteError(
+                f"{os.fspath(self.path)}: cannot write ({exc.strerror or exc}); the lines written before are kept"
+            ) from None
 
     @property
     def n_observations(self) -> int:
@@ -781,6 +786,8 @@ def write_result(
         os.replace(tmp, path)
         if fsync:
             _fsync_dir(path)
+    except OSError as exc:
+        raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -30,6 +30,7 @@ from typing import Literal
 
 import numpy as np
 
+from . import safeio
 from .errors import InputError
 
 PlyFormat = Literal["binary_little_endian", "ascii"]
@@ -93,7 +94,7 @@ class PlyWriter:
         lines.append("end_header")
         header = ("\n".join(lines) + "\n").encode("ascii")
         self._count_offset = header.index(b"element vertex ") + len(b"element vertex ")
-        self._file = open(self.path, "wb")
+        self._file = safeio.open_for_write(self.path)
         self._file.write(header)
         self._file.flush()  # a writer killed before its first chunk leaves a valid empty file
 

@@ -24,6 +24,30 @@ from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
 JOURNAL_NAME = "journal.jsonl"
 RESULT_NAME = "result.json"
+#: What a calibration writes into its folder (the exports are named after the transform).
+OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png", "*.mod", "ros_static_transform.*",
+                   "*_from_*_4x4.txt", "*_from_*_xyz_quat_wxyz.txt")
+
+
+def existing_outputs(out: Path) -> list[Path]:
+    """The files in ``out`` that writing a calibration there would replace (links too)."""
+    if not out.is_dir():
+        return []
+    found = {p for pattern in OUTPUT_PATTERNS for p in out.glob(pattern)}
+    return sorted(found)
+
+
+def check_output_folder(out: Path, what: str, how: str) -> None:
+    """Refuse (InputError naming the file) to write a calibration into ``out`` when that
+    would replace a file already there: ``what`` is the command, ``how`` how to proceed."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out} is not a folder: give an output folder")
+    found = existing_outputs(out)
+    journal = out / JOURNAL_NAME
+    if found:
+        kind = "a calibration run" if journal.exists() else "a result"
+        raise InputError(f"{found[0]} exists: {out} already holds {kind}, and {what} would replace it "
+                         f"(nothing is overwritten silently); {how}")
 
 
 def make_cell(cfg: RunConfig) -> SimulatedCell | None:
@@ -123,6 +147,8 @@ class Outcome:
     verdict: "Verdict | None" = None
     #: False when the result is RED and was not written (no ``force``)
     exports_written: bool = False
+    #: ``--resume`` found a finished run (its result.json): nothing was done
+    finished: bool = False
 
 
 def calibration_options(cfg: RunConfig) -> CalibrationOptions:
@@ -152,8 +178,14 @@ def run_calibrate(
     _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
     outcome = Outcome()
 
+    if resume and (out / RESULT_NAME).exists():
+        outcome.finished = True
+        log(f"{out} holds a finished run ({out / RESULT_NAME}); nothing to resume and nothing was rewritten")
+        return outcome
     if cfg.replay is not None:
         path = loaded.resolve(cfg.replay)
+        if not dry_run:
+            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
         log(f"replaying {path}")
         dataset = dataio.read_dataset(path)
         if dataset.mounting != cfg.mounting:
@@ -183,6 +215,8 @@ def run_calibrate(
                 f"{journal} already holds an acquisition: run with --resume to continue it, "
                 "or choose another output_dir (nothing is ever overwritten)"
             )
+        if not journal.exists():
+            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
         out.mkdir(parents=True, exist_ok=True)
         done: set[int] = set()
         digest = "manual" if manual else plan_digest(targets)
@@ -574,8 +608,10 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     text = json.dumps({"passed": outcome.passed, "result": str(result_path), "journal": journal.name,
                        "figures": outcome.table(), "report": outcome.report.model_dump(),
                        "centres_mm": outcome.centres_mm}, indent=2, default=float)
-    (out / f"validation-{stamp}.json").write_text(text)
-    (out / "validation.json").write_text(text)  # the latest run, for scripts
+    from . import safeio
+
+    safeio.write_text(out / f"validation-{stamp}.json", text)
+    safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
     calib_journal = out / JOURNAL_NAME
     if report and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
@@ -599,7 +635,14 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     out, _, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning", out_dir)
     targets = plan_scan(cfg, result.transform)
     _check_plan(targets, cfg.acquisition, "scan plan")
-    ply_path = Path(cfg.scan.ply) if Path(cfg.scan.ply).is_absolute() else out / cfg.scan.ply
+    given = Path(cfg.scan.ply).expanduser()
+    ply_path = given if given.is_absolute() else out / given
+    from .safeio import check_writable_target, is_inside
+
+    if not cfg.scan.ply_outside_output_dir and (given.is_absolute() or not is_inside(ply_path, out)):
+        raise ConfigError(f"{loaded.path}: scan.ply = {cfg.scan.ply!r} lies outside the output folder {out}: give a "
+                          "file name in it, or set scan.ply_outside_output_dir = true to write there on purpose")
+    check_writable_target(ply_path)
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
     host = make_host()

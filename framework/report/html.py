@@ -30,6 +30,7 @@ from .. import __version__
 from ..errors import InputError
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
+from .. import safeio
 from .assess import Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
 
 __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
@@ -412,7 +413,7 @@ def write_report(
     figures = {}
     for key, (make, caption) in makers.items():
         png = _png(make())
-        (out / f"{stem}_{key}.png").write_bytes(png)
+        safeio.write_bytes(out / f"{stem}_{key}.png", png)
         figures[key] = (base64.b64encode(png).decode("ascii"), caption)
 
     def fig_html(key):
@@ -460,5 +461,5 @@ def write_report(
     css = resources.files(__package__).joinpath("report.css").read_text(encoding="utf-8")
     page = template.substitute(title=_e(title), css=css, body="\n".join(sections), version=_e(__version__))
     path = out / filename
-    path.write_text(page, encoding="utf-8")
+    safeio.write_text(path, page)
     return path
