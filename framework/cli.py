@@ -89,12 +89,11 @@ def cmd_solve(args) -> int:
     from .runner import solve_and_write, solve_kinematics, summary, truth_check
 
     dataset = dataio.read_dataset(args.dataset)
+    if not dataset.observations:
+        raise InputError(f"{args.dataset}: the dataset holds no observations (only its header): nothing to solve")
     nominal = None
-    if args.nominal:
-        v = [float(x) for x in args.nominal.split(",")]
-        if len(v) != 7:
-            raise ConfigError("--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)")
-        nominal = Pose.from_abb(v[:3], v[3:])
+    if args.nominal is not None:
+        nominal = _parse_nominal(args.nominal)
     fk, dataset = solve_kinematics(
         dataset, args.robot, Path(args.robot_config) if args.robot_config else None, args.pose_from
     )
@@ -117,14 +116,69 @@ def cmd_solve(args) -> int:
     return _finish(out, graded, written)
 
 
-def _positive_float(text: str) -> float:
+def _parse_nominal(text: str):
+    """``--nominal x,y,z,qw,qx,qy,qz``: finite numbers, a unit quaternion."""
+    import math
+
+    from .models import Pose
+
+    usage = "--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)"
+    parts = text.split(",")
+    if len(parts) != 7:
+        raise ConfigError(f"{usage}; got {len(parts)} value(s) in {text!r:.80}")
+    values = []
+    for i, part in enumerate(parts):
+        try:
+            v = float(part)
+        except ValueError:
+            raise ConfigError(f"{usage}; value {i + 1} is {part!r:.40}, not a number") from None
+        if not math.isfinite(v) or abs(v) > 1e6:
+            raise ConfigError(f"{usage}; value {i + 1} is {part!r:.40}: a finite number of at most 1e6 is needed")
+        values.append(v)
+    n = math.sqrt(sum(c * c for c in values[3:]))
+    if abs(n - 1.0) > 1e-3:
+        raise ConfigError(f"{usage}; the quaternion {values[3:]} has norm {n:.6f}, not 1")
+    return Pose.from_abb(values[:3], values[3:])
+
+
+def _number(text: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float:
+    import math
+
     try:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be greater than 0, got {text}")
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise argparse.ArgumentTypeError(f"must be {'greater than' if lo_open else 'at least'} {lo:g}, got {text}")
+    if hi is not None and v > hi:
+        raise argparse.ArgumentTypeError(f"must be at most {hi:g}, got {text}")
     return v
+
+
+def _positive_float(text: str) -> float:
+    return _number(text, 0.0, 180.0, lo_open=True)
+
+
+def _non_negative_float(text: str) -> float:
+    return _number(text, 0.0, 1e3)
+
+
+def _fraction(text: str) -> float:
+    return _number(text, 0.0, 1.0)
+
+
+def _int_in(lo: int, hi: int):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r:.40}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be from {lo} to {hi}, got {text:.40}")
+        return v
+    return parse
 
 
 def cmd_simulate(args) -> int:
@@ -236,11 +290,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("out", help="dataset file to write (.jsonl)")
     m.add_argument("--config", help="take the cell and plan from this configuration's [simulation] and [acquisition]")
     m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], default="eye_in_hand")
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--profiles", type=int, default=10, help="profiles per station")
-    m.add_argument("--point-noise-mm", type=float, default=0.01)
-    m.add_argument("--pose-noise-mm", type=float, default=0.02)
-    m.add_argument("--stray-fraction", type=float, default=0.0, help="share of profiles with stray points")
+    m.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0)
+    m.add_argument("--profiles", type=_int_in(4, 10_000), default=10, help="profiles per station (4 to 10000)")
+    m.add_argument("--point-noise-mm", type=_non_negative_float, default=0.01)
+    m.add_argument("--pose-noise-mm", type=_non_negative_float, default=0.02)
+    m.add_argument("--stray-fraction", type=_fraction, default=0.0, help="share of profiles with stray points (0 to 1)")
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
     m.set_defaults(func=cmd_simulate)
 

@@ -137,6 +137,26 @@ def _check_plan(targets, acq, what: str = "plan", robot=None) -> None:
         raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
 
 
+def check_plan_solvable(targets) -> None:
+    """Raise InputError (before anything moves) when the plan's stations can never
+    determine the transform: the translation needs changes of orientation about at
+    least two different axes, so at least three stations."""
+    first: dict[str, np.ndarray] = {}
+    for t in targets:
+        first.setdefault(t.station, t.pose.rotation_matrix)
+    Rs = list(first.values())
+    hint = ("add stations tilted by 20-45 deg about two different axes (acquisition.sweep.tilts_deg); nothing "
+            "was moved")
+    if len(Rs) < 3:
+        raise InputError(f"the plan has {len(Rs)} station(s): the translation cannot be determined from fewer than "
+                         f"three orientations; {hint}")
+    M = np.vstack([R - Rs[0] for R in Rs[1:]])
+    sv = np.linalg.svd(M, compute_uv=False)
+    if sv[-1] < 0.05:
+        raise InputError("the plan's stations are tilted about one axis only: the translation along it cannot be "
+                         f"determined; {hint}")
+
+
 @dataclass
 class Outcome:
     """What a calibrate/solve run produced."""
@@ -202,6 +222,7 @@ def run_calibrate(
             log(f"plan: {len(targets)} shots in {len(set(t.station for t in targets))} stations")
             log(describe_plan(targets))
             _check_plan(targets, acq, "plan")
+            check_plan_solvable(targets)
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
             if not manual:
@@ -298,12 +319,19 @@ def read_robot_section(path: Path) -> dict:
     or, without one, the whole file (the plugin's settings, ``type`` optional)."""
     import tomllib
 
+    from .config import MAX_CONFIG_BYTES
+    from .safeio import read_input, text_encoding_problem
+
+    raw = read_input(path, ConfigError, "a robot configuration (TOML)", MAX_CONFIG_BYTES)
+    problem = text_encoding_problem(raw)
+    if problem:
+        raise ConfigError(f"{path}: not a robot configuration as written: {problem}")
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the robot configuration ({exc.strerror or exc})") from None
+        data = tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not a robot configuration: nested too deeply") from None
     section = data.get("robot", data)
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: robot: expected a table of robot settings")
@@ -632,17 +660,20 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     from .scanning import plan_scan, scan
 
     cfg = loaded.config
+    if cfg.scan is not None:  # where the PLY goes, before anything else
+        out = Path(out_dir) if out_dir is not None else loaded.output_dir
+        given = Path(cfg.scan.ply).expanduser()
+        ply_path = given if given.is_absolute() else out / given
+        from .safeio import check_writable_target, is_inside
+
+        if not cfg.scan.ply_outside_output_dir and (given.is_absolute() or not is_inside(ply_path, out)):
+            raise ConfigError(f"{loaded.path}: scan.ply = {cfg.scan.ply!r} lies outside the output folder {out}: "
+                              "give a file name in it, or set scan.ply_outside_output_dir = true to write there "
+                              "on purpose")
+        check_writable_target(ply_path)
     out, _, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning", out_dir)
     targets = plan_scan(cfg, result.transform)
     _check_plan(targets, cfg.acquisition, "scan plan")
-    given = Path(cfg.scan.ply).expanduser()
-    ply_path = given if given.is_absolute() else out / given
-    from .safeio import check_writable_target, is_inside
-
-    if not cfg.scan.ply_outside_output_dir and (given.is_absolute() or not is_inside(ply_path, out)):
-        raise ConfigError(f"{loaded.path}: scan.ply = {cfg.scan.ply!r} lies outside the output folder {out}: give a "
-                          "file name in it, or set scan.ply_outside_output_dir = true to write there on purpose")
-    check_writable_target(ply_path)
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
     host = make_host()

@@ -22,6 +22,7 @@ from pathlib import Path
 from string import Template
 from typing import Any
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -412,7 +413,8 @@ def write_report(
     }
     figures = {}
     for key, (make, caption) in makers.items():
-        png = _png(make())
+        with matplotlib.rc_context({"text.parse_math": False}):  # labels are data: '$x$' is not mathtext
+            png = _png(make())
         safeio.write_bytes(out / f"{stem}_{key}.png", png)
         figures[key] = (base64.b64encode(png).decode("ascii"), caption)
 
