@@ -35,6 +35,11 @@ EXIT_RED = 7
 EXIT_INTERRUPTED = 130
 
 
+def _ask(prompt: str) -> str:
+    """A typed answer from the operator (looked up at call time, so tests can stand in)."""
+    return input(prompt)
+
+
 def _err(msg: str) -> None:
     print(f"spherecal: error: {msg}", file=sys.stderr)
 
@@ -47,7 +52,7 @@ def cmd_calibrate(args) -> int:
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
-        report=not args.no_report, force=args.force,
+        report=not args.no_report, force=args.force, yes=args.yes, ask=_ask,
     )
     if outcome.finished:
         print(f"{Path(args.out) if args.out else loaded.output_dir} holds a finished run: nothing to resume; its "
@@ -212,7 +217,7 @@ def cmd_validate(args) -> int:
     from .runner import run_validate
 
     outcome = run_validate(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report)
+                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask)
     from .validation import format_outcome
 
     print(format_outcome(outcome))
@@ -225,7 +230,7 @@ def cmd_scan(args) -> int:
     from .runner import run_scan
 
     path, summary = run_scan(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                             log=lambda m: print(m, file=sys.stderr))
+                             log=lambda m: print(m, file=sys.stderr), yes=args.yes, ask=_ask)
     print(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
     return EXIT_OK
 
@@ -259,6 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
     c.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
+    c.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     c.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)",
@@ -305,6 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("config", help="configuration file (TOML) with a [validation] section")
     v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
+    v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     v.set_defaults(func=cmd_validate)
 
     n = sub.add_parser("scan", help="scan an object with the calibrated system into a PLY point cloud",
@@ -312,6 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "frame the object is fixed in (base in eye-in-hand), to a PLY file.")
     n.add_argument("config", help="configuration file (TOML) with a [scan] section")
     n.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
+    n.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     n.set_defaults(func=cmd_scan)
 
     g = sub.add_parser("plugins", help="list installed robots and sensors with their configuration fields")

@@ -157,6 +157,28 @@ def check_plan_solvable(targets) -> None:
                          f"determined; {hint}")
 
 
+class MotionNotConfirmed(ConfigError):
+    """The operator did not confirm the motion (or could not: no input and no --yes)."""
+
+
+def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str], log: Callable[[str], None]) -> None:
+    """Before the first motion on real hardware: the plan summary and a typed 'yes', or
+    ``yes`` (``--yes``). Raises :class:`MotionNotConfirmed` otherwise; nothing has been
+    opened or moved then."""
+    if yes:
+        log(f"{command}: motion confirmed with --yes: {plan}")
+        return
+    log(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the enabling "
+        "device or the emergency stop.")
+    try:
+        answer = ask("Type 'yes' to start the motion (anything else stops): ")
+    except (EOFError, OSError):
+        raise MotionNotConfirmed(f"{command} would move the robot and nobody confirmed it (no input): run it at a "
+                                 "terminal and type 'yes', or give --yes; nothing was moved") from None
+    if answer.strip().lower() != "yes":
+        raise MotionNotConfirmed(f"{command}: motion not confirmed (answer {answer.strip()[:20]!r}); nothing was moved")
+
+
 @dataclass
 class Outcome:
     """What a calibrate/solve run produced."""
@@ -187,6 +209,7 @@ def run_calibrate(
     progress_stream=None,
     report: bool = True,
     force: bool = False,
+    yes: bool = False,
 ) -> Outcome:
     """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
     recorded dataset), solve, write the result, exports and report. A RED result's
@@ -238,6 +261,10 @@ def run_calibrate(
             )
         if not journal.exists():
             check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
+        cell = make_cell(cfg)
+        if not manual and cell is None:
+            confirm_motion("calibrate", f"{len(targets)} shots in {len(set(t.station for t in targets))} stations "
+                           f"(plan above), at most {acq.max_speed_mm_s:g} mm/s", yes, ask, log)
         out.mkdir(parents=True, exist_ok=True)
         done: set[int] = set()
         digest = "manual" if manual else plan_digest(targets)
@@ -255,7 +282,6 @@ def run_calibrate(
             labels = [o.station for o in previous.observations if o.station[1:].isdigit()]
             first_station = 1 + max((int(lb[1:]) for lb in labels), default=0)
             log(f"resuming {journal}: {len(previous.observations)} observations already taken")
-        cell = make_cell(cfg)
         provenance = {
             "source": "spherecal calibrate",
             "plan_digest": digest,
@@ -596,7 +622,7 @@ def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, 
 
 
 def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
-                 progress_stream=None, report: bool = True):
+                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
     system, compute the acceptance figures, compare with the MPEs."""
     from .validation import evaluate, measure, plan_validation
@@ -612,6 +638,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
     cell = make_cell(cfg)
+    if cell is None:
+        confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
     from datetime import datetime, timezone
 
@@ -654,7 +682,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 
 
 def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
-             progress_stream=None):
+             progress_stream=None, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal scan``: sweep the object, stream its points to a PLY file."""
     from .ply import PlyWriter
     from .scanning import plan_scan, scan
@@ -678,6 +706,8 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
     host = make_host()
     cell = make_cell(cfg)
+    if cell is None:
+        confirm_motion("scan", f"{len(targets)} profiles", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
     log(f"scan: {len(targets)} profiles into {ply_path}")
     frame = SPHERE_FRAME[cfg.mounting]
