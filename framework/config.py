@@ -397,7 +397,7 @@ def load_config(path: str | Path) -> LoadedConfig:
     path = Path(path)
     from .safeio import read_input, text_encoding_problem
 
-    raw = read_input(path, ConfigError, "a configuration file (TOML)", MAX_CONFIG_BYTES)
+    raw = read_input(path, ConfigError, "the configuration", MAX_CONFIG_BYTES)
     problem = text_encoding_problem(raw)
     if problem:
         raise ConfigError(f"{path}: not a configuration as written: {problem}")

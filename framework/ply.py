@@ -121,13 +121,19 @@ class PlyWriter:
             rec["intensity"] = np.asarray(intensity)[valid]
         if self.with_profile:
             rec["profile"] = np.asarray(profile)[valid]
-        if self.format == "binary_little_endian":
-            self._file.write(rec.tobytes())
-        else:
-            self._file.write(_ascii_rows(rec, self.precision))
-        self.n_written += len(rec)
-        if self.update_header_every_chunk:
-            self._patch_count()
+        try:
+            if self.format == "binary_little_endian":
+                self._file.write(rec.tobytes())
+            else:
+                self._file.write(_ascii_rows(rec, self.precision))
+            self.n_written += len(rec)
+            if self.update_header_every_chunk:
+                self._patch_count()
+        except OSError as exc:  # a full disk: name the file; what was counted is in it
+            from .errors import FileWriteError
+
+            raise FileWriteError(f"{self.path}: cannot write ({exc.strerror or exc}); the points before are kept "
+                                 "(recover_ply restores a consistent count)") from None
 
     def _patch_count(self) -> None:
         f = self._file

@@ -348,7 +348,7 @@ def read_robot_section(path: Path) -> dict:
     from .config import MAX_CONFIG_BYTES
     from .safeio import read_input, text_encoding_problem
 
-    raw = read_input(path, ConfigError, "a robot configuration (TOML)", MAX_CONFIG_BYTES)
+    raw = read_input(path, ConfigError, "the robot configuration", MAX_CONFIG_BYTES)
     problem = text_encoding_problem(raw)
     if problem:
         raise ConfigError(f"{path}: not a robot configuration as written: {problem}")

@@ -88,9 +88,10 @@ def check_input(path: str | os.PathLike, error: type[Exception], what: str) -> o
     try:
         st = os.stat(path)
     except FileNotFoundError:
-        raise error(f"{name}: no such file") from None
+        raise error(f"{name}: " + (f"cannot read {what} (no such file)" if what.startswith("the ") else
+                                   "no such file")) from None
     except OSError as exc:
-        raise error(f"{name}: cannot read ({exc.strerror or exc})") from None
+        raise error(f"{name}: cannot read {what} ({exc.strerror or exc})") from None
     if stat.S_ISDIR(st.st_mode):
         raise error(f"{name}: is a directory, expected {what}") from None
     if not stat.S_ISREG(st.st_mode):

@@ -173,3 +173,14 @@ def test_a_full_disk_in_calibrate_says_resume(tmp_path, monkeypatch, dataset_fil
     assert main(["calibrate", str(cfg)]) == EXIT_DATA
     err = capsys.readouterr().err
     assert "journal.jsonl: cannot write" in err and "--resume" in err
+
+
+def test_a_full_disk_while_scanning_names_the_ply(tmp_path, monkeypatch):
+    w = PlyWriter(tmp_path / "scan.ply", with_profile=True)
+
+    def full(*a):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(w._file, "write", full)
+    with pytest.raises(FileWriteError, match=r"scan.ply: cannot write .No space left on device"):
+        w.write(np.zeros((3, 3)), profile=np.zeros(3, dtype=int))

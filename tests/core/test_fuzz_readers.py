@@ -21,7 +21,7 @@ from spherecal.models import Observation, Pose, Profile  # noqa: E402
 from spherecal.robots.abb_irb2400 import protocol  # noqa: E402
 from spherecal.sensors.nxsensor_i import wire  # noqa: E402
 
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
+FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
 VALID_HEADER = {"format": "spherecal-dataset", "version": 1, "mounting": "eye_in_hand", "sphere_radius_mm": 19.1,
