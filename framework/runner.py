@@ -97,11 +97,20 @@ def _in_file(loaded: LoadedConfig, fn, *args, **kwargs):
         raise ConfigError(f"{loaded.path}: {exc}") from None
 
 
+def tool_point_mm(cfg: RunConfig) -> tuple[float, float, float] | None:
+    """The point on the flange whose speed the moves limit (flange frame, mm): the
+    sensor's origin from the nominal transform (eye-in-hand), the rough sphere centre
+    (eye-to-hand)."""
+    if cfg.mounting == "eye_in_hand":
+        return tuple(cfg.nominal_transform.translation_mm)
+    return tuple(cfg.acquisition.sphere_centre_mm) if cfg.acquisition is not None else None
+
+
 @contextlib.contextmanager
 def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Callable[[str], None]) -> Iterator:
     """Robot and sensor from the configuration, closed on the way out whatever happens."""
     cfg = loaded.config
-    context = DeviceContext(cell=cell, log=log)
+    context = DeviceContext(cell=cell, log=log, tool_point_mm=tool_point_mm(cfg))
     robot = _in_file(loaded, host.create_robot, cfg.robot, context)
     try:
         sensor = _in_file(loaded, host.create_sensor, cfg.sensor, context)

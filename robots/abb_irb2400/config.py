@@ -53,7 +53,8 @@ class SimulatedControllerSettings(BaseModel):
         True, description="round reported values to 32-bit floats, as RAPID num does"
     )
     motion_time_scale: float = Field(
-        0.0, ge=0, description="a move lasts this factor times distance / speed, s (0: instantaneous)"
+        0.0, ge=0, description="a move lasts this factor times its duration (distance / speed or angle / "
+        "reorientation speed, the longer), s (0: instantaneous)"
     )
     max_controller_speed_mm_s: float = Field(7000.0, gt=0, description="the controller's own TCP speed limit, mm/s")
     home_joints_deg: tuple[float, float, float, float, float, float] = Field(
@@ -93,7 +94,8 @@ class AbbIrb2400Config(BaseModel):
         5.0, ge=0, le=600, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
     )
     orientation_speed_deg_s: float = Field(
-        100.0, gt=0, le=1000, description="reorientation speed assumed when estimating a move's duration, deg/s"
+        100.0, gt=0, le=500, description="largest reorientation speed a move asks for (speeddata v_ori), deg/s; "
+        "each move asks for less when its sensor (the tool point) would otherwise exceed the move's speed"
     )
     path_check_samples: int = Field(
         10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
