@@ -9,6 +9,8 @@ Exit codes (scripts may rely on them; docs/cli.md):
   4  device error (robot or sensor: timeout, disconnect, protocol); what was taken is kept
   5  validation failed (an acceptance figure exceeds its MPE)
   6  plugin error (a plugin failed to load or misbehaved)
+  7  the result is RED (do not use it): the verdict says why; result.json and the exports
+     are written only with --force (the report always)
   130 interrupted (Ctrl-C); what was taken is kept (calibrate: continue with --resume)
 """
 
@@ -20,7 +22,7 @@ import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
+from .errors import FileWriteError, ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -29,7 +31,13 @@ EXIT_DATA = 3
 EXIT_DEVICE = 4
 EXIT_VALIDATION = 5
 EXIT_PLUGIN = 6
+EXIT_RED = 7
 EXIT_INTERRUPTED = 130
+
+
+def _ask(prompt: str) -> str:
+    """A typed answer from the operator (looked up at call time, so tests can stand in)."""
+    return input(prompt)
 
 
 def _err(msg: str) -> None:
@@ -44,11 +52,15 @@ def cmd_calibrate(args) -> int:
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
-        report=not args.no_report,
+        report=not args.no_report, force=args.force, yes=args.yes, ask=_ask,
     )
+    if outcome.finished:
+        print(f"{Path(args.out) if args.out else loaded.output_dir} holds a finished run: nothing to resume; its "
+              "result, exports and report were left as they are")
+        return EXIT_OK
     if outcome.solution is None:
         return EXIT_OK
-    print(summary(outcome.solution))
+    print(summary(outcome.solution, outcome.verdict))
     from . import dataio
 
     journal = outcome.files.get("journal")
@@ -57,8 +69,22 @@ def cmd_calibrate(args) -> int:
         if check:
             print(check)
     out = Path(args.out) if args.out else loaded.output_dir
-    print(f"results in {out}")
-    return EXIT_OK
+    return _finish(out, outcome.verdict, outcome.exports_written,
+                   "--resume --force" if outcome.files.get("journal") else "--force")
+
+
+def _finish(out: Path, graded, written: bool, force: str = "--force") -> int:
+    """The last line of calibrate and solve, and the exit code: a RED result exits 7."""
+    if graded.level != "red":
+        print(f"results in {out}")
+        return EXIT_OK
+    if written:
+        print(f"results in {out} (written with --force although the result is RED: do not use it in production)")
+    else:
+        print(f"the result is RED: result.json and the exports were NOT written (report in {out}); fix the cause "
+              f"and run again, or give {force} to write them anyway")
+    _err("the result is RED (exit 7): see the verdict above")
+    return EXIT_RED
 
 
 def cmd_solve(args) -> int:
@@ -68,12 +94,11 @@ def cmd_solve(args) -> int:
     from .runner import solve_and_write, solve_kinematics, summary, truth_check
 
     dataset = dataio.read_dataset(args.dataset)
+    if not dataset.observations:
+        raise InputError(f"{args.dataset}: the dataset holds no observations (only its header): nothing to solve")
     nominal = None
-    if args.nominal:
-        v = [float(x) for x in args.nominal.split(",")]
-        if len(v) != 7:
-            raise ConfigError("--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)")
-        nominal = Pose.from_abb(v[:3], v[3:])
+    if args.nominal is not None:
+        nominal = _parse_nominal(args.nominal)
     fk, dataset, arm = solve_kinematics(
         dataset, args.robot, Path(args.robot_config) if args.robot_config else None, args.pose_from
     )
@@ -82,24 +107,83 @@ def cmd_solve(args) -> int:
         station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
     )
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
-    solution = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
-                               report=not args.no_report, kinematics=arm)
-    print(summary(solution))
+    if not args.overwrite:
+        from .runner import check_output_folder
+
+        check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
+                            "exports and report")
+    solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
+                                                report=not args.no_report, force=args.force, kinematics=arm)
+    print(summary(solution, graded))
     check = truth_check(solution, dataset)
     if check:
         print(check)
-    print(f"results in {out}")
-    return EXIT_OK
+    return _finish(out, graded, written)
 
 
-def _positive_float(text: str) -> float:
+def _parse_nominal(text: str):
+    """``--nominal x,y,z,qw,qx,qy,qz``: finite numbers, a unit quaternion."""
+    import math
+
+    from .models import Pose
+
+    usage = "--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)"
+    parts = text.split(",")
+    if len(parts) != 7:
+        raise ConfigError(f"{usage}; got {len(parts)} value(s) in {text!r:.80}")
+    values = []
+    for i, part in enumerate(parts):
+        try:
+            v = float(part)
+        except ValueError:
+            raise ConfigError(f"{usage}; value {i + 1} is {part!r:.40}, not a number") from None
+        if not math.isfinite(v) or abs(v) > 1e6:
+            raise ConfigError(f"{usage}; value {i + 1} is {part!r:.40}: a finite number of at most 1e6 is needed")
+        values.append(v)
+    n = math.sqrt(sum(c * c for c in values[3:]))
+    if abs(n - 1.0) > 1e-3:
+        raise ConfigError(f"{usage}; the quaternion {values[3:]} has norm {n:.6f}, not 1")
+    return Pose.from_abb(values[:3], values[3:])
+
+
+def _number(text: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float:
+    import math
+
     try:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be greater than 0, got {text}")
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise argparse.ArgumentTypeError(f"must be {'greater than' if lo_open else 'at least'} {lo:g}, got {text}")
+    if hi is not None and v > hi:
+        raise argparse.ArgumentTypeError(f"must be at most {hi:g}, got {text}")
     return v
+
+
+def _positive_float(text: str) -> float:
+    return _number(text, 0.0, 180.0, lo_open=True)
+
+
+def _non_negative_float(text: str) -> float:
+    return _number(text, 0.0, 1e3)
+
+
+def _fraction(text: str) -> float:
+    return _number(text, 0.0, 1.0)
+
+
+def _int_in(lo: int, hi: int):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r:.40}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be from {lo} to {hi}, got {text:.40}")
+        return v
+    return parse
 
 
 def cmd_simulate(args) -> int:
@@ -133,7 +217,7 @@ def cmd_validate(args) -> int:
     from .runner import run_validate
 
     outcome = run_validate(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report)
+                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask)
     from .validation import format_outcome
 
     print(format_outcome(outcome))
@@ -146,7 +230,7 @@ def cmd_scan(args) -> int:
     from .runner import run_scan
 
     path, summary = run_scan(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                             log=lambda m: print(m, file=sys.stderr))
+                             log=lambda m: print(m, file=sys.stderr), yes=args.yes, ask=_ask)
     print(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
     return EXIT_OK
 
@@ -178,6 +262,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--manual", action="store_true", help="the operator jogs the robot; Enter captures")
     c.add_argument("--out", help="output folder (default: output_dir of the configuration)")
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    c.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
+                   "RED (the exit code is still 7)")
+    c.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     c.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)",
@@ -199,17 +286,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a shot turned more than this from its station's orientation is left out "
                    "(default: derived from the orientation read noise)")
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
+                   "RED (the exit code is still 7)")
+    s.add_argument("--overwrite", action="store_true", help="replace the result, exports and report already in the "
+                   "output folder (default: refuse)")
     s.set_defaults(func=cmd_solve)
 
     m = sub.add_parser("simulate", help="write a dataset from the simulated cell")
     m.add_argument("out", help="dataset file to write (.jsonl)")
     m.add_argument("--config", help="take the cell and plan from this configuration's [simulation] and [acquisition]")
     m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], default="eye_in_hand")
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--profiles", type=int, default=10, help="profiles per station")
-    m.add_argument("--point-noise-mm", type=float, default=0.01)
-    m.add_argument("--pose-noise-mm", type=float, default=0.02)
-    m.add_argument("--stray-fraction", type=float, default=0.0, help="share of profiles with stray points")
+    m.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0)
+    m.add_argument("--profiles", type=_int_in(4, 10_000), default=10, help="profiles per station (4 to 10000)")
+    m.add_argument("--point-noise-mm", type=_non_negative_float, default=0.01)
+    m.add_argument("--pose-noise-mm", type=_non_negative_float, default=0.02)
+    m.add_argument("--stray-fraction", type=_fraction, default=0.0, help="share of profiles with stray points (0 to 1)")
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
     m.set_defaults(func=cmd_simulate)
 
@@ -220,6 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("config", help="configuration file (TOML) with a [validation] section")
     v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
+    v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     v.set_defaults(func=cmd_validate)
 
     n = sub.add_parser("scan", help="scan an object with the calibrated system into a PLY point cloud",
@@ -227,6 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "frame the object is fixed in (base in eye-in-hand), to a PLY file.")
     n.add_argument("config", help="configuration file (TOML) with a [scan] section")
     n.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
+    n.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     n.set_defaults(func=cmd_scan)
 
     g = sub.add_parser("plugins", help="list installed robots and sensors with their configuration fields")
@@ -256,6 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         _err(str(exc))
         return EXIT_USAGE
+    except FileWriteError as exc:
+        _err(f"{exc}" + _after_failure(args.command))
+        return EXIT_DATA
     except (InputError, DegenerateDataError, DatasetFileError, FileExistsError) as exc:
         _err(str(exc))
         return EXIT_DATA
@@ -265,11 +361,20 @@ def main(argv: list[str] | None = None) -> int:
     except PluginError as exc:
         _err(str(exc))
         return EXIT_PLUGIN
+    except OSError as exc:
+        if exc.filename:  # a file that cannot be read or written (a full disk, no permission): name it
+            _err(f"{exc.filename}: {exc.strerror or exc}" + _after_failure(args.command))
+            return EXIT_DATA
+        return _internal(args, exc)
     except Exception as exc:  # noqa: BLE001
-        if args.debug:
-            traceback.print_exc()
-        _err(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback; please report it)")
-        return EXIT_INTERNAL
+        return _internal(args, exc)
+
+
+def _internal(args, exc: BaseException) -> int:
+    if args.debug:
+        traceback.print_exc()
+    _err(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback; please report it)")
+    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

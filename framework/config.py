@@ -9,9 +9,11 @@ See docs/configuration.md.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -21,6 +23,14 @@ from .estimation import CalibrationOptions
 from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
 from .sim import NoiseModel, RobotErrorModel, SensorFieldOfView, SweepPlan
+
+#: Largest magnitude of any number in a configuration file: beyond it the value is a
+#: typing or units error (and would overflow the computations).
+MAX_ABS_NUMBER = 1e9
+#: Most profiles one scan may ask for.
+MAX_SCAN_PROFILES = 10_000_000
+#: Largest configuration file read, bytes.
+MAX_CONFIG_BYTES = 1 << 20
 
 Vec3 = tuple[float, float, float]
 Vec4 = tuple[float, float, float, float]
@@ -52,7 +62,7 @@ class TransformConfig(_Section):
 
 
 class SphereConfig(_Section):
-    radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
+    radius_mm: float = Field(gt=0, le=10_000, description="certified radius of the reference sphere, mm")
 
     @field_validator("radius_mm")
     @classmethod
@@ -95,10 +105,10 @@ class AcquisitionConfig(_Section):
     speed_mm_s: float = Field(20.0, gt=0, description="speed along a sweep, mm/s")
     approach_speed_mm_s: float = Field(100.0, gt=0, description="speed of the move to a station's first target, mm/s")
     max_speed_mm_s: float = Field(250.0, gt=0, description="no move may be faster, mm/s")
-    settle_s: float = Field(0.0, ge=0, description="wait after each move before reading, s")
+    settle_s: float = Field(0.0, ge=0, le=3600, description="wait after each move before reading, s")
     pose_agreement_mm: float = Field(0.05, gt=0, description="poses read before and after a profile must agree, mm")
     pose_agreement_deg: float = Field(0.02, gt=0, description="... and in orientation, deg")
-    retries_per_target: int = Field(2, ge=0, description="re-takes of a shot whose poses disagree")
+    retries_per_target: int = Field(2, ge=0, le=100, description="re-takes of a shot whose poses disagree")
     workspace: WorkspaceConfig = Field(description="allowed flange positions, base frame, mm")
 
     @model_validator(mode="after")
@@ -175,7 +185,7 @@ class ValidationConfig(_Section):
     calibration's and compare the acceptance figures with the MPEs."""
 
     result: str | None = Field(None, description="calibration result to validate (default: <output_dir>/result.json)")
-    profiles_per_sweep: int = Field(24, ge=8, description="profiles per sweep")
+    profiles_per_sweep: int = Field(24, ge=8, le=10_000, description="profiles per sweep")
     sphere_positions: list[SweepSite] = Field(default_factory=_default_sphere_sites, description="views of the sphere")
     ball_bar: BallBarConfig | None = None
     flat: FlatConfig | None = None
@@ -191,20 +201,32 @@ class ScanConfig(_Section):
     result: str | None = Field(None, description="calibration result (default: <output_dir>/result.json)")
     object_centre_mm: Vec3 = Field(description="centre of the area to scan, in the frame the object is fixed in, mm")
     site: SweepSite = Field(default_factory=SweepSite, description="orientation and field-of-view offset")
-    length_mm: float = Field(100.0, gt=0, description="length of each pass (along the sensor's x), mm")
-    step_mm: float = Field(0.5, gt=0, description="distance between profiles, mm")
-    passes: int = Field(1, ge=1, description="parallel passes")
+    length_mm: float = Field(100.0, gt=0, le=10_000, description="length of each pass (along the sensor's x), mm")
+    step_mm: float = Field(0.5, ge=0.001, le=10_000, description="distance between profiles, mm")
+    passes: int = Field(1, ge=1, le=10_000, description="parallel passes")
     pass_spacing_mm: float = Field(20.0, gt=0, description="distance between passes (along the laser line), mm")
     standoff_z_mm: float = Field(-10.0, description="sensor-frame z of the object's surface at the centre, mm")
     speed_mm_s: float = Field(50.0, gt=0, description="speed between profiles, mm/s")
-    ply: str = Field("scan.ply", description="output file (relative: in output_dir)")
+    ply: str = Field("scan.ply", description="output file (relative: in output_dir); a path outside output_dir "
+                     "(absolute, or through '..') needs ply_outside_output_dir = true")
+    ply_outside_output_dir: bool = Field(
+        False, description="allow scan.ply to lie outside output_dir (an absolute path or one through '..')"
+    )
     format: Literal["binary_little_endian", "ascii"] = Field("binary_little_endian", description="PLY encoding")
+
+    @model_validator(mode="after")
+    def _bounded(self):
+        n = (self.length_mm / self.step_mm + 1) * self.passes
+        if n > MAX_SCAN_PROFILES:
+            raise ValueError(f"length_mm / step_mm x passes asks for {n:.3g} profiles (at most {MAX_SCAN_PROFILES:g}): "
+                             "a longer step_mm or fewer passes")
+        return self
 
 
 class SimulationConfig(_Section):
     """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
 
-    seed: int = Field(0, description="seed of the cell's noise")
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="seed of the cell's noise")
     true_transform: TransformConfig | None = Field(
         None, description="the cell's true X (default: the standard cell's), mm and (w, x, y, z)"
     )
@@ -291,18 +313,107 @@ class LoadedConfig:
         return self.resolve(self.config.output_dir)
 
 
+def _number_problems(value: Any, path: str, out: list[str]) -> None:
+    """Every NaN, infinity or implausibly large number in parsed TOML, by dotted path."""
+    if isinstance(value, bool):
+        return
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            out.append(f"{path}: {value} is not allowed: give a finite number")
+        elif abs(value) > MAX_ABS_NUMBER:
+            out.append(f"{path}: {value:g} is implausibly large (at most {MAX_ABS_NUMBER:g} in magnitude)")
+    elif isinstance(value, int):
+        if abs(value) > 2**63:
+            out.append(f"{path}: an integer of {len(str(abs(value)))} digits is too large")
+        elif abs(value) > MAX_ABS_NUMBER and path.rsplit(".", 1)[-1] != "seed":
+            out.append(f"{path}: {value} is implausibly large (at most {MAX_ABS_NUMBER:g} in magnitude)")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _number_problems(v, f"{path}.{k}" if path else str(k), out)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _number_problems(v, f"{path}[{i}]", out)
+
+
+def _field_annotation(model: type, keys: list) -> Any:
+    """The annotation of the field a dotted path of parsed TOML reaches in ``model``
+    (through nested models and lists of models), or None when it leaves the models."""
+    ann: Any = model
+    for key in keys:
+        ann = _unwrap(ann)
+        if isinstance(key, int):
+            args = get_args(ann)
+            if get_origin(ann) in (list, tuple) and args:
+                ann = args[0] if get_origin(ann) is list or len(args) == 1 or args[-1] is Ellipsis else (
+                    args[key] if key < len(args) else None)
+                continue
+            return None
+        if isinstance(ann, type) and issubclass(ann, BaseModel) and key in ann.model_fields:
+            ann = ann.model_fields[key].annotation
+            continue
+        return None
+    return _unwrap(ann)
+
+
+def _unwrap(ann: Any) -> Any:
+    while True:
+        origin = get_origin(ann)
+        if origin is Annotated:
+            ann = get_args(ann)[0]
+        elif origin in (Union, UnionType):
+            args = [a for a in get_args(ann) if a is not type(None)]
+            if len(args) != 1:
+                return ann
+            ann = args[0]
+        else:
+            return ann
+
+
+def _bool_problems(value: Any, keys: list, out: list[str]) -> None:
+    """true/false or a string where the model wants a number: TOML booleans and strings
+    are never numbers here (pydantic would read true as 1.0 and "19.1" as 19.1)."""
+    if isinstance(value, (bool, str)):
+        ann = _field_annotation(RunConfig, keys)
+        path = ".".join(str(k) if not isinstance(k, int) else f"[{k}]" for k in keys).replace(".[", "[")
+        if ann in (float, int):
+            shown = str(value).lower() if isinstance(value, bool) else repr(value)
+            out.append(f"{path}: {shown:.40} is a {'boolean' if isinstance(value, bool) else 'string'}; "
+                       "give a number")
+        elif isinstance(value, bool) and ann is not None and ann is not bool and get_origin(ann) is not Literal \
+                and ann is not Any:
+            out.append(f"{path}: {str(value).lower()} is a boolean; expected {getattr(ann, '__name__', ann)}")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _bool_problems(v, [*keys, k], out)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _bool_problems(v, [*keys, i], out)
+
+
 def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a configuration file; :class:`ConfigError` names the file and
-    every bad key by its dotted path."""
+    every bad key by its dotted path. Numbers must be finite and at most
+    :data:`MAX_ABS_NUMBER` in magnitude; a boolean is never read as a number."""
     path = Path(path)
+    from .safeio import read_input, text_encoding_problem
+
+    raw = read_input(path, ConfigError, "the configuration", MAX_CONFIG_BYTES)
+    problem = text_encoding_problem(raw)
+    if problem:
+        raise ConfigError(f"{path}: not a configuration as written: {problem}")
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the configuration ({exc.strerror or exc})") from None
-    try:
-        data = tomllib.loads(raw.decode("utf-8"))
+        data = tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not a configuration: nested too deeply") from None
+    if not data:
+        raise ConfigError(f"{path}: the configuration is empty; see docs/configuration.md and examples/")
+    problems: list[str] = []
+    _number_problems(data, "", problems)
+    _bool_problems(data, [], problems)
+    if problems:
+        raise ConfigError(f"{path}: invalid configuration:\n" + "\n".join(f"  {path}: {p}" for p in problems))
     try:
         cfg = RunConfig.model_validate(data)
     except ValidationError as exc:

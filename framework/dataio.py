@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from . import __version__
-from .errors import DatasetFileError, InputError
+from .errors import DatasetFileError, FileWriteError, InputError
 from .models import CalibrationResult, Dataset, MountingMode, Observation, Pose
 
 try:  # optional accelerator: parses full-precision floats about 7x faster than json
@@ -69,6 +69,11 @@ RESULT_FORMAT = "spherecal-result"
 RESULT_VERSION = 1
 
 _OBSERVATION_KIND = "observation"
+#: Longest line of a dataset file (a profile of 3200 points is about 130 kB).
+MAX_LINE_BYTES = 64 << 20
+#: Largest magnitude of a coordinate (mm) or joint angle (deg) in a file: beyond it the
+#: value is not a measurement (and would overflow the fits).
+MAX_ABS_VALUE = 1e6
 
 
 class TruncatedFileWarning(UserWarning):
@@ -129,7 +134,10 @@ def _loads(raw: bytes) -> Any:
             return _orjson.loads(raw)
         except ValueError:
             pass
-    return json.loads(raw)
+    try:
+        return json.loads(raw)
+    except RecursionError:
+        raise ValueError("nested too deeply (hundreds of levels of lists or objects)") from None
 
 
 def _parse_timestamp(value: Any) -> datetime:
@@ -159,6 +167,14 @@ def _number_array(value: Any, field: str) -> np.ndarray:
     except ValueError:
         raise _FieldError(field, "expected a flat list of numbers, got nested lists of unequal length") from None
     kind = arr.dtype.kind
+    if kind in "fiu" and arr.size and arr.ndim == 1:
+        with np.errstate(invalid="ignore", over="ignore"):
+            a = arr.astype(float)
+            big = np.flatnonzero(np.isfinite(a) & (np.abs(a) > MAX_ABS_VALUE))  # NaN, inf: the model says
+        if big.size:
+            i = int(big[0])
+            raise _FieldError(field, f"item {i} is {float(arr[i])!r}: beyond {MAX_ABS_VALUE:g} mm, not a "
+                                     "measurement (check the units)")
     if kind == "f" and arr.ndim == 1:
         # NumPy turns true/false mixed with floats into 1.0/0.0: look only at those values
         suspects = np.flatnonzero((arr == 1.0) | (arr == 0.0))
@@ -174,7 +190,14 @@ def _number_array(value: Any, field: str) -> np.ndarray:
                 raise _FieldError(field, f"expected a flat list of numbers, item {i} is a list")
             shown = "null" if v is None else json.dumps(v) if isinstance(v, (bool, str)) else repr(v)
             raise _FieldError(field, f"must hold only numbers; item {i} is {shown} ({type(v).__name__})")
-    return np.asarray(value, dtype=float)  # e.g. integers too large for int64
+        try:
+            ok = abs(float(v)) <= MAX_ABS_VALUE
+        except OverflowError:
+            ok = False
+        if not ok:
+            raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} mm "
+                                     "(check the units)")
+    return np.asarray(value, dtype=float)
 
 
 def _small_numbers(value: Any, field: str) -> Any:
@@ -183,6 +206,13 @@ def _small_numbers(value: Any, field: str) -> Any:
         for i, v in enumerate(value):
             if type(v) is bool or not isinstance(v, (int, float)):
                 raise _FieldError(field, f"must hold only numbers; item {i} is {json.dumps(v)}")
+            try:
+                ok = abs(float(v)) <= MAX_ABS_VALUE
+            except OverflowError:
+                ok = False
+            if not ok:
+                raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} "
+                                         "(check the units)")
         return tuple(value)
     return value
 
@@ -388,7 +418,7 @@ def _header_from_json(obj: Any, name: str) -> DatasetHeader:
 def _is_result_document(data: bytes) -> bool:
     try:
         doc = json.loads(data)
-    except ValueError:
+    except (ValueError, RecursionError):
         return False
     return isinstance(doc, dict) and doc.get("format") == RESULT_FORMAT
 
@@ -398,10 +428,23 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     if not data:
         raise DatasetFileError(f"{name}: the file is empty; expected a spherecal dataset (header line first)")
     start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # tolerate a UTF-8 byte order mark
+    if start == len(data) or not data[start:].strip():
+        raise DatasetFileError(f"{name}: the file holds no data (only a byte order mark or blank space); "
+                               "expected a spherecal dataset (header line first)")
+    from .safeio import text_encoding_problem
+
+    problem = text_encoding_problem(data)
+    if problem:
+        raise DatasetFileError(f"{name}: not a spherecal dataset as written: {problem}. A dataset is UTF-8 "
+                               "JSON Lines; the data may well be intact")
     lines: list[tuple[int, bytes]] = []  # (byte offset, content without newline)
     pos = start
     while pos < len(data):
         nl = data.find(b"\n", pos)
+        end = len(data) if nl < 0 else nl
+        if end - pos > MAX_LINE_BYTES:
+            raise DatasetFileError(f"{name} line {len(lines) + 1} (byte {pos}): longer than {MAX_LINE_BYTES} bytes; "
+                                   "not a spherecal dataset line (one profile is at most a few hundred kB)")
         if nl < 0:
             lines.append((pos, data[pos:]))
             break
@@ -486,13 +529,9 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
 
 
 def _read_bytes(path: str | os.PathLike) -> bytes:
-    try:
-        with open(path, "rb") as f:
-            return f.read()
-    except FileNotFoundError:
-        raise DatasetFileError(f"{os.fspath(path)}: no such file") from None
-    except IsADirectoryError:
-        raise DatasetFileError(f"{os.fspath(path)}: is a directory, expected a dataset file") from None
+    from .safeio import read_input
+
+    return read_input(path, DatasetFileError, "a spherecal file")
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:
@@ -517,11 +556,16 @@ def read_dataset_header(path: str | os.PathLike) -> DatasetHeader:
     """Read and check only line 1 of a dataset file (format, version, mounting, radius,
     provenance, creation time)."""
     name = os.fspath(path)
+    from .safeio import check_input
+
+    check_input(path, DatasetFileError, "a dataset file")
     try:
         with open(path, "rb") as f:
-            raw = f.readline()
-    except FileNotFoundError:
-        raise DatasetFileError(f"{name}: no such file") from None
+            raw = f.readline(MAX_LINE_BYTES + 1)
+    except OSError as exc:
+        raise DatasetFileError(f"{name}: cannot read ({exc.strerror or exc})") from None
+    if len(raw) > MAX_LINE_BYTES:
+        raise DatasetFileError(f"{name}: line 1 is longer than {MAX_LINE_BYTES} bytes; not a spherecal dataset")
     if not raw:
         raise DatasetFileError(f"{name}: the file is empty; expected a spherecal dataset (header line first)")
     raw = raw.removeprefix(b"\xef\xbb\xbf")
@@ -646,10 +690,15 @@ class DatasetWriter:
         return h
 
     def _write(self, data: bytes) -> None:
-        self._file.write(data)
-        self._file.flush()
-        if self.fsync:
-            os.fsync(self._file.fileno())
+        try:
+            self._file.write(data)
+            self._file.flush()
+            if self.fsync:
+                os.fsync(self._file.fileno())
+        except OSError as exc:  # a full disk, a removed medium: name the file
+            raise FileWriteError(
+                f"{os.fspath(self.path)}: cannot write ({exc.strerror or exc}); the lines written before are kept"
+            ) from None
 
     @property
     def n_observations(self) -> int:
@@ -781,9 +830,63 @@ def write_result(
         os.replace(tmp, path)
         if fsync:
             _fsync_dir(path)
+    except OSError as exc:
+        raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _non_finite(value: Any, where: str) -> str | None:
+    """The path of the first NaN or infinite number in a parsed JSON document, or None."""
+    stack = [(value, where)]
+    while stack:
+        v, at = stack.pop()
+        if isinstance(v, float) and not math.isfinite(v):
+            return at
+        if isinstance(v, dict):
+            stack.extend((x, f"{at}.{k}" if at else str(k)) for k, x in v.items())
+        elif isinstance(v, list):
+            stack.extend((x, f"{at}[{i}]") for i, x in enumerate(v))
+    return None
+
+
+def _result_number_problem(doc: dict) -> str | None:
+    """What is wrong with the numbers of a result document (NaN or infinity anywhere, a
+    negative standard deviation or variance, an implausibly large position), or None."""
+    at = _non_finite(doc, "")
+    if at:
+        return f"{at}: NaN or infinity is not a number a result can hold (standard JSON has neither)"
+    for key in ("std_rotation_deg", "std_translation_mm", "std_sphere_centre_mm"):
+        v = doc.get(key)
+        if isinstance(v, list) and any(isinstance(x, (int, float)) and x < 0 for x in v):
+            return f"{key}: a standard deviation cannot be negative, got {v}"
+    radius = doc.get("sphere_radius_mm")
+    if isinstance(radius, (int, float)) and not isinstance(radius, bool) and radius <= 0:
+        return f"sphere_radius_mm: must be greater than 0, got {radius}"
+    cov = doc.get("covariance")
+    if isinstance(cov, list):
+        n = 10 if doc.get("radius_fitted") is True else 9
+        if len(cov) != n or not all(isinstance(r, list) and len(r) == n for r in cov):
+            return (f"covariance: expected a {n} x {n} matrix (rotation, translation, sphere centre"
+                    f"{', radius' if n == 10 else ''}), got {len(cov)} rows")
+    if isinstance(cov, list) and all(isinstance(r, list) for r in cov):
+        for i, row in enumerate(cov):
+            if i < len(row) and isinstance(row[i], (int, float)) and row[i] < 0:
+                return f"covariance[{i}][{i}]: a variance cannot be negative, got {row[i]}"
+    for key, value in (("transform.translation_mm", (doc.get("transform") or {}).get("translation_mm")),
+                       ("sphere_centre_mm", doc.get("sphere_centre_mm")),
+                       ("sphere_radius_mm", [doc.get("sphere_radius_mm")])):
+        if isinstance(value, list):
+            for x in value:
+                if isinstance(x, (int, float)) and not isinstance(x, bool):
+                    try:
+                        ok = abs(float(x)) <= MAX_ABS_VALUE
+                    except OverflowError:
+                        ok = False
+                    if not ok:
+                        return f"{key}: {x!r:.40} is beyond {MAX_ABS_VALUE:g} mm: not a plausible value (units?)"
+    return None
 
 
 def read_result(path: str | os.PathLike) -> CalibrationResult:
@@ -792,8 +895,18 @@ def read_result(path: str | os.PathLike) -> CalibrationResult:
     of a newer format version asks for a newer spherecal."""
     name = os.fspath(path)
     data = _read_bytes(path)
+    if not data.removeprefix(b"\xef\xbb\xbf").strip():
+        raise DatasetFileError(f"{name}: the file holds no data; expected a spherecal result (one JSON document)")
+    from .safeio import text_encoding_problem
+
+    problem = text_encoding_problem(data)
+    if problem:
+        raise DatasetFileError(f"{name}: not a spherecal result as written: {problem}")
+    data = data.removeprefix(b"\xef\xbb\xbf")
     try:
         doc = json.loads(data)
+    except RecursionError:
+        raise DatasetFileError(f"{name}: not a spherecal result: nested too deeply") from None
     except ValueError as exc:
         first = data.split(b"\n", 1)[0]
         try:
@@ -823,6 +936,9 @@ def read_result(path: str | os.PathLike) -> CalibrationResult:
             f"{name}: result format version {version} is newer than this spherecal ({__version__}) reads "
             f"(versions 1 to {RESULT_VERSION}); upgrade spherecal to read it"
         )
+    bad = _result_number_problem(doc)
+    if bad:
+        raise DatasetFileError(f"{name}: {bad}")
     try:
         result = CalibrationResult.model_validate_json(data, strict=True)
     except ValidationError as exc:

@@ -33,7 +33,9 @@ class Robot(Protocol):
 
     def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
         """Move the flange in a straight line to the target and return when in position.
-        Limits (speed, workspace) are checked before anything is sent."""
+        ``speed_mm_s`` limits the speed of the context's ``tool_point_mm`` (the sensor),
+        not only the flange's, where the robot can. Limits (speed, workspace) are checked
+        before anything is sent."""
 
     def close(self) -> None:
         """Release the connection. Safe to call twice."""
@@ -65,6 +67,11 @@ class DeviceContext:
     cell: "SimulatedCell | None" = None
     log: Callable[[str], None] = print
     extras: dict[str, Any] = field(default_factory=dict)
+    #: The point the flange carries whose speed a move's ``speed_mm_s`` limits, flange
+    #: frame, mm: the sensor's origin (eye-in-hand) or the sphere's centre (eye-to-hand),
+    #: from the configuration. A robot that can should limit every move's speed at this
+    #: point (a reorientation moves it faster than the flange); None: at the flange.
+    tool_point_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -27,3 +27,8 @@ class DeviceError(SpherecalError):
 
 class PluginError(SpherecalError):
     """A plugin failed to load, register or configure; the message names the plugin."""
+
+
+class FileWriteError(DatasetFileError):
+    """An output file could not be written (a full disk, no permission); the message
+    names the file."""

@@ -59,6 +59,12 @@ def _finite(values, what: str):
     return values
 
 
+#: Largest plausible reference sphere radius, mm (a check on units and typing errors).
+MAX_SPHERE_RADIUS_MM = 10_000.0
+#: Longest station label (it is shown in messages, tables and figures).
+MAX_STATION_LABEL = 200
+
+
 class Pose(BaseModel):
     """A rigid transform ``A_from_B``: rotation as a unit quaternion (w, x, y, z) and a
     translation in mm. Which frames it links is said by the field or variable holding it
@@ -190,8 +196,9 @@ class Observation(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    index: int = Field(ge=0, description="position in the acquisition, 0-based")
-    station: str = Field(min_length=1, description="station label; one flange orientation per station")
+    index: int = Field(ge=0, le=2**53, description="position in the acquisition, 0-based")
+    station: str = Field(min_length=1, max_length=MAX_STATION_LABEL,
+                         description="station label; one flange orientation per station")
     timestamp: datetime = Field(default_factory=lambda: datetime.now(timezone.utc))
     base_from_flange: Pose | None = None
     joints_deg: tuple[float, float, float, float, float, float] | None = None
@@ -226,6 +233,8 @@ class Dataset(BaseModel):
             raise ValueError(
                 f"sphere_radius_mm = {v} looks like metres; give the certified radius in millimetres"
             )
+        if v > MAX_SPHERE_RADIUS_MM:
+            raise ValueError(f"sphere_radius_mm = {v:g} is implausibly large (at most {MAX_SPHERE_RADIUS_MM:g} mm)")
         return v
 
     @property

@@ -30,6 +30,7 @@ from typing import Literal
 
 import numpy as np
 
+from . import safeio
 from .errors import InputError
 
 PlyFormat = Literal["binary_little_endian", "ascii"]
@@ -93,7 +94,7 @@ class PlyWriter:
         lines.append("end_header")
         header = ("\n".join(lines) + "\n").encode("ascii")
         self._count_offset = header.index(b"element vertex ") + len(b"element vertex ")
-        self._file = open(self.path, "wb")
+        self._file = safeio.open_for_write(self.path)
         self._file.write(header)
         self._file.flush()  # a writer killed before its first chunk leaves a valid empty file
 
@@ -120,13 +121,19 @@ class PlyWriter:
             rec["intensity"] = np.asarray(intensity)[valid]
         if self.with_profile:
             rec["profile"] = np.asarray(profile)[valid]
-        if self.format == "binary_little_endian":
-            self._file.write(rec.tobytes())
-        else:
-            self._file.write(_ascii_rows(rec, self.precision))
-        self.n_written += len(rec)
-        if self.update_header_every_chunk:
-            self._patch_count()
+        try:
+            if self.format == "binary_little_endian":
+                self._file.write(rec.tobytes())
+            else:
+                self._file.write(_ascii_rows(rec, self.precision))
+            self.n_written += len(rec)
+            if self.update_header_every_chunk:
+                self._patch_count()
+        except OSError as exc:  # a full disk: name the file; what was counted is in it
+            from .errors import FileWriteError
+
+            raise FileWriteError(f"{self.path}: cannot write ({exc.strerror or exc}); the points before are kept "
+                                 "(recover_ply restores a consistent count)") from None
 
     def _patch_count(self) -> None:
         f = self._file

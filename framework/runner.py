@@ -19,10 +19,35 @@ from .errors import ConfigError, InputError, SpherecalError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME
+from .report.assess import Verdict
 from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
 JOURNAL_NAME = "journal.jsonl"
 RESULT_NAME = "result.json"
+#: What a calibration writes into its folder (the exports are named after the transform).
+OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png", "*.mod", "ros_static_transform.*",
+                   "*_from_*_4x4.txt", "*_from_*_xyz_quat_wxyz.txt")
+
+
+def existing_outputs(out: Path) -> list[Path]:
+    """The files in ``out`` that writing a calibration there would replace (links too)."""
+    if not out.is_dir():
+        return []
+    found = {p for pattern in OUTPUT_PATTERNS for p in out.glob(pattern)}
+    return sorted(found)
+
+
+def check_output_folder(out: Path, what: str, how: str) -> None:
+    """Refuse (InputError naming the file) to write a calibration into ``out`` when that
+    would replace a file already there: ``what`` is the command, ``how`` how to proceed."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out} is not a folder: give an output folder")
+    found = existing_outputs(out)
+    journal = out / JOURNAL_NAME
+    if found:
+        kind = "a calibration run" if journal.exists() else "a result"
+        raise InputError(f"{found[0]} exists: {out} already holds {kind}, and {what} would replace it "
+                         f"(nothing is overwritten silently); {how}")
 
 
 def make_cell(cfg: RunConfig) -> SimulatedCell | None:
@@ -72,11 +97,20 @@ def _in_file(loaded: LoadedConfig, fn, *args, **kwargs):
         raise ConfigError(f"{loaded.path}: {exc}") from None
 
 
+def tool_point_mm(cfg: RunConfig) -> tuple[float, float, float] | None:
+    """The point on the flange whose speed the moves limit (flange frame, mm): the
+    sensor's origin from the nominal transform (eye-in-hand), the rough sphere centre
+    (eye-to-hand)."""
+    if cfg.mounting == "eye_in_hand":
+        return tuple(cfg.nominal_transform.translation_mm)
+    return tuple(cfg.acquisition.sphere_centre_mm) if cfg.acquisition is not None else None
+
+
 @contextlib.contextmanager
 def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Callable[[str], None]) -> Iterator:
     """Robot and sensor from the configuration, closed on the way out whatever happens."""
     cfg = loaded.config
-    context = DeviceContext(cell=cell, log=log)
+    context = DeviceContext(cell=cell, log=log, tool_point_mm=tool_point_mm(cfg))
     robot = _in_file(loaded, host.create_robot, cfg.robot, context)
     try:
         sensor = _in_file(loaded, host.create_sensor, cfg.sensor, context)
@@ -112,6 +146,48 @@ def _check_plan(targets, acq, what: str = "plan", robot=None) -> None:
         raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
 
 
+def check_plan_solvable(targets) -> None:
+    """Raise InputError (before anything moves) when the plan's stations can never
+    determine the transform: the translation needs changes of orientation about at
+    least two different axes, so at least three stations."""
+    first: dict[str, np.ndarray] = {}
+    for t in targets:
+        first.setdefault(t.station, t.pose.rotation_matrix)
+    Rs = list(first.values())
+    hint = ("add stations tilted by 20-45 deg about two different axes (acquisition.sweep.tilts_deg); nothing "
+            "was moved")
+    if len(Rs) < 3:
+        raise InputError(f"the plan has {len(Rs)} station(s): the translation cannot be determined from fewer than "
+                         f"three orientations; {hint}")
+    M = np.vstack([R - Rs[0] for R in Rs[1:]])
+    sv = np.linalg.svd(M, compute_uv=False)
+    if sv[-1] < 0.05:
+        raise InputError("the plan's stations are tilted about one axis only: the translation along it cannot be "
+                         f"determined; {hint}")
+
+
+class MotionNotConfirmed(ConfigError):
+    """The operator did not confirm the motion (or could not: no input and no --yes)."""
+
+
+def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str], log: Callable[[str], None]) -> None:
+    """Before the first motion on real hardware: the plan summary and a typed 'yes', or
+    ``yes`` (``--yes``). Raises :class:`MotionNotConfirmed` otherwise; nothing has been
+    opened or moved then."""
+    if yes:
+        log(f"{command}: motion confirmed with --yes: {plan}")
+        return
+    log(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the enabling "
+        "device or the emergency stop.")
+    try:
+        answer = ask("Type 'yes' to start the motion (anything else stops): ")
+    except (EOFError, OSError):
+        raise MotionNotConfirmed(f"{command} would move the robot and nobody confirmed it (no input): run it at a "
+                                 "terminal and type 'yes', or give --yes; nothing was moved") from None
+    if answer.strip().lower() != "yes":
+        raise MotionNotConfirmed(f"{command}: motion not confirmed (answer {answer.strip()[:20]!r}); nothing was moved")
+
+
 @dataclass
 class Outcome:
     """What a calibrate/solve run produced."""
@@ -119,6 +195,11 @@ class Outcome:
     solution: Solution | None = None
     files: dict[str, Path] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    verdict: "Verdict | None" = None
+    #: False when the result is RED and was not written (no ``force``)
+    exports_written: bool = False
+    #: ``--resume`` found a finished run (its result.json): nothing was done
+    finished: bool = False
 
 
 def calibration_options(cfg: RunConfig) -> CalibrationOptions:
@@ -136,9 +217,12 @@ def run_calibrate(
     ask: Callable[[str], str] = input,
     progress_stream=None,
     report: bool = True,
+    force: bool = False,
+    yes: bool = False,
 ) -> Outcome:
     """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
-    recorded dataset), solve, write the result, exports and report."""
+    recorded dataset), solve, write the result, exports and report. A RED result's
+    ``result.json`` and exports are written only with ``force`` (its report always)."""
     cfg = loaded.config
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
@@ -147,8 +231,14 @@ def run_calibrate(
     _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
     outcome = Outcome()
 
+    if resume and (out / RESULT_NAME).exists():
+        outcome.finished = True
+        log(f"{out} holds a finished run ({out / RESULT_NAME}); nothing to resume and nothing was rewritten")
+        return outcome
     if cfg.replay is not None:
         path = loaded.resolve(cfg.replay)
+        if not dry_run:
+            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
         log(f"replaying {path}")
         dataset = dataio.read_dataset(path)
         if dataset.mounting != cfg.mounting:
@@ -165,6 +255,7 @@ def run_calibrate(
             log(f"plan: {len(targets)} shots in {len(set(t.station for t in targets))} stations")
             log(describe_plan(targets))
             _check_plan(targets, acq, "plan")
+            check_plan_solvable(targets)
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
             if not manual:
@@ -178,6 +269,12 @@ def run_calibrate(
                 f"{journal} already holds an acquisition: run with --resume to continue it, "
                 "or choose another output_dir (nothing is ever overwritten)"
             )
+        if not journal.exists():
+            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
+        cell = make_cell(cfg)
+        if not manual and cell is None:
+            confirm_motion("calibrate", f"{len(targets)} shots in {len(set(t.station for t in targets))} stations "
+                           f"(plan above), at most {acq.max_speed_mm_s:g} mm/s", yes, ask, log)
         out.mkdir(parents=True, exist_ok=True)
         done: set[int] = set()
         digest = "manual" if manual else plan_digest(targets)
@@ -195,7 +292,6 @@ def run_calibrate(
             labels = [o.station for o in previous.observations if o.station[1:].isdigit()]
             first_station = 1 + max((int(lb[1:]) for lb in labels), default=0)
             log(f"resuming {journal}: {len(previous.observations)} observations already taken")
-        cell = make_cell(cfg)
         provenance = {
             "source": "spherecal calibrate",
             "plan_digest": digest,
@@ -233,7 +329,8 @@ def run_calibrate(
         host.acquisition_finished(dataset=dataset)
         outcome.files["journal"] = journal
 
-    solution = solve_and_write(dataset, calibration_options(cfg), out, fk, log, report=report, kinematics=arm)
+    solution, outcome.verdict, outcome.exports_written = solve_and_write(
+        dataset, calibration_options(cfg), out, fk, log, report=report, force=force, kinematics=arm)
     host.calibration_finished(result=solution.result, dataset=dataset)
     outcome.solution = solution
     outcome.files.update(written_files(out))
@@ -258,12 +355,19 @@ def read_robot_section(path: Path) -> dict:
     or, without one, the whole file (the plugin's settings, ``type`` optional)."""
     import tomllib
 
+    from .config import MAX_CONFIG_BYTES
+    from .safeio import read_input, text_encoding_problem
+
+    raw = read_input(path, ConfigError, "the robot configuration", MAX_CONFIG_BYTES)
+    problem = text_encoding_problem(raw)
+    if problem:
+        raise ConfigError(f"{path}: not a robot configuration as written: {problem}")
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the robot configuration ({exc.strerror or exc})") from None
+        data = tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not a robot configuration: nested too deeply") from None
     section = data.get("robot", data)
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: robot: expected a table of robot settings")
@@ -347,27 +451,126 @@ def solve_and_write(
     fk=None,
     log: Callable[[str], None] = print,
     report: bool = True,
+    force: bool = False,
     kinematics=None,
-) -> Solution:
-    """Solve ``dataset`` and write ``result.json``, the exports and the HTML report in
-    ``out``. ``kinematics``: the robot's arm model, for the kinematic robot error model."""
+) -> tuple[Solution, "Verdict", bool]:
+    """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
+    ``result.json``, the exports and the HTML report in ``out``. A RED result's
+    ``result.json`` and exports are written only with ``force``; its report is written
+    (it says why). Returns the solution, its verdict and whether the result and exports
+    were written. ``kinematics``: the robot's arm model, for the kinematic robot error
+    model."""
     solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
+    graded = assess_solution(solution, dataset, options, fk, log)
     from .report.export import write_exports
 
     out.mkdir(parents=True, exist_ok=True)
-    write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
+    written = graded.level != "red" or force
+    if written:
+        write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
     if report:
         try:
             from .report.html import write_report
         except ImportError:  # pragma: no cover
             write_report = None
         if write_report is not None:
-            write_report(solution, out)
-    return solution
+            write_report(solution, out, verdict_override=graded)
+    return solution, graded, written
 
 
-def summary(solution: Solution) -> str:
-    """The result in a few lines: both directions, xyz + ABB quaternion, uncertainties."""
+def _other_mounting(mounting: str) -> str:
+    return "eye_to_hand" if mounting == "eye_in_hand" else "eye_in_hand"
+
+
+def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
+                    log: Callable[[str], None] = print) -> "Verdict":
+    """The verdict of ``solution`` (:func:`spherecal.report.assess.verdict`); for a RED
+    one, the likely cause named where the data can tell it:
+
+    - an absurd solution (residuals many times the noise) solved again with the other
+      mounting: when that fits, the dataset's mounting label is wrong;
+    - residuals above the expected with the certified radius: solved again with the
+      radius fitted; when the data prefer another radius, it is named.
+
+    Each check costs one more solve, and only for a RED result."""
+    from .report.assess import Thresholds, expected_rms_mm, is_absurd, verdict
+
+    th = Thresholds()
+    v = verdict(solution.result, th)
+    if v.level != "red":
+        return v
+    result = solution.result
+    ratio = result.residuals.rms_mm / expected_rms_mm(result, th)
+    causes: list[str] = []
+    if is_absurd(result, th):
+        other = _other_mounting(dataset.mounting)
+        log(f"the result is absurd: checking whether the data are {other} data")
+        try:
+            alt = solve(dataset.model_copy(update={"mounting": other}),
+                        options.model_copy(update={"nominal_transform": None}), fk).result
+        except SpherecalError:
+            alt = None
+        if alt is not None and not is_absurd(alt, th):
+            alt_ratio = alt.residuals.rms_mm / expected_rms_mm(alt, th)
+            causes.append(
+                f"the dataset's mounting is probably wrong: it says {dataset.mounting}, but solved as {other} the "
+                f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({alt_ratio:.2f} x the expected; "
+                f"here {ratio:.3g} x). Check the sensor's mounting and the 'mounting' of the configuration or dataset"
+            )
+    if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
+        log("residuals above the expected: checking which sphere radius the data prefer")
+        try:
+            alt = solve(dataset, options.model_copy(update={"fit_radius": True}), fk).result
+        except SpherecalError:
+            alt = None
+        if alt is not None and alt.std_sphere_radius_mm is not None:
+            given, fitted = result.sphere_radius_mm, alt.sphere_radius_mm
+            if abs(fitted - given) > max(5 * alt.std_sphere_radius_mm, 0.01) and alt.residuals.rms_mm < 0.7 * result.residuals.rms_mm:
+                causes.append(
+                    f"the sphere radius is probably wrong: the data prefer {fitted:.3f} mm (1-sigma "
+                    f"{alt.std_sphere_radius_mm:.3f} mm; residual RMS then {alt.residuals.rms_mm:.4f} mm) but "
+                    f"{given:g} mm was given. Check the certificate (radius in mm, not the diameter)"
+                )
+    re = result.robot_error
+    if not causes and re is not None and len(dataset.observations) and re.station_translation_mm > 0.1:
+        causes.extend(_odd_station(solution, dataset, options, fk, log, th))
+    if causes:
+        v.reasons.extend(("red", "likely cause: " + c) for c in causes)
+        v.headline = f"{v.headline} Likely cause: {causes[0].split(':')[0]}."
+    return v
+
+
+def _odd_station(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk, log, th) -> list[str]:
+    """The station whose leaving out makes the others agree, when there is one: each
+    station left out in turn (one solve each)."""
+    from .report.assess import verdict
+
+    result = solution.result
+    labels = list(solution.problem.station_labels)
+    if len(labels) < 4:
+        return []
+    log(f"the stations disagree by {result.robot_error.station_translation_mm:.3f} mm: leaving each out in turn")
+    best = None
+    for label in labels:
+        keep = [o for o in dataset.observations if o.station != label]
+        try:
+            alt = solve(dataset.model_copy(update={"observations": keep}), options, fk).result
+        except SpherecalError:
+            continue
+        spread = alt.robot_error.station_translation_mm if alt.robot_error is not None else 0.0
+        if best is None or spread < best[1]:
+            best = (label, spread, verdict(alt, th).level)
+    if best is None or best[2] == "red" or best[1] > result.robot_error.station_translation_mm / 3:
+        return []
+    return [f"station {best[0]} disagrees with the others: without it they agree to {best[1]:.3f} mm (with it "
+            f"{result.robot_error.station_translation_mm:.3f} mm). Its profiles or poses are offset (the sensor or "
+            "the sphere moved, another tool or work object, a pose read in another frame): re-acquire that station"]
+
+
+def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
+    """The result in a few lines: both directions, xyz + ABB quaternion, uncertainties,
+    and the verdict (``graded``, else computed from the result), with the reasons for a
+    RED one."""
     r = solution.result
     X = r.transform
     inv = X.inverse()
@@ -415,8 +618,10 @@ def summary(solution: Solution) -> str:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
     from .report.assess import verdict
 
-    v = verdict(r)
+    v = graded or verdict(r)
     lines.append(f"verdict: {v.level.upper()}: {v.headline}")
+    if v.level == "red":
+        lines.extend(f"  red: {text}" for lvl, text in v.reasons if lvl == "red")
     return "\n".join(lines)
 
 
@@ -456,7 +661,7 @@ def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, 
 
 
 def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
-                 progress_stream=None, report: bool = True):
+                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
     system, compute the acceptance figures, compare with the MPEs."""
     from .validation import evaluate, measure, plan_validation
@@ -472,6 +677,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
     cell = make_cell(cfg)
+    if cell is None:
+        confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
     from datetime import datetime, timezone
 
@@ -496,8 +703,10 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     text = json.dumps({"passed": outcome.passed, "result": str(result_path), "journal": journal.name,
                        "figures": outcome.table(), "report": outcome.report.model_dump(),
                        "centres_mm": outcome.centres_mm}, indent=2, default=float)
-    (out / f"validation-{stamp}.json").write_text(text)
-    (out / "validation.json").write_text(text)  # the latest run, for scripts
+    from . import safeio
+
+    safeio.write_text(out / f"validation-{stamp}.json", text)
+    safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
     calib_journal = out / JOURNAL_NAME
     if report and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
@@ -513,20 +722,32 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 
 
 def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
-             progress_stream=None):
+             progress_stream=None, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal scan``: sweep the object, stream its points to a PLY file."""
     from .ply import PlyWriter
     from .scanning import plan_scan, scan
 
     cfg = loaded.config
+    if cfg.scan is not None:  # where the PLY goes, before anything else
+        out = Path(out_dir) if out_dir is not None else loaded.output_dir
+        given = Path(cfg.scan.ply).expanduser()
+        ply_path = given if given.is_absolute() else out / given
+        from .safeio import check_writable_target, is_inside
+
+        if not cfg.scan.ply_outside_output_dir and (given.is_absolute() or not is_inside(ply_path, out)):
+            raise ConfigError(f"{loaded.path}: scan.ply = {cfg.scan.ply!r} lies outside the output folder {out}: "
+                              "give a file name in it, or set scan.ply_outside_output_dir = true to write there "
+                              "on purpose")
+        check_writable_target(ply_path)
     out, _, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning", out_dir)
     targets = plan_scan(cfg, result.transform)
     _check_plan(targets, cfg.acquisition, "scan plan")
-    ply_path = Path(cfg.scan.ply) if Path(cfg.scan.ply).is_absolute() else out / cfg.scan.ply
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
     host = make_host()
     cell = make_cell(cfg)
+    if cell is None:
+        confirm_motion("scan", f"{len(targets)} profiles", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
     log(f"scan: {len(targets)} profiles into {ply_path}")
     frame = SPHERE_FRAME[cfg.mounting]

@@ -37,6 +37,10 @@ class Thresholds(BaseModel):
     )
     residual_ratio_amber: float = Field(1.5, gt=0, description="residual RMS / expected RMS above this: amber")
     residual_ratio_red: float = Field(3.0, gt=0, description="residual RMS / expected RMS above this: red")
+    residual_ratio_absurd: float = Field(
+        20.0, gt=0, description="residual RMS / expected RMS above this: the data do not fit the model at all (red, "
+        "with the likely causes named)"
+    )
     rotation_std_amber_deg: float = Field(0.05, gt=0, description="largest rotation 1-sigma above this: amber, deg")
     rotation_std_red_deg: float = Field(0.15, gt=0, description="largest rotation 1-sigma above this: red, deg")
     translation_std_amber_mm: float = Field(0.1, gt=0, description="largest translation 1-sigma above this: amber, mm")
@@ -117,6 +121,9 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     lvl: Level = "red" if ratio > th.residual_ratio_red else "amber" if ratio > th.residual_ratio_amber else "green"
     reasons.append((lvl, f"residual RMS {rms:.4f} mm is {ratio:.2f} x the expected {exp:.4f} mm "
                          f"(point noise and robot repeatability {th.robot_repeatability_mm} mm)"))
+    absurd = is_absurd(result, th)
+    if absurd:
+        reasons.append(("red", ABSURD_CAUSES))
 
     # what the calibration determines: relative to the robot's own frame (the error the
     # robot shares over every station is its accuracy, reported apart, not graded here)
@@ -161,10 +168,29 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         "amber": "Usable with care: see the checks and the advice below.",
         "red": "Do not use yet: see the checks and the advice below.",
     }[level]
+    if absurd:
+        headline = ("Wrong: the data do not fit the model at all (residuals "
+                    f"{ratio:.3g} x the expected); a setting or the data are wrong, not the noise.")
     if robot_dominates and level != "red":
         headline = ("Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
                     "own geometric error limits this result (see the advice).")
     return Verdict(level, headline, reasons)
+
+
+#: What makes a solution absurd, most likely first (named in the verdict of one).
+ABSURD_CAUSES = (
+    "likely causes: the dataset's mounting is wrong (eye-in-hand data labelled eye-to-hand or the reverse); "
+    "poses in metres or radians instead of mm and degrees; poses paired with other shots' profiles; "
+    "a sphere radius far from the real one"
+)
+
+
+def is_absurd(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
+    """True when the residual RMS is so many times the expected (``residual_ratio_absurd``)
+    that no noise explains it, or is not a finite number: a wrong setting or wrong data."""
+    th = thresholds or Thresholds()
+    rms = result.residuals.rms_mm
+    return not math.isfinite(rms) or rms / expected_rms_mm(result, th) > th.residual_ratio_absurd
 
 
 def calibration_std(result: CalibrationResult) -> tuple[tuple[float, ...], tuple[float, ...]]:

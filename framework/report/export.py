@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import safeio
 from ..dataio import write_result
 from ..errors import InputError
 from ..models import CalibrationResult, Pose
@@ -575,7 +576,9 @@ def write_exports(
         existing = [str(p) for p in paths.values() if p.exists()]
         if existing:
             raise InputError(f"{existing[0]} exists; pass overwrite=True to replace the exports")
+    for p in paths.values():  # no link nor device among them: nothing is written if one is refused
+        safeio.check_writable_target(p)
     for key, (_, text) in texts.items():
-        paths[key].write_text(text, encoding="utf-8")
+        safeio.write_text(paths[key], text)
     write_result(paths["json"], result, overwrite=True)
     return paths

@@ -22,6 +22,7 @@ from pathlib import Path
 from string import Template
 from typing import Any
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -30,7 +31,8 @@ from .. import __version__
 from ..errors import InputError
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
-from .assess import Thresholds, advice, expected_rms_mm, inconsistent_stations, verdict
+from .. import safeio
+from .assess import Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
 
 __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
 
@@ -371,13 +373,15 @@ def write_report(
     *,
     thresholds: Thresholds | None = None,
     filename: str = "report.html",
+    verdict_override: Verdict | None = None,
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
     it as ``<stem>_<figure>.png`` (:data:`FIGURE_NAMES`). ``validation`` is an optional
     mapping ``{figure name: value or {column: value}}`` shown as a table (a row whose
-    ``passed`` is False is marked). Returns the path of the HTML file. Overwrites an
-    earlier report of the same name."""
+    ``passed`` is False is marked). ``verdict_override``: the verdict to show (e.g. with
+    the likely cause the runner found), else the result's own. Returns the path of the
+    HTML file. Overwrites an earlier report of the same name."""
     result = getattr(solution, "result", None)
     if not isinstance(result, CalibrationResult) or not hasattr(solution, "problem"):
         raise InputError(
@@ -409,8 +413,9 @@ def write_report(
     }
     figures = {}
     for key, (make, caption) in makers.items():
-        png = _png(make())
-        (out / f"{stem}_{key}.png").write_bytes(png)
+        with matplotlib.rc_context({"text.parse_math": False}):  # labels are data: '$x$' is not mathtext
+            png = _png(make())
+        safeio.write_bytes(out / f"{stem}_{key}.png", png)
         figures[key] = (base64.b64encode(png).decode("ascii"), caption)
 
     def fig_html(key):
@@ -418,7 +423,7 @@ def write_report(
         return (f'<figure id="fig-{key}"><img alt="{_e(key.replace("_", " "))}" '
                 f'src="data:image/png;base64,{data}"><figcaption>{_e(caption)}</figcaption></figure>')
 
-    ver = verdict(result, th)
+    ver = verdict_override or verdict(result, th)
     items = advice(result, th)
     now = datetime.now(timezone.utc).isoformat(timespec="seconds")
     nav = ["verdict", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
@@ -458,5 +463,5 @@ def write_report(
     css = resources.files(__package__).joinpath("report.css").read_text(encoding="utf-8")
     page = template.substitute(title=_e(title), css=css, body="\n".join(sections), version=_e(__version__))
     path = out / filename
-    path.write_text(page, encoding="utf-8")
+    safeio.write_text(path, page)
     return path

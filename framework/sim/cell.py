@@ -33,7 +33,7 @@ class SensorFieldOfView(BaseModel):
     z_far_mm: float = Field(-60.0, description="far end of the measuring range (z, mm)")
     width_near_mm: float = Field(28.0, gt=0, description="line width at the near end, mm")
     width_far_mm: float = Field(48.0, gt=0, description="line width at the far end, mm")
-    n_columns: int = Field(640, ge=16, description="points across the full line")
+    n_columns: int = Field(640, ge=16, le=100_000, description="points across the full line")
 
     @property
     def apex_z_mm(self) -> float:
@@ -56,7 +56,7 @@ class NoiseModel(BaseModel):
     pose_translation_noise_mm: float = Field(0.02, ge=0, description="robot position noise, each base axis, mm")
     pose_rotation_noise_deg: float = Field(0.0, ge=0, description="robot orientation noise, about each base axis, deg")
     stray_profile_fraction: float = Field(0.0, ge=0, le=1, description="share of profiles that get stray points")
-    strays_per_profile: int = Field(4, ge=0, description="stray points added to such a profile")
+    strays_per_profile: int = Field(4, ge=0, le=100_000, description="stray points added to such a profile")
     stray_offset_mm: tuple[float, float] = Field((0.3, 3.0), description="range of a stray's distance off the surface, mm")
 
 

@@ -28,10 +28,10 @@ class SweepPlan(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    profiles_per_station: int = Field(10, ge=4, description="profiles taken per station")
+    profiles_per_station: int = Field(10, ge=4, le=10_000, description="profiles taken per station")
     sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
     standoff_z_mm: float = Field(-20.0, description="sensor-frame z of the sphere centre, mm")
-    lateral_amplitude_mm: float = Field(4.0, ge=0, description="y/z wander within a sweep, mm")
+    lateral_amplitude_mm: float = Field(4.0, ge=0, le=1000, description="y/z wander within a sweep, mm")
     station_offsets_mm: list[tuple[float, float]] = Field(
         default_factory=lambda: [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)],
         description="(y, z) shift of the sweep in the sensor frame, mm, per station (cycled): "

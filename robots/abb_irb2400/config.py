@@ -53,7 +53,8 @@ class SimulatedControllerSettings(BaseModel):
         True, description="round reported values to 32-bit floats, as RAPID num does"
     )
     motion_time_scale: float = Field(
-        0.0, ge=0, description="a move lasts this factor times distance / speed, s (0: instantaneous)"
+        0.0, ge=0, description="a move lasts this factor times its duration (distance / speed or angle / "
+        "reorientation speed, the longer), s (0: instantaneous)"
     )
     max_controller_speed_mm_s: float = Field(7000.0, gt=0, description="the controller's own TCP speed limit, mm/s")
     home_joints_deg: tuple[float, float, float, float, float, float] = Field(
@@ -76,8 +77,8 @@ class AbbIrb2400Config(BaseModel):
     baudrate: int = Field(9600, gt=0, description="serial speed, baud; must match the controller's serial port setting")
     parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
     stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
-    timeout_s: float = Field(2.0, gt=0, description="time to wait for a reply (besides a move's duration), s")
-    retries: int = Field(2, ge=0, description="resends after a timeout or a corrupted reply (0: none)")
+    timeout_s: float = Field(2.0, gt=0, le=600, description="time to wait for a reply (besides a move's duration), s")
+    retries: int = Field(2, ge=0, le=100, description="resends after a timeout or a corrupted reply (0: none)")
     pose_source: Literal["controller", "joints"] = Field(
         "controller",
         description="flange pose from the controller (GETP, CRobT tool0/wobj0) or from the joint "
@@ -90,13 +91,14 @@ class AbbIrb2400Config(BaseModel):
     )
     max_speed_mm_s: float = Field(250.0, gt=0, le=7000, description="largest TCP speed a move may ask for, mm/s")
     move_timeout_extra_s: float = Field(
-        5.0, ge=0, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
+        5.0, ge=0, le=600, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
     )
     orientation_speed_deg_s: float = Field(
-        100.0, gt=0, description="reorientation speed assumed when estimating a move's duration, deg/s"
+        100.0, gt=0, le=500, description="largest reorientation speed a move asks for (speeddata v_ori), deg/s; "
+        "each move asks for less when its sensor (the tool point) would otherwise exceed the move's speed"
     )
     path_check_samples: int = Field(
-        10, ge=0, description="points checked for reachability along a linear move, besides its end"
+        10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
     )
     workspace: WorkspaceBox = Field(default_factory=WorkspaceBox, description="allowed flange positions, base, mm")
     geometry: Irb2400Geometry = Field(

@@ -52,6 +52,11 @@ def _initial_seq() -> int:
     return secrets.randbelow(P.SEQ_MODULUS)
 
 
+#: Slowest speed sent (mm/s for the flange, deg/s for the reorientation): the line
+#: carries one decimal, and a move that does not translate (or turn) still names one.
+MIN_SPEED_MM_S = 0.1
+
+
 class AbbIrb2400Robot:
     """A connected IRB 2400 (implements :class:`spherecal.devices.Robot`).
 
@@ -65,8 +70,12 @@ class AbbIrb2400Robot:
         url: str | None = None,
         kinematics: Irb2400Kinematics | None = None,
         on_close: Callable[[], None] | None = None,
+        tool_point_mm=None,
     ):
         self.config = config
+        #: the point carried by the flange whose speed every move limits (flange frame, mm):
+        #: the sensor (eye-in-hand) or the sphere (eye-to-hand); None: the flange itself
+        self.tool_point_mm = None if tool_point_mm is None else np.asarray(tool_point_mm, dtype=float).reshape(3)
         self.url = url or config.port
         self.kin = kinematics or kinematics_for(config.geometry, config.j23_coupled)
         self._on_close = on_close
@@ -132,13 +141,35 @@ class AbbIrb2400Robot:
 
         self._exchange("TGT", tgt, "OK")
         target_seq = target_seq_holder[-1]
-        distance = float(np.linalg.norm(base_from_flange.translation - start.translation))
-        angle = float(
-            np.degrees(np.linalg.norm(_rotvec(start.rotation_matrix.T @ base_from_flange.rotation_matrix)))
-        )
-        duration = max(distance / speed_mm_s, angle / self.config.orientation_speed_deg_s)
+        v_tcp, v_ori, duration = self.move_speeds(start, base_from_flange, speed_mm_s)
         timeout = self.config.timeout_s + 2.0 * duration + self.config.move_timeout_extra_s
-        self._exchange("MOVL", lambda seq: P.movl_request(seq, speed_mm_s, target_seq), "OK", timeout)
+        self._exchange("MOVL", lambda seq: P.movl_request(seq, v_tcp, target_seq, v_ori), "OK", timeout)
+
+    def move_speeds(self, start: Pose, target: Pose, speed_mm_s: float) -> tuple[float, float, float]:
+        """(flange speed mm/s, reorientation speed deg/s, duration s) of a linear move that
+        keeps the tool point (:attr:`tool_point_mm`; the flange without one) within
+        ``speed_mm_s`` and the reorientation within ``orientation_speed_deg_s``.
+
+        The controller interpolates position and orientation together: over a move of
+        duration T the flange moves d at d/T and turns by theta at theta/T, so a point r
+        off the flange moves at most (d + theta r)/T. T is the least that keeps that
+        within ``speed_mm_s``; v_tcp = d/T and v_ori = theta/T make the controller take
+        exactly T (speeddata limits both). Checked here, before anything is sent."""
+        distance = float(np.linalg.norm(target.translation - start.translation))
+        angle_deg = float(np.degrees(np.linalg.norm(_rotvec(start.rotation_matrix.T @ target.rotation_matrix))))
+        r = float(np.linalg.norm(self.tool_point_mm)) if self.tool_point_mm is not None else 0.0
+        duration = max((distance + np.radians(angle_deg) * r) / speed_mm_s,
+                       angle_deg / self.config.orientation_speed_deg_s, 1e-6)
+        # rounded down to the decimal the line carries: the controller then takes at least T
+        step = 10.0**-P.SPEED_DECIMALS
+        v_tcp = max(math.floor(min(distance / duration, speed_mm_s) / step + 1e-9) * step, MIN_SPEED_MM_S)
+        v_ori = max(math.floor(min(angle_deg / duration, self.config.orientation_speed_deg_s) / step + 1e-9) * step,
+                    MIN_SPEED_MM_S)
+        duration = max(distance / v_tcp, angle_deg / v_ori)  # what the controller will take
+        peak = (distance + np.radians(angle_deg) * r) / duration
+        if peak > speed_mm_s * (1 + 1e-9) + MIN_SPEED_MM_S:  # pragma: no cover - by construction
+            raise InputError(f"move_linear: the tool point would move at {peak:.1f} mm/s, above {speed_mm_s} mm/s")
+        return v_tcp, v_ori, duration
 
     def close(self) -> None:
         """Close the serial link (and stop the simulated controller, if any). Idempotent."""

@@ -31,12 +31,13 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
     """Factory: a connected robot (checked with PING) on ``config.port``, or on a freshly
     started simulated controller when ``context.cell`` is set."""
     kin = kinematics_for(config.geometry, config.j23_coupled)
+    tool = context.tool_point_mm
     if context.cell is None:
-        robot = AbbIrb2400Robot(config, kinematics=kin)
+        robot = AbbIrb2400Robot(config, kinematics=kin, tool_point_mm=tool)
     else:
         server = start_simulator(kin, config.simulated, context.cell)
         context.log(f"abb_irb2400: simulated controller serving on {server.url}")
-        robot = AbbIrb2400Robot(config, url=server.url, kinematics=kin, on_close=server.stop)
+        robot = AbbIrb2400Robot(config, url=server.url, kinematics=kin, on_close=server.stop, tool_point_mm=tool)
         robot.simulator = server  # for tests and fault injection
     try:
         robot.ping()

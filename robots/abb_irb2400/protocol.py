@@ -36,8 +36,10 @@ from spherecal.models import Pose
 MAX_LINE_CHARS = 80
 #: Sequence numbers run 0 .. SEQ_MODULUS - 1 and wrap.
 SEQ_MODULUS = 1000
-#: Protocol version the PONG reply carries.
-PROTOCOL_VERSION = 1
+#: Protocol version the PONG reply carries (2: MOVL carries the reorientation speed).
+PROTOCOL_VERSION = 2
+#: Largest reorientation speed a MOVL may ask for, deg/s (the server refuses more).
+MAX_ORIENTATION_SPEED_DEG_S = 500.0
 
 JOINT_DECIMALS = 4
 POSITION_DECIMALS = 3
@@ -45,7 +47,7 @@ QUATERNION_DECIMALS = 6
 SPEED_DECIMALS = 1
 
 #: Request kind -> number of arguments.
-REQUEST_ARGS: dict[str, int] = {"PING": 0, "GETJ": 0, "GETP": 0, "TGT": 7, "MOVL": 2}
+REQUEST_ARGS: dict[str, int] = {"PING": 0, "GETJ": 0, "GETP": 0, "TGT": 7, "MOVL": 3}
 #: Reply kind -> number of arguments (ERR: code and at least one word of text).
 REPLY_ARGS: dict[str, int] = {"PONG": 1, "J": 6, "P": 7, "OK": 0, "ERR": 2}
 
@@ -243,17 +245,27 @@ def parse_target_request(msg: Message) -> Pose:
     return _parse_pose(msg.args, "TGT")
 
 
-def movl_request(seq: int, speed_mm_s: float, target_seq: int) -> bytes:
-    """``MOVL seq speed_mm_s target_seq``: move to the target staged by TGT target_seq."""
-    return encode("MOVL", seq, [_fmt(speed_mm_s, SPEED_DECIMALS, "speed_mm_s"), _check_seq(target_seq)])
+def movl_request(seq: int, speed_mm_s: float, target_seq: int, orientation_speed_deg_s: float = 10.0) -> bytes:
+    """``MOVL seq speed_mm_s target_seq v_ori``: move to the target staged by TGT
+    target_seq with the flange at ``speed_mm_s`` (speeddata v_tcp) and the reorientation
+    at ``orientation_speed_deg_s`` (v_ori); the driver chooses both so that the sensor
+    (the tool point) stays within the move's speed."""
+    return encode("MOVL", seq, [_fmt(speed_mm_s, SPEED_DECIMALS, "speed_mm_s"), _check_seq(target_seq),
+                                _fmt(orientation_speed_deg_s, SPEED_DECIMALS, "orientation_speed_deg_s")])
 
 
 def parse_movl_request(msg: Message) -> tuple[float, int]:
-    """(speed_mm_s, target_seq) of a MOVL request."""
+    """(speed_mm_s, target_seq) of a MOVL request (:func:`movl_orientation_speed`: its v_ori)."""
     _expect(msg, "MOVL")
     speed = parse_number(msg.args[0], "MOVL speed_mm_s")
     target_seq = _parse_seq(msg.args[1], "MOVL", allow_dash=False)
     return speed, target_seq
+
+
+def movl_orientation_speed(msg: Message) -> float:
+    """The reorientation speed (deg/s, speeddata v_ori) of a MOVL request."""
+    _expect(msg, "MOVL")
+    return parse_number(msg.args[2], "MOVL orientation_speed_deg_s")
 
 
 # replies -----------------------------------------------------------------------------

@@ -67,6 +67,7 @@ class SimulatedIrb2400:
         self.joints_deg = self.kin.check_joint_limits(self.settings.home_joints_deg, "home_joints_deg")
         self.staged: tuple[int, Pose] | None = None
         self.moves = 0
+        self.last_move: dict | None = None  # the last MOVL executed: distance, angle, speeds, duration
         self.requests: list[str] = []  # kinds of the requests served, in order
         self._wait = time.sleep
         # The controller reports the same pose for as long as the robot stands still: the
@@ -207,10 +208,14 @@ class SimulatedIrb2400:
 
     def _move(self, msg: P.Message) -> bytes:
         speed, target_seq = P.parse_movl_request(msg)
+        v_ori = P.movl_orientation_speed(msg)
         if not 0 < speed <= self.settings.max_controller_speed_mm_s:
             return P.error_reply(
                 msg.seq, P.ErrorCode.RANGE, f"speed {speed} outside 0..{self.settings.max_controller_speed_mm_s}"
             )
+        if not 0 < v_ori <= P.MAX_ORIENTATION_SPEED_DEG_S:
+            return P.error_reply(msg.seq, P.ErrorCode.RANGE,
+                                 f"orientation speed {v_ori} outside 0..{P.MAX_ORIENTATION_SPEED_DEG_S:g}")
         if self.staged is None or self.staged[0] != target_seq:
             have = "none" if self.staged is None else self.staged[0]
             return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET, f"no target {target_seq} staged (have {have})")
@@ -224,9 +229,13 @@ class SimulatedIrb2400:
         except UnreachableError:
             return P.error_reply(msg.seq, P.ErrorCode.UNREACHABLE, "target out of reach or beyond a joint limit")
         start = self.true_flange_pose()
+        distance = float(np.linalg.norm(target.translation - start.translation))
+        angle = float(np.degrees(np.linalg.norm(geo.rotvec_from_matrix(start.rotation_matrix.T @ target.rotation_matrix))))
+        duration = max(distance / speed, angle / v_ori)  # as speeddata's v_tcp and v_ori limit a MoveL
+        self.last_move = {"distance_mm": distance, "angle_deg": angle, "speed_mm_s": speed,
+                          "orientation_speed_deg_s": v_ori, "duration_s": duration}
         if self.settings.motion_time_scale > 0:
-            distance = float(np.linalg.norm(target.translation - start.translation))
-            self._wait(self.settings.motion_time_scale * distance / speed)
+            self._wait(self.settings.motion_time_scale * duration)
         self.joints_deg = joints
         self._reported = self._reported_joints = None  # a new standstill: new position error
         self.moves += 1

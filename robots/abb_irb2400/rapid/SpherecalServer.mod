@@ -7,7 +7,7 @@ MODULE SpherecalServer
   !
   !   line    = body "*" XX LF   (XX: XOR of the body's bytes, 2 hex digits)
   !   request = PING seq | GETJ seq | GETP seq
-  !           | TGT seq x y z q1 q2 q3 q4 | MOVL seq speed target_seq
+  !           | TGT seq x y z q1 q2 q3 q4 | MOVL seq speed target_seq v_ori
   !   reply   = PONG seq 1 | J seq j1..j6 | P seq x y z q1 q2 q3 q4
   !           | OK seq | ERR seq code text      (seq "-" if unreadable)
   !
@@ -40,9 +40,11 @@ MODULE SpherecalServer
   ! Serial channel: the transmission protocol named in the system
   ! parameters (Communication), with a colon. IRC5: "COM1:"; S4C+: "sio1:".
   LOCAL CONST string CHANNEL_NAME := "COM1:";
-  LOCAL CONST num PROTOCOL_VERSION := 1;
+  LOCAL CONST num PROTOCOL_VERSION := 2;
   ! Largest TCP speed a MOVL may ask for, mm/s.
   LOCAL CONST num MAX_SPEED := 1000;
+  ! Largest reorientation speed a MOVL may ask for, deg/s.
+  LOCAL CONST num MAX_ORI_SPEED := 500;
   ! Error codes (ErrorCode in protocol.py).
   LOCAL CONST num E_CHECKSUM := 1;
   LOCAL CONST num E_SYNTAX := 2;
@@ -236,7 +238,7 @@ MODULE SpherecalServer
     CASE "TGT":
       want := 9;
     CASE "MOVL":
-      want := 4;
+      want := 5;
     DEFAULT:
       ReplyError seqText, E_SYNTAX, "unknown request";
       RETURN;
@@ -332,13 +334,20 @@ MODULE SpherecalServer
   LOCAL PROC MoveToTarget(string seqText)
     VAR num speed;
     VAR num tseq;
-    IF NOT StrToVal(fields{3}, speed) OR NOT StrToVal(fields{4}, tseq) THEN
+    VAR num oriSpeed;
+    IF NOT StrToVal(fields{3}, speed) OR NOT StrToVal(fields{4}, tseq)
+        OR NOT StrToVal(fields{5}, oriSpeed) THEN
       ReplyError seqText, E_SYNTAX, "bad number";
       RETURN;
     ENDIF
     IF speed <= 0 OR speed > MAX_SPEED THEN
       ReplyError seqText, E_RANGE, "speed outside 0.."
         + NumToStr(MAX_SPEED, 0);
+      RETURN;
+    ENDIF
+    IF oriSpeed <= 0 OR oriSpeed > MAX_ORI_SPEED THEN
+      ReplyError seqText, E_RANGE, "orientation speed outside 0.."
+        + NumToStr(MAX_ORI_SPEED, 0);
       RETURN;
     ENDIF
     IF tseq <> targetSeq THEN
@@ -357,7 +366,10 @@ MODULE SpherecalServer
         "target out of reach or beyond a joint limit";
       RETURN;
     ENDIF
+    ! Both speeds as the PC chose them: the sensor, off the flange, moves
+    ! within the move's speed (tool0 alone would limit only the flange).
     moveSpeed.v_tcp := speed;
+    moveSpeed.v_ori := oriSpeed;
     movingSeq := seqText;
     MoveL target, moveSpeed, fine, tool0 \WObj:=wobj0;
     WaitTime \InPos, 0;

@@ -1,0 +1,49 @@
+"""Before the first motion of a real robot: the plan summary and a typed 'yes', or
+--yes (issue 10). Simulated cells move nothing real and ask nothing (the other tests)."""
+
+import builtins
+import re
+from pathlib import Path
+
+import pytest
+
+from spherecal.cli import EXIT_DEVICE, EXIT_USAGE, main
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+@pytest.fixture
+def hardware_config(tmp_path):
+    text = (EXAMPLES / "irb2400-nxsensor-eye-in-hand.toml").read_text()
+    text = re.sub(r"(?m)^output_dir = .*$", 'output_dir = "out"', text)
+    text = re.sub(r'(?m)^port = .*$', f'port = "{tmp_path / "no-such-serial-port"}"', text)
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    return path
+
+
+def test_without_input_nothing_is_opened_and_yes_is_named(hardware_config, capsys):
+    # under pytest, standard input cannot be read: as in a script without a terminal
+    assert main(["calibrate", str(hardware_config)]) == EXIT_USAGE
+    cap = capsys.readouterr()
+    assert "about to move the real robot" in cap.err and "--yes" in cap.err and "nothing was moved" in cap.err
+    assert not (hardware_config.parent / "out").exists()
+
+
+@pytest.mark.parametrize("answer", ["no", "", "y", "YES please"])
+def test_anything_but_yes_stops(hardware_config, capsys, monkeypatch, answer):
+    monkeypatch.setattr(builtins, "input", lambda prompt="": answer)
+    assert main(["calibrate", str(hardware_config)]) == EXIT_USAGE
+    assert "not confirmed" in capsys.readouterr().err
+    assert not (hardware_config.parent / "out").exists()
+
+
+@pytest.mark.parametrize("how", ["typed", "--yes"])
+def test_a_confirmed_run_goes_on_to_the_devices(hardware_config, capsys, monkeypatch, how):
+    asked = []
+    monkeypatch.setattr(builtins, "input", lambda prompt="": asked.append(prompt) or "yes")
+    argv = ["calibrate", str(hardware_config)] + (["--yes"] if how == "--yes" else [])
+    # past the confirmation the robot's (missing) serial port is opened: a device error
+    assert main(argv) == EXIT_DEVICE
+    assert "no-such-serial-port" in capsys.readouterr().err
+    assert bool(asked) == (how == "typed")

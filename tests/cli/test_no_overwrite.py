@@ -1,0 +1,186 @@
+"""Files are never overwritten or escaped (issue 10): solve into a calibration run's
+folder, calibrate into a folder with an unrelated result, --resume on a finished run,
+planted symbolic links, a PLY path outside the output folder, a full disk."""
+
+import errno
+import os
+
+import numpy as np
+import pytest
+
+from spherecal import dataio, safeio
+from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
+from spherecal.errors import FileWriteError, InputError
+from spherecal.models import Observation, Pose, Profile
+from spherecal.ply import PlyWriter
+from spherecal.sim import SensorFieldOfView, SweepPlan, simulate_dataset, standard_cell
+
+
+@pytest.fixture(scope="module")
+def dataset_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "data.jsonl"
+    cell = standard_cell("eye_in_hand", seed=5, fov=SensorFieldOfView(n_columns=160))
+    dataio.write_dataset(path, simulate_dataset(cell, SweepPlan(profiles_per_station=6)))
+    return path
+
+
+def snapshot(folder):
+    return {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in folder.iterdir() if p.is_file()}
+
+
+@pytest.mark.parametrize("planted", ["result.json", "report.html", "flange_from_sensor_4x4.txt", "journal.jsonl+result.json"])
+def test_solve_refuses_a_folder_holding_a_result_and_names_the_file(tmp_path, dataset_file, capsys, planted):
+    out = tmp_path / "run"
+    out.mkdir()
+    for name in planted.split("+"):
+        (out / name).write_text("someone else's\n")
+    before = snapshot(out)
+    assert main(["solve", str(dataset_file), "--out", str(out), "--no-report"]) == EXIT_DATA
+    err = capsys.readouterr().err
+    named = planted.split("+")[-1]
+    assert str(out / named) in err and "--overwrite" in err and "new folder" in err
+    if "journal" in planted:
+        assert "a calibration run" in err
+    assert snapshot(out) == before
+
+
+def test_solve_overwrite_replaces_on_request(tmp_path, dataset_file):
+    out = tmp_path / "run"
+    assert main(["solve", str(dataset_file), "--out", str(out), "--no-report"]) == EXIT_OK
+    assert main(["solve", str(dataset_file), "--out", str(out), "--no-report"]) == EXIT_DATA
+    assert main(["solve", str(dataset_file), "--out", str(out), "--no-report", "--overwrite"]) == EXIT_OK
+
+
+def test_calibrate_refuses_a_folder_with_an_unrelated_result_before_moving(sim_config, capsys):
+    cfg = sim_config()
+    out = cfg.parent / "out"
+    out.mkdir()
+    (out / "result.json").write_text("{}\n")
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_DATA
+    assert str(out / "result.json") in capsys.readouterr().err
+    assert not (out / "journal.jsonl").exists()  # nothing acquired
+    assert (out / "result.json").read_text() == "{}\n"
+
+
+REPLAY = """mounting = "eye_in_hand"
+output_dir = "out"
+replay = "{data}"
+[nominal_transform]
+translation_mm = [44.5, -19.8, 166.2]
+quaternion_wxyz = [0.02714, -0.96565, 0.25663, 0.03026]
+[sphere]
+radius_mm = 19.1
+[robot]
+type = "abb_irb2400"
+[sensor]
+type = "nxsensor_i"
+"""
+
+
+def test_resume_of_a_finished_run_rewrites_nothing(tmp_path, dataset_file, capsys):
+    cfg = tmp_path / "replay.toml"
+    cfg.write_text(REPLAY.format(data=dataset_file))
+    assert main(["calibrate", str(cfg)]) == EXIT_OK
+    out = tmp_path / "out"
+    before = snapshot(out)
+    assert "result.json" in before and "report.html" in before
+    capsys.readouterr()
+    assert main(["calibrate", str(cfg), "--resume"]) == EXIT_OK
+    assert "finished run" in capsys.readouterr().out
+    assert snapshot(out) == before
+    assert main(["calibrate", str(cfg)]) == EXIT_DATA  # a second run into the same folder is refused
+    assert snapshot(out) == before
+
+
+def test_writers_refuse_a_planted_symbolic_link(tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    link = out / "report.html"
+    link.symlink_to(victim)
+    with pytest.raises(InputError, match="symbolic link") as exc:
+        safeio.write_text(link, "<html>")
+    assert str(link) in str(exc.value)
+    dangling = out / "x.png"
+    dangling.symlink_to(tmp_path / "nowhere.png")
+    with pytest.raises(InputError, match="symbolic link"):
+        safeio.write_bytes(dangling, b"png")
+    assert not (tmp_path / "nowhere.png").exists()
+    ply = out / "scan.ply"
+    ply.symlink_to(victim)
+    with pytest.raises(InputError, match="symbolic link"):
+        PlyWriter(ply)
+    assert victim.read_text() == "precious\n"
+
+
+def test_the_report_and_exports_refuse_a_link(tmp_path, dataset_file):
+    from spherecal.estimation import solve
+    from spherecal.report.export import write_exports
+    from spherecal.report.html import write_report
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    sol = solve(dataio.read_dataset(dataset_file))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report_sphere_3d.png").symlink_to(victim)
+    with pytest.raises(InputError, match="report_sphere_3d.png is a symbolic link"):
+        write_report(sol, out)
+    (out / "SpherecalSensor.mod").symlink_to(victim)
+    with pytest.raises(InputError, match="SpherecalSensor.mod is a symbolic link"):
+        write_exports(sol.result, out, overwrite=True)
+    assert not (out / "result.json").exists()  # nothing written when one is refused
+    assert victim.read_text() == "precious\n"
+
+
+@pytest.mark.parametrize("ply", ["../escaped.ply", "sub/../../escaped.ply", "/tmp/spherecal-escaped.ply"])
+def test_a_ply_path_outside_the_output_folder_is_refused(sim_config, capsys, ply):
+    from tests.cli.test_validate_scan import write_result_with
+
+    cfg = sim_config(exact_arm=True, **{r"^passes = 2$": f"passes = 2\nply = '{ply}'"})
+    write_result_with(cfg.parent / "out", cfg, Pose.identity())
+    assert main(["scan", str(cfg)]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "scan.ply" in err and ply in err and "ply_outside_output_dir" in err
+    assert not (cfg.parent / "escaped.ply").exists()
+
+
+def test_a_full_disk_names_the_journal_and_says_resume(tmp_path, monkeypatch):
+    w = dataio.DatasetWriter(tmp_path / "journal.jsonl", mounting="eye_in_hand", sphere_radius_mm=19.1)
+
+    def full(*a):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(w._file, "write", full)
+    obs = Observation(index=0, station="S1", timestamp="2024-01-01T00:00:00+00:00",
+                      base_from_flange=Pose.from_abb((1, 2, 3), (1, 0, 0, 0)),
+                      profile=Profile(y_mm=np.zeros(3), z_mm=np.zeros(3)))
+    with pytest.raises(FileWriteError, match="journal.jsonl: cannot write .No space left on device") as exc:
+        w.append(obs)
+    assert "kept" in str(exc.value)
+
+
+def test_a_full_disk_in_calibrate_says_resume(tmp_path, monkeypatch, dataset_file, capsys):
+    from spherecal import runner
+
+    def full(*a, **k):
+        raise FileWriteError(f"{tmp_path}/out/journal.jsonl: cannot write (No space left on device)")
+
+    monkeypatch.setattr(runner, "solve_and_write", full)
+    cfg = tmp_path / "replay.toml"
+    cfg.write_text(REPLAY.format(data=dataset_file))
+    assert main(["calibrate", str(cfg)]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "journal.jsonl: cannot write" in err and "--resume" in err
+
+
+def test_a_full_disk_while_scanning_names_the_ply(tmp_path, monkeypatch):
+    w = PlyWriter(tmp_path / "scan.ply", with_profile=True)
+
+    def full(*a):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(w._file, "write", full)
+    with pytest.raises(FileWriteError, match=r"scan.ply: cannot write .No space left on device"):
+        w.write(np.zeros((3, 3)), profile=np.zeros(3, dtype=int))

@@ -1,0 +1,97 @@
+"""A RED result never exits 0 silently: the verdict is printed with its likely cause,
+the exit code is 7, and result.json and the exports are written only with --force.
+Cases from issue 10: eye-in-hand data labelled eye-to-hand, one station's profiles
+shifted 2 mm, radius 19 given for 19.1. (The example cells' AMBER results exit 0:
+tests/cli/test_calibrate.py.)"""
+
+import pytest
+
+from spherecal import dataio
+from spherecal.cli import EXIT_OK, EXIT_RED, main
+from spherecal.sim import SensorFieldOfView, SweepPlan, simulate_dataset, standard_cell
+
+EXPORTS = ["result.json", "SpherecalSensor.mod", "flange_from_sensor_4x4.txt", "ros_static_transform.yaml"]
+
+
+@pytest.fixture(scope="module")
+def clean():
+    # a small dataset (160 points per profile, 6 per station) keeps the absurd solve short
+    cell = standard_cell("eye_in_hand", seed=3, fov=SensorFieldOfView(n_columns=160))
+    return simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+
+
+def _shifted(ds, station, dy):
+    obs = [o.model_copy(update={"profile": o.profile.model_copy(update={"y_mm": o.profile.y_mm + dy})})
+           if o.station == station else o for o in ds.observations]
+    return ds.model_copy(update={"observations": obs})
+
+
+CASES = {
+    "wrong_mounting": (lambda ds: ds.model_copy(update={"mounting": "eye_to_hand"}),
+                       ["mounting is probably wrong", "it says eye_to_hand", "solved as eye_in_hand"]),
+    "radius_19_for_19_1": (lambda ds: ds.model_copy(update={"sphere_radius_mm": 19.0}),
+                           ["sphere radius is probably wrong", "the data prefer 19.1", "19 mm was given"]),
+    "station_shifted_2mm": (lambda ds: _shifted(ds, "S1", 2.0), ["station S1 disagrees with the others"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_red_result_exits_7_names_the_cause_and_writes_no_exports(tmp_path, clean, capsys, case):
+    make, expected = CASES[case]
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, make(clean))
+    out = tmp_path / "res"
+    assert main(["solve", str(path), "--out", str(out), "--no-report"]) == EXIT_RED
+    cap = capsys.readouterr()
+    assert "verdict: RED" in cap.out
+    for text in expected:
+        assert text in cap.out, (text, cap.out)
+    assert "NOT written" in cap.out and "--force" in cap.out
+    assert "exit 7" in cap.err
+    assert not any((out / f).exists() for f in EXPORTS)
+
+
+def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, clean.model_copy(update={"sphere_radius_mm": 19.0}))
+    out = tmp_path / "res"
+    assert main(["solve", str(path), "--out", str(out), "--force"]) == EXIT_RED
+    assert all((out / f).exists() for f in EXPORTS)
+    assert (out / "report.html").exists()
+    assert "likely cause" in (out / "report.html").read_text()  # the report shows the runner's verdict
+    assert "written with --force" in capsys.readouterr().out
+
+
+def test_a_good_result_exits_0_with_its_verdict(tmp_path, clean, capsys):
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, clean)
+    out = tmp_path / "res"
+    assert main(["solve", str(path), "--out", str(out), "--no-report"]) == EXIT_OK
+    assert "verdict: GREEN" in capsys.readouterr().out
+    assert all((out / f).exists() for f in EXPORTS)
+
+
+REPLAY = """mounting = "eye_in_hand"
+output_dir = "out"
+replay = "data.jsonl"
+[nominal_transform]
+translation_mm = [44.5, -19.8, 166.2]
+quaternion_wxyz = [0.02714, -0.96565, 0.25663, 0.03026]
+[sphere]
+radius_mm = 19.0
+[robot]
+type = "abb_irb2400"
+[sensor]
+type = "nxsensor_i"
+"""
+
+
+def test_calibrate_replaying_red_data_exits_7_and_force_writes(tmp_path, clean, capsys):
+    dataio.write_dataset(tmp_path / "data.jsonl", clean.model_copy(update={"sphere_radius_mm": 19.0}))
+    cfg = tmp_path / "replay.toml"
+    cfg.write_text(REPLAY)
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_RED
+    assert "sphere radius is probably wrong" in capsys.readouterr().out
+    assert not (tmp_path / "out" / "result.json").exists()
+    assert main(["calibrate", str(cfg), "--no-report", "--force", "--out", str(tmp_path / "forced")]) == EXIT_RED
+    assert (tmp_path / "forced" / "result.json").exists()
