@@ -88,9 +88,15 @@ def fold_zero_offsets(chain: SerialChain, zero_offsets_rad) -> SerialChain:
 
 
 def _axis_angle(axis, angle: float) -> np.ndarray:
-    a = np.asarray(axis, dtype=float)
-    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+    """Rotation about the unit ``axis`` by ``angle`` (rad), Rodrigues."""
+    x, y, z = axis
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 - c
+    return np.array([
+        [c + t * x * x, t * x * y - s * z, t * x * z + s * y],
+        [t * x * y + s * z, c + t * y * y, t * y * z - s * x],
+        [t * x * z - s * y, t * y * z + s * x, c + t * z * z],
+    ])
 
 
 def _num(x: float) -> str:
@@ -361,21 +367,28 @@ def chain_jacobian(chain: SerialChain, q_rad) -> tuple[np.ndarray, np.ndarray]:
     rows 0-2 the flange origin's velocity (mm/rad), rows 3-5 the angular velocity, both
     in the base frame."""
     q = np.asarray(q_rad, dtype=float).reshape(chain.n_joints)
+    n = chain.n_joints
+    R = np.eye(3)
+    p = np.zeros(3)
+    origins = np.empty((n, 3))
+    axes = np.empty((n, 3))
+    for i in range(n):
+        P = chain.placements[i]
+        p = p + R @ P[:3, 3]
+        R = R @ P[:3, :3]
+        origins[i] = p
+        axes[i] = R @ chain.axes[i]
+        R = R @ _axis_angle(chain.axes[i], q[i])
+    F = chain.flange_placement
     T = np.eye(4)
-    origins, axes = [], []
-    for i in range(chain.n_joints):
-        T = T @ chain.placements[i]
-        origins.append(T[:3, 3].copy())
-        axes.append(T[:3, :3] @ chain.axes[i])
-        R = np.eye(4)
-        R[:3, :3] = _axis_angle(chain.axes[i], q[i])
-        T = T @ R
-    T = T @ chain.flange_placement
-    p = T[:3, 3]
-    J = np.empty((6, chain.n_joints))
-    for i, (o, z) in enumerate(zip(origins, axes)):
-        J[:3, i] = np.cross(z, p - o)
-        J[3:, i] = z
+    T[:3, 3] = p + R @ F[:3, 3]
+    T[:3, :3] = R @ F[:3, :3]
+    d = T[:3, 3] - origins  # (n, 3) from each joint to the flange
+    J = np.empty((6, n))
+    J[0] = axes[:, 1] * d[:, 2] - axes[:, 2] * d[:, 1]
+    J[1] = axes[:, 2] * d[:, 0] - axes[:, 0] * d[:, 2]
+    J[2] = axes[:, 0] * d[:, 1] - axes[:, 1] * d[:, 0]
+    J[3:] = axes.T
     return T, J
 
 
