@@ -221,6 +221,17 @@ class Irb2400Kinematics:
                 )
         return q
 
+    def model_joint_limits_rad(self) -> np.ndarray:
+        """(6, 2) lower and upper limits in the serial model's convention (rad), for a URDF
+        (``spherecal.urdf.chain_to_urdf(..., joint_limits_rad=)``). With ``j23_coupled`` the
+        controller limits axis 3 relative to the horizontal, which no fixed range of the
+        model's joint 3 expresses: its range here is the widest the controller can reach,
+        ``lower_3 - upper_2 .. upper_3 - lower_2``; the controller still checks its own."""
+        lo, hi = self.lower_deg.copy(), self.upper_deg.copy()
+        if self.j23_coupled:
+            lo[2], hi[2] = self.lower_deg[2] - self.upper_deg[1], self.upper_deg[2] - self.lower_deg[1]
+        return np.radians(np.column_stack([lo, hi]))
+
     def within_limits(self, joints_deg) -> bool:
         q = np.asarray(joints_deg, dtype=float)
         return bool(np.all(q >= self.lower_deg - 1e-9) and np.all(q <= self.upper_deg + 1e-9))

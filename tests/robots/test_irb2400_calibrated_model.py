@@ -155,3 +155,15 @@ def test_configuration_checks_the_model(tmp_path, host):
     P[2, 2, 3] += 100.0
     write_urdf(tmp_path / "other.urdf", type(other)(P, other.axes, other.flange_placement), "other")
     bad({"calibrated_model": "other.urdf"}, "other.urdf", "away from the nominal")
+
+
+def test_model_joint_limits_for_a_urdf_cover_every_controller_configuration(tmp_path):
+    kin = kinematics_for()
+    limits = np.degrees(kin.model_joint_limits_rad())
+    np.testing.assert_allclose(limits[2], (-60.0 - 110.0, 65.0 + 100.0))
+    np.testing.assert_allclose(limits[[0, 1, 3, 4, 5]], np.column_stack([kin.lower_deg, kin.upper_deg])[[0, 1, 3, 4, 5]])
+    q = np.random.default_rng(2).uniform(kin.lower_deg, kin.upper_deg, (500, 6))
+    model = np.degrees(np.array([kin.model_joints_rad(x) for x in q]))
+    assert np.all(model >= limits[:, 0]) and np.all(model <= limits[:, 1])
+    text = chain_to_urdf(kin.chain, "abb_irb2400", joint_limits_rad=kin.model_joint_limits_rad())
+    assert 'lower="-2.96705972839036' in text  # -170 deg on joint_3
