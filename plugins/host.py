@@ -550,25 +550,30 @@ class PluginHost:
         return list(self._infos)
 
     # configuration ---------------------------------------------------------------------
-    def validate_robot_config(self, type_name: str, section: Mapping[str, Any], path: str = "robot") -> BaseModel:
+    def validate_robot_config(self, type_name: str, section: Mapping[str, Any], path: str = "robot",
+                              base_dir=None) -> BaseModel:
         """Validate a robot section against the config model of ``type_name``.
 
         :param type_name: the robot type (``"abb_irb2400"``).
         :param section: the settings, as read from the configuration file; a ``type`` key,
             if present, must equal ``type_name`` and is not passed to the model.
         :param path: where the section sits in the configuration, for messages.
+        :param base_dir: the configuration file's folder, handed to the model's validators
+            as the pydantic validation context ``{"base_dir": base_dir}`` so that a plugin
+            can resolve relative file paths against it (None: not known).
         :return: an instance of the type's ``config_model``.
         :raises ConfigError: listing every error with its dotted path.
         """
         rt = self.registry.robot_type(type_name, path=f"{path}.{TYPE_KEY}")
-        return self._validate("robot", rt, section, path)
+        return self._validate("robot", rt, section, path, base_dir)
 
-    def validate_sensor_config(self, type_name: str, section: Mapping[str, Any], path: str = "sensor") -> BaseModel:
+    def validate_sensor_config(self, type_name: str, section: Mapping[str, Any], path: str = "sensor",
+                               base_dir=None) -> BaseModel:
         """The sensor twin of :meth:`validate_robot_config`."""
         st = self.registry.sensor_type(type_name, path=f"{path}.{TYPE_KEY}")
-        return self._validate("sensor", st, section, path)
+        return self._validate("sensor", st, section, path, base_dir)
 
-    def _validate(self, kind: DeviceKind, dtype, section: Any, path: str) -> BaseModel:
+    def _validate(self, kind: DeviceKind, dtype, section: Any, path: str, base_dir=None) -> BaseModel:
         if isinstance(section, BaseModel):
             section = section.model_dump()
         if not isinstance(section, Mapping):
@@ -582,7 +587,7 @@ class PluginHost:
                 )
         model = dtype.config_model
         try:
-            return model.model_validate(settings)
+            return model.model_validate(settings, context=None if base_dir is None else {"base_dir": base_dir})
         except ValidationError as exc:
             lines = format_validation_error(exc, path, model)
             plugin = self.registry.provider(kind, dtype.name)
@@ -604,7 +609,7 @@ class PluginHost:
 
     # devices ---------------------------------------------------------------------------
     def create_robot(self, section: Mapping[str, Any], context: DeviceContext | None = None,
-                     path: str = "robot") -> Robot:
+                     path: str = "robot", base_dir=None) -> Robot:
         """Validate ``section`` (``{"type": "abb_irb2400", ...settings}``) and call the
         robot type's factory with the validated config and ``context``.
 
@@ -614,7 +619,7 @@ class PluginHost:
             is not a :class:`~spherecal.devices.Robot`.
         """
         type_name = self._type_of("robot", section, path)
-        config = self.validate_robot_config(type_name, section, path)
+        config = self.validate_robot_config(type_name, section, path, base_dir)
         rt = self.registry.robot_type(type_name)
         return self._make("robot", rt, config, context, Robot)
 
@@ -648,12 +653,12 @@ class PluginHost:
             )
         return device
 
-    def robot_kinematics(self, section: Mapping[str, Any], path: str = "robot") -> Callable | None:
+    def robot_kinematics(self, section: Mapping[str, Any], path: str = "robot", base_dir=None) -> Callable | None:
         """Forward kinematics of the configured robot, ``joints_deg -> base_from_flange``
         (a :class:`~spherecal.models.Pose`, quaternion (w, x, y, z), mm), or None when the
         robot type has none. For ``spherecal.estimation.calibrate(..., flange_pose_from_joints=)``."""
         type_name = self._type_of("robot", section, path)
-        config = self.validate_robot_config(type_name, section, path)
+        config = self.validate_robot_config(type_name, section, path, base_dir)
         fk = self.registry.robot_type(type_name).flange_pose_from_joints
         if fk is None:
             return None
@@ -663,12 +668,12 @@ class PluginHost:
 
         return flange_pose_from_joints
 
-    def arm_kinematics(self, section: Mapping[str, Any], path: str = "robot"):
+    def arm_kinematics(self, section: Mapping[str, Any], path: str = "robot", base_dir=None):
         """The configured robot's :class:`~spherecal.kinematics.ArmKinematics` (its
         nominal geometry, inverse kinematics and joint convention), or None when the
         robot type does not describe its arm."""
         type_name = self._type_of("robot", section, path)
-        config = self.validate_robot_config(type_name, section, path)
+        config = self.validate_robot_config(type_name, section, path, base_dir)
         describe = self.registry.robot_type(type_name).arm_kinematics
         return None if describe is None else describe(config)
 

@@ -3,11 +3,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from .kinematics import Irb2400Geometry
+from spherecal.errors import InputError
+
+from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
+
+#: Key of the validation context that gives the folder relative paths resolve against
+#: (the configuration file's folder, when the host passes it).
+BASE_DIR_CONTEXT_KEY = "base_dir"
 
 Vec3 = tuple[float, float, float]
 
@@ -107,3 +114,49 @@ class AbbIrb2400Config(BaseModel):
     simulated: SimulatedControllerSettings = Field(
         default_factory=SimulatedControllerSettings, description="the simulated controller of simulated runs"
     )
+    calibrated_model: Path | None = Field(
+        None,
+        description="calibrated geometry of this arm: a URDF file (metres; joints joint_1..joint_6 in the serial "
+        "model's convention, q3_model = q3_controller - q2_controller when j23_coupled; links base_link and "
+        "tool0), such as the robot_calibrated.urdf of a kinematic calibration. Applied on the PC side: targets "
+        "are sent as the nominal pose of the joints that reach them on the calibrated model, and flange poses "
+        "come from the joint readings through it. A relative path resolves against the configuration file's "
+        "folder when the host is given it, else the working directory",
+    )
+
+    @field_validator("calibrated_model", mode="after")
+    @classmethod
+    def _resolve_model(cls, v: Path | None, info: ValidationInfo):
+        if v is None:
+            return None
+        v = Path(v).expanduser()
+        base = (info.context or {}).get(BASE_DIR_CONTEXT_KEY)
+        if not v.is_absolute():
+            v = Path(base) / v if base is not None else v
+        v = v.resolve()
+        if "geometry" in info.data and "j23_coupled" in info.data:  # else they failed: reported there
+            try:
+                calibrated_kinematics_for(info.data["geometry"], info.data["j23_coupled"], v)
+            except InputError as exc:
+                raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _check_calibrated_model(self):
+        if self.calibrated_model is None:
+            return self
+        if "pose_source" in self.model_fields_set and self.pose_source == "controller":
+            raise ValueError(
+                "pose_source = 'controller' cannot go with a calibrated_model: the controller reports its "
+                "nominal model's pose; with a calibrated model the flange pose comes from the joint readings "
+                "(leave pose_source out, or set it to 'joints')"
+            )
+        return self
+
+    def kinematics(self) -> Irb2400Kinematics:
+        """The arm's kinematics as configured: the calibrated model's
+        (:class:`~.kinematics.CalibratedIrb2400Kinematics`) when ``calibrated_model`` is
+        set, else the nominal geometry's."""
+        if self.calibrated_model is not None:
+            return calibrated_kinematics_for(self.geometry, self.j23_coupled, self.calibrated_model)
+        return kinematics_for(self.geometry, self.j23_coupled)

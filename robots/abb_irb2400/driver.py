@@ -19,6 +19,14 @@ session still on its way is discarded as stale by its seq (unless it carries, by
 
 Speed, workspace and joint limits (the latter through inverse kinematics) are checked
 before anything is sent.
+
+With a calibrated model (``config.calibrated_model``) the driver applies it on the PC
+side, as the controller keeps its nominal model: a target pose P becomes the joints q
+that reach P on the calibrated model, and the controller is sent the nominal model's
+pose of q (it turns that back into q); the flange pose is read as joints (GETJ) through
+the calibrated model. The line protocol carries poses to 0.001 mm and quaternions to
+1e-6, joints to 1e-4 deg: that resolution, not the model, limits how closely a target
+is reached and a pose read (a few micrometres).
 """
 
 from __future__ import annotations
@@ -38,7 +46,7 @@ from spherecal.models import Pose
 
 from . import protocol as P
 from .config import AbbIrb2400Config
-from .kinematics import Irb2400Kinematics, UnreachableError, kinematics_for
+from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics, UnreachableError
 
 #: Longest single blocking read, s (the overall deadline is checked between reads).
 _POLL_S = 0.05
@@ -77,7 +85,13 @@ class AbbIrb2400Robot:
         #: the sensor (eye-in-hand) or the sphere (eye-to-hand); None: the flange itself
         self.tool_point_mm = None if tool_point_mm is None else np.asarray(tool_point_mm, dtype=float).reshape(3)
         self.url = url or config.port
-        self.kin = kinematics or kinematics_for(config.geometry, config.j23_coupled)
+        if kinematics is None:
+            kinematics = config.kinematics()
+        self.kin = kinematics
+        #: The calibrated model applied on the PC side, or None (nominal model only).
+        self.calibrated = kinematics if isinstance(kinematics, CalibratedIrb2400Kinematics) else None
+        #: The controller's own model: the nominal one.
+        self.nominal_kin = self.calibrated.nominal if self.calibrated is not None else kinematics
         self._on_close = on_close
         self._seq = _initial_seq()
         self._buffer = bytearray()
@@ -119,25 +133,32 @@ class AbbIrb2400Robot:
 
     def read_flange_pose(self) -> Pose:
         """``base_from_flange`` now: from the controller (GETP) or from the joints by
-        forward kinematics, as ``pose_source`` says."""
-        if self.config.pose_source == "joints":
+        forward kinematics, as ``pose_source`` says; always from the joints through the
+        calibrated model when there is one (the controller's pose is its nominal model's)."""
+        if self.config.pose_source == "joints" or self.calibrated is not None:
             return self.kin.flange_pose_from_joints(self.read_joints_deg(), check_limits=False)
         return P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
 
     def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
         """Move tool0 in a straight line to ``base_from_flange`` at ``speed_mm_s`` and return
-        once in position. Limits are checked first; nothing is sent if one fails."""
+        once in position. Limits are checked first; nothing is sent if one fails.
+
+        With a calibrated model the controller is sent :meth:`controller_pose` of the
+        target, so that the true flange reaches ``base_from_flange`` (the path between is
+        the controller's straight line in its nominal model, within a few mm of a true
+        straight line)."""
         self._check_open()
         self._check_speed(speed_mm_s)
         self._check_workspace(base_from_flange, "target")
         start_joints = self.read_joints_deg()
         start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
-        self._check_path(start, base_from_flange, start_joints)
+        target_joints = self._check_path(start, base_from_flange, start_joints)
+        command = self.controller_pose(base_from_flange, target_joints)
         target_seq_holder: list[int] = []
 
         def tgt(seq: int) -> bytes:
             target_seq_holder.append(seq)
-            return P.target_request(seq, base_from_flange)
+            return P.target_request(seq, command)
 
         self._exchange("TGT", tgt, "OK")
         target_seq = target_seq_holder[-1]
@@ -194,6 +215,18 @@ class AbbIrb2400Robot:
         self.close()
 
     # extras ------------------------------------------------------------------------
+    def controller_pose(self, base_from_flange: Pose, target_joints_deg=None) -> Pose:
+        """The pose to send the controller for the flange to reach ``base_from_flange``:
+        the pose itself with the nominal model; with a calibrated model, the nominal
+        model's pose of the joints that reach it on the calibrated model
+        (``target_joints_deg`` when already solved, else solved from the last joints)."""
+        if self.calibrated is None:
+            return base_from_flange
+        if target_joints_deg is None:
+            seed = self.last_joints_deg if self.last_joints_deg is not None else np.zeros(6)
+            target_joints_deg = self.calibrated.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
+        return self.nominal_kin.flange_pose_from_joints(target_joints_deg, check_limits=False)
+
     def ping(self) -> int:
         """Check the RAPID server answers; returns its protocol version."""
         msg = self._exchange("PING", P.ping_request, "PONG")
@@ -244,9 +277,12 @@ class AbbIrb2400Robot:
                 f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame)"
             )
 
-    def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> None:
+    def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> np.ndarray:
+        """Check the target and points along the path for reachability; returns the
+        target's joints (the solution nearest the start)."""
         n = self.config.path_check_samples
         seed = start_joints
+        target_joints = None
         R0, R1 = start.rotation_matrix, target.rotation_matrix
         rv = _rotvec(R0.T @ R1)
         for s in [1.0, *(np.arange(1, n + 1) / (n + 1))]:  # the target first
@@ -258,6 +294,9 @@ class AbbIrb2400Robot:
             except UnreachableError as exc:
                 where = "target" if s == 1.0 else f"point {s:.0%} along the linear path"
                 raise UnreachableError(f"move_linear: {where}: {exc}") from None
+            if target_joints is None:
+                target_joints = seed
+        return target_joints
 
     # transport ---------------------------------------------------------------------
     def _check_open(self) -> None:

@@ -40,6 +40,7 @@ from spherecal import geometry as geo
 from spherecal.errors import ConfigError, InputError
 from spherecal.kinematics import SerialChain
 from spherecal.models import Pose
+from spherecal.urdf import IkNotConverged, chain_from_urdf, chain_inverse_kinematics
 
 JOINT_COUNT = 6
 #: Largest position error (mm) an IK solution may show under forward kinematics.
@@ -220,6 +221,17 @@ class Irb2400Kinematics:
                 )
         return q
 
+    def model_joint_limits_rad(self) -> np.ndarray:
+        """(6, 2) lower and upper limits in the serial model's convention (rad), for a URDF
+        (``spherecal.urdf.chain_to_urdf(..., joint_limits_rad=)``). With ``j23_coupled`` the
+        controller limits axis 3 relative to the horizontal, which no fixed range of the
+        model's joint 3 expresses: its range here is the widest the controller can reach,
+        ``lower_3 - upper_2 .. upper_3 - lower_2``; the controller still checks its own."""
+        lo, hi = self.lower_deg.copy(), self.upper_deg.copy()
+        if self.j23_coupled:
+            lo[2], hi[2] = self.lower_deg[2] - self.upper_deg[1], self.upper_deg[2] - self.lower_deg[1]
+        return np.radians(np.column_stack([lo, hi]))
+
     def within_limits(self, joints_deg) -> bool:
         q = np.asarray(joints_deg, dtype=float)
         return bool(np.all(q >= self.lower_deg - 1e-9) and np.all(q <= self.upper_deg + 1e-9))
@@ -332,6 +344,148 @@ class Irb2400Kinematics:
         weights = 1.0 / self.max_speed_deg_s  # prefer solutions that take less time
         best = min(candidates, key=lambda c: float(np.max(np.abs(c - seed) * weights)))
         return np.clip(best, self.lower_deg, self.upper_deg)
+
+
+class CalibratedIrb2400Kinematics(Irb2400Kinematics):
+    """An IRB 2400 whose geometry is a calibrated chain (read from ``robot_calibrated.urdf``)
+    rather than the nominal one: forward kinematics from the calibrated chain, inverse
+    kinematics numerical on it, seeded with the nominal analytic solutions. Joints,
+    limits and the axis 2/3 coupling stay the nominal model's (``nominal``).
+
+    The controller keeps its nominal model: it cannot take new link lengths. So the
+    calibration is applied on the PC side: :meth:`controller_target` gives the pose to
+    send the controller for the flange to reach a true pose, and the true pose of the
+    arm is the calibrated forward kinematics of its joint readings."""
+
+    def __init__(self, nominal: Irb2400Kinematics, calibrated_chain: SerialChain, source: str = "calibrated model"):
+        super().__init__(nominal.geometry, nominal.j23_coupled)
+        if calibrated_chain.n_joints != JOINT_COUNT:
+            raise InputError(f"{source}: a calibrated IRB 2400 model needs {JOINT_COUNT} joints, "
+                             f"got {calibrated_chain.n_joints}")
+        self.nominal = nominal
+        self.source = source
+        self._calibrated = calibrated_chain
+
+    @property
+    def chain(self) -> SerialChain:
+        """The calibrated geometry (model joint convention, rad)."""
+        return self._calibrated
+
+    def flange_matrix_from_joints(self, joints_deg, check_limits: bool = True) -> np.ndarray:
+        """4x4 ``base_from_flange`` (mm) of controller joints (deg) through the calibrated chain."""
+        if check_limits:
+            self.check_joint_limits(joints_deg)
+        return self._calibrated.flange_matrices(self.model_joints_rad(joints_deg))
+
+    def _refine(self, base_from_flange: Pose, joints_deg) -> np.ndarray | None:
+        """Controller joints (deg) on the calibrated chain reached by Newton steps from a
+        nominal solution, or None when they do not converge."""
+        try:
+            q = chain_inverse_kinematics(self._calibrated, base_from_flange.as_matrix(), self.model_joints_rad(joints_deg),
+                                         tol_mm=CALIBRATED_IK_TOLERANCE_MM, tol_rad=CALIBRATED_IK_TOLERANCE_RAD)
+        except IkNotConverged:
+            return None
+        return self.controller_joints_deg(q)
+
+    def joint_solutions(self, base_from_flange: Pose, seed_joints_deg=None) -> list[np.ndarray]:
+        """Every solution on the calibrated chain (controller convention, deg), limits not
+        applied: each nominal analytic solution refined by Newton steps on the calibrated
+        chain to :data:`CALIBRATED_IK_TOLERANCE_MM` and ``_RAD``."""
+        refined = (self._refine(base_from_flange, sol) for sol in self.nominal.joint_solutions(base_from_flange, seed_joints_deg))
+        return [q for q in refined if q is not None]
+
+    def joints_from_flange_pose(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
+        """Controller joints (deg) within the limits that put the **true** flange (the
+        calibrated model's) at ``base_from_flange``, nearest the seed; or
+        :class:`UnreachableError`.
+
+        The nominal analytic solutions (and their neighbours one turn away on axes 4 and
+        6) are ranked as the nominal model ranks them; the best one is refined on the
+        calibrated chain, the next ones only if it fails or leaves the limits (a
+        calibration moves a solution by a fraction of a degree)."""
+        seed = np.zeros(JOINT_COUNT) if seed_joints_deg is None else _joint_vector(seed_joints_deg, "seed_joints_deg")
+        margin = 1.0  # deg: a nominal solution just outside a limit may be inside once refined
+        candidates = []
+        for sol in self.nominal.joint_solutions(base_from_flange, seed):
+            for k4, k6 in itertools.product((0, -360, 360), repeat=2):
+                cand = sol + np.array([0, 0, 0, k4, 0, k6], dtype=float)
+                if np.all(cand >= self.lower_deg - margin) and np.all(cand <= self.upper_deg + margin):
+                    candidates.append(cand)
+        weights = 1.0 / self.max_speed_deg_s
+        candidates.sort(key=lambda c: float(np.max(np.abs(c - seed) * weights)))
+        for cand in candidates:
+            q = self._refine(base_from_flange, cand)
+            if q is not None and self.within_limits(q):
+                return np.clip(q, self.lower_deg, self.upper_deg)
+        t = np.round(base_from_flange.translation, 3).tolist()
+        quat = np.round(base_from_flange.quaternion_wxyz, 6).tolist()
+        raise UnreachableError(
+            f"flange pose translation_mm={t} quaternion_wxyz={quat} is out of reach of the IRB 2400 "
+            f"(calibrated model {self.source}) within its joint limits; choose a pose closer to the robot "
+            f"or another flange orientation"
+        )
+
+    def controller_target(self, base_from_flange: Pose, seed_joints_deg=None) -> tuple[np.ndarray, Pose]:
+        """What to send the controller so that the flange really reaches ``base_from_flange``:
+        the joints ``q`` that reach it on the calibrated chain, and the nominal model's
+        pose at ``q`` (the controller, which knows only the nominal model, turns that pose
+        back into ``q``)."""
+        q = self.joints_from_flange_pose(base_from_flange, seed_joints_deg)
+        return q, self.nominal.flange_pose_from_joints(q, check_limits=False)
+
+
+#: Convergence of the numerical inverse kinematics on a calibrated chain.
+CALIBRATED_IK_TOLERANCE_MM = 1e-9
+CALIBRATED_IK_TOLERANCE_RAD = 1e-9
+#: A calibrated model further than this from the nominal one at some joints is refused:
+#: it is another robot, or a model in the wrong joint convention or unit.
+CALIBRATED_MAX_DEVIATION_MM = 20.0
+CALIBRATED_MAX_DEVIATION_DEG = 2.0
+#: Joint names, base and flange links a calibrated model's URDF must have.
+CALIBRATED_JOINT_NAMES = tuple(f"joint_{i}" for i in range(1, JOINT_COUNT + 1))
+CALIBRATED_BASE_LINK = "base_link"
+CALIBRATED_FLANGE_LINK = "tool0"
+
+
+@lru_cache(maxsize=8)
+def _calibrated_cached(geometry, j23_coupled: bool, path: str, stamp: tuple[int, int]) -> CalibratedIrb2400Kinematics:
+    nominal = kinematics_for(geometry, j23_coupled)
+    chain = chain_from_urdf(path, CALIBRATED_BASE_LINK, CALIBRATED_FLANGE_LINK, joint_names=CALIBRATED_JOINT_NAMES)
+    # the PC-side scheme seeds from the nominal model: the two must be close
+    rng = np.random.default_rng(0)
+    q = rng.uniform(nominal.lower_deg, nominal.upper_deg, (64, JOINT_COUNT))
+    Q = np.array([nominal.model_joints_rad(x) for x in q])
+    Tc = chain.flange_matrices(Q)
+    Tn = nominal.chain.flange_matrices(Q)
+    dist = np.linalg.norm(Tc[:, :3, 3] - Tn[:, :3, 3], axis=1)
+    ang = np.array([geo.rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(Tc, Tn)])
+    worst = int(np.argmax(dist))
+    if dist.max() > CALIBRATED_MAX_DEVIATION_MM or ang.max() > CALIBRATED_MAX_DEVIATION_DEG:
+        raise InputError(
+            f"{path}: this model puts tool0 {dist.max():.1f} mm and {ang.max():.2f} deg away from the nominal "
+            f"IRB 2400's (e.g. at controller joints {np.round(q[worst], 1).tolist()} deg); a calibration moves it "
+            f"by a few mm at most (limits {CALIBRATED_MAX_DEVIATION_MM:g} mm, {CALIBRATED_MAX_DEVIATION_DEG:g} deg). "
+            f"Is it the model of another robot, or in another joint convention (joint_3 must be the serial "
+            f"model's, q3_model = q3_controller - q2_controller when j23_coupled)?"
+        )
+    return CalibratedIrb2400Kinematics(nominal, chain, path)
+
+
+def calibrated_kinematics_for(
+    geometry: Irb2400Geometry | None, j23_coupled: bool, path
+) -> CalibratedIrb2400Kinematics:
+    """The IRB 2400 kinematics with the calibrated geometry of a URDF file (joints
+    ``joint_1`` .. ``joint_6`` in the serial model's convention, links ``base_link`` and
+    ``tool0``, metres). Cached per file and modification time. Raises
+    :class:`~spherecal.errors.InputError` naming the file."""
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read the calibrated model ({exc.strerror or exc})") from None
+    return _calibrated_cached(geometry or Irb2400Geometry(), bool(j23_coupled), str(p), (st.st_mtime_ns, st.st_size))
 
 
 def _nearest_turn(angle: float, reference: float) -> float:

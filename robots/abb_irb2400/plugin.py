@@ -5,6 +5,17 @@ A real run connects :class:`~.driver.AbbIrb2400Robot` to ``config.port``. A simu
 run (``context.cell`` is a SimulatedCell) starts the simulated controller on localhost
 with that cell and connects the same driver to it through pyserial, so the simulated
 path exercises the real protocol; closing the robot stops the simulator.
+
+A calibrated model (``config.calibrated_model``, a URDF such as a kinematic
+calibration's ``robot_calibrated.urdf``) is applied **on the PC side**: an ABB controller
+cannot take new link lengths, so it keeps its nominal model. To put the flange at a pose
+P, the driver solves the joints q that reach P on the calibrated model and sends the
+controller the *nominal* pose of q, which the controller turns back into q; flange poses
+are read as joints (GETJ) through the calibrated model, never as the controller's own
+(nominal) pose. The plugin's forward kinematics, inverse kinematics and chain
+(``flange_pose_from_joints``, ``arm_kinematics``) are then the calibrated model's too, so
+``solve``, ``validate`` and ``scan`` map joints through it. The simulated controller
+keeps the nominal model, as a real one does.
 """
 
 from __future__ import annotations
@@ -17,7 +28,7 @@ from spherecal.plugins import hookimpl
 
 from .config import AbbIrb2400Config
 from .driver import AbbIrb2400Robot
-from .kinematics import kinematics_for
+from .kinematics import Irb2400Kinematics, kinematics_for
 from .simulator import start_simulator
 
 NAME = "abb_irb2400"
@@ -27,15 +38,22 @@ DESCRIPTION = (
 )
 
 
+def kinematics_of(config: AbbIrb2400Config) -> Irb2400Kinematics:
+    """The arm's kinematics as configured: the calibrated model's when
+    ``calibrated_model`` is set, else the nominal geometry's."""
+    return config.kinematics()
+
+
 def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400Robot:
     """Factory: a connected robot (checked with PING) on ``config.port``, or on a freshly
     started simulated controller when ``context.cell`` is set."""
-    kin = kinematics_for(config.geometry, config.j23_coupled)
+    kin = kinematics_of(config)
     tool = context.tool_point_mm
     if context.cell is None:
         robot = AbbIrb2400Robot(config, kinematics=kin, tool_point_mm=tool)
     else:
-        server = start_simulator(kin, config.simulated, context.cell)
+        # the controller knows only the nominal model, calibrated or not
+        server = start_simulator(kinematics_for(config.geometry, config.j23_coupled), config.simulated, context.cell)
         context.log(f"abb_irb2400: simulated controller serving on {server.url}")
         robot = AbbIrb2400Robot(config, url=server.url, kinematics=kin, on_close=server.stop, tool_point_mm=tool)
         robot.simulator = server  # for tests and fault injection
@@ -48,13 +66,15 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
 
 
 def flange_pose_from_joints(config: AbbIrb2400Config, joints_deg: np.ndarray) -> Pose:
-    """``base_from_flange`` (mm, quaternion (w, x, y, z)) from controller joints in deg."""
-    return kinematics_for(config.geometry, config.j23_coupled).flange_pose_from_joints(joints_deg)
+    """``base_from_flange`` (mm, quaternion (w, x, y, z)) from controller joints in deg,
+    through the calibrated model when one is configured."""
+    return kinematics_of(config).flange_pose_from_joints(joints_deg)
 
 
 def arm_kinematics(config: AbbIrb2400Config):
-    """The arm's nominal geometry, inverse kinematics and joint convention."""
-    return kinematics_for(config.geometry, config.j23_coupled)
+    """The arm's geometry (the calibrated model's when one is configured, else the
+    nominal one), inverse kinematics and joint convention."""
+    return kinematics_of(config)
 
 
 ROBOT_TYPE = RobotType(
