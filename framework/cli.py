@@ -105,7 +105,13 @@ def cmd_solve(args) -> int:
     options = CalibrationOptions(
         fit_radius=args.fit_radius, nominal_transform=nominal,
         station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
+        identify_kinematics=args.identify_kinematics,
+        robot_error_model=args.robot_error_model,
     )
+    if args.identify_kinematics and arm is None:
+        raise ConfigError("--identify-kinematics needs the robot's kinematics: give --robot TYPE (a type whose "
+                          "plugin describes its arm; `spherecal plugins` lists them) and joints_deg in every "
+                          "observation")
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
     if not args.overwrite:
         from .runner import check_output_folder
@@ -285,6 +291,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--station-rotation-tolerance-deg", type=_positive_float, metavar="DEG",
                    help="a shot turned more than this from its station's orientation is left out "
                    "(default: derived from the orientation read noise)")
+    s.add_argument("--robot-error-model", choices=["auto", "kinematic", "station", "kinematic+station", "none"],
+                   default="auto", help="the robot's systematic error (docs/estimation.md): auto (default) is "
+                   "kinematic when joints and the robot's kinematics are known, else station; none for a calibrated "
+                   "robot whose error is within its repeatability")
+    s.add_argument("--identify-kinematics", action="store_true",
+                   help="kinematic calibration: estimate the arm's identifiable geometric errors too (needs --robot "
+                   "and joints_deg); writes robot_calibrated.urdf")
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
     s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")

@@ -468,6 +468,9 @@ def solve_and_write(
     written = graded.level != "red" or force
     if written:
         write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
+        urdf = write_calibrated_urdf(solution, kinematics, out)
+        if urdf is not None:
+            log(f"calibrated robot model: {urdf}")
     if report:
         try:
             from .report.html import write_report
@@ -476,6 +479,38 @@ def solve_and_write(
         if write_report is not None:
             write_report(solution, out, verdict_override=graded)
     return solution, graded, written
+
+
+#: The identified robot model written next to the result (issue: kinematic calibration).
+CALIBRATED_URDF_NAME = "robot_calibrated.urdf"
+
+
+def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | None:
+    """With identified kinematic parameters, the robot with its identified geometry as a
+    URDF (metres, joints ``joint_1`` ... in the model's convention, flange ``tool0``):
+    the nominal chain with the identified errors applied and the others left at zero.
+    None when nothing was identified."""
+    ref = solution.refined
+    ke = ref.diagnostics.get("kinematic_effects")
+    if kinematics is None or not ke or not any(ke["identified"]):
+        return None
+    from . import safeio
+    from .kinematics import chain_with_errors
+    from .urdf import chain_to_urdf
+
+    kappa = np.where(ke["identified"], ref.kinematic_errors, 0.0)
+    limits = getattr(kinematics, "model_joint_limits_rad", None)
+    n_id = sum(ke["identified"])
+    text = chain_to_urdf(
+        chain_with_errors(kinematics.chain, kappa), "spherecal_calibrated_robot",
+        joint_limits_rad=limits() if callable(limits) else None,
+        comment=f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
+                f"{len(ke['identified'])} geometric parameters (result.json, robot_error.kinematic_parameters); "
+                "joint zero offsets are folded into the joint origins.",
+    )
+    path = out / CALIBRATED_URDF_NAME
+    safeio.write_text(path, text)
+    return path
 
 
 def _other_mounting(mounting: str) -> str:
@@ -609,11 +644,17 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
                 f"adds the robot's assumed accuracy {re.common_translation_mm:g} mm, {re.common_rotation_deg:g} deg "
                 "per axis)"
             )
-        lines.append(
-            f"a point measured at a new pose: expected error {re.point_error_k2_mm:.3f} mm (k = 2), mostly from "
-            f"{POINT_ERROR_PARTS.get(re.dominant, re.dominant)}; the robot's error differs between stations by "
-            f"{re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg per axis"
-        )
+        if re.kinematic_parameters is not None and any(p.identified for p in re.kinematic_parameters):
+            lines.append(
+                f"a point measured at a new pose through the calibrated model ({CALIBRATED_URDF_NAME}): expected "
+                f"error {re.point_error_k2_mm:.3f} mm (k = 2), mostly from {POINT_ERROR_PARTS.get(re.dominant, re.dominant)}"
+            )
+        else:
+            lines.append(
+                f"a point measured at a new pose: expected error {re.point_error_k2_mm:.3f} mm (k = 2), mostly from "
+                f"{POINT_ERROR_PARTS.get(re.dominant, re.dominant)}; the robot's error differs between stations by "
+                f"{re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg per axis"
+            )
     for f in r.flagged:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
     from .report.assess import verdict

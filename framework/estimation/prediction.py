@@ -67,7 +67,7 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     p = np.array([0.0, *pts.mean(axis=0)])
     JX, JR, Jp = _jacobians(problem, ref.R, ref.t, p)
     kt = ref.kinematic_terms
-    if kt is not None:
+    if kt is not None and "identified_design" not in kt:
         cov_X = ref.covariance_without_robot_error[:9, :9]  # the noise's share; the robot's is below
     else:
         cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
@@ -79,7 +79,14 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     def rms(J, S):
         return float(np.sqrt(np.mean(np.einsum("nij,jk,nik->n", J, S, J))))
 
-    if kt is not None:
+    if kt is not None and "identified_design" in kt:
+        # through the identified model: transform, sphere and identified parameters jointly
+        keep = list(range(9)) + list(range(kt["n_geo"], kt["covariance"].shape[0]))
+        J = np.concatenate([JX, JR @ kt["identified_design"]], axis=2)
+        cov_X = kt["covariance"][np.ix_(keep, keep)]
+        JX = J
+        robot = 0.0
+    elif kt is not None:
         B = JR @ kt["design"] - JX @ kt["influence"][:9]
         # this arm's error as the fit sees it (posterior mean), and what it does not know of it
         mean = np.einsum("nij,j->ni", B, kt["posterior_mean"])

@@ -214,6 +214,9 @@ class KinematicEffects:
     identify: bool = False
 
 
+#: A marginalised kinematic parameter whose posterior spread stays above this share of its
+#: prior's is one the data barely see: left out of the robot-frame covariance.
+SEEN_POSTERIOR_SHARE = 0.5
 #: Bounds of the estimated station-effect scales (rad, mm) and of the kinematic prior's factor.
 _SCALE_BOUNDS = ((1e-7, np.radians(5.0)), (1e-5, 50.0))
 _KIN_SCALE_BOUNDS = (1.0, 30.0)  # the stated prior is a floor
@@ -586,11 +589,17 @@ def refine(
         Cinv = np.zeros((0, 0))
     cov = cov_robot_frame
     off = 6 * K if se is not None else 0
-    hidden = ~kin_identifiable[rand_cols] if len(rand_cols) else np.zeros(0, dtype=bool)
+    hidden = np.zeros(0, dtype=bool)
+    if len(rand_cols):
+        # relative to the robot's own frame: without the parameters the data barely see
+        # (posterior spread over SEEN_POSTERIOR_SHARE of the prior's): they move the poses
+        # nearly alike, and the transform or the sphere absorbs them as it absorbs the
+        # robot's common error in the station model
+        Lk0 = Lp[off:, off:]
+        S_rr0 = A_rr - A_tr.T @ np.linalg.pinv(A_tt) @ A_tr
+        post0 = Lk0 @ np.linalg.solve(np.eye(len(Lk0)) + Lk0.T @ S_rr0[off:, off:] @ Lk0, Lk0.T)
+        hidden = np.sqrt(np.maximum(np.diag(post0), 0.0)) >= SEEN_POSTERIOR_SHARE * np.diag(Lk0)
     if hidden.any():
-        # relative to the robot's own frame: without the parameters one sphere location
-        # cannot see at all (they move every pose alike; the transform or the sphere
-        # absorbs them)
         L_rf = Lp.copy()
         L_rf[off + np.flatnonzero(hidden), off + np.flatnonzero(hidden)] = 0.0
         B_rf = np.eye(n_rand) + L_rf.T @ A_rr @ L_rf
@@ -602,7 +611,14 @@ def refine(
         S = cov @ (cols_t - A_tr @ Cinv @ cols_d)
         return S @ prior_cov @ S.T, S
 
-    if ke is not None and len(rand_cols):
+    if ke is not None and len(id_cols):
+        # kinematic calibration: a new pose is mapped through the identified model, so its
+        # error is that of the transform, sphere and identified parameters, jointly
+        kinematic_terms = {
+            "identified_design": flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad)[:, :, id_cols],
+            "covariance": cov_robot_frame, "n_geo": n_geo,
+        }
+    elif ke is not None and len(rand_cols):
         Lk = Lp[off:, off:]
         S_rr = A_rr - A_tr.T @ np.linalg.pinv(A_tt) @ A_tr
         post = Lk @ np.linalg.solve(np.eye(len(Lk)) + Lk.T @ S_rr[off:, off:] @ Lk, Lk.T)
