@@ -709,3 +709,30 @@ def cramer_rao_bound(problem_true: Problem, R, t, centre, noise: NoiseAssumption
                      max(noise.point_noise_mm, 1e-9))
     Jw = lin.W.apply(lin.J)
     return np.linalg.inv(Jw.T @ Jw)
+
+
+def plan_identifiability(mounting: str, base_from_flange: list, q_rad: np.ndarray, X, centre, chain: SerialChain,
+                         prior_sd: np.ndarray) -> dict:
+    """Before anything moves: which geometric parameters a plan would identify, and how
+    well. ``base_from_flange`` (planned flange poses), ``q_rad`` their joints (model
+    convention), ``X`` and ``centre`` the nominal transform and sphere centre. Uses the
+    sphere-centre Jacobian the estimator uses (noise-free). Returns the mask, each
+    parameter's independent share and the condition number of the identified columns
+    (scaled by ``prior_sd``, transform and sphere projected out)."""
+    R0 = np.array([p.rotation_matrix for p in base_from_flange])
+    t0 = np.array([p.translation for p in base_from_flange])
+    R_A, t_A = sphere_frame_from_base(mounting, R0, t0)
+    n = len(R0)
+    problem = Problem(mounting, 1.0, R0, t0, R_A, t_A, [np.zeros((0, 2))] * n, np.arange(n), np.zeros(n, dtype=int),
+                      ["plan"], np.asarray(q_rad, dtype=float))
+    R, t, c = X.rotation_matrix, X.translation, np.asarray(centre, dtype=float)
+    u, _ = _centres(problem, R, t, c)
+    Jg = _centre_jacobian(problem, R, u).reshape(-1, 9)
+    Jk = (_pose_noise_jacobian(problem, R, c) @ flange_error_jacobian(chain, problem.q_rad)).reshape(-1, len(prior_sd))
+    mask, share = identifiable_kinematic_parameters(Jg, Jk, prior_sd)
+    B = Jk[:, mask] * prior_sd[mask]
+    Q, _ = np.linalg.qr(Jg)
+    B = B - Q @ (Q.T @ B)
+    sv = np.linalg.svd(B, compute_uv=False) if mask.any() else np.array([1.0])
+    return {"identifiable": mask, "independent_share": share, "names": error_parameter_names(chain),
+            "condition_number": float(sv[0] / max(sv[-1], 1e-300))}

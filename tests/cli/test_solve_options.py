@@ -156,3 +156,14 @@ def test_station_rotation_tolerance_in_the_configuration(sim_config):
     cal = load_config(path).config.calibration
     assert cal.station_rotation_tolerance_deg == 0.08 and cal.station_rotation_tolerance() == 0.08
     assert load_config(sim_config()).config.calibration.station_rotation_tolerance_deg is None
+
+
+def test_kinematic_calibration_plan_is_checked_before_anything_moves(sim_config, capsys):
+    """identify_kinematics with the 4-station default plan: refused at --dry-run, naming
+    what to add; the 20-station kinematic example passes the same check."""
+    cfg = sim_config("sim-eye-in-hand.toml", **{r"^\[calibration\]$": "[calibration]\nidentify_kinematics = true"})
+    assert main(["calibrate", str(cfg), "--dry-run"]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "kinematic identification: the plan (4 stations)" in err and "Add stations spread over the joint space" in err
+    assert main(["calibrate", str(sim_config("sim-kinematic-eye-in-hand.toml")), "--dry-run"]) == EXIT_OK
+    assert "identifies 18 of 36 geometric parameters" in capsys.readouterr().err
