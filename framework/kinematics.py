@@ -187,3 +187,14 @@ def flange_error_jacobian(chain: SerialChain, q_rad) -> np.ndarray:
         out[:, 3:, base + 1:base + 4] = parent_R  # translation of the joint origin, parent frame
         T[:, :3, :3] = T[:, :3, :3] @ _axis_angle_matrices(chain.axes[i], Q[:, i])
     return out
+
+
+def corrected_flange_poses(nominal: SerialChain, actual: SerialChain, q_rad, reported) -> list[Pose]:
+    """Reported flange poses (the controller's nominal model at joints ``q_rad``, (N, n))
+    moved to where the ``actual`` chain (a calibrated model) puts the flange: each pose
+    gets the difference of the two chains at its joints, ``R <- R_a R_n^T R``,
+    ``t <- t + t_a - t_n``. Exact when the reported pose is the nominal model's."""
+    Q = np.atleast_2d(np.asarray(q_rad, dtype=float))
+    Tn, Ta = nominal.flange_matrices(Q), actual.flange_matrices(Q)
+    return [Pose.from_rt(a[:3, :3] @ n[:3, :3].T @ p.rotation_matrix, p.translation + a[:3, 3] - n[:3, 3])
+            for p, n, a in zip(reported, Tn, Ta)]

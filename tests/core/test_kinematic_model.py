@@ -9,7 +9,7 @@ import pytest
 from spherecal import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
-from spherecal.kinematics import chain_with_errors, error_parameter_names, flange_error_jacobian
+from spherecal.kinematics import chain_with_errors, corrected_flange_poses, error_parameter_names, flange_error_jacobian
 from spherecal.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
@@ -73,9 +73,7 @@ def _fresh_centres(cell, kin, sol, kappa):
     out = []
     for obs in by.values():
         q = np.array([kin.model_joints_rad(o.joints_deg) for o in obs])
-        Tn, Tc = kin.chain.flange_matrices(q), model.flange_matrices(q)
-        poses = [Pose.from_rt(c[:3, :3] @ n[:3, :3].T @ o.base_from_flange.rotation_matrix,
-                              o.base_from_flange.translation + c[:3, 3] - n[:3, 3]) for o, n, c in zip(obs, Tn, Tc)]
+        poses = corrected_flange_poses(kin.chain, model, q, [o.base_from_flange for o in obs])
         pts = points_in_object_frame(cell.mounting, X, poses, [o.profile.points_mm for o in obs])
         out.append(fit_sphere_fixed_radius(pts, cell.sphere_radius_mm, sol.refined.centre))
     return np.array(out)
