@@ -390,23 +390,30 @@ def _bool_problems(value: Any, keys: list, out: list[str]) -> None:
             _bool_problems(v, [*keys, i], out)
 
 
+def read_toml(path, what: str = "configuration") -> dict:
+    """The TOML file at ``path`` as a dict, read with the input checks (a regular file of
+    bounded size, a text encoding TOML allows); :class:`ConfigError` naming the file and
+    ``what`` it should have been otherwise."""
+    from .safeio import read_input, text_encoding_problem
+
+    raw = read_input(path, ConfigError, f"the {what}", MAX_CONFIG_BYTES)
+    problem = text_encoding_problem(raw)
+    if problem:
+        raise ConfigError(f"{path}: not a {what} as written: {problem}")
+    try:
+        return tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not a {what}: nested too deeply") from None
+
+
 def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a configuration file; :class:`ConfigError` names the file and
     every bad key by its dotted path. Numbers must be finite and at most
     :data:`MAX_ABS_NUMBER` in magnitude; a boolean is never read as a number."""
     path = Path(path)
-    from .safeio import read_input, text_encoding_problem
-
-    raw = read_input(path, ConfigError, "the configuration", MAX_CONFIG_BYTES)
-    problem = text_encoding_problem(raw)
-    if problem:
-        raise ConfigError(f"{path}: not a configuration as written: {problem}")
-    try:
-        data = tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    except RecursionError:
-        raise ConfigError(f"{path}: not a configuration: nested too deeply") from None
+    data = read_toml(path, "configuration")
     if not data:
         raise ConfigError(f"{path}: the configuration is empty; see docs/configuration.md and examples/")
     problems: list[str] = []

@@ -404,21 +404,9 @@ def _provenance_robot_type(dataset: Dataset) -> str | None:
 def read_robot_section(path: Path) -> dict:
     """A robot section from a TOML file: its ``[robot]`` table (a spherecal configuration)
     or, without one, the whole file (the plugin's settings, ``type`` optional)."""
-    import tomllib
+    from .config import read_toml
 
-    from .config import MAX_CONFIG_BYTES
-    from .safeio import read_input, text_encoding_problem
-
-    raw = read_input(path, ConfigError, "the robot configuration", MAX_CONFIG_BYTES)
-    problem = text_encoding_problem(raw)
-    if problem:
-        raise ConfigError(f"{path}: not a robot configuration as written: {problem}")
-    try:
-        data = tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    except RecursionError:
-        raise ConfigError(f"{path}: not a robot configuration: nested too deeply") from None
+    data = read_toml(path, "robot configuration")
     section = data.get("robot", data)
     if not isinstance(section, dict):
         raise ConfigError(f"{path}: robot: expected a table of robot settings")
