@@ -96,14 +96,12 @@ def fresh_scatter(cell, kin, sol, kappa, fresh: SweepPlan) -> float:
 def identified_truth(sol, kin, truth: np.ndarray) -> np.ndarray:
     """The truth in the identified parameters: the centre shifts the whole true error
     causes, fitted by the identified parameters together with the transform and sphere."""
-    from spherecal.estimation.refine import _centre_design, _linearise, _Points, _pose_cov, NoiseAssumptions
+    from spherecal.estimation.refine import _centre_design
 
     ref, problem = sol.refined, sol.problem
     ke = ref.diagnostics["kinematic_effects"]
     ident = np.flatnonzero(ke["identified"])
-    lin = _linearise(problem, _Points(problem), ref.R, ref.t, ref.centre, ref.radius, False,
-                     _pose_cov(NoiseAssumptions(0.01, 0.02, 0.002)), 0.01)
-    Jg, Jk = _centre_design(problem, ref.R, ref.t, ref.centre, False, lin, kin.chain, np.zeros(len(truth)))
+    Jg, Jk = _centre_design(problem, ref.R, ref.t, ref.centre, kin.chain)
     A = np.hstack([Jk[:, ident], Jg])
     sol_ls = np.linalg.lstsq(A, Jk @ truth, rcond=None)[0]
     return sol_ls[:len(ident)]

@@ -189,12 +189,18 @@ def flange_error_jacobian(chain: SerialChain, q_rad) -> np.ndarray:
     return out
 
 
-def corrected_flange_poses(nominal: SerialChain, actual: SerialChain, q_rad, reported) -> list[Pose]:
-    """Reported flange poses (the controller's nominal model at joints ``q_rad``, (N, n))
-    moved to where the ``actual`` chain (a calibrated model) puts the flange: each pose
-    gets the difference of the two chains at its joints, ``R <- R_a R_n^T R``,
-    ``t <- t + t_a - t_n``. Exact when the reported pose is the nominal model's."""
+def flange_corrections(nominal: SerialChain, actual: SerialChain, q_rad) -> tuple[np.ndarray, np.ndarray]:
+    """What moves a pose the ``nominal`` chain reports at joints ``q_rad`` (N, n) to where
+    the ``actual`` chain puts the flange: ``R <- dR R``, ``t <- t + dt`` with
+    ``dR = R_a R_n^T`` (N, 3, 3) and ``dt = t_a - t_n`` (N, 3, mm)."""
     Q = np.atleast_2d(np.asarray(q_rad, dtype=float))
     Tn, Ta = nominal.flange_matrices(Q), actual.flange_matrices(Q)
-    return [Pose.from_rt(a[:3, :3] @ n[:3, :3].T @ p.rotation_matrix, p.translation + a[:3, 3] - n[:3, 3])
-            for p, n, a in zip(reported, Tn, Ta)]
+    return Ta[:, :3, :3] @ np.swapaxes(Tn[:, :3, :3], 1, 2), Ta[:, :3, 3] - Tn[:, :3, 3]
+
+
+def corrected_flange_poses(nominal: SerialChain, actual: SerialChain, q_rad, reported) -> list[Pose]:
+    """Reported flange poses (the controller's nominal model at joints ``q_rad``, (N, n))
+    moved to where the ``actual`` chain (a calibrated model) puts the flange
+    (:func:`flange_corrections`). Exact when the reported pose is the nominal model's."""
+    dR, dt = flange_corrections(nominal, actual, q_rad)
+    return [Pose.from_rt(r @ p.rotation_matrix, p.translation + d) for p, r, d in zip(reported, dR, dt)]

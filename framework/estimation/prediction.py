@@ -67,12 +67,6 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     p = np.array([0.0, *pts.mean(axis=0)])
     JX, JR, Jp = _jacobians(problem, ref.R, ref.t, p)
     kt = ref.kinematic_terms
-    if kt is not None and "identified_design" not in kt:
-        cov_X = ref.covariance_without_robot_error[:9, :9]  # the noise's share; the robot's is below
-    else:
-        cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
-    s_rot, s_trans = ref.station_effect_scales
-    S_station = np.diag([s_rot**2] * 3 + [s_trans**2] * 3)
     S_shot = _pose_cov(noise) * ref.pose_noise_scale / shots_averaged
     S_point = np.diag([0.0, 1.0, 1.0]) * noise.point_noise_mm**2 / shots_averaged
 
@@ -82,17 +76,19 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     if kt is not None and "identified_design" in kt:
         # through the identified model: transform, sphere and identified parameters jointly
         keep = list(range(9)) + list(range(kt["n_geo"], kt["covariance"].shape[0]))
-        J = np.concatenate([JX, JR @ kt["identified_design"]], axis=2)
+        JX = np.concatenate([JX, JR @ kt["identified_design"]], axis=2)
         cov_X = kt["covariance"][np.ix_(keep, keep)]
-        JX = J
         robot = 0.0
     elif kt is not None:
+        cov_X = ref.covariance_without_robot_error[:9, :9]  # the noise's share; the robot's is below
         B = JR @ kt["design"] - JX @ kt["influence"][:9]
         # this arm's error as the fit sees it (posterior mean), and what it does not know of it
         mean = np.einsum("nij,j->ni", B, kt["posterior_mean"])
         robot = float(np.sqrt(np.mean(np.sum(mean**2, axis=1) + np.einsum("nij,jk,nik->n", B, kt["posterior_cov"], B))))
     else:
-        robot = rms(JR, S_station)
+        cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
+        s_rot, s_trans = ref.station_effect_scales
+        robot = rms(JR, np.diag([s_rot**2] * 3 + [s_trans**2] * 3))
     parts = {
         "transform_and_sphere_mm": rms(JX, cov_X),
         "robot_station_to_station_mm": robot,

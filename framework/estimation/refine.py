@@ -23,7 +23,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import geometry as geo
-from ..kinematics import SerialChain, chain_with_errors, error_parameter_names, flange_error_jacobian
+from ..kinematics import (
+    SerialChain, chain_with_errors, error_parameter_names, flange_corrections, flange_error_jacobian,
+)
 from .problem import Problem, sphere_frame_from_base
 
 
@@ -202,9 +204,9 @@ class KinematicEffects:
     ties the error of every shot to every other through the arm's geometry, including its
     change along a sweep.
 
-    ``prior_sd`` (rad and mm, per parameter) is the spread of an uncalibrated arm; the
-    fit scales it by a factor estimated from the data (REML) unless ``estimate_scale`` is
-    False. With ``identify`` the parameters the data determine (the identifiability test
+    ``prior_sd`` (rad and mm, per parameter) is the spread of an uncalibrated arm, a
+    floor: the fit may widen it by a factor estimated from the data (REML) unless
+    ``estimate_scale`` is False. With ``identify`` the parameters the data determine (the identifiability test
     of :func:`identifiable_kinematic_parameters`) are estimated without prior (kinematic
     calibration); the others keep their prior, unscaled, and only widen the covariance."""
 
@@ -232,22 +234,21 @@ def identifiable_kinematic_parameters(J_fixed: np.ndarray, J_kin: np.ndarray, pr
     by ``prior_sd``), after projecting out those of ``J_fixed``. A parameter whose column
     keeps less than ``tolerance`` of its norm is not identifiable. Returns the mask and,
     per parameter, that kept share (1: independent, 0: fully absorbed)."""
-    A = np.asarray(J_fixed, float)
     B = np.asarray(J_kin, float) * np.asarray(prior_sd, float)
-    Qf, _ = np.linalg.qr(A)
+    norms = np.linalg.norm(B, axis=0)  # each column's size before anything is projected out
+    Qf, _ = np.linalg.qr(np.asarray(J_fixed, float))
     B = B - Qf @ (Qf.T @ B)
     kept: list[np.ndarray] = []
     share = np.zeros(B.shape[1])
     mask = np.zeros(B.shape[1], dtype=bool)
-    ref = max(np.linalg.norm(np.asarray(J_kin, float) * prior_sd, axis=0).max(), 1e-300)
+    ref = max(norms.max(), 1e-300)
     for k in range(B.shape[1]):
         b = B[:, k].copy()
         for q in kept:
             b -= q * (q @ b)
         for q in kept:  # twice is enough (numerical re-orthogonalisation)
             b -= q * (q @ b)
-        norm_full = np.linalg.norm(np.asarray(J_kin, float)[:, k] * prior_sd[k])
-        share[k] = np.linalg.norm(b) / max(norm_full, 1e-300)
+        share[k] = np.linalg.norm(b) / max(norms[k], 1e-300)
         if np.linalg.norm(b) > tolerance * ref and share[k] > tolerance:
             mask[k] = True
             kept.append(b / np.linalg.norm(b))
@@ -278,10 +279,9 @@ def _apply_kinematic_errors(problem: Problem, chain: SerialChain, kappa: np.ndar
     the chain with errors, n: the nominal chain). Exact for poses the nominal model reports."""
     if not np.any(kappa):
         return problem
-    Tn = chain.flange_matrices(problem.q_rad)
-    Tk = chain_with_errors(chain, kappa).flange_matrices(problem.q_rad)
-    R0 = Tk[:, :3, :3] @ np.swapaxes(Tn[:, :3, :3], 1, 2) @ problem.R0
-    t0 = problem.t0 + Tk[:, :3, 3] - Tn[:, :3, 3]
+    dR, dt = flange_corrections(chain, chain_with_errors(chain, kappa), problem.q_rad)
+    R0 = dR @ problem.R0
+    t0 = problem.t0 + dt
     R_A, t_A = sphere_frame_from_base(problem.mounting, R0, t0)
     return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
 
@@ -333,11 +333,6 @@ def _effect_blocks(Jw_t, Jw_s, Jw_k, yw, station_rows):
     return Jw_t.T @ Jw_t, A_td, A_dd, Jw_t.T @ yw, b_d
 
 
-def _station_blocks(Jw_t, Jw_d, yw, station_rows):
-    """Normal-equation blocks with the station effects' columns kept per station."""
-    return _effect_blocks(Jw_t, Jw_d, None, yw, station_rows)
-
-
 def refine(
     problem: Problem,
     R,
@@ -386,8 +381,7 @@ def refine(
     kin_identifiable = np.zeros(n_kin, dtype=bool)
     kin_share = np.zeros(n_kin)
     if ke is not None:
-        lin0 = _linearise(problem, pts, R, t, c, r, fit_radius, pose_cov, sigma)
-        Jc_geo, Jc_kin = _centre_design(problem, R, t, c, fit_radius, lin0, ke.chain, kappa)
+        Jc_geo, Jc_kin = _centre_design(problem, R, t, c, ke.chain, fit_radius)
         kin_identifiable, kin_share = identifiable_kinematic_parameters(Jc_geo, Jc_kin, kin_prior)
     id_cols = np.flatnonzero(kin_identifiable) if ke is not None and ke.identify else np.array([], dtype=int)
     rand_cols = np.setdiff1d(np.arange(n_kin), id_cols)
@@ -419,10 +413,6 @@ def refine(
         if se is not None:
             blocks.append(_station_sqrt_cov(K, *sv))
         if len(rand_cols):
-            # the data scale the prior where they see the parameters; where they cannot
-            # (absorbed by the transform or the sphere), the stated prior stands
-            # the data scale the prior of the parameters they see (seen_kin); the others
-            # keep the stated spread
             blocks.append(np.diag(lam_ * kin_prior[rand_cols]))
         if not blocks:
             return np.zeros((0, 0))
@@ -486,6 +476,8 @@ def refine(
                 # prior's factor only near a solution (far from it the misfit of the start
                 # would pass for robot error and blow the prior up)
                 if free or (estimate_lam and near):
+                    lam_now = estimate_lam and near
+
                     def unpack(x):
                         sv = s_hat.copy()
                         sv[free] = np.exp(x[:len(free)])
@@ -493,8 +485,6 @@ def refine(
                             if se is not None and fixed[i] is not None:
                                 sv[i] = fixed[i]
                         return sv, (float(np.exp(x[-1])) if lam_now else lam)
-
-                    lam_now = estimate_lam and near
 
                     def objective(x):
                         sv, lam_ = unpack(x)
@@ -591,14 +581,16 @@ def refine(
     off = 6 * K if se is not None else 0
     hidden = np.zeros(0, dtype=bool)
     if len(rand_cols):
+        # posterior spread of the random kinematic parameters
+        Lk = Lp[off:, off:]
+        S_rr = A_rr - A_tr.T @ np.linalg.pinv(A_tt) @ A_tr
+        post = Lk @ np.linalg.solve(np.eye(len(Lk)) + Lk.T @ S_rr[off:, off:] @ Lk, Lk.T)
+        kin_posterior_sd[rand_cols] = np.sqrt(np.maximum(np.diag(post), 0.0))
         # relative to the robot's own frame: without the parameters the data barely see
         # (posterior spread over SEEN_POSTERIOR_SHARE of the prior's): they move the poses
         # nearly alike, and the transform or the sphere absorbs them as it absorbs the
         # robot's common error in the station model
-        Lk0 = Lp[off:, off:]
-        S_rr0 = A_rr - A_tr.T @ np.linalg.pinv(A_tt) @ A_tr
-        post0 = Lk0 @ np.linalg.solve(np.eye(len(Lk0)) + Lk0.T @ S_rr0[off:, off:] @ Lk0, Lk0.T)
-        hidden = np.sqrt(np.maximum(np.diag(post0), 0.0)) >= SEEN_POSTERIOR_SHARE * np.diag(Lk0)
+        hidden = kin_posterior_sd[rand_cols] >= SEEN_POSTERIOR_SHARE * np.diag(Lk)
     if hidden.any():
         L_rf = Lp.copy()
         L_rf[off + np.flatnonzero(hidden), off + np.flatnonzero(hidden)] = 0.0
@@ -606,10 +598,9 @@ def refine(
         cov_robot_frame = np.linalg.pinv(A_tt - A_tr @ (L_rf @ np.linalg.solve(B_rf, L_rf.T)) @ A_tr.T)
 
     def consider(cols_t, cols_d, prior_cov):
-        """Covariance added by parameters left at zero in the fit, with prior ``prior_cov``,
-        and their influence on the estimate."""
+        """Covariance added by parameters left at zero in the fit, with prior ``prior_cov``."""
         S = cov @ (cols_t - A_tr @ Cinv @ cols_d)
-        return S @ prior_cov @ S.T, S
+        return S @ prior_cov @ S.T
 
     if ke is not None and len(id_cols):
         # kinematic calibration: a new pose is mapped through the identified model, so its
@@ -619,10 +610,6 @@ def refine(
             "covariance": cov_robot_frame, "n_geo": n_geo,
         }
     elif ke is not None and len(rand_cols):
-        Lk = Lp[off:, off:]
-        S_rr = A_rr - A_tr.T @ np.linalg.pinv(A_tt) @ A_tr
-        post = Lk @ np.linalg.solve(np.eye(len(Lk)) + Lk.T @ S_rr[off:, off:] @ Lk, Lk.T)
-        kin_posterior_sd[rand_cols] = np.sqrt(np.maximum(np.diag(post), 0.0))
         # how the arm's true geometric error moves the estimate (GLS with it marginalised)
         kinematic_terms = {
             "design": flange_error_jacobian(ke.chain, problem.q_rad)[:, :, rand_cols],
@@ -637,7 +624,7 @@ def refine(
             sum_cols = np.kron(np.ones((K, 1)), np.eye(6))  # the common offset moves every station
             common = np.diag([np.radians(se.common_rotation_deg) ** 2] * 3 + [se.common_translation_mm**2] * 3)
             cov_robot_frame = cov
-            cov = cov + consider(A_tr[:, :6 * K] @ sum_cols, A_rr[:, :6 * K] @ sum_cols, common)[0]
+            cov = cov + consider(A_tr[:, :6 * K] @ sum_cols, A_rr[:, :6 * K] @ sum_cols, common)
         diagnostics["station_effects"] = {
             "rotation_deg": float(np.degrees(s_hat[0])),
             "translation_mm": float(s_hat[1]),
@@ -678,14 +665,15 @@ def refine(
     )
 
 
-def _centre_design(problem, R, t, c, fit_radius, lin, chain, kappa):
+def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):
     """Per-profile sphere-centre Jacobians, stacked (3 n, .): of the transform, sphere
-    (and radius) and of the kinematic parameters; noise-free, for identifiability."""
+    (and radius) and of the kinematic parameters of ``chain`` at the problem's joints;
+    noise-free, for identifiability."""
     u, _ = _centres(problem, R, t, c)
     Jg = _centre_jacobian(problem, R, u)
     if fit_radius:
         Jg = np.concatenate([Jg, np.zeros((len(Jg), 3, 1))], axis=2)
-    Jk = lin.Jd @ flange_error_jacobian(chain_with_errors(chain, kappa), problem.q_rad)
+    Jk = _pose_noise_jacobian(problem, R, c) @ flange_error_jacobian(chain, problem.q_rad)
     return Jg.reshape(-1, Jg.shape[2]), Jk.reshape(-1, Jk.shape[2])
 
 
@@ -725,10 +713,7 @@ def plan_identifiability(mounting: str, base_from_flange: list, q_rad: np.ndarra
     n = len(R0)
     problem = Problem(mounting, 1.0, R0, t0, R_A, t_A, [np.zeros((0, 2))] * n, np.arange(n), np.zeros(n, dtype=int),
                       ["plan"], np.asarray(q_rad, dtype=float))
-    R, t, c = X.rotation_matrix, X.translation, np.asarray(centre, dtype=float)
-    u, _ = _centres(problem, R, t, c)
-    Jg = _centre_jacobian(problem, R, u).reshape(-1, 9)
-    Jk = (_pose_noise_jacobian(problem, R, c) @ flange_error_jacobian(chain, problem.q_rad)).reshape(-1, len(prior_sd))
+    Jg, Jk = _centre_design(problem, X.rotation_matrix, X.translation, np.asarray(centre, dtype=float), chain)
     mask, share = identifiable_kinematic_parameters(Jg, Jk, prior_sd)
     B = Jk[:, mask] * prior_sd[mask]
     Q, _ = np.linalg.qr(Jg)
