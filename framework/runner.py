@@ -675,6 +675,12 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
                    f"{n_seen} of its {len(re.kinematic_parameters)} geometric parameters seen by the data, all "
                    f"marginalised (prior spread x {re.kinematic_prior_scale:.2f})")
             lines.append(f"robot error: the arm's geometry (kinematic model), {how}")
+            if re.model_choice is not None:
+                lines.append(f"  {re.model_choice}")
+            lines.append(f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the "
+                         "std above adds the geometric errors no data from one sphere location can see)")
+        elif re.model_choice is not None:
+            lines.append(f"robot error: {re.model_choice}")
             lines.append(f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the "
                          "std above adds the geometric errors no data from one sphere location can see)")
         else:
