@@ -216,8 +216,7 @@ class KinematicEffects:
     :data:`KINEMATIC_EVIDENCE_LR`), the fit is the pose-noise-only one, efficient on an
     exact or calibrated arm, and the parameters the data barely see are *considered*:
     not estimated, their prior spread propagated into the covariance.
-    ``consider_columns`` and ``consider_covariance`` (set by that choice: the columns and
-    their covariance) select that mode directly."""
+    ``consider_columns`` (set by that choice) selects that mode directly."""
 
     chain: SerialChain
     prior_sd: np.ndarray
@@ -225,7 +224,6 @@ class KinematicEffects:
     identify: bool = False
     select_by_evidence: bool = False
     consider_columns: tuple[int, ...] | None = None
-    consider_covariance: np.ndarray | None = None
 
 
 #: A marginalised kinematic parameter whose posterior spread stays above this share of its
@@ -397,7 +395,6 @@ def refine(
     R = np.array(R, dtype=float)
     t = np.array(t, dtype=float)
     c = np.array(centre, dtype=float)
-    R_start, t_start, c_start = R.copy(), t.copy(), c.copy()
     r = float(problem.radius_mm)
     pts = _Points(problem)
     sigma = max(noise.point_noise_mm, 1e-7)
@@ -427,6 +424,9 @@ def refine(
     consider_cols = np.array([], dtype=int)
     if ke is not None and ke.consider_columns is not None:
         consider_cols, rand_cols = np.asarray(ke.consider_columns, dtype=int), np.array([], dtype=int)
+    if ke is not None and ke.select_by_evidence and se is None and not ke.identify and len(rand_cols):
+        return _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations,
+                                   tolerance, ke, rand_cols)
     n_kin_fitted = len(id_cols) + len(rand_cols)
     lam = 1.0
     n_par = n_geo + len(id_cols)
@@ -633,23 +633,10 @@ def refine(
         # nearly alike, and the transform or the sphere absorbs them as it absorbs the
         # robot's common error in the station model
         hidden = kin_posterior_sd[rand_cols] >= SEEN_POSTERIOR_SHARE * np.diag(Lk)
-    evidence = None
     if len(rand_cols) and se is None and not len(id_cols):
-        evidence = _kinematic_evidence(Jw, Jw_k, -ew + Jw_k @ kappa[rand_cols], kin_prior[rand_cols])
-        if ke.select_by_evidence and evidence["likelihood_ratio"] < KINEMATIC_EVIDENCE_LR:
-            # no geometric error of the arm in the data: the pose-noise-only fit, with the
-            # arm's parameters considered at what the data leave of their prior (their
-            # posterior spread: the prior's where one sphere cannot see them)
-            chosen = replace(ke, select_by_evidence=False, consider_columns=tuple(rand_cols.tolist()),
-                             consider_covariance=post)
-            out = refine(problem, R_start, t_start, c_start, noise, fit_radius, estimate_pose_noise, max_iterations,
-                         tolerance, station_effects=None, kinematic_effects=chosen)
-            out.diagnostics["kinematic_evidence"] = {**evidence, "threshold": KINEMATIC_EVIDENCE_LR,
-                                                     "selected": "none"}
-            return out
-        evidence = {**evidence, "threshold": KINEMATIC_EVIDENCE_LR,
-                    "selected": "kinematic" if ke.select_by_evidence else "stated"}
-        diagnostics["kinematic_evidence"] = evidence
+        diagnostics["kinematic_evidence"] = {
+            **_kinematic_evidence(Jw, Jw_k, -ew + Jw_k @ kappa[rand_cols], kin_prior[rand_cols]),
+            "threshold": KINEMATIC_EVIDENCE_LR, "selected": "stated"}
     if hidden.any():
         L_rf = Lp.copy()
         L_rf[off + np.flatnonzero(hidden), off + np.flatnonzero(hidden)] = 0.0
@@ -662,10 +649,19 @@ def refine(
         return S @ prior_cov @ S.T
 
     if len(consider_cols):
-        # the arm's parameters considered: their covariance through the estimator
+        # the arm's parameters considered: what the data leave of their prior (the
+        # posterior at the stated spread; the prior itself where one sphere cannot see
+        # them) through the estimator
         Jk = kin_point_columns(lin)[:, consider_cols]
-        S = cov @ (Jw.T @ Jk)
-        cov = cov + S @ ke.consider_covariance @ S.T
+        prior_c = kin_prior[consider_cols]
+        JtK = Jw.T @ Jk
+        S_kk = Jk.T @ Jk - JtK.T @ cov_fixed @ JtK
+        post_c = prior_c[:, None] * np.linalg.solve(np.eye(len(prior_c)) + prior_c[:, None] * S_kk * prior_c,
+                                                    np.diag(prior_c))
+        S = cov @ JtK
+        cov = cov + S @ post_c @ S.T
+        diagnostics["kinematic_evidence"] = {**_kinematic_evidence(Jw, Jk, -ew, prior_c),
+                                             "threshold": KINEMATIC_EVIDENCE_LR, "selected": "stated"}
     if ke is not None and len(id_cols):
         # kinematic calibration: a new pose is mapped through the identified model, so its
         # error is that of the transform, sphere and identified parameters, jointly
@@ -727,6 +723,28 @@ def refine(
         kinematic_errors=kappa if ke is not None else None,
         kinematic_sd=kin_posterior_sd if ke is not None else None, kinematic_terms=kinematic_terms,
     )
+
+
+def _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations, tolerance,
+                        ke: KinematicEffects, cols) -> RefineResult:
+    """The ``auto`` robot error model: the pose-noise-only fit at the stated noise, the
+    evidence for the arm's geometric error at its solution, then the kinematic model if
+    the data show that error, else the pose-noise-only fit (pose noise rescaled as asked)
+    with the arm's geometry considered. The decision is made at the stated pose noise: a
+    pose-noise scale learnt first would absorb the arm's error and hide it."""
+    plain = replace(ke, select_by_evidence=False, consider_columns=tuple(int(i) for i in cols))
+    first = refine(problem, R, t, c, noise, fit_radius, False, max_iterations, tolerance, None, plain)
+    evidence = first.diagnostics["kinematic_evidence"]
+    if evidence["likelihood_ratio"] >= KINEMATIC_EVIDENCE_LR:
+        out = refine(problem, first.R, first.t, first.centre, noise, fit_radius, estimate_pose_noise, max_iterations,
+                     tolerance, None, replace(ke, select_by_evidence=False))
+        selected = "kinematic"
+    else:
+        out = first if not estimate_pose_noise else refine(
+            problem, first.R, first.t, first.centre, noise, fit_radius, True, max_iterations, tolerance, None, plain)
+        selected = "none"
+    out.diagnostics["kinematic_evidence"] = {**evidence, "selected": selected}
+    return out
 
 
 def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):
