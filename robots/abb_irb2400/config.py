@@ -9,6 +9,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from spherecal.errors import InputError
+from spherecal.sim.controller import SimulatedControllerSettings as CoreSimulatedControllerSettings
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
 
@@ -39,35 +40,18 @@ class WorkspaceBox(BaseModel):
         return all(lo <= p <= hi for p, lo, hi in zip(point_mm, self.min_mm, self.max_mm))
 
 
-class SimulatedControllerSettings(BaseModel):
+class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     """The simulated controller used when the run is simulated (a SimulatedCell is
-    given): it serves the same protocol over a real pyserial link on localhost."""
+    given): it serves the same protocol over a real pyserial link on localhost (the
+    core's settings, :class:`spherecal.sim.controller.SimulatedControllerSettings`, with
+    the IRB 2400's home joints)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    transport: Literal["tcp", "pty"] = Field(
-        "tcp", description="tcp: a socket:// server on 127.0.0.1; pty: a pseudo-terminal device (POSIX only)"
-    )
-    pose_noise: Literal["cell", "settings"] = Field(
-        "cell",
-        description="GETP noise: 'cell' uses the SimulatedCell's pose noise (cell.report_pose); "
-        "'settings' uses pose_translation_noise_mm and pose_rotation_noise_deg below",
-    )
-    pose_translation_noise_mm: float = Field(0.0, ge=0, description="GETP position noise, SD per base axis, mm")
-    pose_rotation_noise_deg: float = Field(0.0, ge=0, description="GETP orientation noise, SD about each base axis, deg")
-    joint_noise_deg: float = Field(0.0, ge=0, description="GETJ noise, SD per joint, deg")
     single_precision: bool = Field(
         True, description="round reported values to 32-bit floats, as RAPID num does"
     )
-    motion_time_scale: float = Field(
-        0.0, ge=0, description="a move lasts this factor times its duration (distance / speed or angle / "
-        "reorientation speed, the longer), s (0: instantaneous)"
-    )
-    max_controller_speed_mm_s: float = Field(7000.0, gt=0, description="the controller's own TCP speed limit, mm/s")
     home_joints_deg: tuple[float, float, float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 0.0, 90.0, 0.0), description="joints at start-up, controller convention, deg"
     )
-    seed: int | None = Field(0, description="seed of the simulator's noise generator (None: random)")
 
 
 class AbbIrb2400Config(BaseModel):
