@@ -24,11 +24,9 @@ limits) are checked before anything is sent; a move's flange and reorientation s
 keep the tool point (the sensor or the sphere the flange carries) within the move's
 speed.
 
-The configuration object (a plugin's pydantic model) must have: ``port``, ``baudrate``,
-``parity``, ``stopbits``, ``timeout_s``, ``retries``, ``pose_source`` ('controller' or
-'joints'), ``max_speed_mm_s``, ``move_timeout_extra_s``, ``orientation_speed_deg_s``,
-``path_check_samples`` and ``workspace`` (with ``min_mm``, ``max_mm`` and
-``contains(point_mm)``). The kinematics must have ``flange_pose_from_joints(joints_deg,
+The configuration is a plugin's model derived from :class:`LineLinkSettings`; its
+``workspace`` must be set by the time the robot moves (:class:`LineRobot` takes a
+``workspace`` argument when the plugin derives it). The kinematics must have ``flange_pose_from_joints(joints_deg,
 check_limits)`` and ``joints_from_flange_pose(pose, seed_joints_deg)``, raising an
 :class:`~spherecal.errors.InputError` when a pose is out of reach.
 """
@@ -38,9 +36,10 @@ from __future__ import annotations
 import math
 import secrets
 import time
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from . import lineproto as P
 from .errors import DeviceError, InputError
@@ -55,6 +54,68 @@ _MAX_PENDING = 4 * P.MAX_LINE_CHARS
 #: Slowest speed sent (mm/s for the flange, deg/s for the reorientation): the line
 #: carries one decimal, and a move that does not translate (or turn) still names one.
 MIN_SPEED_MM_S = 0.1
+
+
+Vec3 = tuple[float, float, float]
+
+
+class WorkspaceBox(BaseModel):
+    """Axis-aligned box in the base frame (mm) the flange origin must stay in. Moves
+    whose target lies outside are refused before anything is sent."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    min_mm: Vec3 = Field(description="lower corner (x, y, z) in base, mm")
+    max_mm: Vec3 = Field(description="upper corner (x, y, z) in base, mm")
+
+    @model_validator(mode="after")
+    def _check(self):
+        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
+            if not lo < hi:
+                raise ValueError(f"workspace: min_mm {axis} = {lo} must be below max_mm {axis} = {hi}")
+        return self
+
+    def contains(self, point_mm) -> bool:
+        return all(lo <= p <= hi for p, lo, hi in zip(point_mm, self.min_mm, self.max_mm))
+
+
+class LineLinkSettings(BaseModel):
+    """The settings :class:`LineRobot` reads: the serial link, the replies, the pose
+    source and the motion limits. A robot plugin's configuration model derives from it
+    (and gives ``workspace`` a default or a way to derive one). Lengths in mm, angles in
+    degrees, times in seconds."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    port: str = Field(
+        "/dev/ttyS0",
+        description="serial device path (/dev/ttyS0, /dev/ttyUSB0, COM1) or pyserial URL "
+        "(socket://host:port, rfc2217://...); ignored in simulated runs",
+    )
+    baudrate: int = Field(9600, gt=0, le=10_000_000,
+                          description="serial speed, baud; must match the controller's serial port setting")
+    parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
+    stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
+    timeout_s: float = Field(2.0, gt=0, le=600, description="time to wait for a reply (besides a move's duration), s")
+    retries: int = Field(2, ge=0, le=100, description="resends after a timeout or a corrupted reply (0: none)")
+    pose_source: Literal["controller", "joints"] = Field(
+        "controller",
+        description="flange pose from the controller (GETP) or from the joint readings (GETJ) through the "
+        "plugin's forward kinematics",
+    )
+    max_speed_mm_s: float = Field(250.0, gt=0, le=7000, description="largest TCP speed a move may ask for, mm/s")
+    move_timeout_extra_s: float = Field(
+        5.0, ge=0, le=600, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
+    )
+    orientation_speed_deg_s: float = Field(
+        100.0, gt=0, le=P.MAX_ORIENTATION_SPEED_DEG_S,
+        description="largest reorientation speed a move asks for, deg/s; each move asks for less when its sensor "
+        "(the tool point) would otherwise exceed the move's speed"
+    )
+    path_check_samples: int = Field(
+        10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
+    )
+    workspace: WorkspaceBox | None = Field(None, description="allowed flange positions, base, mm")
 
 
 def initial_seq() -> int:
@@ -86,12 +147,17 @@ class LineRobot:
         tool_point_mm=None,
         n_joints: int = 6,
         seq_start: int | None = None,
+        workspace: WorkspaceBox | None = None,
     ):
         import serial
 
         self._serial_errors = (serial.SerialException, OSError)
         self.config = config
         self.kin = kinematics
+        #: the box the flange must stay in (base frame, mm)
+        self.workspace = workspace if workspace is not None else config.workspace
+        if self.workspace is None:
+            raise InputError(f"{self.name}: no workspace box configured (robot.workspace.min_mm / max_mm)")
         self.n_joints = int(n_joints)
         #: the point carried by the flange whose speed every move limits (flange frame, mm):
         #: the sensor (eye-in-hand) or the sphere (eye-to-hand); None: the flange itself
@@ -270,7 +336,7 @@ class LineRobot:
             )
 
     def _check_workspace(self, pose: Pose, what: str) -> None:
-        box = self.config.workspace
+        box = self.workspace
         if not box.contains(pose.translation_mm):
             t = [round(v, 3) for v in pose.translation_mm]
             raise InputError(
