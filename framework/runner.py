@@ -538,9 +538,11 @@ CALIBRATED_URDF_NAME = "robot_calibrated.urdf"
 
 def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | None:
     """With identified kinematic parameters, the robot with its identified geometry as a
-    URDF (metres, joints ``joint_1`` ... in the model's convention, flange ``tool0``):
-    the nominal chain with the identified errors applied and the others left at zero.
-    None when nothing was identified."""
+    URDF (metres, joints in the model's convention): the nominal chain with the identified
+    errors applied and the others left at zero. Joint and link names are the arm's when
+    its kinematics name them (``joint_names``, ``base_link``, ``flange_link``: a robot
+    described by its URDF reads the file back with the same settings), else ``joint_1``
+    ... with ``base_link`` and ``tool0``. None when nothing was identified."""
     ref = solution.refined
     ke = ref.diagnostics.get("kinematic_effects")
     if kinematics is None or not ke or not any(ke["identified"]):
@@ -554,6 +556,9 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
     n_id = sum(ke["identified"])
     text = chain_to_urdf(
         chain_with_errors(kinematics.chain, kappa), "spherecal_calibrated_robot",
+        joint_names=getattr(kinematics, "joint_names", None),
+        base_link=getattr(kinematics, "base_link", "base_link"),
+        flange_link=getattr(kinematics, "flange_link", "tool0"),
         joint_limits_rad=limits() if callable(limits) else None,
         comment=f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
                 f"{len(ke['identified'])} geometric parameters (result.json, robot_error.kinematic_parameters); "
