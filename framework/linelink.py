@@ -170,6 +170,7 @@ class LineRobot:
         self.stale_replies = 0  #: replies discarded because their seq did not match
         self.resends = 0  #: requests sent again after a timeout or a corrupted line
         self.last_joints_deg: np.ndarray | None = None
+        self._check_seed: np.ndarray | None = None  # joints of the last target checked
         try:
             self._serial = serial.serial_for_url(
                 self.url,
@@ -311,13 +312,17 @@ class LineRobot:
     # limits ------------------------------------------------------------------------
     def check_target(self, base_from_flange: Pose, speed_mm_s: float) -> None:
         """Check a planned target against every limit without sending anything: speed,
-        workspace box, and reachability within the joint limits (inverse kinematics
-        seeded with the last joints read, or zero). Raises what :meth:`move_linear` would."""
+        workspace box, and reachability within the joint limits. The inverse kinematics
+        is seeded as the moves will be: the first check from the arm's joints now (read
+        with GETJ, which moves nothing), each next one from the joints the previous check
+        found. Raises what :meth:`move_linear` would."""
         self._check_speed(speed_mm_s)
         self._check_workspace(base_from_flange, "target")
-        seed = self.last_joints_deg if self.last_joints_deg is not None else np.zeros(self.n_joints)
+        seed = self._check_seed
+        if seed is None:
+            seed = self.last_joints_deg if self.last_joints_deg is not None else self.read_joints_deg()
         try:
-            self.kin.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
+            self._check_seed = self.kin.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
         except InputError as exc:
             raise type(exc)(f"target: {exc}") from None
 

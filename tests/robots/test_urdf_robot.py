@@ -236,3 +236,16 @@ def test_calibrated_model_reads_back_through_the_urdf_type(host, irb, tmp_path):
     # and differs from the nominal model: the calibration is really in the file
     nominal = np.array([irb.flange_matrix_from_joints(q) for q in Q])
     assert np.abs(got[:, :3, 3] - nominal[:, :3, 3]).max() > 0.1
+
+
+def test_the_shipped_ur5_urdf_is_example_robot_datas(host, ur5_urdf):
+    """examples/robots/ur5.urdf (written by spherecal from the published geometry) and
+    example-robot-data's UR5 give the same flange poses to 1e-9 mm."""
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[2] / "examples" / "robots" / "ur5.urdf"
+    a = host.arm_kinematics(_ur5(str(shipped)))
+    b = host.arm_kinematics(_ur5(ur5_urdf))
+    Q = np.radians(np.random.default_rng(3).uniform(-180.0, 180.0, (1000, 6)))
+    assert np.abs(a.chain.flange_matrices(Q)[:, :3, 3] - b.chain.flange_matrices(Q)[:, :3, 3]).max() < 1e-9
+    np.testing.assert_array_equal(a.model_joint_limits_rad(), b.model_joint_limits_rad())
