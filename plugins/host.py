@@ -868,12 +868,14 @@ class PluginHost:
         model = exporter.settings_model
         problems = not_numbers(dict(table), model, where)
         if problems:
-            raise ConfigError("\n  ".join([f"invalid settings for exporter '{exporter.name}':", *problems]))
+            raise ConfigError("\n  ".join([f"invalid settings for exporter '{exporter.name}' (plugin "
+                                           f"'{self.exporters.provider(exporter.name)}'):", *problems]))
         try:
             return model.model_validate(dict(table))
         except ValidationError as exc:
             errors = exc.errors(include_url=False)
-            if all(err.get("type") == "missing" for err in errors):
+            if all(err.get("type") == "missing" and len(err["loc"]) == 1 and err["loc"][0] not in table
+                   for err in errors):
                 return [f"{_format_loc(where, err['loc'])} ({_field_description(model, err['loc'])})"
                         for err in errors]
             lines = format_validation_error(exc, where, model)
