@@ -350,10 +350,12 @@ def standard_cell(
 ) -> SimulatedCell:
     """An IRB 2400-sized cell with a generic (not axis-aligned) true transform.
 
-    Eye-in-hand: the sensor sits about 160 mm out from the flange looking along the
-    flange's z; the sphere stands at (1100, 150, 400) mm in base. Eye-to-hand: the
-    sensor hangs at about (1250, -200, 900) mm in base looking down; the sphere is on a
-    150 mm stylus on the flange's z axis.
+    The sensor looks towards its own -z (module docstring). Eye-in-hand: the sensor sits
+    about 160 mm out from the flange and looks along the flange's +z, away from the
+    flange; the sphere stands at (1100, 150, 400) mm in base. Eye-to-hand: the sensor
+    frame's origin is at about (1250, -200, 900) mm in base with its z axis pointing down,
+    so the sensor looks **up** (along base +z, within 6 deg), and the robot, reaching
+    down, holds the sphere above it on a 150 mm stylus on the flange's z axis.
 
     ``arm`` (a robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) attaches a
     simulated arm, with ``robot_error`` in its true geometry when given."""
