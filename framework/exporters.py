@@ -28,7 +28,7 @@ from typing import Callable, Mapping, Sequence
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from . import safeio
-from .errors import InputError, PluginError
+from .errors import InputError, PluginError, SpherecalError
 from .models import CalibrationResult, MountingMode
 
 __all__ = [
@@ -39,6 +39,7 @@ __all__ = [
     "Exporter",
     "NoSettings",
     "SelectedExporter",
+    "check_file_name",
     "ExportPlan",
     "write_exports",
 ]
@@ -121,7 +122,7 @@ class Exporter:
         """The names the file-name templates use."""
         names: set[str] = set()
         for template in self.files:
-            for _, name, spec, conv in string.Formatter().parse(template):
+            for _, name, _, _ in string.Formatter().parse(template):
                 if name is not None:
                     names.add(name)
         return names
@@ -182,8 +183,6 @@ class SelectedExporter:
         try:
             files = self.exporter.write(result, self.settings)
         except Exception as exc:
-            from .errors import SpherecalError
-
             if isinstance(exc, SpherecalError):
                 raise
             raise PluginError(f"plugin '{self.plugin}': exporter '{self.name}' raised {type(exc).__name__}: {exc}") from exc

@@ -8,7 +8,8 @@ manager), so two hosts never share state::
 
     host = PluginHost()                      # built-ins + installed third-party plugins
     robot = host.create_robot({"type": "abb_irb2400", ...}, context)
-    host.observation_taken(observation=obs)  # lifecycle hooks: keyword arguments only
+    host.observation_taken(observation=obs, robot_type="abb_irb2400")  # keyword arguments only
+    plan = host.export_plan(config.export, "eye_in_hand", "abb_irb2400")  # the run's exporters
 
 Where plugins come from
 -----------------------
@@ -487,7 +488,8 @@ class PluginHost:
     :param enable: names of third-party entry points to load even when autoloading is off.
     :param environ: the environment to read (default ``os.environ``).
     :raises PluginError: a plugin failed to import, to register, has a misspelled hook,
-        raised in ``spherecal_register_devices`` or registered a bad or duplicate type.
+        raised in ``spherecal_register_devices`` or ``spherecal_register_exporters``, or
+        registered a bad or duplicate device type or exporter.
     """
 
     def __init__(
