@@ -251,7 +251,8 @@ def _scalar_number(value: Any, field: str) -> Any:
     if value is None:
         return value
     if type(value) is bool or not isinstance(value, (int, float)):
-        raise _FieldError(field, f"must be a number, got {json.dumps(value) if isinstance(value, str) else value!r:.40}")
+        shown = json.dumps(value) if isinstance(value, (str, bool)) else repr(value)
+        raise _FieldError(field, f"must be a number, got {shown:.40}")
     try:
         ok = abs(float(value)) <= MAX_ABS_VALUE
     except OverflowError:

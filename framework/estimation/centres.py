@@ -187,4 +187,29 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None) -> tup
     return keep, flags
 
 
-__all__ = ["screen_table", "pairwise_move_check"]
+__all__ = ["screen_table", "pairwise_move_check", "circles_from_profiles"]
+
+
+def circles_from_profiles(dataset, min_points: int = 20, max_rms_mm: float = 0.5):
+    """The dataset a sensor that fits on board would have given: each profile replaced
+    by the circle fitted to it (:func:`.circle.fit_circle`, robust to stray points), its
+    standard deviations left to the estimator. Profiles with fewer than ``min_points``
+    points or a poor fit (rms above ``max_rms_mm``) are dropped, as such a sensor would
+    report nothing. Other observations are kept as they are."""
+    from ..models import Circle, Dataset
+    from .circle import fit_circle
+
+    out = []
+    for o in dataset.observations:
+        if o.profile is None:
+            out.append(o)
+            continue
+        if len(o.profile) < min_points:
+            continue
+        fit = fit_circle(o.profile.points_mm)
+        if not fit.converged or fit.rms > max_rms_mm or fit.n_inliers < min_points:
+            continue
+        circle = Circle(centre_yz_mm=(float(fit.centre_yz[0]), float(fit.centre_yz[1])), radius_mm=fit.radius)
+        out.append(o.model_copy(update={"profile": None, "circle": circle}))
+    return Dataset(mounting=dataset.mounting, sphere_radius_mm=dataset.sphere_radius_mm, observations=out,
+                   provenance={**dataset.provenance, "reduced_to": "circles fitted to the profiles"})

@@ -261,7 +261,7 @@ def _centre_rows(problem, cs, C, Jc, rho, r, SC, fit_radius, s2_centre):
 
 
 #: Bounds of the estimated variance of centre observations given without one, mm^2.
-_CENTRE_VARIANCE_BOUNDS = (1e-10, 2500.0)
+_CENTRE_VARIANCE_BOUNDS = (1e-8, 2500.0)
 
 
 def _centre_variance(parts, dof: float, s2_start: float) -> float:

@@ -13,6 +13,7 @@ import pytest
 
 from spherecal import dataio
 from spherecal.dataio import (
+    DATASET_VERSION,
     DatasetWriter,
     TruncatedFileWarning,
     read_dataset,
@@ -107,7 +108,8 @@ def test_simulated_dataset_round_trip_is_exact(tmp_path, mounting, parser):
     assert back.provenance["true_transform_name"] == ds.provenance["true_transform_name"]
     assert_same_observations(back.observations, ds.observations)
     header = read_dataset_header(path)
-    assert (header.format, header.version, header.mounting) == ("spherecal-dataset", 1, mounting)
+    assert (header.format, header.version, header.mounting) == ("spherecal-dataset", DATASET_VERSION, mounting)
+    assert DATASET_VERSION == 2
     assert header.created.tzinfo is not None
 
 
@@ -389,7 +391,7 @@ def obs_dict(index: int, /, **changes) -> dict:
     [
         ({"format": "spherecal-result"}, r'line 1 has format "spherecal-result".*use read_result\(\)'),
         ({"format": "laser-scans"}, r'not a spherecal dataset: line 1 has format "laser-scans", expected \'spherecal-dataset\''),
-        ({"version": 2}, r"dataset format version 2 is newer than this spherecal .* \(versions 1 to 1\); upgrade spherecal"),
+        ({"version": 3}, r"dataset format version 3 is newer than this spherecal .* \(versions 1 to 2\); upgrade spherecal"),
         ({"version": "1"}, r'line 1 \(header\): version must be a whole number >= 1, found "1"'),
         ({"mounting": "eye_on_hand"}, r"line 1 \(header\): mounting: Input should be 'eye_in_hand' or 'eye_to_hand'"),
         ({"sphere_radius_mm": 0.019}, r"line 1 \(header\): sphere_radius_mm: .*looks like metres"),
