@@ -576,6 +576,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
     cov = ref.covariance * 1.0
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     res = np.concatenate(ref.residuals)
+    n_points = int(res.size)
     per_station = {}
     centre_res = ref.centre_residuals
     centre_stats = {}
@@ -613,7 +614,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
             rms_mm=float(np.sqrt(np.mean(res**2))),
             max_abs_mm=float(np.abs(res).max()),
             p95_abs_mm=float(np.percentile(np.abs(res), 95)),
-            n_points_used=int(res.size),
+            n_points_used=n_points,
             n_points_rejected=int(n_point_rejected),
             n_profiles_used=int(np.count_nonzero(clean.kinds == KIND_PROFILE)),
             per_station_rms_mm=per_station,
