@@ -287,7 +287,8 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
 
     clean = sub.with_profiles([p[sub_fits[j].inliers] if isinstance(sub_fits[j], CircleFit) else p
                                for j, p in enumerate(sub.profiles)])
-    say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points")
+    say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points"
+        + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
     ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      **robot_effects)
 
@@ -358,7 +359,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
-    return Solution(result, clean, ts, ref, fits)
+    return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
 
 
 #: Point noise assumed, for the point-error budget only, when no profile shows it, mm.
@@ -622,7 +623,8 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
         ),
         flagged=sorted(flags, key=lambda f: f.index),
         method="two-step (Ren, Yin and Zhu 2012) start, then joint refinement over all points "
-        "(generalised least squares with robot pose noise, stray points and inconsistent profiles rejected)",
+        "(generalised least squares with robot pose noise, stray points and inconsistent profiles rejected)"
+        + (" and centre observations, each with its covariance" if clean.has_centres else ""),
         two_step_transform=Pose.from_rt(ts.R, ts.t),
         diagnostics={
             "orientations": orientations,
