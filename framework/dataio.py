@@ -68,8 +68,9 @@ DATASET_VERSION = 2
 _VERSION_2_FIELDS = ("circle", "sphere_centre_mm", "sphere_centre_covariance_mm2")
 #: ``format`` value of every result file.
 RESULT_FORMAT = "spherecal-result"
-#: Newest result format version this module reads and the one it writes.
-RESULT_VERSION = 1
+#: Newest result format version this module reads and the one it writes. Version 2 adds
+#: the centre observations' figures to ``residuals``.
+RESULT_VERSION = 2
 
 _OBSERVATION_KIND = "observation"
 #: Longest line of a dataset file (a profile of 3200 points is about 130 kB).
@@ -733,6 +734,11 @@ class DatasetWriter:
                 stacklevel=3,
             )
         h = scan.header
+        if h.version != DATASET_VERSION:
+            raise DatasetFileError(
+                f"{name} is in dataset format version {h.version}; only version {DATASET_VERSION} files "
+                "can be continued: start a new file (read_dataset reads it; write_dataset writes it anew)"
+            )
         if h.mounting != mounting or h.sphere_radius_mm != radius:
             raise DatasetFileError(
                 f"{name} holds a dataset for mounting={h.mounting}, sphere_radius_mm={h.sphere_radius_mm}; "
@@ -782,12 +788,6 @@ class DatasetWriter:
         if self._file.closed:
             raise DatasetFileError(f"{os.fspath(self.path)}: the writer is closed; open a new one with resume=True")
         line = _observation_line(observation)
-        if self.header.version < 2 and observation.kind != "profile":
-            raise InputError(
-                f"{os.fspath(self.path)}: a {observation.kind} observation (index {observation.index}) needs dataset "
-                f"format version 2, and this file is version {self.header.version} (continued with resume=True): "
-                "write the centre observations to a new file"
-            )
         if observation.index in self._indices:
             raise InputError(
                 f"{os.fspath(self.path)}: observation index {observation.index} is already in the file "

@@ -422,7 +422,7 @@ class CalibrationResult(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     format: Literal["spherecal-result"] = "spherecal-result"
-    version: Literal[1] = 1
+    version: Literal[1, 2] = 2
     mounting: MountingMode
     transform_name: str
     transform: Pose

@@ -71,23 +71,22 @@ def test_mixed_version_2_file_round_trips_exactly(tmp_path, parser):
     assert "sphere_centre_covariance_mm2" not in lines[3]
 
 
-def test_writer_appends_centres_and_continues_version_1_files_with_profiles_only(tmp_path):
+def test_writer_appends_centres_and_continues_only_current_version_files(tmp_path):
     path = tmp_path / "w.jsonl"
     with DatasetWriter(path, mounting="eye_in_hand", sphere_radius_mm=19.05) as out:
         out.append(obs(0, sphere_centre_mm=(1.0, 2.0, 3.0)))
-    assert read_dataset(path).observations[0].sphere_centre_mm == (1.0, 2.0, 3.0)
-    # a version 1 file (written by an older spherecal) is continued, but only with profiles
+    with DatasetWriter(path, mounting="eye_in_hand", sphere_radius_mm=19.05, resume=True) as out:
+        out.append(obs(1, circle=Circle(centre_yz_mm=(0.0, 1.0), radius_mm=2.0)))
+    assert [o.kind for o in read_dataset(path).observations] == ["sphere_centre", "circle"]
+    # a version 1 file (written by an older spherecal) is read, not continued
     old = tmp_path / "v1.jsonl"
     header = {"format": "spherecal-dataset", "version": 1, "mounting": "eye_in_hand", "sphere_radius_mm": 19.05,
               "created": "2026-01-01T00:00:00Z"}
     old.write_text(json.dumps(header) + "\n")
-    with DatasetWriter(old, mounting="eye_in_hand", sphere_radius_mm=19.05, resume=True) as out:
-        out.append(obs(0, profile=Profile(y_mm=[1.0, 2.0], z_mm=[3.0, 4.0])))
-        with pytest.raises(InputError, match=r"v1\.jsonl: a circle observation \(index 1\) needs dataset format "
-                                             r"version 2, and this file is version 1"):
-            out.append(obs(1, circle=Circle(centre_yz_mm=(0.0, 1.0), radius_mm=2.0)))
-    back = read_dataset(old)
-    assert [o.index for o in back.observations] == [0] and read_dataset_header(old).version == 1
+    with pytest.raises(DatasetFileError, match=r"v1\.jsonl is in dataset format version 1; only version 2 files can "
+                                               r"be continued"):
+        DatasetWriter(old, mounting="eye_in_hand", sphere_radius_mm=19.05, resume=True)
+    assert read_dataset(old).observations == []
 
 
 def write_lines(path, observations, version=2):
@@ -175,3 +174,22 @@ def test_model_refuses_two_kinds_and_a_bad_covariance(tmp_path):
                                                                       provenance={}, observations=[
             Observation.model_construct(**obs(0, sphere_centre_mm=(1.0, 2.0, 3.0)).__dict__
                                         | {"sphere_centre_mm": (float("nan"), 0.0, 0.0)})]))
+
+
+def test_the_documented_version_2_example_reads(tmp_path):
+    """docs/file-formats.md's centre example (its lines joined again) is a valid file."""
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "file-formats.md").read_text(encoding="utf-8")
+    block = doc.split("### Example: centre observations (version 2)")[1].split("```json\n")[1].split("```")[0]
+    lines: list[str] = []
+    for text in block.splitlines():
+        if text.startswith(" ") and lines:
+            lines[-1] += text.strip()
+        else:
+            lines.append(text)
+    path = tmp_path / "doc.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    ds = read_dataset(path)
+    assert [o.kind for o in ds.observations] == ["sphere_centre", "sphere_centre", "circle", "circle"]
+    assert ds.observations[0].sphere_centre_covariance_mm2 is not None and ds.observations[2].circle.radius_std_mm == 0.006
