@@ -161,6 +161,14 @@ def _parse_timestamp(value: Any) -> datetime:
     return ts
 
 
+def _within_limit(v: int | float) -> bool:
+    """A finite number of magnitude at most MAX_ABS_VALUE (a huge int overflows float)."""
+    try:
+        return abs(float(v)) <= MAX_ABS_VALUE
+    except OverflowError:
+        return False
+
+
 def _number_array(value: Any, field: str) -> np.ndarray:
     """A JSON list of numbers as a float array, refusing strings, booleans and nulls
     (which NumPy would otherwise convert, or keep as objects)."""
@@ -194,11 +202,7 @@ def _number_array(value: Any, field: str) -> np.ndarray:
                 raise _FieldError(field, f"expected a flat list of numbers, item {i} is a list")
             shown = "null" if v is None else json.dumps(v) if isinstance(v, (bool, str)) else repr(v)
             raise _FieldError(field, f"must hold only numbers; item {i} is {shown} ({type(v).__name__})")
-        try:
-            ok = abs(float(v)) <= MAX_ABS_VALUE
-        except OverflowError:
-            ok = False
-        if not ok:
+        if not _within_limit(v):
             raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} mm "
                                      "(check the units)")
     return np.asarray(value, dtype=float)
@@ -210,11 +214,7 @@ def _small_numbers(value: Any, field: str) -> Any:
         for i, v in enumerate(value):
             if type(v) is bool or not isinstance(v, (int, float)):
                 raise _FieldError(field, f"must hold only numbers; item {i} is {json.dumps(v)}")
-            try:
-                ok = abs(float(v)) <= MAX_ABS_VALUE
-            except OverflowError:
-                ok = False
-            if not ok:
+            if not _within_limit(v):
                 raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} "
                                          "(check the units)")
         return tuple(value)
@@ -254,11 +254,7 @@ def _scalar_number(value: Any, field: str) -> Any:
     if type(value) is bool or not isinstance(value, (int, float)):
         shown = json.dumps(value) if isinstance(value, (str, bool)) else repr(value)
         raise _FieldError(field, f"must be a number, got {shown:.40}")
-    try:
-        ok = abs(float(value)) <= MAX_ABS_VALUE
-    except OverflowError:
-        ok = False
-    if not ok:
+    if not _within_limit(value):
         raise _FieldError(field, f"{value!r:.40} is not a finite number of at most {MAX_ABS_VALUE:g} (check the units)")
     return value
 

@@ -125,6 +125,30 @@ def _station_residuals(solution, members) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
+def _flagged_mark(ax, k: int, index: int, label_y: float) -> None:
+    """A flagged observation at position k: a red band and cross, 'obs <index> flagged'."""
+    ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
+    ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
+    ax.annotate(f"obs {index}\nflagged", (k, label_y), ha="center", va="bottom", fontsize=7, color="#c5221f")
+
+
+def _station_axis(ax, entries: list[tuple], label_y: float) -> None:
+    """The x axis of per-observation figures (entries: (station, index, ...)): dashed
+    lines between stations, each station's label centred above its entries at
+    ``label_y``, the observation indices as ticks."""
+    stations = [e[0] for e in entries]
+    n = len(stations)
+    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
+    ax.set_xlim(-0.7, n - 0.3)
+    ax.set_xlabel("observation index (grouped by station)")
+    for k in range(1, n):
+        if stations[k] != stations[k - 1]:
+            ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
+    starts = [0] + [k for k in range(1, n) if stations[k] != stations[k - 1]] + [n]
+    for a, b in zip(starts[:-1], starts[1:]):
+        ax.text((a + b - 1) / 2, label_y, stations[a], ha="center", va="center", fontsize=9, fontweight="bold")
+
+
 def _fig_per_profile(solution, result, colours) -> Figure:
     prob, ref = solution.problem, solution.refined
     entries = [(prob.station_labels[prob.station_of[i]], int(prob.obs_index[i]), ref.residuals[i], None)
@@ -147,21 +171,9 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     ax.set_ylim(-1.15 * lim, 1.3 * lim)
     for k, e in enumerate(entries):
         if e[2] is None:
-            ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
-            ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
-            ax.annotate(f"obs {e[1]}\nflagged", (k, -1.05 * lim), ha="center", va="bottom", fontsize=7,
-                        color="#c5221f")
-    # station separators and labels
-    for k in range(1, n):
-        if entries[k][0] != entries[k - 1][0]:
-            ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
-    starts = [0] + [k for k in range(1, n) if entries[k][0] != entries[k - 1][0]] + [n]
-    for a, b in zip(starts[:-1], starts[1:]):
-        ax.text((a + b - 1) / 2, 1.22 * lim, entries[a][0], ha="center", va="center", fontsize=9, fontweight="bold")
+            _flagged_mark(ax, k, e[1], -1.05 * lim)
+    _station_axis(ax, entries, 1.22 * lim)
     ax.axhline(0, color="black", lw=0.6)
-    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
-    ax.set_xlim(-0.7, n - 0.3)
-    ax.set_xlabel("observation index (grouped by station)")
     ax.set_ylabel("in-plane residual (mm)")
     ax.set_title("Residuals per profile (box: quartiles, whiskers: 1-99 %; red: flagged and left out)", fontsize=10)
     return fig
@@ -182,21 +194,11 @@ def _fig_per_centre(solution, result, colours) -> Figure:
     top = max([e[2] for e in entries if e[2] is not None] + [1e-3])
     for k, (label, index, length) in enumerate(entries):
         if length is None:
-            ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
-            ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
-            ax.annotate(f"obs {index}\nflagged", (k, 0.55 * top), ha="center", va="bottom", fontsize=7, color="#c5221f")
+            _flagged_mark(ax, k, index, 0.55 * top)
         else:
             ax.bar([k], [length], width=0.7, color=colours.get(label, "grey"), alpha=0.8)
-    for k in range(1, n):
-        if entries[k][0] != entries[k - 1][0]:
-            ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
-    starts = [0] + [k for k in range(1, n) if entries[k][0] != entries[k - 1][0]] + [n]
-    for a, b in zip(starts[:-1], starts[1:]):
-        ax.text((a + b - 1) / 2, 1.12 * top, entries[a][0], ha="center", va="center", fontsize=9, fontweight="bold")
+    _station_axis(ax, entries, 1.12 * top)
     ax.set_ylim(0, 1.22 * top)
-    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
-    ax.set_xlim(-0.7, n - 0.3)
-    ax.set_xlabel("observation index (grouped by station)")
     ax.set_ylabel("centre residual, length (mm)")
     ax.set_title("Residual of every centre observation used (red: flagged and left out)", fontsize=10)
     return fig
@@ -333,6 +335,8 @@ def _headline(result: CalibrationResult, ver, th: Thresholds, notes: Sequence[Ex
         ("sensor point noise (mm)", f"{_n(point)}" + (
             f" <span class='muted'>RMS / noise {result.residuals.rms_mm / point:.1f}</span>" if point else "")),
         ("profiles used / flagged", f"{result.residuals.n_profiles_used} / {len(result.flagged)}"),
+        *([("centre observations used", f"{result.residuals.n_centres_used} (residual RMS "
+            f"{_n(result.residuals.centre_rms_mm)} mm, 3-D)")] if result.residuals.n_centres_used else []),
         ("points used / rejected", f"{result.residuals.n_points_used} / {result.residuals.n_points_rejected}"),
     ]
     card_html = "".join(f'<div class="card"><div class="label">{_e(lbl)}</div><div class="value">{val}</div></div>'

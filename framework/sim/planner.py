@@ -93,6 +93,18 @@ def plan_stations(
     return stations
 
 
+def _truth(cell: SimulatedCell, plan: SweepPlan, source: str) -> dict:
+    """What a simulated dataset's provenance says of the truth behind it."""
+    return {
+        "source": source,
+        "true_transform_name": cell.transform_name,
+        "true_transform": cell.true_transform.model_dump(),
+        "true_sphere_centre_mm": cell.sphere_centre_mm.tolist(),
+        "noise": cell.noise.model_dump(),
+        "plan": plan.model_dump(),
+    }
+
+
 def simulate_dataset(
     cell: SimulatedCell,
     plan: SweepPlan | None = None,
@@ -142,16 +154,7 @@ def simulate_dataset(
         mounting=cell.mounting,
         sphere_radius_mm=cell.sphere_radius_mm,
         observations=obs,
-        provenance={
-            "source": "spherecal simulator",
-            "true_transform_name": cell.transform_name,
-            "true_transform": cell.true_transform.model_dump(),
-            "true_sphere_centre_mm": cell.sphere_centre_mm.tolist(),
-            "noise": cell.noise.model_dump(),
-            "fov": cell.fov.model_dump(),
-            "plan": plan.model_dump(),
-            **robot,
-        },
+        provenance={**_truth(cell, plan, "spherecal simulator"), "fov": cell.fov.model_dump(), **robot},
     )
 
 
@@ -206,14 +209,6 @@ def simulate_centre_dataset(
         mounting=cell.mounting,
         sphere_radius_mm=r,
         observations=obs,
-        provenance={
-            "source": "spherecal simulator (centre observations)",
-            "true_transform_name": cell.transform_name,
-            "true_transform": cell.true_transform.model_dump(),
-            "true_sphere_centre_mm": cell.sphere_centre_mm.tolist(),
-            "noise": cell.noise.model_dump(),
-            "centre_noise_mm": centre_noise_mm,
-            "radius_noise_mm": sd_r,
-            "plan": plan.model_dump(),
-        },
+        provenance={**_truth(cell, plan, "spherecal simulator (centre observations)"),
+                    "centre_noise_mm": centre_noise_mm, "radius_noise_mm": sd_r},
     )

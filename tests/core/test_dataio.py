@@ -37,17 +37,6 @@ from spherecal.sim import simulate_dataset, standard_cell
 T0 = datetime(2026, 3, 4, 5, 6, 7, 123456, tzinfo=timezone.utc)
 
 
-@pytest.fixture(params=["orjson", "stdlib"])
-def parser(request, monkeypatch):
-    """Run a test with the orjson accelerator and with the standard library's json."""
-    if request.param == "orjson":
-        if dataio._orjson is None:
-            pytest.skip("orjson not installed")
-    else:
-        monkeypatch.setattr(dataio, "_orjson", None)
-    return request.param
-
-
 def small_obs(index: int, n_points: int = 4, seed: int = 0, station: str = "S1", **kw) -> Observation:
     rng = np.random.default_rng(seed + index)
     q = rng.normal(size=4)

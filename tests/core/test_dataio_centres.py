@@ -10,22 +10,11 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from spherecal import dataio
 from spherecal.dataio import DatasetWriter, read_dataset, read_dataset_header, write_dataset
 from spherecal.errors import DatasetFileError, InputError
 from spherecal.models import Circle, Dataset, Observation, Pose, Profile
 
 T0 = datetime(2026, 3, 4, 5, 6, 7, tzinfo=timezone.utc)
-
-
-@pytest.fixture(params=["orjson", "stdlib"])
-def parser(request, monkeypatch):
-    if request.param == "orjson":
-        if dataio._orjson is None:
-            pytest.skip("orjson not installed")
-    else:
-        monkeypatch.setattr(dataio, "_orjson", None)
-    return request.param
 
 
 def obs(index: int, **seen) -> Observation:
