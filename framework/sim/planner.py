@@ -172,8 +172,8 @@ def simulate_centre_dataset(
     sphere centre in the sensor frame (``kind`` 'sphere_centre') or the circle the laser
     plane cuts from the sphere ('circle': centre (y, z) and radius), from the true
     geometry plus Gaussian noise (``centre_noise_mm`` per axis; the radius'
-    ``radius_noise_mm``, default the same). Poses carry the cell's pose noise, as in
-    :func:`simulate_dataset`. With ``give_covariance`` each observation carries its true
+    ``radius_noise_mm``, default the same). Poses carry the cell's pose noise and, with an
+    arm attached, its geometric error and joint readings, as in :func:`simulate_dataset`. With ``give_covariance`` each observation carries its true
     noise (covariance or standard deviations); else the estimator has to estimate it.
     Shots where the line would show fewer than ``min_points`` points of the sphere are
     skipped. The truth goes into ``provenance``."""
@@ -187,8 +187,13 @@ def simulate_centre_dataset(
     r = cell.sphere_radius_mm
     t0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
     obs = []
+    arm, joints = cell.arm, None
     for label, poses in stations:
-        for pose in poses:
+        for target in poses:
+            pose = commanded = target
+            if arm is not None:  # as simulate_dataset: the controller's nominal IK, the arm's true geometry
+                joints = arm.joints_for(target, joints)
+                pose, commanded = arm.true_flange_pose(joints), arm.nominal_flange_pose(joints)
             c = cell.sphere_centre_in_sensor(pose)
             if abs(c[0]) >= r or len(cell.ideal_profile(pose)) < min_points:
                 continue
@@ -204,7 +209,8 @@ def simulate_centre_dataset(
                                          centre_std_mm=centre_noise_mm if give_covariance else None,
                                          radius_std_mm=sd_r if give_covariance else None)}
             obs.append(Observation(index=len(obs), station=label, timestamp=t0 + timedelta(seconds=2 * len(obs)),
-                                   base_from_flange=cell.report_pose(pose), **seen))
+                                   base_from_flange=cell.report_pose(commanded),
+                                   joints_deg=None if joints is None else tuple(float(j) for j in joints), **seen))
     return Dataset(
         mounting=cell.mounting,
         sphere_radius_mm=r,
