@@ -30,6 +30,8 @@ import numpy as np
 from ..models import ObservationFlag
 from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
+__all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "circles_from_profiles"]
+
 #: A row whose magnitude is below the median of the others' divided by this looks like
 #: metres among millimetres (a factor of 1000; 200 leaves room for real spread).
 METRES_RATIO = 200.0
@@ -64,10 +66,12 @@ def _metres_rows(values: np.ndarray, rows: np.ndarray) -> list[tuple[int, float,
     return out
 
 
-def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag]]:
+def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
     """Rows that are typos in units or size, and gross breaks of the pure-translation
-    rule within a station (see the module docstring). Returns the rows to keep and the
-    flags of those left out."""
+    rule within a station (see the module docstring). Returns the rows to keep, the
+    flags of those left out, and the pairs of rows (positions) left out together because
+    nothing within their station told which of the two is wrong
+    (:func:`settle_pairs` may tell it from the solution of the others)."""
     n = problem.n_profiles
     keep = np.ones(n, dtype=bool)
     flags: list[ObservationFlag] = []
@@ -77,7 +81,7 @@ def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag]]:
                                        f"the other rows' are about {med:.4g}: metres among millimetres? "
                                        "Give every translation in mm"))
     if not problem.has_centres:
-        return keep, flags
+        return keep, flags, []
     kinds, meas, r = problem.kind, problem.centre_meas, problem.radius_mm
     sph = np.flatnonzero((kinds == KIND_SPHERE_CENTRE) & keep)
     for i, mag, med in _metres_rows(meas, sph):
@@ -95,8 +99,8 @@ def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag]]:
         keep[i] = False
         flags.append(_flag(problem, i, f"circle (centre_yz_mm, radius_mm) is {mag:.4g} in size while the other rows' "
                                        f"are about {med:.4g}: metres among millimetres? Give the circle in mm"))
-    more_keep, more_flags = pairwise_move_check(problem, keep)
-    return more_keep, flags + more_flags
+    more_keep, more_flags, pairs = pairwise_move_check(problem, keep)
+    return more_keep, flags + more_flags, pairs
 
 
 def _centre_distances(problem: Problem, i: int, j: int) -> tuple[float, ...]:
@@ -127,16 +131,18 @@ def _given_sd(problem: Problem, i: int) -> float:
     return 0.0 if np.isnan(C[0, 0]) else float(np.sqrt(np.linalg.eigvalsh(C)[-1]))
 
 
-def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None) -> tuple[np.ndarray, list[ObservationFlag]]:
+def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
     """Within each station, the sphere centre must move in the sensor frame by the
     distance the flange moved (a pure translation): compares every pair of centre
     observations. The row that disagrees with most of its station (worst first, then
     again without it) is left out and flagged with its inconsistency in mm; two rows that
     disagree with each other and with nothing else to tell which is wrong are both
-    flagged."""
+    flagged, and returned as a pair."""
     n = problem.n_profiles
     keep = np.ones(n, dtype=bool) if keep is None else keep.copy()
     flags: list[ObservationFlag] = []
+    pairs: list[tuple[int, int]] = []
     kinds = problem.kinds
     for k, label in enumerate(problem.station_labels):
         rows = [int(i) for i in np.flatnonzero((problem.station_of == k) & keep & (kinds != KIND_PROFILE))]
@@ -171,6 +177,7 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None) -> tup
                         f"{gap[x, y]:.3f} mm: the robot moved {moved[x, y]:.3f} mm between them, the sphere centre "
                         "moved otherwise in the sensor frame (a pure translation moves both alike); one of the two "
                         "rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out")))
+                pairs.append((rows[a], rows[b]))
                 alive = []
                 break
             worst = max(range(len(alive)), key=lambda x: (bad[x], sub[x].sum()))
@@ -184,10 +191,34 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None) -> tup
                 "(median): its sphere centre did not move in the sensor frame by the distance the robot moved (a pure "
                 "translation moves both alike): a typo in the pose or the centre (a sign, metres for millimetres)?")))
             alive = others
-    return keep, flags
+    return keep, flags, pairs
 
 
-__all__ = ["screen_table", "pairwise_move_check", "circles_from_profiles"]
+def settle_pairs(problem: Problem, pairs: list[tuple[int, int]], R, t, centre, noise_mm: float,
+                 limit: float) -> list[tuple[int, int, float, float]]:
+    """Of each pair of rows left out together (:func:`pairwise_move_check`), the one that
+    agrees with a solution of the other observations (``R``, ``t``, ``centre``) while the
+    other does not: ``[(good, bad, chi2 of good, chi2 of bad), ...]`` (positions in
+    ``problem``). A row's chi^2 (3 dof) is that of its centre residual under its given
+    covariance, else ``noise_mm`` per axis; ``limit`` is the chi^2 above which a row
+    disagrees."""
+    from .twostep import centre_residuals
+
+    e = centre_residuals(problem, R, t, centre)
+    out = []
+
+    def chi2(i):
+        C = problem.centre_cov[i]
+        S = noise_mm**2 * np.eye(3) if np.isnan(C[0, 0]) else C
+        return float(e[i] @ np.linalg.solve(S, e[i]))
+
+    for a, b in pairs:
+        ca, cb = chi2(a), chi2(b)
+        if ca <= limit < cb:
+            out.append((a, b, ca, cb))
+        elif cb <= limit < ca:
+            out.append((b, a, cb, ca))
+    return out
 
 
 def circles_from_profiles(dataset, min_points: int = 20, max_rms_mm: float = 0.5):

@@ -23,7 +23,7 @@ from .problem import (
     derived_station_rotation_tolerance_deg, screen_station_orientations,
 )
 from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
-from .centres import screen_table
+from .centres import screen_table, settle_pairs
 from .twostep import CentreShot, TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
@@ -177,21 +177,46 @@ def solve(
         )
     joints_known = problem.q_rad is not None
     # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
-    table_keep, table_flags = screen_table(problem)
-    if not table_keep.all():
-        for f in table_flags:
-            say(f"observation {f.index}: {f.reason}")
-        if not table_keep.any():
-            raise DegenerateDataError("every observation was left out: " + "; ".join(
-                f"observation {f.index}: {f.reason}" for f in table_flags[:5]))
-        problem = problem.subset(table_keep)
-    try:
-        return _solve(dataset, problem, opt, say, kinematics, joints_known, list(table_flags))
-    except DegenerateDataError as exc:
-        if not table_flags:
-            raise
-        raise DegenerateDataError(f"{exc} (left out before: " + "; ".join(
-            f"observation {f.index}: {f.reason}" for f in table_flags[:5]) + ")") from None
+    table_keep, table_flags, pairs = screen_table(problem)
+    for f in table_flags:
+        say(f"observation {f.index}: {f.reason}")
+    if not table_keep.any():
+        raise DegenerateDataError("every observation was left out: " + "; ".join(
+            f"observation {f.index}: {f.reason}" for f in table_flags[:5]))
+
+    def attempt(keep, flags):
+        try:
+            return _solve(dataset, problem.subset(keep) if not keep.all() else problem, opt, say, kinematics,
+                          joints_known, list(flags))
+        except DegenerateDataError as exc:
+            if not flags:
+                raise
+            raise DegenerateDataError(f"{exc} (left out before: " + "; ".join(
+                f"observation {f.index}: {f.reason}" for f in flags[:5]) + ")") from None
+
+    solution = attempt(table_keep, table_flags)
+    if not pairs:
+        return solution
+    # two rows of a station that disagree, nothing within it telling which is wrong: the
+    # solution of the other observations may tell; the row that agrees with it is used
+    ref = solution.refined
+    noise_mm = ref.centre_noise_mm or float(solution.result.diagnostics["noise"]["point_noise_mm"])
+    settled = settle_pairs(problem, pairs, ref.R, ref.t, ref.centre, np.hypot(noise_mm, opt.pose_translation_noise_mm),
+                           opt.profile_outlier_chi2)
+    if not settled:
+        return solution
+    keep, flags = table_keep.copy(), list(table_flags)
+    for good, bad, chi_good, chi_bad in settled:
+        keep[good] = True
+        g, b = int(problem.obs_index[good]), int(problem.obs_index[bad])
+        flags = [f for f in flags if f.index != g]
+        flags = [f.model_copy(update={"reason": f.reason.replace(
+            "one of the two rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out",
+            f"the typo is in this row (a sign, metres for millimetres?): the solution of the other observations puts "
+            f"observation {g} where it was seen (chi2 {chi_good:.1f}, 3 dof) and this one not (chi2 {chi_bad:.3g})")})
+                 if f.index == b else f for f in flags]
+        say(f"observation {g} agrees with the solution of the others and is used; observation {b} is left out")
+    return attempt(keep, flags)
 
 
 def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) -> Solution:

@@ -276,3 +276,18 @@ def test_a_small_inconsistency_is_flagged_in_mm_never_used():
     assert "0.4" in flags[10] or "0.3" in flags[10], flags[10]  # the size of the inconsistency, mm
     assert res.residuals.n_centres_used == len(ds.observations) - 1
     assert_known_answer(res, cell)
+
+
+def test_in_a_station_of_two_the_solution_of_the_others_names_the_row_with_the_typo():
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre",
+                                         centre_noise_mm=0.01))
+    o = next(x for x in ds.observations if x.index == 7)  # S2 holds observations 4 and 7
+    t = list(o.base_from_flange.translation_mm)
+    t[1] = -t[1]
+    bad = with_row(ds, 7, base_from_flange=Pose(translation_mm=tuple(t), quaternion_wxyz=o.base_from_flange.quaternion_wxyz))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [7], flags  # not 4, its station's other row
+    assert "inconsistent with observation 4 of its station by" in flags[7] and "the typo is in this row" in flags[7]
+    assert res.residuals.n_centres_used == 9
+    assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
