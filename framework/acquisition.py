@@ -22,7 +22,7 @@ from .config import AcquisitionConfig, RunConfig
 from .dataio import DatasetWriter
 from .errors import DeviceError, InputError, SpherecalError
 from .models import Observation, Pose, Profile
-from .sim.planner import plan_stations
+from .sim.planner import SweepPlan, plan_stations
 
 
 @dataclass(frozen=True)
@@ -45,15 +45,16 @@ def targets_from_poses(poses: list[Pose], station: str, first_index: int, approa
     ]
 
 
-def plan_targets(cfg: RunConfig) -> list[Target]:
+def plan_targets(cfg: RunConfig, sweep: SweepPlan | None = None) -> list[Target]:
     """The planned shots, in order, from the configuration's nominal transform and the
-    rough sphere position."""
+    rough sphere position; ``sweep`` replaces ``acquisition.sweep`` (the kinematic
+    planner's stations, :mod:`spherecal.kinplan`)."""
     acq = cfg.acquisition
     if acq is None:
         raise InputError("no [acquisition] section: nothing to plan")
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
     stations = plan_stations(
-        cfg.mounting, cfg.nominal_transform.pose(), acq.sphere_centre_mm, cfg.sphere.radius_mm, acq.sweep, R_ref
+        cfg.mounting, cfg.nominal_transform.pose(), acq.sphere_centre_mm, cfg.sphere.radius_mm, sweep or acq.sweep, R_ref
     )
     targets: list[Target] = []
     for label, poses in stations:

@@ -20,6 +20,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 
 from .errors import ConfigError
 from .estimation import CalibrationOptions
+from .kinplan import KinematicPlanSettings
 from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
 from .sim import NoiseModel, RobotErrorModel, SensorFieldOfView, SweepPlan
@@ -102,6 +103,10 @@ class AcquisitionConfig(_Section):
         (0.0, 0.0, 1.0, 0.0), description="flange orientation of the first station, base_from_flange, (w, x, y, z)"
     )
     sweep: SweepPlan = Field(default_factory=SweepPlan, description="stations and sweeps")
+    kinematic_plan: KinematicPlanSettings | None = Field(
+        None, description="plan the stations for kinematic calibration (spread over the arm's joints) instead of "
+        "listing them in sweep.tilts_deg; the default with calibration.identify_kinematics when sweep.tilts_deg "
+        "is not given")
     speed_mm_s: float = Field(20.0, gt=0, description="speed along a sweep, mm/s")
     approach_speed_mm_s: float = Field(100.0, gt=0, description="speed of the move to a station's first target, mm/s")
     max_speed_mm_s: float = Field(250.0, gt=0, description="no move may be faster, mm/s")
@@ -110,6 +115,13 @@ class AcquisitionConfig(_Section):
     pose_agreement_deg: float = Field(0.02, gt=0, description="... and in orientation, deg")
     retries_per_target: int = Field(2, ge=0, le=100, description="re-takes of a shot whose poses disagree")
     workspace: WorkspaceConfig = Field(description="allowed flange positions, base frame, mm")
+
+    @model_validator(mode="after")
+    def _one_station_source(self):
+        if self.kinematic_plan is not None and "tilts_deg" in self.sweep.model_fields_set:
+            raise ValueError("give either sweep.tilts_deg (the stations listed) or [acquisition.kinematic_plan] (the "
+                             "stations planned), not both")
+        return self
 
     @model_validator(mode="after")
     def _speeds(self):

@@ -16,6 +16,7 @@ from .acquisition import Progress, acquire, acquire_manual, check_targets, descr
 from .config import LoadedConfig, RunConfig
 from .devices import DeviceContext
 from .errors import ConfigError, InputError, SpherecalError
+from .kinplan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME
@@ -190,55 +191,6 @@ def check_plan_solvable(targets) -> None:
                          f"determined; {hint}")
 
 
-#: With identify_kinematics a plan must identify at least this many geometric parameters
-#: per joint: a revolute arm seen through one sphere has 3 per joint identifiable at best
-#: with spherecal's 6-per-joint parametrisation (docs/estimation.md, "Kinematic calibration").
-IDENTIFIABLE_PER_JOINT = 3
-#: ... and their identification must not be worse conditioned than this (the prior-scaled
-#: sphere-centre Jacobian, transform and sphere projected out). Measured: the 20-station
-#: example plan 149 (identified parameters determined to 0.4 of their prior spread, median;
-#: fresh poses then agree to 0.02 mm); the 4-station default plan 2,212 (2.5 times their
-#: prior spread, median; fresh poses 0.18 mm apart).
-MAX_IDENTIFICATION_CONDITION = 1e3
-
-
-def check_plan_identifies_kinematics(targets, cfg: RunConfig, arm) -> str:
-    """Before anything moves, with ``identify_kinematics``: the plan's conditioning for the
-    arm's geometric parameters. Raises :class:`InputError` (nothing moved) when the plan
-    identifies fewer than ``IDENTIFIABLE_PER_JOINT`` per joint or too badly, saying what to
-    add; returns a one-line summary otherwise."""
-    from .estimation.refine import plan_identifiability
-
-    if arm is None:
-        raise ConfigError("calibration.identify_kinematics needs a robot type whose plugin describes its arm "
-                          f"(robot.type = {cfg.robot.get('type')!r} does not); nothing was moved")
-    joints, seed = [], None
-    for t in targets:
-        seed = arm.joints_from_flange_pose(t.pose, seed)
-        joints.append(arm.model_joints_rad(seed))
-    opts = cfg.calibration
-    prior = opts.kinematic_effects(arm.chain).prior_sd
-    info = plan_identifiability(cfg.mounting, [t.pose for t in targets], np.array(joints),
-                                cfg.nominal_transform.pose(), cfg.acquisition.sphere_centre_mm, arm.chain, prior)
-    n_id = int(info["identifiable"].sum())
-    need = IDENTIFIABLE_PER_JOINT * arm.chain.n_joints
-    stations = len({t.station for t in targets})
-    summary = (f"kinematic identification: the plan ({stations} stations) identifies {n_id} of "
-               f"{len(info['names'])} geometric parameters, condition number {info['condition_number']:.0f}")
-    if n_id < need or info["condition_number"] > MAX_IDENTIFICATION_CONDITION:
-        if n_id < need:
-            missing = ", ".join(n for n, m in zip(info["names"], info["identifiable"]) if not m)
-            why = f"it must identify at least {need} to calibrate the arm; not identified: {missing}"
-        else:
-            why = (f"too poorly: the condition number must stay under {MAX_IDENTIFICATION_CONDITION:.0f}, or the "
-                   "identified parameters are known worse than before the calibration")
-        raise InputError(
-            f"{summary}: {why}. Add stations spread over the joint space: tilts of "
-            "30-50 deg in every direction and turns of -90..90 deg about the sensor's view axis "
-            "(acquisition.sweep.tilts_deg; examples/sim-kinematic-eye-in-hand.toml has 20); nothing was moved")
-    return summary
-
-
 class MotionNotConfirmed(ConfigError):
     """The operator did not confirm the motion (or could not: no input and no --yes)."""
 
@@ -324,14 +276,21 @@ def run_calibrate(
         acq = cfg.acquisition
         manual = manual or acq.mode == "manual"
         journal = out / JOURNAL_NAME
-        targets = [] if manual else plan_targets(cfg)
+        targets, identification = [], ""
+        if not manual and uses_planner(cfg):
+            planned = plan_kinematic_stations(cfg, arm)
+            log(planned.summary())
+            targets = plan_targets(cfg, planned.sweep)
+        elif not manual:
+            targets = plan_targets(cfg)
         if not manual:
             log(f"plan: {len(targets)} shots in {len(set(t.station for t in targets))} stations")
             log(describe_plan(targets))
             _check_plan(targets, acq, "plan")
             check_plan_solvable(targets)
             if cfg.calibration.identify_kinematics:
-                log(check_plan_identifies_kinematics(targets, cfg, arm))
+                identification = check_plan_identifies_kinematics(targets, cfg, arm)
+                log(identification)
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
             if not manual:
@@ -350,7 +309,8 @@ def run_calibrate(
         cell = make_cell(cfg, arm)
         if not manual and cell is None:
             confirm_motion("calibrate", f"{len(targets)} shots in {len(set(t.station for t in targets))} stations "
-                           f"(plan above), at most {acq.max_speed_mm_s:g} mm/s", yes, ask, log)
+                           f"(plan above), at most {acq.max_speed_mm_s:g} mm/s"
+                           + (f"; {identification}" if identification else ""), yes, ask, log)
         out.mkdir(parents=True, exist_ok=True)
         done: set[int] = set()
         digest = "manual" if manual else plan_digest(targets)

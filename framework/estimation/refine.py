@@ -937,25 +937,33 @@ def cramer_rao_bound(problem_true: Problem, R, t, centre, noise: NoiseAssumption
     return np.linalg.inv(Jw.T @ Jw)
 
 
-def plan_identifiability(mounting: str, base_from_flange: list, q_rad: np.ndarray, X, centre, chain: SerialChain,
-                         prior_sd: np.ndarray) -> dict:
-    """Before anything moves: which geometric parameters a plan would identify, and how
-    well. ``base_from_flange`` (planned flange poses), ``q_rad`` their joints (model
-    convention), ``X`` and ``centre`` the nominal transform and sphere centre. Uses the
-    sphere-centre Jacobian the estimator uses (noise-free). Returns the mask, each
-    parameter's independent share and the condition number of the identified columns
-    (scaled by ``prior_sd``, transform and sphere projected out)."""
-    R0 = np.array([p.rotation_matrix for p in base_from_flange])
-    t0 = np.array([p.translation for p in base_from_flange])
+def plan_design(mounting: str, R0: np.ndarray, t0: np.ndarray, q_rad: np.ndarray, X, centre, chain: SerialChain):
+    """The sphere-centre Jacobians a plan would give (noise-free, as the estimator's):
+    ``(J_geo (3 n, 9), J_kin (3 n, 6 joints))`` of the transform and sphere and of the
+    geometric parameters of ``chain``, for planned flange poses ``base_from_flange``
+    (rotations ``R0`` (n, 3, 3), translations ``t0`` (n, 3), mm) with joints ``q_rad``
+    (model convention), nominal transform ``X`` and sphere ``centre``."""
+    R0, t0 = np.asarray(R0, dtype=float), np.asarray(t0, dtype=float)
     R_A, t_A = sphere_frame_from_base(mounting, R0, t0)
     n = len(R0)
     problem = Problem(mounting, 1.0, R0, t0, R_A, t_A, [np.zeros((0, 2))] * n, np.arange(n), np.zeros(n, dtype=int),
                       ["plan"], np.asarray(q_rad, dtype=float))
-    Jg, Jk = _centre_design(problem, X.rotation_matrix, X.translation, np.asarray(centre, dtype=float), chain)
-    mask, share = identifiable_kinematic_parameters(Jg, Jk, prior_sd)
-    B = Jk[:, mask] * prior_sd[mask]
-    Q, _ = np.linalg.qr(Jg)
+    return _centre_design(problem, X.rotation_matrix, X.translation, np.asarray(centre, dtype=float), chain)
+
+
+def design_identifiability(J_geo: np.ndarray, J_kin: np.ndarray, prior_sd: np.ndarray) -> dict:
+    """Identifiability of a design (:func:`plan_design`): the mask and independent share
+    of :func:`identifiable_kinematic_parameters`, the singular values and right singular
+    vectors (``singular_values``, ``directions`` (k, k), over the identifiable parameters)
+    of the prior-scaled columns with the transform and sphere projected out, and their
+    condition number."""
+    mask, share = identifiable_kinematic_parameters(J_geo, J_kin, prior_sd)
+    B = J_kin[:, mask] * prior_sd[mask]
+    Q, _ = np.linalg.qr(J_geo)
     B = B - Q @ (Q.T @ B)
-    sv = np.linalg.svd(B, compute_uv=False) if mask.any() else np.array([1.0])
-    return {"identifiable": mask, "independent_share": share, "names": error_parameter_names(chain),
+    if mask.any():
+        _, sv, Vt = np.linalg.svd(B, full_matrices=False)
+    else:
+        sv, Vt = np.array([1.0]), np.zeros((0, 0))
+    return {"identifiable": mask, "independent_share": share, "singular_values": sv, "directions": Vt,
             "condition_number": float(sv[0] / max(sv[-1], 1e-300))}

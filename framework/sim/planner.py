@@ -55,6 +55,42 @@ def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:
     )
 
 
+def station_flange_poses(
+    mounting: MountingMode,
+    nominal_transform: Pose,
+    sphere_centre_mm,
+    radius_mm: float,
+    plan: SweepPlan,
+    tilts_deg,
+    offsets_mm,
+    reference_flange_rotation=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flange targets ``base_from_flange`` of stations with the rotation vectors
+    ``tilts_deg`` (K, 3) and field-of-view shifts ``offsets_mm`` (K, 2), the sweep's other
+    settings from ``plan``: rotations (K, n, 3, 3) and translations (K, n, 3), mm, n =
+    ``plan.profiles_per_station``. Arguments as :func:`plan_stations`."""
+    R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
+    centre = np.asarray(sphere_centre_mm, dtype=float)
+    tilts = np.atleast_2d(np.asarray(tilts_deg, dtype=float))
+    offsets = np.atleast_2d(np.asarray(offsets_mm, dtype=float))
+    Rt = geo.matrix_from_rotvec(np.radians(tilts)).reshape(-1, 3, 3)  # (K, 3, 3)
+    Cs = sphere_centres_in_sensor(plan, radius_mm)[None, :, :] + np.column_stack(
+        [np.zeros(len(offsets)), offsets])[:, None, :]  # (K, n, 3) sensor-frame centres
+    RX, tX = nominal_transform.rotation_matrix, nominal_transform.translation
+    n = Cs.shape[1]
+    if mounting == "eye_in_hand":
+        # base_from_sensor = (R_bs, centre - R_bs c_s); base_from_flange = base_from_sensor X^-1
+        R_bs = R_ref @ RX @ Rt  # (K, 3, 3)
+        R = R_bs @ RX.T
+        t_bs = centre - np.einsum("kij,knj->kni", R_bs, Cs)
+        t = t_bs - np.einsum("kij,j->ki", R, tX)[:, None, :]
+    else:
+        # the sphere centre, on the flange, at X c_s in base
+        R = Rt @ R_ref
+        t = Cs @ RX.T + tX - np.einsum("kij,j->ki", R, centre)[:, None, :]
+    return np.repeat(R[:, None], n, axis=1), t
+
+
 def plan_stations(
     mounting: MountingMode,
     nominal_transform: Pose,
@@ -68,29 +104,13 @@ def plan_stations(
     ``nominal_transform`` is flange_from_sensor (eye-in-hand) or base_from_sensor
     (eye-to-hand); ``sphere_centre_mm`` is in base (eye-in-hand) or flange (eye-to-hand).
     ``reference_flange_rotation`` (3x3, base_from_flange) defaults to flange pointing down.
-    """
+    Station k is tilted by ``plan.tilts_deg[k]`` (about the sensor's axes, eye-in-hand, or
+    the base's, eye-to-hand) and shifted by ``plan.station_offsets_mm`` (cycled)."""
     plan = plan or SweepPlan()
-    R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
-    centre = np.asarray(sphere_centre_mm, dtype=float)
-    X = nominal_transform
-    stations = []
-    for k, tilt in enumerate(plan.tilts_deg):
-        dy, dz = plan.station_offsets_mm[k % len(plan.station_offsets_mm)]
-        Cs = sphere_centres_in_sensor(plan, radius_mm) + [0.0, dy, dz]
-        Rt = geo.matrix_from_rotvec(np.radians(tilt))
-        poses = []
-        if mounting == "eye_in_hand":
-            R_bs = R_ref @ X.rotation_matrix @ Rt
-            for c_s in Cs:
-                base_from_sensor = Pose.from_rt(R_bs, centre - R_bs @ c_s)
-                poses.append(base_from_sensor @ X.inverse())
-        else:
-            R_bf = Rt @ R_ref
-            for c_s in Cs:
-                p_base = X.apply(c_s)
-                poses.append(Pose.from_rt(R_bf, p_base - R_bf @ centre))
-        stations.append((f"S{k + 1}", poses))
-    return stations
+    offsets = [plan.station_offsets_mm[k % len(plan.station_offsets_mm)] for k in range(len(plan.tilts_deg))]
+    R, t = station_flange_poses(mounting, nominal_transform, sphere_centre_mm, radius_mm, plan, plan.tilts_deg,
+                                offsets, reference_flange_rotation)
+    return [(f"S{k + 1}", [Pose.from_rt(r, p) for r, p in zip(R[k], t[k])]) for k in range(len(plan.tilts_deg))]
 
 
 def _truth(cell: SimulatedCell, plan: SweepPlan, source: str) -> dict:
