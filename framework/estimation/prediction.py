@@ -73,7 +73,7 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     S_point = np.diag([0.0, 1.0, 1.0]) * noise.point_noise_mm**2 / shots_averaged
 
     def rms(J, S):
-        return float(np.sqrt(np.mean(np.einsum("nij,jk,nik->n", J, S, J))))
+        return float(np.sqrt(max(np.mean(np.einsum("nij,jk,nik->n", J, S, J)), 0.0)))  # rounding: never below 0
 
     if kt is not None and "identified_design" in kt:
         # through the identified model: transform, sphere and identified parameters jointly
