@@ -348,21 +348,14 @@ def plan_kinematic_stations(cfg: "RunConfig", arm) -> KinematicPlan:
                 "fewer stations (acquisition.kinematic_plan.stations); nothing was moved")
         picked = [0] + _greedy([(cands.Jg[0], cands.Jk[0])], cands, n - 1, exclude=excluded)
         picked = [picked[i] for i in _visiting_order(cands.R[picked, 0])]
-        # every target, in the order the robot takes them, from the reference's joints: reachable,
-        # and no joint swinging far within a sweep
+        # every target, in the order the robot takes them, from the reference's joints
         joints, bad = seed, None
         for i in picked:
-            try:
-                sweep = []
-                for p in cands.poses(i):
-                    joints = arm.joints_from_flange_pose(p, joints)
-                    sweep.append(joints)
-            except SpherecalError:
+            sweep = _station_joints(arm, cands.poses(i), joints)
+            if sweep is None:
                 bad = i
                 break
-            if np.max(np.ptp(sweep, axis=0)) > MAX_SWEEP_JOINT_TRAVEL_DEG:
-                bad = i
-                break
+            joints = sweep[-1]
         if bad is None:
             break
         if bad == 0:
@@ -399,84 +392,151 @@ def _and(items: list[str]) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
-def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm) -> str:
+def _sequential_joints(arm, poses, seed=None) -> np.ndarray:
+    """Joints (deg) of flange poses taken in order, each solved from the last (as the
+    controller chooses them); raises the plugin's error for one out of reach."""
+    out = []
+    for p in poses:
+        seed = arm.joints_from_flange_pose(p, seed)
+        out.append(seed)
+    return np.array(out)
+
+
+def _station_joints(arm, poses: list[Pose], seed) -> np.ndarray | None:
+    """The joints (deg) of one station's shots in order from ``seed``, or None when one is
+    out of reach or a joint swings more than :data:`MAX_SWEEP_JOINT_TRAVEL_DEG` along the
+    sweep (a singularity)."""
+    try:
+        joints = _sequential_joints(arm, poses, seed)
+    except SpherecalError:
+        return None
+    return joints if np.max(np.ptp(joints, axis=0)) <= MAX_SWEEP_JOINT_TRAVEL_DEG else None
+
+
+def _identification(ctx: _Context, R0, t0, joints_deg) -> tuple[tuple[np.ndarray, np.ndarray], dict]:
+    rows = ctx.rows(R0, t0, joints_deg)
+    return rows, design_identifiability(*rows, np.ones(len(ctx.prior_sd)))
+
+
+def _passes(info: dict, n_joints: int, max_condition: float) -> bool:
+    return int(info["identifiable"].sum()) >= IDENTIFIABLE_PER_JOINT * n_joints and \
+        info["condition_number"] <= max_condition
+
+
+def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: KinematicPlan | None = None) -> str:
     """Before anything moves, with ``identify_kinematics``: the parameters the plan would
     identify (per joint) and the condition number of their identification. Raises
     :class:`InputError` (nothing moved) when the plan identifies fewer than
     ``IDENTIFIABLE_PER_JOINT`` per joint on average or has a condition number above
-    ``MAX_IDENTIFICATION_CONDITION``, saying what is not seen, which joints move too
-    little and which stations to add; returns a one-line summary otherwise."""
+    ``MAX_IDENTIFICATION_CONDITION``, saying what is not seen or seen too weakly, which
+    joints the stations do not spread and which stations to add (to
+    ``acquisition.sweep.tilts_deg``; with ``planned``, the planner's plan, how many more
+    to ask the planner for); returns a one-line summary otherwise."""
     if arm is None:
         raise ConfigError("calibration.identify_kinematics needs a robot type whose plugin describes its arm "
                           f"(robot.type = {cfg.robot.get('type')!r} does not); nothing was moved")
     ctx = _Context.of(cfg, arm)
-    joints, seed = [], None
-    for t in targets:
-        seed = arm.joints_from_flange_pose(t.pose, seed)
-        joints.append(seed)
-    joints = np.array(joints)
-    rows = ctx.rows(np.array([t.pose.rotation_matrix for t in targets]), np.array([t.pose.translation for t in targets]),
-                    joints)
-    info = design_identifiability(*rows, np.ones(len(ctx.prior_sd)))
-    names = error_parameter_names(arm.chain)
+    joints = _sequential_joints(arm, [t.pose for t in targets])
+    rows, info = _identification(ctx, np.array([t.pose.rotation_matrix for t in targets]),
+                                 np.array([t.pose.translation for t in targets]), joints)
     n_joints = arm.chain.n_joints
     per_joint = info["identifiable"].reshape(n_joints, len(ERROR_PARAMETERS_PER_JOINT)).sum(axis=1)
-    n_id = int(per_joint.sum())
-    need = IDENTIFIABLE_PER_JOINT * n_joints
-    cond = info["condition_number"]
+    n_id, need, cond = int(per_joint.sum()), IDENTIFIABLE_PER_JOINT * n_joints, info["condition_number"]
     stations = len({t.station for t in targets})
-    summary = (f"kinematic identification: the plan ({stations} stations) identifies {n_id} of {len(names)} "
+    summary = (f"kinematic identification: the plan ({stations} stations) identifies {n_id} of {len(per_joint) * 6} "
                f"geometric parameters (per joint: {', '.join(str(int(v)) for v in per_joint)}), condition number "
                f"{cond:.0f}")
-    if n_id >= need and cond <= MAX_IDENTIFICATION_CONDITION:
+    if _passes(info, n_joints, MAX_IDENTIFICATION_CONDITION):
         return summary
     if n_id < need:
         why = f"it must identify at least {need} to calibrate the arm"
     else:
         why = (f"too poorly: the condition number must stay under {MAX_IDENTIFICATION_CONDITION:.0f}, or the "
                "identified parameters are known worse than before the calibration")
-    raise InputError(f"{summary}: {why}. {_what_to_add(ctx, targets, rows, joints, info)}; nothing was moved")
+    raise InputError(f"{summary}: {why}. {_what_to_add(ctx, targets, rows, joints, info, planned)}; nothing was moved")
 
 
-def _what_to_add(ctx: _Context, targets, rows, joints: np.ndarray, info: dict) -> str:
-    """The advice of a refused plan: what is not seen or seen too weakly, the joints that
-    move too little, and the stations (tilts) that would make the plan pass."""
+def _what_to_add(ctx: _Context, targets, rows, joints: np.ndarray, info: dict, planned: KinematicPlan | None) -> str:
+    """The advice of a refused plan: what is not seen or seen too weakly, the joints the
+    stations do not spread, and the stations that make the plan pass: the greedy search of
+    the planner continued from the plan, each suggestion checked as the plan it makes
+    (every target reached in order, the identification computed from its joints)."""
     names = error_parameter_names(ctx.arm.chain)
-    need = IDENTIFIABLE_PER_JOINT * ctx.arm.chain.n_joints
-    ones = np.ones(len(names))
-    # the plan's stations, each a block of rows; the candidates seeded from its last joints
+    n_joints = ctx.arm.chain.n_joints
     by_station: dict[str, list[int]] = {}
     for k, t in enumerate(targets):
         by_station.setdefault(t.station, []).extend(range(3 * k, 3 * k + 3))
     base = [(rows[0][ks], rows[1][ks]) for ks in by_station.values()]
     cands, _ = ctx.candidates(joints[-1])
+    ones = np.ones(len(names))
 
-    def with_added(added) -> dict:
+    def approximate(added) -> dict:
         return design_identifiability(np.vstack([rows[0], *cands.Jg[added]]), np.vstack([rows[1], *cands.Jk[added]]),
                                       ones)
 
-    def passes(added) -> bool:
-        i = with_added(added)
-        return int(i["identifiable"].sum()) >= need and i["condition_number"] <= SUGGESTION_CONDITION
+    def exact(added):
+        """The plan with the stations ``added`` appended to acquisition.sweep.tilts_deg:
+        (identification, joints), or the index of an added candidate it cannot take."""
+        tilts = list(ctx.sweep.tilts_deg) + [tuple(cands.tilts_deg[k]) for k in added]
+        sweep = ctx.sweep.model_copy(update={"tilts_deg": tilts})
+        offsets = [sweep.station_offsets_mm[k % len(sweep.station_offsets_mm)] for k in range(len(tilts))]
+        R, t = station_flange_poses(ctx.mounting, ctx.X, ctx.centre, ctx.radius_mm, sweep, tilts, offsets, ctx.R_ref)
+        n_old, n = len(ctx.sweep.tilts_deg), R.shape[1]
+        joints_all, seed = [], None
+        for k in range(len(tilts)):
+            poses = [Pose.from_rt(r, p) for r, p in zip(R[k], t[k])]
+            if k < n_old:  # the plan's own stations: as they are
+                sweep_joints = _sequential_joints(ctx.arm, poses, seed)
+            else:
+                sweep_joints = _station_joints(ctx.arm, poses, seed)
+                if sweep_joints is None or not all(ctx.workspace.contains(p) for p in t[k]):
+                    return added[k - n_old]
+            seed = sweep_joints[-1]
+            joints_all.append(sweep_joints)
+        joints_all = np.vstack(joints_all)
+        return _identification(ctx, R.reshape(-1, 3, 3), t.reshape(-1, 3), joints_all)[1], joints_all
 
-    reachable = with_added(list(range(len(cands))))["identifiable"]
-    added = _greedy(base, cands, min(MAX_SUGGESTED_STATIONS, len(cands)), passes) if len(cands) else []
+    # grow the suggestion until the plan it makes passes with a margin; a candidate that the
+    # grown plan cannot take (out of reach from where the robot is then) is left out and the
+    # search redone
+    excluded: set[int] = set()
+    result = None
+    for _ in range(MAX_SUGGESTED_STATIONS):
+        bad = None
+
+        def stop(chosen) -> bool:
+            nonlocal bad, result
+            if not _passes(approximate(chosen), n_joints, SUGGESTION_CONDITION):
+                return False
+            if planned is not None:  # the planner will check its own plan again
+                result = approximate(chosen), np.vstack([joints, cands.joints_deg[chosen]])
+                return True
+            got = exact(chosen)
+            if isinstance(got, (int, np.integer)):
+                bad = int(got)
+                return True
+            result = got
+            return _passes(got[0], n_joints, MAX_IDENTIFICATION_CONDITION)
+
+        result = None
+        count = min(MAX_SUGGESTED_STATIONS, len(cands) - len(excluded))
+        added = _greedy(base, cands, count, stop, exclude=excluded) if count > 0 else []
+        if bad is None:
+            break
+        excluded.add(bad)
+    reachable = approximate(list(range(len(cands))))["identifiable"]  # what any reachable plan can see
     unseen = [k for k in range(len(names)) if reachable[k] and not info["identifiable"][k]]
     weak = [k for k in _weak_parameters(info, MAX_IDENTIFICATION_CONDITION) if k not in unseen]
-    parts = []
-    if unseen:
-        parts.append(f"not seen: {', '.join(names[k] for k in unseen)}")
-    if weak:
-        parts.append(f"seen too weakly: {', '.join(names[k] for k in weak)}")
+    parts = [f"not seen: {', '.join(names[k] for k in unseen)}"] if unseen else []
+    parts += [f"seen too weakly: {', '.join(names[k] for k in weak)}"] if weak else []
     text = "; ".join(parts) if parts else "too few parameters are seen"
-    if not added or not passes(added):
+    if result is None or not _passes(result[0], n_joints, MAX_IDENTIFICATION_CONDITION):
         max_tilt, max_turn = ctx.settings.limits_deg(ctx.mounting)
         return (f"{text}. No reachable station within tilts of {max_tilt:g} deg and turns of {max_turn:g} deg "
                 "makes the plan pass: allow larger ones ([acquisition.kinematic_plan] max_tilt_deg, max_turn_deg), "
                 "widen acquisition.workspace or move the sphere nearer the middle of the arm's reach")
-    after = with_added(added)
-    spans = _joint_spans_deg(joints)
-    new_spans = _joint_spans_deg(np.vstack([joints, cands.joints_deg[added]]))
+    after, joints_after = result
+    spans, new_spans = _joint_spans_deg(joints), _joint_spans_deg(joints_after)
     # the joints the added stations spread most: what the plan's stations lack
     grown = [int(j) for j in np.argsort(spans / np.maximum(new_spans, 1e-9))
              if new_spans[j] >= max(MIN_SPREAD_GAIN * spans[j], spans[j] + MIN_SPREAD_GAIN_DEG)][:3]
@@ -485,11 +545,15 @@ def _what_to_add(ctx: _Context, targets, rows, joints: np.ndarray, info: dict) -
         j0 = grown[0]
         text += (f". The stations are too alike: between them joint {j0 + 1} moves over {spans[j0]:.0f} deg only"
                  + "".join(f", joint {j + 1} over {spans[j]:.0f} deg" for j in grown[1:])
-                 + ". Add stations that move " + ("it" if len(grown) == 1 else "them") + " further: these "
-                 f"{len(added)} (append them to acquisition.sweep.tilts_deg) take "
-                 + _and([f"joint {j + 1} over {new_spans[j]:.0f} deg" for j in grown]) + " and make it ")
+                 + ". Add stations that move " + ("it" if len(grown) == 1 else "them") + " further: ")
     else:
-        text += f". Add these {len(added)} stations (append them to acquisition.sweep.tilts_deg), which make it "
-    return (f"{text}{int(after['identifiable'].sum())} parameters, condition number {after['condition_number']:.0f}: "
-            f"{tilts}. Or leave acquisition.sweep.tilts_deg out and let "
-            "the kinematic planner choose every station ([acquisition.kinematic_plan], docs/configuration.md)")
+        text += ". Add stations: "
+    took = (" take " + _and([f"joint {j + 1} over {new_spans[j]:.0f} deg" for j in grown]) + " and") if grown else ""
+    figures = f"{int(after['identifiable'].sum())} parameters, condition number {after['condition_number']:.0f}"
+    if planned is not None:
+        more = len(planned.sweep.tilts_deg) + len(added)
+        return (f"{text}ask the planner for {more} (acquisition.kinematic_plan.stations = {more}): its {len(added)} "
+                f"more{took} make it {figures} (tilts {tilts})")
+    return (f"{text}these {len(added)} (append them to acquisition.sweep.tilts_deg){took} make it {figures}: "
+            f"{tilts}. Or leave acquisition.sweep.tilts_deg out and let the kinematic planner choose every station "
+            "([acquisition.kinematic_plan], docs/configuration.md)")

@@ -276,7 +276,7 @@ def run_calibrate(
         acq = cfg.acquisition
         manual = manual or acq.mode == "manual"
         journal = out / JOURNAL_NAME
-        targets, identification = [], ""
+        targets, identification, planned = [], "", None
         if not manual and uses_planner(cfg):
             planned = plan_kinematic_stations(cfg, arm)
             log(planned.summary())
@@ -289,7 +289,7 @@ def run_calibrate(
             _check_plan(targets, acq, "plan")
             check_plan_solvable(targets)
             if cfg.calibration.identify_kinematics:
-                identification = check_plan_identifies_kinematics(targets, cfg, arm)
+                identification = check_plan_identifies_kinematics(targets, cfg, arm, planned)
                 log(identification)
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
