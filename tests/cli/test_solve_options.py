@@ -160,11 +160,15 @@ def test_station_rotation_tolerance_in_the_configuration(sim_config):
 
 
 def test_kinematic_calibration_plan_is_checked_before_anything_moves(sim_config, capsys):
-    """identify_kinematics with the 4-station default plan: refused at --dry-run, naming
-    what to add; the 20-station kinematic example passes the same check."""
-    cfg = sim_config("sim-eye-in-hand.toml", **{r"^\[calibration\]$": "[calibration]\nidentify_kinematics = true"})
+    """identify_kinematics with the 4-station default plan listed: refused at --dry-run,
+    saying what to add (tests/cli/test_kinematic_plan.py follows the advice); the kinematic
+    example, whose stations the planner chooses, passes the same check."""
+    default = "[acquisition.sweep]\ntilts_deg = [[0, 0, 0], [30, 0, 0], [0, 30, 0], [0, 0, 45]]"
+    cfg = sim_config("sim-eye-in-hand.toml", **{r"^\[calibration\]$": "[calibration]\nidentify_kinematics = true",
+                                                r"^\[acquisition\.sweep\]$": default})
     assert main(["calibrate", str(cfg), "--dry-run"]) == EXIT_DATA
     err = capsys.readouterr().err
-    assert "kinematic identification: the plan (4 stations)" in err and "Add stations spread over the joint space" in err
+    assert "kinematic identification: the plan (4 stations)" in err and "Add stations that move" in err
     assert main(["calibrate", str(sim_config("sim-kinematic-eye-in-hand.toml")), "--dry-run"]) == EXIT_OK
-    assert "identifies 18 of 36 geometric parameters" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "kinematic plan: 20 stations chosen" in err and "identifies 18 of 36 geometric parameters" in err
