@@ -57,12 +57,14 @@ def make_cell(cfg: RunConfig, arm=None) -> SimulatedCell | None:
     """The simulated cell of a simulated run, or None for hardware. ``arm`` (the robot
     type's :class:`~spherecal.kinematics.ArmKinematics`, when it describes its arm) lays
     the standard cell out for the arm's reach (:func:`spherecal.sim.standard_cell`); the
-    configuration's ``[simulation] sphere_centre_mm`` and ``true_transform`` override it."""
+    configuration's ``[simulation] sphere_centre_mm`` and ``true_transform`` override it.
+    An arm with a calibrated model (kinematics that keep their ``nominal`` one) is laid out
+    as its nominal arm: giving the robot its calibrated model must not move the world."""
     sim = cfg.simulation
     if sim is None:
         return None
     cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=sim.fov, sphere_radius_mm=cfg.sphere.radius_mm,
-                         arm=arm)
+                         arm=getattr(arm, "nominal", arm))
     cell.arm = None  # laid out for the arm; the simulated controller attaches its own (nominal) arm
     cell.noise_per_pose = True  # a resumed run reproduces an uninterrupted one
     cell.robot_error = sim.robot_error  # the simulated controller gives its arm this error

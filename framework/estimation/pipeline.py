@@ -599,7 +599,10 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
 
 
 def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt) -> CalibrationResult:
-    cov = ref.covariance * 1.0
+    # the transform's and sphere's block (the identified geometric parameters' spreads go to
+    # robot_error.kinematic_parameters): result.covariance is that block, as readers check
+    n_geo = 10 if opt.fit_radius else 9
+    cov = ref.covariance[:n_geo, :n_geo] * 1.0
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     res = np.concatenate(ref.residuals)
     n_points = int(res.size)
