@@ -279,6 +279,15 @@ def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
     params = sol.result.robot_error.kinematic_parameters
     assert len(params) == 36 and sum(p.identified for p in params) == sum(ke["identified"])
     assert all(p.std > 0 for p in params if p.identified)
+    # result.json reads back (validate and scan read it): the transform's and sphere's
+    # covariance, the identified parameters with their spreads
+    from spherecal import dataio
+
+    dataio.write_result(tmp_path / "result.json", sol.result)
+    back = dataio.read_result(tmp_path / "result.json")
+    assert np.array(back.covariance).shape == (9, 9)
+    assert np.allclose(back.covariance, sol.refined.covariance[:9, :9])
+    assert back.robot_error.kinematic_parameters == params
     # without joints there is nothing to identify: a clear error
     ds = simulate_dataset(cell, KIN_PLAN)
     with pytest.raises(Exception, match="identify_kinematics needs joint readings"):
