@@ -16,7 +16,11 @@ within 3 reported standard deviations of the truth (the truth expressed in the i
 parameters: the simulated arm's error, with what the data cannot see absorbed as the
 transform and sphere absorb it); transform errors against the truth; median solve time.
 
-Run:  python benchmarks/bench_kinematic.py [--seeds 30] [--mounting both] [--sag]
+With ``--plan planner`` the calibration stations are the kinematic planner's
+(``spherecal.kinplan``, for the example cells' nominal transform and sphere) instead of the
+hand-written spread.
+
+Run:  python benchmarks/bench_kinematic.py [--seeds 30] [--mounting both] [--sag] [--plan planner]
 """
 
 from __future__ import annotations
@@ -51,10 +55,34 @@ def spread_tilts(n: int, rng: np.random.Generator, max_deg: float, max_turn_deg:
 REACH = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (30.0, 40.0)}
 
 
-def plans(mode: str) -> tuple[SweepPlan, SweepPlan]:
+def planned(mode: str, kin) -> SweepPlan:
+    """The kinematic planner's 20 stations (spherecal.kinplan) for the example cell of
+    ``mode`` (its nominal transform and rough sphere), 8 profiles each."""
+    import re
+    import tempfile
+    from pathlib import Path
+
+    from spherecal.config import load_config
+    from spherecal.kinplan import plan_kinematic_stations
+
+    text = (Path(__file__).resolve().parents[1] / "examples" / f"sim-{mode.replace('_', '-')}.toml").read_text()
+    text = re.sub(r"(?m)^profiles_per_station = .*$", "profiles_per_station = 8\nstation_offsets_mm = "
+                  "[[0.0, 0.0], [8.0, -15.0], [-8.0, 10.0]]", text)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "cell.toml"
+        path.write_text(text + "\n[acquisition.kinematic_plan]\nstations = 20\n" if "[acquisition.kinematic_plan]"
+                        not in text else text)
+        return plan_kinematic_stations(load_config(path).config, kin).sweep
+
+
+def plans(mode: str, kin=None) -> tuple[SweepPlan, SweepPlan]:
+    """The calibration plan (hand-written spread tilts, or the planner's with ``kin``) and
+    the fresh stations."""
     tilt, turn = REACH[mode]
     plan = SweepPlan(profiles_per_station=8, tilts_deg=spread_tilts(20, np.random.default_rng(7), tilt, turn),
                      station_offsets_mm=[(0.0, 0.0), (8.0, -15.0), (-8.0, 10.0)])
+    if kin is not None:
+        plan = planned(mode, kin)
     fresh = SweepPlan(profiles_per_station=8, tilts_deg=spread_tilts(6, np.random.default_rng(99), 0.9 * tilt, turn),
                       station_offsets_mm=[(0.0, -5.0)])
     return plan, fresh
@@ -107,11 +135,11 @@ def identified_truth(sol, kin, truth: np.ndarray) -> np.ndarray:
     return sol_ls[:len(ident)]
 
 
-def run(mode: str, seeds: int, kin, sag: bool) -> dict:
+def run(mode: str, seeds: int, kin, sag: bool, planner: bool = False) -> dict:
     before, after, z, rot, trans, times = [], [], [], [], [], []
     error = RobotErrorModel(joint_compliance_deg_per_m=(0.01, 0.03)) if sag else RobotErrorModel()
     noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02)
-    plan, fresh = plans(mode)
+    plan, fresh = plans(mode, kin if planner else None)
     for seed in range(seeds):
         cell = standard_cell(mode, seed=seed, noise=noise, sphere_radius_mm=19.1, robot_error=error, arm=kin)
         ds = simulate_dataset(cell, plan)
@@ -145,14 +173,16 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=30)
     ap.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand", "both"], default="both")
     ap.add_argument("--sag", action="store_true", help="add gravity sag, which no kinematic model holds")
+    ap.add_argument("--plan", choices=["spread", "planner"], default="spread",
+                    help="spread: 20 hand-written stations, tilts spread evenly; planner: the kinematic planner's 20")
     args = ap.parse_args()
     kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
     modes = ["eye_in_hand", "eye_to_hand"] if args.mounting == "both" else [args.mounting]
     rows = []
     for mode in modes:
-        r = run(mode, args.seeds, kin, args.sag)
+        r = run(mode, args.seeds, kin, args.sag, args.plan == "planner")
         rows.append((mode, r))
-    print(f"\n{args.seeds} seeds per mode; 20 stations x 8 profiles"
+    print(f"\n{args.seeds} seeds per mode; 20 stations x 8 profiles ({args.plan})"
           f"{'; with gravity sag' if args.sag else ''}")
     print(f"{'mode':12s}{'fresh before mm (median, range)':>34s}{'after mm (median, max)':>26s}{'cov3':>6s}"
           f"{'n id':>6s}{'rot deg':>9s}{'trans mm':>10s}{'solve s':>9s}")
