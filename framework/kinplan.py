@@ -11,8 +11,8 @@ or the flange (eye-to-hand) turned from the reference orientation by a tilt of t
 axis (up to ``max_tilt_deg``, in every direction) and a turn about it (up to
 ``max_turn_deg``). The candidates are ``candidates`` such orientations, spread evenly
 over the tilt cone (a Fibonacci spiral) with turns drawn from ``seed``; each is kept if
-every flange position lies in the workspace box and the ends and middle of its sweep are
-reachable within the joint limits. From them the planner picks ``stations`` greedily,
+every flange position lies in the workspace box, the arm reaches its middle shot within
+the joint limits and no joint swings far along it (a singularity). From them the planner picks ``stations`` greedily,
 starting with the reference orientation: each step adds the candidate that most raises
 ``log det(I + S / s^2)``, ``S`` the information on the geometric parameters (each
 scaled by its prior spread, the transform and the sphere projected out, as the estimator
@@ -26,8 +26,8 @@ the same checks as every plan. Deterministic for a given configuration and seed.
 **The check** (:func:`check_plan_identifies_kinematics`) reports the parameters a plan
 identifies (per joint) and the condition number before anything moves, and refuses a plan
 that identifies too few or too poorly, naming the parameters not seen or seen too weakly,
-the joints that move too little for them, and the stations to add (found by the same
-greedy search, continuing from the plan as it is).
+the joints the stations do not spread, and the stations to add (found by the same greedy
+search, continuing from the plan as it is, and checked as the plan they make).
 """
 
 from __future__ import annotations
@@ -54,10 +54,11 @@ if TYPE_CHECKING:  # pragma: no cover
 #: "Kinematic calibration").
 IDENTIFIABLE_PER_JOINT = 3
 #: ... and their identification must not be worse conditioned than this (the prior-scaled
-#: sphere-centre Jacobian, transform and sphere projected out). Measured: the 20-station
-#: hand-written plan of 0.x's example 149 (identified parameters determined to 0.4 of their
-#: prior spread, median; fresh poses then agree to 0.02 mm); the 4-station default plan
-#: 2,212 (2.5 times their prior spread, median; fresh poses 0.18 mm apart).
+#: sphere-centre Jacobian, transform and sphere projected out). Measured: 20 hand-written
+#: stations with tilts spread up to 50 deg, 149 (identified parameters determined to 0.4 of
+#: their prior spread, median; fresh poses then agree to 0.02 mm); the 4-station default
+#: plan 2,212 (2.5 times their prior spread, median; fresh poses 0.18 mm apart); the
+#: planner's 20 stations 88-111 eye-in-hand, 316 eye-to-hand.
 MAX_IDENTIFICATION_CONDITION = 1e3
 #: The stations suggested for a refused plan stop once it would pass with this margin.
 SUGGESTION_CONDITION = 0.5 * MAX_IDENTIFICATION_CONDITION
@@ -77,8 +78,10 @@ DESIGN_CENTRE_NOISE_MM = 0.05
 #: stops there, and the design's linearisation fails.
 MAX_SWEEP_JOINT_TRAVEL_DEG = 10.0
 #: Default (max tilt, max turn) in deg per mounting mode. Eye-to-hand turns the sphere on
-#: its stylus in front of a fixed sensor: beyond about 30 deg the stylus and the flange
-#: come into the laser's view.
+#: its stylus in front of the fixed sensor; 30 deg and 40 deg there leave the identification
+#: poorly conditioned (about 1,000 on the example cell), 45 and 90 give 316. The simulated
+#: cell does not model a stylus or flange hiding the sphere from the laser: on a real cell,
+#: choose limits that keep them out of its view.
 DEFAULT_LIMITS_DEG = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (45.0, 90.0)}
 
 
@@ -92,9 +95,8 @@ class KinematicPlanSettings(BaseModel):
     candidates: int = Field(240, ge=8, le=5000, description="candidate orientations the stations are chosen from")
     max_tilt_deg: float | None = Field(
         None, gt=0, le=90, description="largest tilt of the view axis from the reference orientation, deg "
-        "(default 50 eye-in-hand, 30 eye-to-hand)")
-    max_turn_deg: float | None = Field(
-        None, ge=0, le=180, description="largest turn about the view axis, deg (default 90 eye-in-hand, 40 eye-to-hand)")
+        "(default 50 eye-in-hand, 45 eye-to-hand)")
+    max_turn_deg: float | None = Field(None, ge=0, le=180, description="largest turn about the view axis, deg (default 90)")
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the candidates' turns (the plan is the same for "
                       "the same seed and configuration)")
 
@@ -199,7 +201,6 @@ class _Context:
         many were tried. The other shots' joints come from Newton steps on the chain from
         the middle shot's; every shot of the chosen stations is checked by the plugin's
         inverse kinematics later."""
-
         tilts = candidate_tilts_deg(self.settings, self.mounting)
         offsets = np.array([self.sweep.station_offsets_mm[k % len(self.sweep.station_offsets_mm)]
                             for k in range(len(tilts))], dtype=float)
@@ -214,7 +215,10 @@ class _Context:
                 joints[k] = self.arm.joints_from_flange_pose(Pose.from_rt(R[k, mid], t[k, mid]), seed_joints_deg)
             except SpherecalError:
                 keep[k] = False
-        n = t.shape[1]
+        n, n_kin = t.shape[1], len(self.prior_sd)
+        if not keep.any():
+            return _Candidates(np.zeros((0, 3)), np.zeros((0, 2)), R[:0], t[:0], joints[:0], np.zeros((0, 3 * n, 9)),
+                               np.zeros((0, 3 * n, n_kin))), len(tilts)
         q_mid = np.array([self.arm.model_joints_rad(j) for j in joints[keep]]).reshape(int(keep.sum()), -1)
         q = _sweep_joints_rad(self.arm.chain, q_mid, R[keep], t[keep])
         # near a singularity a short sweep swings some joints far: such a station is left out
