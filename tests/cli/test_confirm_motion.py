@@ -47,3 +47,18 @@ def test_a_confirmed_run_goes_on_to_the_devices(hardware_config, capsys, monkeyp
     assert main(argv) == EXIT_DEVICE
     assert "no-such-serial-port" in capsys.readouterr().err
     assert bool(asked) == (how == "typed")
+
+
+def test_a_kinematic_calibration_shows_its_identification_before_the_motion(hardware_config, capsys, monkeypatch):
+    """identify_kinematics on real hardware: the planner's stations and what they identify
+    are in the motion's summary the operator confirms."""
+    text = hardware_config.read_text().replace("[calibration]\n", "[calibration]\nidentify_kinematics = true\n", 1)
+    hardware_config.write_text(text)
+    monkeypatch.setattr(builtins, "input", lambda prompt="": "no")
+    assert main(["calibrate", str(hardware_config)]) == EXIT_USAGE
+    err = " ".join(capsys.readouterr().err.split())
+    confirm = err[err.index("calibrate is about to move the real robot"):]
+    assert re.search(r"about to move the real robot: \d+ shots in 20 stations \(plan above\), at most [\d.]+ mm/s; "
+                     r"kinematic identification: the plan \(20 stations\) identifies 18 of 36 geometric parameters "
+                     r"\(per joint: 0, 4, 4, 4, 4, 2\), condition number \d+", confirm), confirm
+    assert "not confirmed" in err and not (hardware_config.parent / "out").exists()
