@@ -304,6 +304,8 @@ def _observation_line(obs: Observation) -> bytes:
         "joints_deg": None if obs.joints_deg is None else list(obs.joints_deg),
         "profile": {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)},
     }
+    if obs.profile.shot_id is not None:
+        doc["profile"]["shot_id"] = obs.profile.shot_id
     if obs.target is not None:
         doc["target"] = obs.target
     small = [*(pose.translation_mm if pose else ()), *(pose.quaternion_wxyz if pose else ()), *(obs.joints_deg or ())]
@@ -311,7 +313,7 @@ def _observation_line(obs: Observation) -> bytes:
         raise InputError(f"observation {obs.index}: pose or joints contain NaN or infinite values; not written")
     if _orjson is not None:
         return _orjson.dumps(doc, option=_orjson.OPT_SERIALIZE_NUMPY | _orjson.OPT_APPEND_NEWLINE)
-    doc["profile"] = {"y_mm": y.tolist(), "z_mm": z.tolist()}
+    doc["profile"].update(y_mm=y.tolist(), z_mm=z.tolist())
     return (json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
 
 

@@ -50,7 +50,9 @@ class Sensor(Protocol):
     """A connected laser line sensor. Profiles are (y, z) in the sensor frame, mm."""
 
     def read_profile(self) -> Profile | None:
-        """One profile on request; None when the line sees nothing valid."""
+        """One profile on request, taken now (never one of an earlier call); None when
+        the line sees nothing valid. Its optional ``shot_id`` is the sensor's name for
+        the shot, kept in the journal for audits."""
 
     def close(self) -> None:
         """Release the device. Safe to call twice."""

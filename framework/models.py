@@ -63,6 +63,8 @@ def _finite(values, what: str):
 MAX_SPHERE_RADIUS_MM = 10_000.0
 #: Longest station label (it is shown in messages, tables and figures).
 MAX_STATION_LABEL = 200
+#: Longest shot id a sensor may give a profile (see :attr:`Profile.shot_id`).
+MAX_SHOT_ID = 64
 
 
 class Pose(BaseModel):
@@ -154,12 +156,21 @@ class Pose(BaseModel):
 
 
 class Profile(BaseModel):
-    """One laser line: points (0, y, z) in the sensor frame's x = 0 plane, mm."""
+    """One laser line: points (0, y, z) in the sensor frame's x = 0 plane, mm.
+
+    ``shot_id`` is the sensor's own name for the shot the line came from (a sensor
+    plugin documents what it holds, e.g. a frame counter); the core never interprets it,
+    only keeps it with the profile in the journal, so that the pairing of a profile
+    with its robot pose can be audited afterwards."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True)
 
     y_mm: FloatVector = Field(description="in-plane coordinate along the line, mm")
     z_mm: FloatVector = Field(description="in-plane range coordinate, mm (positive towards the sensor)")
+    shot_id: str | None = Field(
+        None, min_length=1, max_length=MAX_SHOT_ID, pattern=r"^[\x21-\x7e]+$",
+        description="the sensor's identity of the shot (opaque, printable ASCII without spaces); None: not given",
+    )
 
     @model_validator(mode="after")
     def _check(self):
@@ -170,12 +181,12 @@ class Profile(BaseModel):
         return self
 
     @classmethod
-    def from_points(cls, points_mm) -> "Profile":
-        """From an (N, 2) array of (y, z) in mm."""
+    def from_points(cls, points_mm, shot_id: str | None = None) -> "Profile":
+        """From an (N, 2) array of (y, z) in mm, with the sensor's shot id if it gives one."""
         p = np.asarray(points_mm, dtype=float)
         if p.ndim != 2 or p.shape[1] != 2:
             raise ValueError(f"profile points: expected shape (N, 2) of (y, z) in mm, got {p.shape}")
-        return cls(y_mm=p[:, 0], z_mm=p[:, 1])
+        return cls(y_mm=p[:, 0], z_mm=p[:, 1], shot_id=shot_id)
 
     @property
     def points_mm(self) -> np.ndarray:
