@@ -9,6 +9,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from spherecal.errors import InputError
+from spherecal.models import Pose
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
 
@@ -67,6 +68,11 @@ class SimulatedControllerSettings(BaseModel):
     home_joints_deg: tuple[float, float, float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 0.0, 90.0, 0.0), description="joints at start-up, controller convention, deg"
     )
+    base_frame: Pose | None = Field(
+        None, description="the controller's base frame, world_from_base (translation_mm, quaternion_wxyz w first), "
+        "as a riser, an inverted mount or a multi-robot cell configures it: GETP reports tool0 in wobj0 (world) and "
+        "MOVL targets are taken in world; None: base = world. For tests of the check on connect",
+    )
     seed: int | None = Field(0, description="seed of the simulator's noise generator (None: random)")
 
 
@@ -106,6 +112,14 @@ class AbbIrb2400Config(BaseModel):
     )
     path_check_samples: int = Field(
         10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
+    )
+    base_frame_tolerance_mm: float = Field(
+        5.0, gt=0, le=100, description="on connect, the controller's pose of tool0 in wobj0 (world) may differ from "
+        "this plugin's forward kinematics of the reported joints (base) by this much, mm; more means a base frame "
+        "is configured and the connection is refused (an Absolute Accuracy controller differs by up to about 2 mm)",
+    )
+    base_frame_tolerance_deg: float = Field(
+        0.5, gt=0, le=10, description="the same check's limit on the orientation difference, deg",
     )
     workspace: WorkspaceBox = Field(default_factory=WorkspaceBox, description="allowed flange positions, base, mm")
     geometry: Irb2400Geometry = Field(

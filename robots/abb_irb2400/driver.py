@@ -227,6 +227,41 @@ class AbbIrb2400Robot:
             target_joints_deg = self.calibrated.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
         return self.nominal_kin.flange_pose_from_joints(target_joints_deg, check_limits=False)
 
+    def check_base_frame(self) -> None:
+        """Refuse a controller whose wobj0 (world) is not the robot base.
+
+        The server reads poses as tool0 in wobj0, which is the WORLD frame; this plugin's
+        kinematics, workspace box and path checks work in the robot BASE frame. They are
+        one frame only when the controller's base frame is identity; a riser, an inverted
+        mount or a multi-robot cell configures another. So the controller's pose (GETP)
+        is compared with the controller's own (nominal) model at the joints it reports
+        (GETJ): more than ``base_frame_tolerance_mm`` / ``_deg`` apart raises
+        DeviceError, saying what to do; nothing has moved. The same check catches a
+        ``geometry`` or ``j23_coupled`` that does not match the arm."""
+        joints = self.read_joints_deg()
+        world_pose = P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
+        base_pose = self.nominal_kin.flange_pose_from_joints(joints, check_limits=False)
+        offset_mm = float(np.linalg.norm(world_pose.translation - base_pose.translation))
+        angle_deg = float(np.degrees(np.linalg.norm(_rotvec(base_pose.rotation_matrix.T @ world_pose.rotation_matrix))))
+        cfg = self.config
+        if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
+            return
+        world_from_base = world_pose @ base_pose.inverse()
+        t = ", ".join(f"{v:.1f}" for v in world_from_base.translation_mm)
+        q = ", ".join(f"{v:.4f}" for v in world_from_base.quaternion_wxyz)
+        raise DeviceError(
+            f"IRB 2400 on {self.url}: the controller reports tool0 in wobj0 {offset_mm:.1f} mm and {angle_deg:.2f} deg "
+            f"away from where this plugin's model puts the flange at the joints it reports "
+            f"({', '.join(f'{v:.2f}' for v in joints)} deg), beyond robot.base_frame_tolerance_mm = "
+            f"{cfg.base_frame_tolerance_mm:g} / _deg = {cfg.base_frame_tolerance_deg:g}. wobj0 is the world frame: "
+            f"the controller has a base frame (a riser, an inverted mount, a multi-robot cell), here about "
+            f"world_from_base = translation [{t}] mm, quaternion (w, x, y, z) [{q}], but spherecal plans, checks "
+            "the workspace and the paths, and moves in the robot base frame, so its checks would not hold. Nothing "
+            "was moved. Calibrate with the robot's base frame equal to the world frame (system parameters, topic "
+            "Motion, type Robot, the base frame), or, if the base frame is already identity, check robot.geometry "
+            "and robot.j23_coupled against the arm (an Absolute Accuracy controller may need a larger tolerance)"
+        )
+
     def ping(self) -> int:
         """Check the RAPID server answers; returns its protocol version."""
         msg = self._exchange("PING", P.ping_request, "PONG")

@@ -45,8 +45,10 @@ def kinematics_of(config: AbbIrb2400Config) -> Irb2400Kinematics:
 
 
 def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400Robot:
-    """Factory: a connected robot (checked with PING) on ``config.port``, or on a freshly
-    started simulated controller when ``context.cell`` is set."""
+    """Factory: a connected robot (checked with PING, and refused when the controller's
+    wobj0 is not the robot base: :meth:`~.driver.AbbIrb2400Robot.check_base_frame`) on
+    ``config.port``, or on a freshly started simulated controller when ``context.cell``
+    is set."""
     kin = kinematics_of(config)
     tool = context.tool_point_mm
     if context.cell is None:
@@ -59,6 +61,7 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
         robot.simulator = server  # for tests and fault injection
     try:
         robot.ping()
+        robot.check_base_frame()  # wobj0 (world) must be the base the checks use
     except BaseException:
         robot.close()
         raise

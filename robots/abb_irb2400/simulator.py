@@ -15,6 +15,11 @@ SimulatedCell is given. A staged target is moved to once, as in the RAPID server
 controller-convention joints (plus optional noise); ``GETP`` the forward kinematics of
 the joints through the pose noise.
 
+A base frame (``settings.base_frame``, world_from_base) makes the controller work as a
+real one with a riser, an inverted mount or in a multi-robot cell: ``GETP`` reports
+tool0 in wobj0, i.e. in world, and ``TGT`` targets are taken in world; the joints, the
+kinematics and the cell stay in the robot base.
+
 The read loop: :meth:`SimulatedIrb2400.handle` is one turn of the RAPID server's loop
 (clear the line, read one, serve it), and :meth:`~SimulatedIrb2400.read_timeout` and
 :meth:`~SimulatedIrb2400.restart` model a read that ends without a line, so that tests
@@ -65,6 +70,8 @@ class SimulatedIrb2400:
         self.cell = cell
         self.rng = np.random.default_rng(self.settings.seed)
         self.joints_deg = self.kin.check_joint_limits(self.settings.home_joints_deg, "home_joints_deg")
+        #: the base frame, world_from_base (None: base = world); wobj0 is world
+        self.world_from_base: Pose | None = self.settings.base_frame
         self.staged: tuple[int, Pose] | None = None
         self.moves = 0
         self.last_move: dict | None = None  # the last MOVL executed: distance, angle, speeds, duration
@@ -195,6 +202,12 @@ class SimulatedIrb2400:
         raise P.ProtocolError(f"unhandled request {msg.kind}")  # pragma: no cover
 
     def _reported_pose(self) -> Pose:
+        """tool0 in wobj0: the model's pose of the actual joints, through the pose noise,
+        in world (CRobT with \\WObj:=wobj0)."""
+        pose = self._reported_base_pose()
+        return pose if self.world_from_base is None else self.world_from_base @ pose
+
+    def _reported_base_pose(self) -> Pose:
         true = self.nominal_flange_pose()  # a controller reports its model's pose of the actual joints
         s = self.settings
         if s.pose_noise == "cell":
@@ -223,7 +236,9 @@ class SimulatedIrb2400:
             # moved there already (a MOVL resent after a lost reply, or left in the buffer):
             # never move to the same target twice, the arm may have been jogged since
             return P.ok_reply(msg.seq)
-        target = self.staged[1]
+        target = self.staged[1]  # tool0 in wobj0: world
+        if self.world_from_base is not None:
+            target = self.world_from_base.inverse() @ target
         try:
             joints = self.kin.joints_from_flange_pose(target, seed_joints_deg=self.joints_deg)
         except UnreachableError:
