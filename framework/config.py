@@ -88,6 +88,20 @@ class WorkspaceConfig(_Section):
     def contains(self, p) -> bool:
         return all(lo <= v <= hi for v, lo, hi in zip(p, self.min_mm, self.max_mm))
 
+    def fraction_outside(self, a, b) -> float:
+        """The fraction (0..1) of the straight segment from point ``a`` to point ``b``
+        (mm, base) that lies outside the box. A box is convex: 0 when both ends are in it."""
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        s0, s1 = 0.0, 1.0
+        for lo, hi, p, d in zip(self.min_mm, self.max_mm, a, b - a):
+            if d == 0.0:
+                if not lo <= p <= hi:
+                    return 1.0
+                continue
+            t0, t1 = sorted(((lo - p) / d, (hi - p) / d))
+            s0, s1 = max(s0, t0), min(s1, t1)
+        return 1.0 if s1 < s0 else 1.0 - (s1 - s0)
+
 
 class AcquisitionConfig(_Section):
     """How to acquire: where the sphere roughly is, the sweeps, speeds and limits."""

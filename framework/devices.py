@@ -43,6 +43,10 @@ class Robot(Protocol):
     # Optional: ``check_target(base_from_flange, speed_mm_s) -> None`` checks a planned
     # target against the robot's own limits without moving and raises a SpherecalError
     # naming the limit; the acquisition calls it for every target before any motion.
+    # Optional: ``check_move(base_from_flange, speed_mm_s) -> None`` checks the straight
+    # move from wherever the arm stands now to the target (the limits move_linear checks
+    # before sending it, along the path) without moving, raising the same way; the
+    # acquisition calls it for the first move before any motion.
 
 
 @runtime_checkable

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import dataio
-from .acquisition import Progress, acquire, acquire_manual, check_targets, describe_plan, plan_targets
+from .acquisition import Progress, acquire, acquire_manual, check_first_move, check_targets, describe_plan, plan_targets
 from .config import LoadedConfig, RunConfig
 from .devices import DeviceContext
 from .errors import ConfigError, InputError, SpherecalError
@@ -137,10 +137,14 @@ def plan_digest(targets) -> str:
     return h.hexdigest()[:16]
 
 
-def _check_plan(targets, acq, what: str = "plan", robot=None) -> None:
+def _check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset()) -> None:
     """Raise before any motion when a target breaks the configured limits (or, with
-    ``robot``, the robot plugin's own limits)."""
+    ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
+    stands to the first target not in ``done``, breaks either)."""
     problems = check_targets(targets, acq, robot)
+    todo = [t for t in targets if t.index not in done]
+    if robot is not None and todo:
+        problems += check_first_move(robot, todo[0], acq)
     if problems:
         limits = "the robot's limits" if robot is not None else "the limits"
         raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
@@ -360,7 +364,7 @@ def run_calibrate(
             )
         with open_devices(loaded, host, cell, log) as (robot, sensor):
             if not manual:
-                _check_plan(targets, acq, "plan", robot=robot)
+                _check_plan(targets, acq, "plan", robot=robot, done=done)
             with dataio.DatasetWriter(
                 journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                 provenance=provenance, resume=journal.exists(), fsync=True,

@@ -147,12 +147,7 @@ class AbbIrb2400Robot:
         target, so that the true flange reaches ``base_from_flange`` (the path between is
         the controller's straight line in its nominal model, within a few mm of a true
         straight line)."""
-        self._check_open()
-        self._check_speed(speed_mm_s)
-        self._check_workspace(base_from_flange, "target")
-        start_joints = self.read_joints_deg()
-        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
-        target_joints = self._check_path(start, base_from_flange, start_joints)
+        start, target_joints = self._check_move_from_here(base_from_flange, speed_mm_s)
         command = self.controller_pose(base_from_flange, target_joints)
         target_seq_holder: list[int] = []
 
@@ -289,6 +284,27 @@ class AbbIrb2400Robot:
         except UnreachableError as exc:
             raise UnreachableError(f"target: {exc}") from None
 
+    def check_move(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Check the straight move from where the arm stands now to ``base_from_flange``
+        without moving, exactly as :meth:`move_linear` checks it before sending it: the
+        speed, both ends in the workspace box (so the whole straight path: a box is
+        convex), and the target and ``path_check_samples`` points along the path
+        reachable within the joint limits, from the joints read now. Raises what
+        :meth:`move_linear` would."""
+        self._check_move_from_here(base_from_flange, speed_mm_s)
+
+    def _check_move_from_here(self, target: Pose, speed_mm_s: float) -> tuple[Pose, np.ndarray]:
+        """The checks of a move from the arm's current joints; returns (start pose,
+        target joints)."""
+        self._check_open()
+        self._check_speed(speed_mm_s)
+        self._check_workspace(target, "target")
+        start_joints = self.read_joints_deg()
+        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
+        self._check_workspace(start, "start", "; the straight path to the target would leave it: jog the arm into "
+                                              "the box first")
+        return start, self._check_path(start, target, start_joints)
+
     def _check_speed(self, speed_mm_s: float) -> None:
         limit = self.config.max_speed_mm_s
         try:
@@ -303,13 +319,13 @@ class AbbIrb2400Robot:
                 f"ask for a slower move or raise robot.max_speed_mm_s"
             )
 
-    def _check_workspace(self, pose: Pose, what: str) -> None:
+    def _check_workspace(self, pose: Pose, what: str, hint: str = "") -> None:
         box = self.config.workspace
         if not box.contains(pose.translation_mm):
             t = [round(v, 3) for v in pose.translation_mm]
             raise InputError(
                 f"move_linear: {what} flange position {t} mm is outside the configured workspace box "
-                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame)"
+                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame){hint}"
             )
 
     def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> np.ndarray:
