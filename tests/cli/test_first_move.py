@@ -9,14 +9,18 @@ import re
 
 import pytest
 
+from spherecal import dataio
 from spherecal.cli import EXIT_DATA, main
-from spherecal.config import WorkspaceConfig
+from spherecal.config import WorkspaceConfig, load_config
 from spherecal.devices import DeviceContext
 from spherecal.errors import InputError
+from spherecal.estimation import calibrate
 from spherecal.models import Pose
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
 from spherecal.robots.abb_irb2400.simulator import start_simulator
+from spherecal.runner import make_cell
+from spherecal.sim import SweepPlan, simulate_dataset
 from spherecal.sim.cell import standard_cell
 
 #: The example's first target (station S1), base, mm.
@@ -117,3 +121,16 @@ def test_the_robot_refuses_a_move_from_outside_its_box_at_move_time_too():
 def test_fraction_of_a_straight_path_outside_a_box(a, b, outside):
     box = WorkspaceConfig(min_mm=(0, 0, 0), max_mm=(10, 10, 10))
     assert box.fraction_outside(a, b) == pytest.approx(outside)
+
+
+@pytest.mark.parametrize("command", ["validate", "scan"])
+def test_validate_and_scan_check_their_first_move_too(sim_config, controllers, capsys, command):
+    cfg = with_home(sim_config, LEANING_BACK)
+    out = cfg.parent / "out"
+    out.mkdir()
+    cell = make_cell(load_config(cfg).config)
+    dataio.write_result(out / "result.json", calibrate(simulate_dataset(cell, SweepPlan(profiles_per_station=5))))
+    assert main([command, str(cfg)] + (["--no-report"] if command == "validate" else [])) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "the arm stands at [502.5," in err and "would run outside it for" in err and "nothing was moved" in err
+    assert controllers[0].controller.moves == 0

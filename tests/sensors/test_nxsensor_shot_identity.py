@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from spherecal.errors import DeviceError
-from spherecal.models import Pose
 from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend, WireConfig
 from spherecal.sensors.nxsensor_i.shots import CounterMismatch, FrameCounter
 from spherecal.sim import plan_stations, standard_cell
