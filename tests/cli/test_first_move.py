@@ -18,7 +18,6 @@ from spherecal.estimation import calibrate
 from spherecal.models import Pose
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
-from spherecal.robots.abb_irb2400.simulator import start_simulator
 from spherecal.runner import make_cell
 from spherecal.sim import SweepPlan, simulate_dataset
 from spherecal.sim.cell import standard_cell
@@ -29,26 +28,13 @@ FIRST_TARGET_MM = [1132.0, 163.3, 583.3]
 LEANING_BACK = "[0.0, -30.0, 0.0, 0.0, 90.0, 0.0]"
 
 
-@pytest.fixture
-def controllers(monkeypatch):
-    """The simulated controllers the robot plugin starts."""
-    started = []
-
-    def start(*args, **kwargs):
-        started.append(start_simulator(*args, **kwargs))
-        return started[-1]
-
-    monkeypatch.setattr(plugin, "start_simulator", start)
-    return started
-
-
 def with_home(sim_config, joints: str, **replace):
     return sim_config(**{r"^max_speed_mm_s = 250.0$": f"max_speed_mm_s = 250.0\nsimulated.home_joints_deg = {joints}",
                          **replace})
 
 
 @pytest.mark.parametrize("dry_run", [False, True])
-def test_an_arm_outside_the_workspace_is_refused_before_any_motion(sim_config, controllers, capsys, dry_run):
+def test_an_arm_outside_the_workspace_is_refused_before_any_motion(sim_config, irb2400_controllers, capsys, dry_run):
     cfg = with_home(sim_config, LEANING_BACK)
     assert main(["calibrate", str(cfg), "--no-report"] + (["--dry-run"] if dry_run else [])) == EXIT_DATA
     err = capsys.readouterr().err
@@ -60,12 +46,12 @@ def test_an_arm_outside_the_workspace_is_refused_before_any_motion(sim_config, c
                      err)
 
     assert "nothing was moved" in err
-    (server,) = controllers
+    (server,) = irb2400_controllers
     assert server.controller.moves == 0 and "TGT" not in server.controller.requests
     assert not (cfg.parent / "out" / "journal.jsonl").exists()
 
 
-def test_the_robots_own_workspace_is_checked_for_the_first_move_too(sim_config, controllers, capsys):
+def test_the_robots_own_workspace_is_checked_for_the_first_move_too(sim_config, irb2400_controllers, capsys):
     """The arm stands (855, 0, 1370) mm: inside acquisition.workspace, above the robot
     section's own box (z <= 1300): its check_move refuses the first move."""
     cfg = with_home(sim_config, "[0.0, 0.0, 0.0, 0.0, 90.0, 0.0]",
@@ -76,10 +62,10 @@ def test_the_robots_own_workspace_is_checked_for_the_first_move_too(sim_config, 
     assert re.search(r"the first move, from where the arm stands to target 0 \(station S1\): move_linear: start flange "
                      r"position \[855\.0, 0\.0, 1370\.0\] mm is outside the configured workspace box", err)
     assert "jog the arm into the box first" in err and "nothing was moved" in err
-    assert controllers[0].controller.moves == 0
+    assert irb2400_controllers[0].controller.moves == 0
 
 
-def test_resume_checks_the_move_to_the_first_target_left(sim_config, controllers, capsys):
+def test_resume_checks_the_move_to_the_first_target_left(sim_config, irb2400_controllers, capsys):
     """Stopped after five shots, the arm was jogged away: --resume checks the move from
     there to target 5 (the first of station S2), not to target 0."""
     cfg = sim_config(exact_arm=True, **{r"^profiles_per_station = 10$": "profiles_per_station = 5"})
@@ -94,7 +80,7 @@ def test_resume_checks_the_move_to_the_first_target_left(sim_config, controllers
                                            f"max_speed_mm_s = 250.0\nsimulated.home_joints_deg = {LEANING_BACK}\n", 1))
     assert main(["calibrate", str(cfg), "--no-report", "--resume"]) == EXIT_DATA
     assert "the straight move to the first target 5 (station S2)" in capsys.readouterr().err
-    assert controllers[-1].controller.moves == 0
+    assert irb2400_controllers[-1].controller.moves == 0
 
 
 def test_the_robot_refuses_a_move_from_outside_its_box_at_move_time_too():
@@ -124,7 +110,7 @@ def test_fraction_of_a_straight_path_outside_a_box(a, b, outside):
 
 
 @pytest.mark.parametrize("command", ["validate", "scan"])
-def test_validate_and_scan_check_their_first_move_too(sim_config, controllers, capsys, command):
+def test_validate_and_scan_check_their_first_move_too(sim_config, irb2400_controllers, capsys, command):
     cfg = with_home(sim_config, LEANING_BACK)
     out = cfg.parent / "out"
     out.mkdir()
@@ -133,4 +119,4 @@ def test_validate_and_scan_check_their_first_move_too(sim_config, controllers, c
     assert main([command, str(cfg)] + (["--no-report"] if command == "validate" else [])) == EXIT_DATA
     err = capsys.readouterr().err
     assert "the arm stands at [502.5," in err and "would run outside it for" in err and "nothing was moved" in err
-    assert controllers[0].controller.moves == 0
+    assert irb2400_controllers[0].controller.moves == 0

@@ -29,32 +29,19 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 S45 = math.sqrt(0.5)
 
 
-@pytest.fixture
-def started(monkeypatch):
-    """The simulated controllers the factory starts."""
-    servers = []
-
-    def start(*args, **kwargs):
-        servers.append(start_simulator(*args, **kwargs))
-        return servers[-1]
-
-    monkeypatch.setattr(plugin, "start_simulator", start)
-    return servers
-
-
 @pytest.mark.parametrize("base_frame", [
     Pose(translation_mm=(0.0, 0.0, 500.0), quaternion_wxyz=(1.0, 0.0, 0.0, 0.0)),  # on a 500 mm riser
     Pose(translation_mm=(0.0, 0.0, 2400.0), quaternion_wxyz=(0.0, 1.0, 0.0, 0.0)),  # hung from a gantry
     Pose(translation_mm=(3000.0, 1500.0, 0.0), quaternion_wxyz=(S45, 0.0, 0.0, S45)),  # the second robot of a cell
 ], ids=["riser", "inverted", "second-robot"])
-def test_a_base_frame_is_refused_on_connect(started, base_frame):
+def test_a_base_frame_is_refused_on_connect(irb2400_controllers, base_frame):
     cell = standard_cell(seed=1)
     cfg = AbbIrb2400Config(timeout_s=0.5, simulated={"transport": "pty", "base_frame": base_frame})
     with pytest.raises(DeviceError, match=r"wobj0 is the world frame: the controller has a base frame \(a riser, an "
                                           r"inverted mount, a multi-robot cell\).* Nothing was moved\. Calibrate with "
                                           r"the robot's base frame equal to the world frame") as info:
         plugin.create_robot(cfg, DeviceContext(cell=cell, log=lambda m: None))
-    (server,) = started
+    (server,) = irb2400_controllers
     assert server.controller.moves == 0 and not server.running  # nothing moved; the link was closed
     # the message gives the base frame the readings imply: the configured one
     found = re.search(r"translation \[(.*?)\] mm, quaternion \(w, x, y, z\) \[(.*?)\]", str(info.value))
@@ -81,7 +68,7 @@ def test_the_simulated_base_frame_is_world_from_base():
     np.testing.assert_allclose(cell.current_base_from_flange.as_matrix(), target_in_base.as_matrix(), atol=1e-3)
 
 
-def test_within_the_tolerance_the_connection_is_made(started):
+def test_within_the_tolerance_the_connection_is_made(irb2400_controllers):
     base_frame = Pose(translation_mm=(1.0, -1.0, 0.5), quaternion_wxyz=(1.0, 0.0, 0.0, 0.0))
     cfg = AbbIrb2400Config(timeout_s=0.5, simulated={"transport": "pty", "base_frame": base_frame})
     robot = plugin.create_robot(cfg, DeviceContext(cell=standard_cell(seed=1), log=lambda m: None))
