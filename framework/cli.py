@@ -198,11 +198,11 @@ def cmd_simulate(args) -> int:
 
     if args.config:
         from .config import load_config
-        from .runner import make_cell
+        from .runner import make_cell, make_host, robot_arm
 
         loaded = load_config(args.config)
         cfg = loaded.config
-        cell = make_cell(cfg) or standard_cell(cfg.mounting, seed=args.seed)
+        cell = make_cell(cfg, robot_arm(loaded, make_host())) or standard_cell(cfg.mounting, seed=args.seed)
         plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
     else:
         noise = NoiseModel(

@@ -85,6 +85,26 @@ class SerialChain:
         return Pose.from_matrix(self.flange_matrices(np.asarray(q_rad, dtype=float).reshape(self.n_joints)))
 
 
+def chain_reach_mm(chain: SerialChain, joint_limits_rad=None, samples: int = 4000) -> float:
+    """The arm's reach: the largest distance from the second joint's origin (the
+    shoulder; the first joint's for a one-joint chain) to the flange over ``samples``
+    joint sets drawn uniformly within ``joint_limits_rad`` ((n, 2), model convention;
+    default and at most one turn, -pi .. pi). Seeded: the same value every time."""
+    n = chain.n_joints
+    lo, hi = np.full(n, -np.pi), np.full(n, np.pi)
+    if joint_limits_rad is not None:
+        lim = np.asarray(joint_limits_rad, dtype=float).reshape(n, 2)
+        lo, hi = np.maximum(lo, lim[:, 0]), np.minimum(hi, lim[:, 1])
+    Q = np.random.default_rng(0).uniform(lo, hi, (samples, n))
+    k = 1 if n > 1 else 0
+    shoulder = np.broadcast_to(chain.placements[0], (samples, 4, 4)).copy()
+    if k:
+        shoulder[:, :3, :3] = shoulder[:, :3, :3] @ _axis_angle_matrices(chain.axes[0], Q[:, 0])
+        shoulder = shoulder @ chain.placements[1]
+    flange = chain.flange_matrices(Q)
+    return float(np.linalg.norm(flange[:, :3, 3] - shoulder[:, :3, 3], axis=1).max())
+
+
 @runtime_checkable
 class ArmKinematics(Protocol):
     """What a robot plugin exposes about its arm's kinematics (joints in degrees,

@@ -306,6 +306,9 @@ class RobotErrorSummary(BaseModel):
         None, description="the arm's geometric error parameters (kinematic model only)")
     kinematic_prior_scale: float | None = Field(
         None, description="factor on the stated prior spread the data showed (1: the stated spread holds)")
+    model_choice: str | None = Field(
+        None, description="how robot_error_model 'auto' chose between the kinematic model and pose noise only: "
+        "the evidence for the arm's geometric error in the data (docs/estimation.md)")
     station_rotation_deg: float = Field(description="station-to-station orientation error, per axis, 1 sigma, deg")
     station_translation_mm: float = Field(description="station-to-station position error, per axis, 1 sigma, mm")
     estimated: bool = Field(description="True when the two figures above were estimated from the data")

@@ -50,12 +50,17 @@ def check_output_folder(out: Path, what: str, how: str) -> None:
                          f"(nothing is overwritten silently); {how}")
 
 
-def make_cell(cfg: RunConfig) -> SimulatedCell | None:
-    """The simulated cell of a simulated run, or None for hardware."""
+def make_cell(cfg: RunConfig, arm=None) -> SimulatedCell | None:
+    """The simulated cell of a simulated run, or None for hardware. ``arm`` (the robot
+    type's :class:`~spherecal.kinematics.ArmKinematics`, when it describes its arm) lays
+    the standard cell out for the arm's reach (:func:`spherecal.sim.standard_cell`); the
+    configuration's ``[simulation] sphere_centre_mm`` and ``true_transform`` override it."""
     sim = cfg.simulation
     if sim is None:
         return None
-    cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=sim.fov, sphere_radius_mm=cfg.sphere.radius_mm)
+    cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=sim.fov, sphere_radius_mm=cfg.sphere.radius_mm,
+                         arm=arm)
+    cell.arm = None  # laid out for the arm; the simulated controller attaches its own (nominal) arm
     cell.noise_per_pose = True  # a resumed run reproduces an uninterrupted one
     cell.robot_error = sim.robot_error  # the simulated controller gives its arm this error
     if sim.true_transform is not None:
@@ -97,6 +102,12 @@ def _in_file(loaded: LoadedConfig, fn, *args, **kwargs):
         raise ConfigError(f"{loaded.path}: {exc}") from None
 
 
+def robot_arm(loaded: LoadedConfig, host):
+    """The configured robot's arm kinematics (None when its type does not describe it);
+    relative paths in the robot section resolve against the configuration's folder."""
+    return _in_file(loaded, host.arm_kinematics, loaded.config.robot, base_dir=loaded.path.parent)
+
+
 def tool_point_mm(cfg: RunConfig) -> tuple[float, float, float] | None:
     """The point on the flange whose speed the moves limit (flange frame, mm): the
     sensor's origin from the nominal transform (eye-in-hand), the rough sphere centre
@@ -111,7 +122,7 @@ def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Ca
     """Robot and sensor from the configuration, closed on the way out whatever happens."""
     cfg = loaded.config
     context = DeviceContext(cell=cell, log=log, tool_point_mm=tool_point_mm(cfg))
-    robot = _in_file(loaded, host.create_robot, cfg.robot, context)
+    robot = _in_file(loaded, host.create_robot, cfg.robot, context, base_dir=loaded.path.parent)
     try:
         sensor = _in_file(loaded, host.create_sensor, cfg.sensor, context)
     except BaseException:
@@ -279,8 +290,8 @@ def run_calibrate(
     cfg = loaded.config
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
-    fk = _in_file(loaded, host.robot_kinematics, cfg.robot)
-    arm = _in_file(loaded, host.arm_kinematics, cfg.robot)
+    fk = _in_file(loaded, host.robot_kinematics, cfg.robot, base_dir=loaded.path.parent)
+    arm = robot_arm(loaded, host)
     _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
     outcome = Outcome()
 
@@ -314,7 +325,7 @@ def run_calibrate(
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
             if not manual:
-                cell = make_cell(cfg)
+                cell = make_cell(cfg, arm)
                 with open_devices(loaded, host, cell, log) as (robot, _sensor):
                     _check_plan(targets, acq, "plan", robot=robot)
                 log("plan checked against the robot's own limits too")
@@ -326,7 +337,7 @@ def run_calibrate(
             )
         if not journal.exists():
             check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
-        cell = make_cell(cfg)
+        cell = make_cell(cfg, arm)
         if not manual and cell is None:
             confirm_motion("calibrate", f"{len(targets)} shots in {len(set(t.station for t in targets))} stations "
                            f"(plan above), at most {acq.max_speed_mm_s:g} mm/s", yes, ask, log)
@@ -453,7 +464,8 @@ def solve_kinematics(
     host = host or make_host()
     host.registry.robot_type(name, path=where)
     path = f"{robot_config}: robot" if robot_config is not None else "robot"
-    fk = host.robot_kinematics({"type": name, **section}, path=path)
+    base_dir = Path(robot_config).resolve().parent if robot_config is not None else None
+    fk = host.robot_kinematics({"type": name, **section}, path=path, base_dir=base_dir)
     if fk is None:
         if needed:
             raise ConfigError(f"{where}: robot type '{name}' has no forward kinematics; observations need "
@@ -471,7 +483,7 @@ def solve_kinematics(
                 raise InputError(f"observation {o.index} (station {o.station}): joints_deg: {exc}") from None
             obs.append(o.model_copy(update={"base_from_flange": pose}))
         dataset = dataset.model_copy(update={"observations": obs})
-    return fk, dataset, host.arm_kinematics({"type": name, **section}, path=path)
+    return fk, dataset, host.arm_kinematics({"type": name, **section}, path=path, base_dir=base_dir)
 
 
 def _provenance_arm(name: str | None, dataset: Dataset, host):
@@ -530,9 +542,11 @@ CALIBRATED_URDF_NAME = "robot_calibrated.urdf"
 
 def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | None:
     """With identified kinematic parameters, the robot with its identified geometry as a
-    URDF (metres, joints ``joint_1`` ... in the model's convention, flange ``tool0``):
-    the nominal chain with the identified errors applied and the others left at zero.
-    None when nothing was identified."""
+    URDF (metres, joints in the model's convention): the nominal chain with the identified
+    errors applied and the others left at zero. Joint and link names are the arm's when
+    its kinematics name them (``joint_names``, ``base_link``, ``flange_link``: a robot
+    described by its URDF reads the file back with the same settings), else ``joint_1``
+    ... with ``base_link`` and ``tool0``. None when nothing was identified."""
     ref = solution.refined
     ke = ref.diagnostics.get("kinematic_effects")
     if kinematics is None or not ke or not any(ke["identified"]):
@@ -546,6 +560,9 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
     n_id = sum(ke["identified"])
     text = chain_to_urdf(
         chain_with_errors(kinematics.chain, kappa), "spherecal_calibrated_robot",
+        joint_names=getattr(kinematics, "joint_names", None),
+        base_link=getattr(kinematics, "base_link", "base_link"),
+        flange_link=getattr(kinematics, "flange_link", "tool0"),
         joint_limits_rad=limits() if callable(limits) else None,
         comment=f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
                 f"{len(ke['identified'])} geometric parameters (result.json, robot_error.kinematic_parameters); "
@@ -679,6 +696,12 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
                    f"{n_seen} of its {len(re.kinematic_parameters)} geometric parameters seen by the data, all "
                    f"marginalised (prior spread x {re.kinematic_prior_scale:.2f})")
             lines.append(f"robot error: the arm's geometry (kinematic model), {how}")
+            if re.model_choice is not None:
+                lines.append(f"  {re.model_choice}")
+            lines.append(f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the "
+                         "std above adds the geometric errors no data from one sphere location can see)")
+        elif re.model_choice is not None:
+            lines.append(f"robot error: {re.model_choice}")
             lines.append(f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the "
                          "std above adds the geometric errors no data from one sphere location can see)")
         else:
@@ -760,7 +783,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     log(f"validating {result_path}: {len(sweeps)} sweeps, {len(targets)} shots")
     _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
-    cell = make_cell(cfg)
+    cell = make_cell(cfg, robot_arm(loaded, host))
     if cell is None:
         confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
@@ -794,8 +817,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     calib_journal = out / JOURNAL_NAME
     if report and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
-        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg), host.robot_kinematics(cfg.robot),
-                         kinematics=host.arm_kinematics(cfg.robot))
+        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
+                         host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
         if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
             from .report.html import write_report
 
@@ -829,7 +852,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
     host = make_host()
-    cell = make_cell(cfg)
+    cell = make_cell(cfg, robot_arm(loaded, host))
     if cell is None:
         confirm_motion("scan", f"{len(targets)} profiles", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,11 @@ Fixtures
         @pytest.mark.parametrize("spherecal_cell", ["eye_in_hand", "eye_to_hand"], indirect=True)
 
     A parameter may also be a dict of :func:`standard_cell` arguments
-    (``{"mounting": "eye_to_hand", "seed": 3}``).
+    (``{"mounting": "eye_to_hand", "seed": 3}``). The cell is laid out for an IRB
+    2400-class arm; for another arm give its kinematics (``{"arm": kinematics}``, e.g.
+    ``host.arm_kinematics({"type": "urdf", ...})``: the sphere, or the eye-to-hand
+    sensor, where that arm reaches the default plan) or its size (``{"reach_mm": 900.0,
+    "shoulder_mm": (0, 0, 90)}``).
 ``spherecal_host``
     A fresh :class:`spherecal.plugins.host.PluginHost` (built-ins and installed plugins).
 ``spherecal_context``
@@ -165,7 +169,7 @@ class RobotHarness:
           ``move_tolerance_mm`` / ``_deg``): the move landed where commanded;
         - ``read_flange_pose()`` agrees with the target within six standard deviations of
           the cell's pose noise (plus 1 um and 1e-4 deg for rounding);
-        - ``read_joints_deg()`` is None or six finite numbers; with
+        - ``read_joints_deg()`` is None or one finite number per joint; with
           ``flange_pose_from_joints`` (joints_deg -> base_from_flange), the pose computed
           from them agrees with the target within ``kinematics_tolerance_mm``;
         - a non-positive speed is refused with a :class:`~spherecal.errors.SpherecalError`
@@ -205,8 +209,9 @@ class RobotHarness:
             joints = robot.read_joints_deg()
             if joints is not None:
                 j = np.asarray(joints, dtype=float)
-                assert j.shape == (6,) and np.all(np.isfinite(j)), (
-                    f"read_joints_deg() must return None or six finite angles in degrees, got {joints!r}"
+                assert j.ndim == 1 and 1 <= j.size <= 7 and np.all(np.isfinite(j)), (
+                    f"read_joints_deg() must return None or one finite angle in degrees per joint (six for a "
+                    f"six-axis arm), got {joints!r}"
                 )
                 if flange_pose_from_joints is not None:
                     kt, _ = pose_error(flange_pose_from_joints(j), target)

@@ -72,8 +72,9 @@ class CalibrationOptions(BaseModel):
         "auto", description="the robot's systematic error (docs/estimation.md): 'kinematic': the arm's geometric "
         "error (joint zero offsets, joint origins, axis tilts), from each shot's joints through the robot's "
         "kinematics, marginalised; 'station': a pose offset shared by the shots of a station, marginalised; "
-        "'kinematic+station': both; 'none': pose noise only; 'auto': kinematic when the joints and the robot's "
-        "kinematics are known, else station"
+        "'kinematic+station': both; 'none': pose noise only; 'auto': with the joints and the robot's kinematics "
+        "known, kinematic when the data show the arm's geometric error (else pose noise only, the arm's geometry "
+        "considered in the uncertainty), without them station"
     )
     identify_kinematics: bool = Field(
         False, description="estimate the arm's identifiable geometric errors (kinematic calibration, "
@@ -119,7 +120,8 @@ class CalibrationOptions(BaseModel):
         per_joint = [np.radians(self.kinematic_prior_zero_offset_deg)] + [self.kinematic_prior_length_mm] * 3 + [
             np.radians(self.kinematic_prior_tilt_deg)] * 2
         return KinematicEffects(chain, np.tile(per_joint, chain.n_joints), estimate_scale=True,
-                                identify=self.identify_kinematics)
+                                identify=self.identify_kinematics,
+                                select_by_evidence=self.robot_error_model == "auto" and not self.identify_kinematics)
 
     def station_rotation_tolerance(self) -> float:
         """The station rotation tolerance in deg: the configured one, or the one derived
@@ -452,7 +454,14 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
     cov = ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance
     sd = np.sqrt(np.maximum(np.diag(cov)[:6], 0.0))
     params = None
-    if ke:
+    ev = ref.diagnostics.get("kinematic_evidence")
+    choice = None
+    if ev and ev["selected"] in ("kinematic", "none"):
+        choice = (f"auto: the data show the arm's geometric error (likelihood ratio {ev['likelihood_ratio']:.1f} "
+                  f"> {ev['threshold']:g}): the kinematic model" if ev["selected"] == "kinematic" else
+                  f"auto: the data show no geometric error of the arm (likelihood ratio {ev['likelihood_ratio']:.1f} "
+                  f"< {ev['threshold']:g}): pose noise only, the arm's geometry considered in the uncertainty")
+    if ke and not (ev and ev["selected"] == "none"):
         params = []
         for k, name in enumerate(ke["names"]):
             angle = name.endswith(("zero_offset", "tilt_u", "tilt_v"))
@@ -461,9 +470,10 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
                 name=name, unit="deg" if angle else "mm", value=ke["estimate"][k] * f, std=ke["sd"][k] * f,
                 identifiable=ke["identifiable"][k], identified=ke["identified"][k]))
     return RobotErrorSummary(
-        model=("kinematic+station" if se else "kinematic") if ke else ("station" if se else "none"),
+        model=("kinematic+station" if se else "kinematic") if params is not None else ("station" if se else "none"),
         kinematic_parameters=params,
-        kinematic_prior_scale=ke["prior_scale"] if ke else None,
+        kinematic_prior_scale=ke["prior_scale"] if params is not None else None,
+        model_choice=choice,
         station_rotation_deg=float(np.degrees(ref.station_effect_scales[0])),
         station_translation_mm=float(ref.station_effect_scales[1]),
         estimated=bool(se and all(se["estimated"])),

@@ -208,12 +208,22 @@ class KinematicEffects:
     floor: the fit may widen it by a factor estimated from the data (REML) unless
     ``estimate_scale`` is False. With ``identify`` the parameters the data determine (the identifiability test
     of :func:`identifiable_kinematic_parameters`) are estimated without prior (kinematic
-    calibration); the others keep their prior, unscaled, and only widen the covariance."""
+    calibration); the others keep their prior, unscaled, and only widen the covariance.
+
+    With ``select_by_evidence`` (the ``auto`` robot error model) the data decide: when
+    they show no geometric error of the arm (the REML likelihood ratio of the prior's
+    scale free against zero, :func:`_kinematic_evidence`, below
+    :data:`KINEMATIC_EVIDENCE_LR`), the fit is the pose-noise-only one, efficient on an
+    exact or calibrated arm, and the parameters the data barely see are *considered*:
+    not estimated, their prior spread propagated into the covariance.
+    ``consider_columns`` (set by that choice) selects that mode directly."""
 
     chain: SerialChain
     prior_sd: np.ndarray
     estimate_scale: bool = True
     identify: bool = False
+    select_by_evidence: bool = False
+    consider_columns: tuple[int, ...] | None = None
 
 
 #: A marginalised kinematic parameter whose posterior spread stays above this share of its
@@ -222,6 +232,12 @@ SEEN_POSTERIOR_SHARE = 0.5
 #: Bounds of the estimated station-effect scales (rad, mm) and of the kinematic prior's factor.
 _SCALE_BOUNDS = ((1e-7, np.radians(5.0)), (1e-5, 50.0))
 _KIN_SCALE_BOUNDS = (1.0, 30.0)  # the stated prior is a floor
+#: REML likelihood ratio (prior scale free against zero) above which the data show the
+#: arm's geometric error. Under no such error it follows a 50:50 mixture of chi^2_0 and
+#: chi^2_1: 5.41 is its 1 % point (1 exact arm in 100 gets the cautious kinematic fit).
+#: Measured on the benchmark's worlds: 0-0.2 on an exact arm, 20-1,700 on an
+#: uncalibrated one (docs/estimation.md).
+KINEMATIC_EVIDENCE_LR = 5.41
 #: Relative size below which a kinematic parameter's effect, once the transform, sphere
 #: and the parameters before it are projected out, counts as not identifiable.
 IDENTIFIABILITY_TOLERANCE = 1e-4
@@ -307,6 +323,25 @@ def _neg2_reml(L, A_tt, A_td, A_dd, b_t, b_d, yy) -> float:
     return float(logdet_V + logdet_X + quad)
 
 
+def _kinematic_evidence(Jw_t, Jw_k, yw, prior_sd) -> dict:
+    """How strongly the data ask for the arm's geometric error: the REML likelihood
+    ratio of the linearised model with the kinematic prior's scale free (``lam`` >= 0,
+    times the stated spread) against none (``lam`` = 0)."""
+    from scipy.optimize import minimize_scalar
+
+    A_tt, A_td, A_dd, b_t, b_d = _effect_blocks(Jw_t, None, Jw_k, yw, [])
+    yy = float(yw @ yw)
+
+    def f(lam):
+        return _neg2_reml(np.diag(lam * prior_sd), A_tt, A_td, A_dd, b_t, b_d, yy)
+
+    f0 = f(0.0)
+    best = minimize_scalar(lambda x: f(np.exp(x)), bounds=(np.log(1e-4), np.log(_KIN_SCALE_BOUNDS[1])),
+                           method="bounded")
+    lam = float(np.exp(best.x)) if best.fun < f0 else 0.0
+    return {"likelihood_ratio": float(max(f0 - best.fun, 0.0)), "scale_free": lam}
+
+
 def _effect_blocks(Jw_t, Jw_s, Jw_k, yw, station_rows):
     """Normal-equation blocks of ``y = J_t b + [J_s | J_k] d + e``: the station offsets'
     columns (``Jw_s`` (M, 6), each point against its own station's six) kept per station,
@@ -386,6 +421,13 @@ def refine(
     id_cols = np.flatnonzero(kin_identifiable) if ke is not None and ke.identify else np.array([], dtype=int)
     rand_cols = np.setdiff1d(np.arange(n_kin), id_cols)
     rand_cols = rand_cols[kin_prior[rand_cols] > 0]
+    consider_cols = np.array([], dtype=int)
+    if ke is not None and ke.consider_columns is not None:
+        consider_cols, rand_cols = np.asarray(ke.consider_columns, dtype=int), np.array([], dtype=int)
+    if ke is not None and ke.select_by_evidence and se is None and not ke.identify and len(rand_cols):
+        return _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations,
+                                   tolerance, ke, rand_cols)
+    n_kin_fitted = len(id_cols) + len(rand_cols)
     lam = 1.0
     n_par = n_geo + len(id_cols)
     scale = 1.0
@@ -544,7 +586,7 @@ def refine(
                 break
         # variance component of the pose noise: whitened chi^2 in the profiles' 3-D subspaces
         lin = linearise(scale)
-        n_effects = (6 * K if se else 0) + int(np.count_nonzero(kin_identifiable))
+        n_effects = (6 * K if se else 0) + (int(np.count_nonzero(kin_identifiable)) if n_kin_fitted else 0)
         dof_profiles = 3 * problem.n_profiles - n_geo - n_effects
         s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
         if not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0 or abs(s2_profiles - 1) < 0.05:
@@ -591,6 +633,10 @@ def refine(
         # nearly alike, and the transform or the sphere absorbs them as it absorbs the
         # robot's common error in the station model
         hidden = kin_posterior_sd[rand_cols] >= SEEN_POSTERIOR_SHARE * np.diag(Lk)
+    if len(rand_cols) and se is None and not len(id_cols):
+        diagnostics["kinematic_evidence"] = {
+            **_kinematic_evidence(Jw, Jw_k, -ew + Jw_k @ kappa[rand_cols], kin_prior[rand_cols]),
+            "threshold": KINEMATIC_EVIDENCE_LR, "selected": "stated"}
     if hidden.any():
         L_rf = Lp.copy()
         L_rf[off + np.flatnonzero(hidden), off + np.flatnonzero(hidden)] = 0.0
@@ -602,6 +648,20 @@ def refine(
         S = cov @ (cols_t - A_tr @ Cinv @ cols_d)
         return S @ prior_cov @ S.T
 
+    if len(consider_cols):
+        # the arm's parameters considered: what the data leave of their prior (the
+        # posterior at the stated spread; the prior itself where one sphere cannot see
+        # them) through the estimator
+        Jk = kin_point_columns(lin)[:, consider_cols]
+        prior_c = kin_prior[consider_cols]
+        JtK = Jw.T @ Jk
+        S_kk = Jk.T @ Jk - JtK.T @ cov_fixed @ JtK
+        post_c = prior_c[:, None] * np.linalg.solve(np.eye(len(prior_c)) + prior_c[:, None] * S_kk * prior_c,
+                                                    np.diag(prior_c))
+        S = cov @ JtK
+        cov = cov + S @ post_c @ S.T
+        diagnostics["kinematic_evidence"] = {**_kinematic_evidence(Jw, Jk, -ew, prior_c),
+                                             "threshold": KINEMATIC_EVIDENCE_LR, "selected": "stated"}
     if ke is not None and len(id_cols):
         # kinematic calibration: a new pose is mapped through the identified model, so its
         # error is that of the transform, sphere and identified parameters, jointly
@@ -663,6 +723,28 @@ def refine(
         kinematic_errors=kappa if ke is not None else None,
         kinematic_sd=kin_posterior_sd if ke is not None else None, kinematic_terms=kinematic_terms,
     )
+
+
+def _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations, tolerance,
+                        ke: KinematicEffects, cols) -> RefineResult:
+    """The ``auto`` robot error model: the pose-noise-only fit at the stated noise, the
+    evidence for the arm's geometric error at its solution, then the kinematic model if
+    the data show that error, else the pose-noise-only fit (pose noise rescaled as asked)
+    with the arm's geometry considered. The decision is made at the stated pose noise: a
+    pose-noise scale learnt first would absorb the arm's error and hide it."""
+    plain = replace(ke, select_by_evidence=False, consider_columns=tuple(int(i) for i in cols))
+    first = refine(problem, R, t, c, noise, fit_radius, False, max_iterations, tolerance, None, plain)
+    evidence = first.diagnostics["kinematic_evidence"]
+    if evidence["likelihood_ratio"] >= KINEMATIC_EVIDENCE_LR:
+        out = refine(problem, first.R, first.t, first.centre, noise, fit_radius, estimate_pose_noise, max_iterations,
+                     tolerance, None, replace(ke, select_by_evidence=False))
+        selected = "kinematic"
+    else:
+        out = first if not estimate_pose_noise else refine(
+            problem, first.R, first.t, first.centre, noise, fit_radius, True, max_iterations, tolerance, None, plain)
+        selected = "none"
+    out.diagnostics["kinematic_evidence"] = {**evidence, "selected": selected}
+    return out
 
 
 def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):

@@ -1,7 +1,7 @@
 """The simulated cell: the reference for tests and benchmarks, and the world behind the
 simulated devices."""
 
-from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, standard_cell
+from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, arm_layout, standard_cell
 from .objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
 from .planner import SweepPlan, plan_stations, simulate_dataset
 from .robot_error import RobotErrorModel, SimulatedArm
@@ -17,6 +17,7 @@ __all__ = [
     "SimulatedArm",
     "SensorFieldOfView",
     "SimulatedCell",
+    "arm_layout",
     "standard_cell",
     "SweepPlan",
     "plan_stations",

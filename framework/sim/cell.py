@@ -339,6 +339,54 @@ def _rot(rotvec_deg) -> np.ndarray:
 FLANGE_DOWN = _rot([0.0, 180.0, 0.0])
 
 
+#: Fractions of the reach-scaled layout tried, in order, until the arm reaches the default plan.
+LAYOUT_SHRINK = (1.0, 0.9, 0.8, 0.7, 0.6)
+
+
+def _reaches_default_plan(arm, cell: "SimulatedCell") -> bool:
+    """Whether the arm's inverse kinematics reaches every target of the default plan on
+    ``cell``, each from the last one's joints (the first from a few seeds)."""
+    from ..errors import InputError
+    from .planner import plan_stations
+
+    targets = [p for _, poses in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm,
+                                              cell.sphere_radius_mm) for p in poses]
+    n = arm.chain.n_joints
+    for seed in [None, *np.random.default_rng(0).uniform(-120.0, 120.0, (4, n))]:
+        try:
+            q = seed
+            for pose in targets:
+                q = arm.joints_from_flange_pose(pose, q)
+            return True
+        except InputError:
+            continue
+    return False
+
+
+#: The arm the standard cell is drawn for (an IRB 2400-class arm): its reach
+#: (:func:`spherecal.kinematics.chain_reach_mm` within its joint limits) and its shoulder
+#: (the second joint's origin at zero joints), base frame, mm.
+REFERENCE_REACH_MM = 1556.7908961103235
+REFERENCE_SHOULDER_MM = (100.0, 0.0, 615.0)
+
+
+def arm_layout(kinematics) -> tuple[float, np.ndarray]:
+    """(reach in mm, shoulder position in base, mm) of a robot plugin's arm
+    (:class:`~spherecal.kinematics.ArmKinematics`), for laying a cell out for it: its
+    ``reach_mm`` when it has one, else :func:`~spherecal.kinematics.chain_reach_mm` of
+    its chain within ``model_joint_limits_rad()`` when it has them; the shoulder is the
+    second joint's origin at zero joints (the first's for a one-joint arm)."""
+    from ..kinematics import chain_reach_mm
+
+    chain = kinematics.chain
+    reach = getattr(kinematics, "reach_mm", None)
+    if reach is None:
+        limits = getattr(kinematics, "model_joint_limits_rad", None)
+        reach = chain_reach_mm(chain, limits() if callable(limits) else None)
+    T = chain.placements[0] @ chain.placements[1] if chain.n_joints > 1 else chain.placements[0]
+    return float(reach), T[:3, 3].copy()
+
+
 def standard_cell(
     mounting: MountingMode = "eye_in_hand",
     seed: int | None = 0,
@@ -347,23 +395,57 @@ def standard_cell(
     sphere_radius_mm: float = 19.1,
     robot_error: RobotErrorModel | None = None,
     arm=None,
+    reach_mm: float | None = None,
+    shoulder_mm=None,
 ) -> SimulatedCell:
-    """An IRB 2400-sized cell with a generic (not axis-aligned) true transform.
+    """A cell with a generic (not axis-aligned) true transform, laid out for an arm's reach.
 
-    Eye-in-hand: the sensor sits about 160 mm out from the flange looking along the
-    flange's z; the sphere stands at (1100, 150, 400) mm in base. Eye-to-hand: the
-    sensor hangs at about (1250, -200, 900) mm in base looking down; the sphere is on a
-    150 mm stylus on the flange's z axis.
+    For the reference arm (an IRB 2400-class arm, :data:`REFERENCE_REACH_MM`, shoulder at
+    :data:`REFERENCE_SHOULDER_MM`): eye-in-hand, the sensor sits about 160 mm out from the
+    flange looking along the flange's z, and the sphere stands at (1100, 150, 400) mm in
+    base; eye-to-hand, the sensor hangs at about (1250, -200, 900) mm in base looking down
+    (along base -z) at the sphere, which is on a 150 mm stylus on the flange's z axis.
 
-    ``arm`` (a robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) attaches a
-    simulated arm, with ``robot_error`` in its true geometry when given."""
+    For another arm (``reach_mm`` and ``shoulder_mm``, base frame, mm; by default those of
+    ``arm``, :func:`arm_layout`) the points fixed in base (the eye-in-hand sphere, the
+    eye-to-hand sensor) are the reference's, scaled about the shoulder by the ratio of
+    the reaches: the same place in the arm's workspace. What the flange carries (the
+    sensor's mounting, the stylus) does not change. With ``arm`` given, the layout is
+    moved in towards the shoulder (by :data:`LAYOUT_SHRINK` steps) until the arm's inverse
+    kinematics reaches every target of the default plan (an arm with a long wrist, such as
+    a UR5, reaches less of its sphere of reach with a tilted flange).
+
+    ``arm`` (a robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) also attaches
+    a simulated arm, with ``robot_error`` in its true geometry when given."""
+    if arm is not None and reach_mm is None:
+        reach_mm, arm_shoulder = arm_layout(arm)
+        shoulder_mm = arm_shoulder if shoulder_mm is None else shoulder_mm
+        for shrink in LAYOUT_SHRINK:
+            cell = standard_cell(mounting, seed, noise, fov, sphere_radius_mm, None, None, reach_mm * shrink, shoulder_mm)
+            if _reaches_default_plan(arm, cell):
+                break
+        cell.robot_error = robot_error
+        cell.attach_arm(arm)
+        return cell
+    ref_shoulder = np.asarray(REFERENCE_SHOULDER_MM)
+    if reach_mm is None:
+        scale, shoulder = 1.0, ref_shoulder
+    else:
+        if not (np.isfinite(reach_mm) and reach_mm > 0):
+            raise ValueError(f"standard_cell: reach_mm must be a positive length, got {reach_mm!r}")
+        scale = float(reach_mm) / REFERENCE_REACH_MM
+        shoulder = ref_shoulder if shoulder_mm is None else np.asarray(shoulder_mm, dtype=float).reshape(3)
+
+    def in_base(point_mm) -> np.ndarray:  # a point fixed in base, for this arm
+        return shoulder + scale * (np.asarray(point_mm, dtype=float) - ref_shoulder)
+
     if mounting == "eye_in_hand":
         R = _rot([180.0, 0.0, 0.0]) @ _rot([2.0, -4.0, 31.0])
         X = Pose.from_rt(R, [42.5, -18.3, 163.7])
-        centre = [1100.0, 150.0, 400.0]
+        centre = in_base([1100.0, 150.0, 400.0])
     else:
         R = _rot([0.0, 180.0, 0.0]) @ _rot([3.0, 5.0, -20.0])
-        X = Pose.from_rt(R, [1250.0, -200.0, 900.0])
+        X = Pose.from_rt(R, in_base([1250.0, -200.0, 900.0]))
         centre = [4.2, -2.7, 151.3]
     cell = SimulatedCell(mounting, X, centre, sphere_radius_mm, fov=fov, noise=noise, seed=seed, robot_error=robot_error)
     if arm is not None:

@@ -9,7 +9,10 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from spherecal.errors import InputError
+from spherecal.linelink import LineLinkSettings
+from spherecal.linelink import WorkspaceBox as CoreWorkspaceBox
 from spherecal.models import Pose
+from spherecal.sim.controller import SimulatedControllerSettings as CoreSimulatedControllerSettings
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
 
@@ -20,99 +23,49 @@ BASE_DIR_CONTEXT_KEY = "base_dir"
 Vec3 = tuple[float, float, float]
 
 
-class WorkspaceBox(BaseModel):
+class WorkspaceBox(CoreWorkspaceBox):
     """Axis-aligned box in the base frame (mm) the flange origin must stay in. Moves
-    whose target lies outside are refused before anything is sent."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    whose target lies outside are refused before anything is sent. Defaults: the IRB
+    2400's reach."""
 
     min_mm: Vec3 = Field((-1600.0, -1600.0, 0.0), description="lower corner (x, y, z) in base, mm")
     max_mm: Vec3 = Field((1600.0, 1600.0, 2000.0), description="upper corner (x, y, z) in base, mm")
 
-    @model_validator(mode="after")
-    def _check(self):
-        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
-            if not lo < hi:
-                raise ValueError(f"workspace: min_mm {axis} = {lo} must be below max_mm {axis} = {hi}")
-        return self
 
-    def contains(self, point_mm) -> bool:
-        return all(lo <= p <= hi for p, lo, hi in zip(point_mm, self.min_mm, self.max_mm))
-
-
-class SimulatedControllerSettings(BaseModel):
+class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     """The simulated controller used when the run is simulated (a SimulatedCell is
-    given): it serves the same protocol over a real pyserial link on localhost."""
+    given): it serves the same protocol over a real pyserial link on localhost (the
+    core's settings, :class:`spherecal.sim.controller.SimulatedControllerSettings`, with
+    the IRB 2400's home joints)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    transport: Literal["tcp", "pty"] = Field(
-        "tcp", description="tcp: a socket:// server on 127.0.0.1; pty: a pseudo-terminal device (POSIX only)"
-    )
-    pose_noise: Literal["cell", "settings"] = Field(
-        "cell",
-        description="GETP noise: 'cell' uses the SimulatedCell's pose noise (cell.report_pose); "
-        "'settings' uses pose_translation_noise_mm and pose_rotation_noise_deg below",
-    )
-    pose_translation_noise_mm: float = Field(0.0, ge=0, description="GETP position noise, SD per base axis, mm")
-    pose_rotation_noise_deg: float = Field(0.0, ge=0, description="GETP orientation noise, SD about each base axis, deg")
-    joint_noise_deg: float = Field(0.0, ge=0, description="GETJ noise, SD per joint, deg")
     single_precision: bool = Field(
         True, description="round reported values to 32-bit floats, as RAPID num does"
     )
-    motion_time_scale: float = Field(
-        0.0, ge=0, description="a move lasts this factor times its duration (distance / speed or angle / "
-        "reorientation speed, the longer), s (0: instantaneous)"
-    )
-    max_controller_speed_mm_s: float = Field(7000.0, gt=0, description="the controller's own TCP speed limit, mm/s")
     home_joints_deg: tuple[float, float, float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 0.0, 90.0, 0.0), description="joints at start-up, controller convention, deg"
     )
     base_frame: Pose | None = Field(
         None, description="the controller's base frame, world_from_base (translation_mm, quaternion_wxyz w first), "
         "as a riser, an inverted mount or a multi-robot cell configures it: GETP reports tool0 in wobj0 (world) and "
-        "MOVL targets are taken in world; None: base = world. For tests of the check on connect",
+        "TGT targets are taken in world; None: base = world. For tests of the check on connect",
     )
-    seed: int | None = Field(0, description="seed of the simulator's noise generator (None: random)")
 
 
-class AbbIrb2400Config(BaseModel):
+class AbbIrb2400Config(LineLinkSettings):
     """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod``, talking the
-    spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md)."""
+    spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md). The link
+    and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    port: str = Field(
-        "/dev/ttyS0",
-        description="serial device path (/dev/ttyS0, /dev/ttyUSB0, COM1) or pyserial URL "
-        "(socket://host:port, rfc2217://...); ignored in simulated runs",
-    )
-    baudrate: int = Field(9600, gt=0, description="serial speed, baud; must match the controller's serial port setting")
-    parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
-    stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
-    timeout_s: float = Field(2.0, gt=0, le=600, description="time to wait for a reply (besides a move's duration), s")
-    retries: int = Field(2, ge=0, le=100, description="resends after a timeout or a corrupted reply (0: none)")
     pose_source: Literal["controller", "joints"] = Field(
         "controller",
         description="flange pose from the controller (GETP, CRobT tool0/wobj0) or from the joint "
         "readings (GETJ) through this plugin's forward kinematics",
     )
-    j23_coupled: bool = Field(
-        True,
-        description="the controller reports axis 3 relative to the horizontal (parallel linkage; "
-        "true for the IRB 2400): q3_model = q3_controller - q2_controller",
-    )
-    max_speed_mm_s: float = Field(250.0, gt=0, le=7000, description="largest TCP speed a move may ask for, mm/s")
-    move_timeout_extra_s: float = Field(
-        5.0, ge=0, le=600, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
-    )
     orientation_speed_deg_s: float = Field(
         100.0, gt=0, le=500, description="largest reorientation speed a move asks for (speeddata v_ori), deg/s; "
         "each move asks for less when its sensor (the tool point) would otherwise exceed the move's speed"
     )
-    path_check_samples: int = Field(
-        10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
-    )
+    workspace: WorkspaceBox = Field(default_factory=WorkspaceBox, description="allowed flange positions, base, mm")
     base_frame_tolerance_mm: float = Field(
         5.0, gt=0, le=100, description="on connect, the controller's pose of tool0 in wobj0 (world) may differ from "
         "this plugin's forward kinematics of the reported joints (base) by this much, mm; more means a base frame "
@@ -121,7 +74,11 @@ class AbbIrb2400Config(BaseModel):
     base_frame_tolerance_deg: float = Field(
         0.5, gt=0, le=10, description="the same check's limit on the orientation difference, deg",
     )
-    workspace: WorkspaceBox = Field(default_factory=WorkspaceBox, description="allowed flange positions, base, mm")
+    j23_coupled: bool = Field(
+        True,
+        description="the controller reports axis 3 relative to the horizontal (parallel linkage; "
+        "true for the IRB 2400): q3_model = q3_controller - q2_controller",
+    )
     geometry: Irb2400Geometry = Field(
         default_factory=Irb2400Geometry, description="kinematic geometry (defaults: published IRB 2400 values)"
     )

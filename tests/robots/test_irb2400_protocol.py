@@ -127,7 +127,7 @@ def test_encoding_refuses_what_the_controller_could_not_read():
         P.getj_request(1000)
     with pytest.raises(P.ProtocolError, match="speed_mm_s must be finite"):
         P.movl_request(1, float("nan"), 2)
-    with pytest.raises(P.ProtocolError, match="exceeds the 80-character RAPID string limit"):
+    with pytest.raises(P.ProtocolError, match="exceeds the 80-character line limit"):
         P.frame("x" * 78)
     with pytest.raises(P.ProtocolError, match="without '\\*'"):
         P.frame("OK 1*")

@@ -1,0 +1,498 @@
+"""A robot behind the spherecal line protocol (:mod:`spherecal.lineproto`), PC side, brand-free.
+
+:class:`LineRobot` implements :class:`spherecal.devices.Robot` over a pyserial link
+(``serial.serial_for_url``: a serial device such as ``/dev/ttyS0`` or ``COM1``, a
+pseudo-terminal, or a URL such as ``socket://host:port``). A robot plugin gives it its
+configuration (the link and limit settings named below) and its arm's kinematics, and
+may override :meth:`LineRobot.controller_pose` and :meth:`LineRobot.pose_from_joints_only`
+(a calibrated model applied on the PC side does).
+
+The link. Every exchange is one request and one reply carrying the same sequence
+number. Replies whose seq does not match the request (late replies of an earlier
+attempt) are discarded; a corrupted line (checksum or syntax) or a timeout makes the
+robot resend the request with a fresh seq, up to ``retries`` times, then raise
+:class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
+DeviceError at once. Requests are idempotent (a MOVL names its staged target, and the
+controller moves to a target once), so a resend never makes the robot move twice. On
+open the link discards whatever waits on it, and the sequence numbers start at a random
+value, so that a reply of an earlier session still on its way is discarded as stale by
+its seq.
+
+Safety. Speed, workspace box (the target and the start, where the arm stands: both ends
+in a box, the whole straight path is) and reachability (the target, and
+``path_check_samples`` points along the straight line to it, through the kinematics'
+inverse, within the joint limits, from the joints read now) are checked before anything
+is sent (:meth:`LineRobot.check_move` runs the same checks without moving); a move's flange and reorientation speeds
+keep the tool point (the sensor or the sphere the flange carries) within the move's
+speed.
+
+The configuration is a plugin's model derived from :class:`LineLinkSettings`; its
+``workspace`` must be set by the time the robot moves (:class:`LineRobot` takes a
+``workspace`` argument when the plugin derives it). The kinematics must have ``flange_pose_from_joints(joints_deg,
+check_limits)`` and ``joints_from_flange_pose(pose, seed_joints_deg)``, raising an
+:class:`~spherecal.errors.InputError` when a pose is out of reach.
+"""
+
+from __future__ import annotations
+
+import math
+import secrets
+import time
+from typing import Callable, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from . import lineproto as P
+from .errors import DeviceError, InputError
+from .geometry import matrix_from_rotvec as _matrix_from_rotvec
+from .geometry import rotvec_from_matrix as _rotvec
+from .models import Pose
+
+#: Longest single blocking read, s (the overall deadline is checked between reads).
+_POLL_S = 0.05
+#: Bytes kept while waiting for an LF before the buffer is treated as garbage.
+_MAX_PENDING = 4 * P.MAX_LINE_CHARS
+#: Slowest speed sent (mm/s for the flange, deg/s for the reorientation): the line
+#: carries one decimal, and a move that does not translate (or turn) still names one.
+MIN_SPEED_MM_S = 0.1
+
+
+Vec3 = tuple[float, float, float]
+
+
+class WorkspaceBox(BaseModel):
+    """Axis-aligned box in the base frame (mm) the flange origin must stay in. Moves
+    whose target lies outside are refused before anything is sent."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    min_mm: Vec3 = Field(description="lower corner (x, y, z) in base, mm")
+    max_mm: Vec3 = Field(description="upper corner (x, y, z) in base, mm")
+
+    @model_validator(mode="after")
+    def _check(self):
+        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
+            if not lo < hi:
+                raise ValueError(f"workspace: min_mm {axis} = {lo} must be below max_mm {axis} = {hi}")
+        return self
+
+    def contains(self, point_mm) -> bool:
+        return all(lo <= p <= hi for p, lo, hi in zip(point_mm, self.min_mm, self.max_mm))
+
+
+class LineLinkSettings(BaseModel):
+    """The settings :class:`LineRobot` reads: the serial link, the replies, the pose
+    source and the motion limits. A robot plugin's configuration model derives from it
+    (and gives ``workspace`` a default or a way to derive one). Lengths in mm, angles in
+    degrees, times in seconds."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    port: str = Field(
+        "/dev/ttyS0",
+        description="serial device path (/dev/ttyS0, /dev/ttyUSB0, COM1) or pyserial URL "
+        "(socket://host:port, rfc2217://...); ignored in simulated runs",
+    )
+    baudrate: int = Field(9600, gt=0, le=10_000_000,
+                          description="serial speed, baud; must match the controller's serial port setting")
+    parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
+    stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
+    timeout_s: float = Field(2.0, gt=0, le=600, description="time to wait for a reply (besides a move's duration), s")
+    retries: int = Field(2, ge=0, le=100, description="resends after a timeout or a corrupted reply (0: none)")
+    pose_source: Literal["controller", "joints"] = Field(
+        "controller",
+        description="flange pose from the controller (GETP) or from the joint readings (GETJ) through the "
+        "plugin's forward kinematics",
+    )
+    max_speed_mm_s: float = Field(250.0, gt=0, le=7000, description="largest TCP speed a move may ask for, mm/s")
+    move_timeout_extra_s: float = Field(
+        5.0, ge=0, le=600, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
+    )
+    orientation_speed_deg_s: float = Field(
+        100.0, gt=0, le=P.MAX_ORIENTATION_SPEED_DEG_S,
+        description="largest reorientation speed a move asks for, deg/s; each move asks for less when its sensor "
+        "(the tool point) would otherwise exceed the move's speed"
+    )
+    path_check_samples: int = Field(
+        10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
+    )
+    workspace: WorkspaceBox | None = Field(None, description="allowed flange positions, base, mm")
+
+
+def initial_seq() -> int:
+    """A random sequence number to start a session from (the first request carries the
+    next one)."""
+    return secrets.randbelow(P.SEQ_MODULUS)
+
+
+class LineRobot:
+    """A connected robot speaking the spherecal line protocol (implements
+    :class:`spherecal.devices.Robot`).
+
+    Poses are ``base_from_flange``, mm, quaternion (w, x, y, z). Joints are degrees in
+    the controller convention. ``name`` names the robot in every message;
+    ``server_hint`` says what to check when the controller does not answer."""
+
+    #: The robot in messages ("IRB 2400", "urdf robot 'ur5'").
+    name = "robot"
+    #: What to check when no valid reply comes.
+    server_hint = "that the controller's spherecal line server is running"
+
+    def __init__(
+        self,
+        config,
+        kinematics,
+        *,
+        url: str | None = None,
+        on_close: Callable[[], None] | None = None,
+        tool_point_mm=None,
+        n_joints: int = 6,
+        seq_start: int | None = None,
+        workspace: WorkspaceBox | None = None,
+    ):
+        import serial
+
+        self._serial_errors = (serial.SerialException, OSError)
+        self.config = config
+        self.kin = kinematics
+        #: the box the flange must stay in (base frame, mm)
+        self.workspace = workspace if workspace is not None else config.workspace
+        if self.workspace is None:
+            raise InputError(f"{self.name}: no workspace box configured (robot.workspace.min_mm / max_mm)")
+        self.n_joints = int(n_joints)
+        #: the point carried by the flange whose speed every move limits (flange frame, mm):
+        #: the sensor (eye-in-hand) or the sphere (eye-to-hand); None: the flange itself
+        self.tool_point_mm = None if tool_point_mm is None else np.asarray(tool_point_mm, dtype=float).reshape(3)
+        self.url = url or config.port
+        self._on_close = on_close
+        self._seq = initial_seq() if seq_start is None else int(seq_start)
+        self._buffer = bytearray()
+        self._closed = False
+        self.stale_replies = 0  #: replies discarded because their seq did not match
+        self.resends = 0  #: requests sent again after a timeout or a corrupted line
+        self.last_joints_deg: np.ndarray | None = None
+        self._check_seed: np.ndarray | None = None  # joints of the last target checked
+        try:
+            self._serial = serial.serial_for_url(
+                self.url,
+                baudrate=config.baudrate,
+                bytesize=serial.EIGHTBITS,
+                parity=config.parity,
+                stopbits=config.stopbits,
+                timeout=min(config.timeout_s, _POLL_S),
+                write_timeout=config.timeout_s,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._closed = True
+            if on_close is not None:
+                on_close()
+            raise DeviceError(
+                f"{self.name}: cannot open {self.url!r} ({exc}); check robot.port and that the device exists"
+            ) from exc
+        # a reply of an earlier session may wait on the link: never take it for ours
+        # (pyserial's own backends flush on open too; do not depend on it)
+        try:
+            self._serial.reset_input_buffer()
+        except self._serial_errors as exc:
+            self._lost(exc)
+
+    # hooks ----------------------------------------------------------------------------
+    def controller_pose(self, base_from_flange: Pose, target_joints_deg=None) -> Pose:
+        """The pose to send the controller for the flange to reach ``base_from_flange``
+        (``target_joints_deg``: the joints the path check solved for it). The pose itself
+        here; a plugin that applies a calibrated model on the PC side overrides this."""
+        return base_from_flange
+
+    def pose_from_joints_only(self) -> bool:
+        """Whether :meth:`read_flange_pose` must come from the joints, whatever
+        ``pose_source`` says (a calibrated model applied on the PC side)."""
+        return False
+
+    # Robot protocol ----------------------------------------------------------------
+    def read_joints_deg(self) -> np.ndarray:
+        """Joints in degrees, controller convention."""
+        msg = self._exchange("GETJ", P.getj_request, "J")
+        joints = P.parse_joints_reply(msg)
+        self.last_joints_deg = joints
+        return joints
+
+    def read_flange_pose(self) -> Pose:
+        """``base_from_flange`` now: from the controller (GETP) or from the joints (GETJ)
+        through the kinematics, as ``pose_source`` says."""
+        if self.config.pose_source == "joints" or self.pose_from_joints_only():
+            return self.kin.flange_pose_from_joints(self.read_joints_deg(), check_limits=False)
+        return P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
+
+    def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Move the flange in a straight line to ``base_from_flange`` at ``speed_mm_s`` and
+        return once in position. Limits are checked first; nothing is sent if one fails."""
+        start, target_joints = self._check_move_from_here(base_from_flange, speed_mm_s)
+        command = self.controller_pose(base_from_flange, target_joints)
+        target_seq_holder: list[int] = []
+
+        def tgt(seq: int) -> bytes:
+            target_seq_holder.append(seq)
+            return P.target_request(seq, command)
+
+        self._exchange("TGT", tgt, "OK")
+        target_seq = target_seq_holder[-1]
+        v_tcp, v_ori, duration = self.move_speeds(start, base_from_flange, speed_mm_s)
+        timeout = self.config.timeout_s + 2.0 * duration + self.config.move_timeout_extra_s
+        self._exchange("MOVL", lambda seq: P.movl_request(seq, v_tcp, target_seq, v_ori), "OK", timeout)
+
+    def move_speeds(self, start: Pose, target: Pose, speed_mm_s: float) -> tuple[float, float, float]:
+        """(flange speed mm/s, reorientation speed deg/s, duration s) of a linear move that
+        keeps the tool point (:attr:`tool_point_mm`; the flange without one) within
+        ``speed_mm_s`` and the reorientation within ``orientation_speed_deg_s``.
+
+        The controller interpolates position and orientation together: over a move of
+        duration T the flange moves d at d/T and turns by theta at theta/T, so a point r
+        off the flange moves at most (d + theta r)/T. T is the least that keeps that
+        within ``speed_mm_s``; v_tcp = d/T and v_ori = theta/T make the controller take
+        exactly T. Checked here, before anything is sent."""
+        distance = float(np.linalg.norm(target.translation - start.translation))
+        angle_deg = float(np.degrees(np.linalg.norm(_rotvec(start.rotation_matrix.T @ target.rotation_matrix))))
+        r = float(np.linalg.norm(self.tool_point_mm)) if self.tool_point_mm is not None else 0.0
+        duration = max((distance + np.radians(angle_deg) * r) / speed_mm_s,
+                       angle_deg / self.config.orientation_speed_deg_s, 1e-6)
+        # rounded down to the decimal the line carries: the controller then takes at least T
+        step = 10.0**-P.SPEED_DECIMALS
+        v_tcp = max(math.floor(min(distance / duration, speed_mm_s) / step + 1e-9) * step, MIN_SPEED_MM_S)
+        v_ori = max(math.floor(min(angle_deg / duration, self.config.orientation_speed_deg_s) / step + 1e-9) * step,
+                    MIN_SPEED_MM_S)
+        duration = max(distance / v_tcp, angle_deg / v_ori)  # what the controller will take
+        peak = (distance + np.radians(angle_deg) * r) / duration
+        if peak > speed_mm_s * (1 + 1e-9) + MIN_SPEED_MM_S:  # pragma: no cover - by construction
+            raise InputError(f"move_linear: the tool point would move at {peak:.1f} mm/s, above {speed_mm_s} mm/s")
+        return v_tcp, v_ori, duration
+
+    def close(self) -> None:
+        """Close the link (and stop the simulated controller, if any). Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        # pyserial's socket:// close() skips closing its socket when shutdown() fails on a
+        # link the peer already dropped; close it ourselves (closing twice is harmless)
+        sock = getattr(self._serial, "_socket", None)
+        try:
+            self._serial.close()
+        finally:
+            if sock is not None:
+                sock.close()
+            if self._on_close is not None:
+                self._on_close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def ping(self) -> int:
+        """Check the controller's server answers; returns its protocol version."""
+        msg = self._exchange("PING", P.ping_request, "PONG")
+        try:
+            version = int(msg.args[0])
+        except ValueError:
+            raise P.ProtocolError(f"{self.url}: PONG carries a non-integer version {msg.args[0]!r}") from None
+        if version != P.PROTOCOL_VERSION:
+            raise DeviceError(
+                f"{self.url}: the controller's server speaks protocol version {version}, this driver "
+                f"version {P.PROTOCOL_VERSION}; {self.version_hint}"
+            )
+        return version
+
+    #: What to do when the server speaks another protocol version.
+    version_hint = "update the controller's server to this version (docs/line-protocol.md)"
+
+    # limits ------------------------------------------------------------------------
+    def check_target(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Check a planned target against every limit without sending anything: speed,
+        workspace box, and reachability within the joint limits. The inverse kinematics
+        is seeded as the moves will be: the first check from the arm's joints now (read
+        with GETJ, which moves nothing), each next one from the joints the previous check
+        found. Raises what :meth:`move_linear` would."""
+        self._check_speed(speed_mm_s)
+        self._check_workspace(base_from_flange, "target")
+        seed = self._check_seed
+        if seed is None:
+            seed = self.last_joints_deg if self.last_joints_deg is not None else self.read_joints_deg()
+        try:
+            self._check_seed = self.kin.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
+        except InputError as exc:
+            raise type(exc)(f"target: {exc}") from None
+
+    def check_move(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Check the straight move from where the arm stands now to ``base_from_flange``
+        without moving, exactly as :meth:`move_linear` checks it before sending it: the
+        speed, both ends in the workspace box (so the whole straight path: a box is
+        convex), and the target and ``path_check_samples`` points along the path
+        reachable within the joint limits, from the joints read now (GETJ, which moves
+        nothing). Raises what :meth:`move_linear` would."""
+        self._check_move_from_here(base_from_flange, speed_mm_s)
+
+    def _check_move_from_here(self, target: Pose, speed_mm_s: float) -> tuple[Pose, np.ndarray]:
+        """The checks of a move from the arm's current joints; returns (start pose,
+        target joints)."""
+        self._check_open()
+        self._check_speed(speed_mm_s)
+        self._check_workspace(target, "target")
+        start_joints = self.read_joints_deg()
+        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
+        self._check_workspace(start, "start", "; the straight path to the target would leave it: jog the arm into "
+                                              "the box first")
+        return start, self._check_path(start, target, start_joints)
+
+    def _check_speed(self, speed_mm_s: float) -> None:
+        limit = self.config.max_speed_mm_s
+        try:
+            speed = float(speed_mm_s)
+        except (TypeError, ValueError):
+            speed = math.nan
+        if not (math.isfinite(speed) and speed > 0):
+            raise InputError(f"move_linear: speed_mm_s must be a positive number, got {speed_mm_s!r}")
+        if speed_mm_s > limit:
+            raise InputError(
+                f"move_linear: speed_mm_s = {speed_mm_s} exceeds the configured max_speed_mm_s = {limit}; "
+                f"ask for a slower move or raise robot.max_speed_mm_s"
+            )
+
+    def _check_workspace(self, pose: Pose, what: str, hint: str = "") -> None:
+        box = self.workspace
+        if not box.contains(pose.translation_mm):
+            t = [round(v, 3) for v in pose.translation_mm]
+            raise InputError(
+                f"move_linear: {what} flange position {t} mm is outside the configured workspace box "
+                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame){hint}"
+            )
+
+    def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> np.ndarray:
+        """Check the target and points along the path for reachability; returns the
+        target's joints (the solution nearest the start)."""
+        n = self.config.path_check_samples
+        seed = start_joints
+        target_joints = None
+        R0, R1 = start.rotation_matrix, target.rotation_matrix
+        rv = _rotvec(R0.T @ R1)
+        for s in [1.0, *(np.arange(1, n + 1) / (n + 1))]:  # the target first
+            R = R0 @ _matrix_from_rotvec(s * rv)
+            t = (1 - s) * start.translation + s * target.translation
+            pose = Pose.from_rt(R, t)
+            try:
+                seed = self.kin.joints_from_flange_pose(pose, seed_joints_deg=seed)
+            except InputError as exc:
+                where = "target" if s == 1.0 else f"point {s:.0%} along the linear path"
+                raise type(exc)(f"move_linear: {where}: {exc}") from None
+            if target_joints is None:
+                target_joints = seed
+        return target_joints
+
+    # transport ---------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DeviceError(f"{self.name} on {self.url}: the connection is closed; create the robot again")
+
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) % P.SEQ_MODULUS
+        return self._seq
+
+    def _exchange(
+        self, kind: str, build: Callable[[int], bytes], expect: str, timeout_s: float | None = None
+    ) -> P.Message:
+        """Send a request built for a fresh seq and return its reply, resending after a
+        timeout or a corrupted line; raises DeviceError when every attempt fails."""
+        self._check_open()
+        timeout_s = self.config.timeout_s if timeout_s is None else timeout_s
+        attempts = self.config.retries + 1
+        problem = ""
+        for attempt in range(attempts):
+            if attempt:
+                self.resends += 1
+            seq = self._next_seq()
+            self._write(build(seq))
+            deadline = time.monotonic() + timeout_s
+            while True:
+                raw = self._read_line(deadline)
+                if raw is None:
+                    problem = f"no reply within {timeout_s:.3g} s"
+                    if self._buffer:  # the start of a reply that never ended: stale now
+                        problem += f" (discarded a partial line {bytes(self._buffer)[:40]!r})"
+                        self._buffer.clear()
+                    break
+                try:
+                    msg = P.decode_reply(raw, self.n_joints)
+                except P.ProtocolError as exc:  # corrupted, partial or garbage: resend
+                    problem = str(exc)
+                    break
+                if msg.kind == "ERR":
+                    code, text = P.parse_error_reply(msg)
+                    if msg.seq is None or code == P.ErrorCode.CHECKSUM:
+                        if msg.seq in (None, seq):  # the controller got a garbled request
+                            problem = f"controller could not read the request: ERR {code} {text}"
+                            break
+                    if msg.seq != seq:
+                        self.stale_replies += 1
+                        continue
+                    raise DeviceError(
+                        f"{self.name} on {self.url}: controller refused {kind} (seq {seq}): "
+                        f"ERR {code} {_error_name(code)}: {text}"
+                    )
+                if msg.seq != seq:
+                    self.stale_replies += 1
+                    continue
+                if msg.kind != expect:
+                    raise P.ProtocolError(
+                        f"{self.name} on {self.url}: reply {msg.kind} to {kind} (seq {seq}); expected {expect}"
+                    )
+                return msg
+        raise DeviceError(
+            f"{self.name} on {self.url}: no valid reply to {kind} after {attempts} attempt(s); last problem: "
+            f"{problem}. Check the cable, the serial settings (baudrate {self.config.baudrate}, "
+            f"parity {self.config.parity}) and {self.server_hint}"
+        )
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self._serial.write(data)
+            self._serial.flush()
+        except self._serial_errors as exc:
+            self._lost(exc)
+
+    def _read_line(self, deadline: float) -> bytes | None:
+        """One line (LF stripped), garbage flushed as a line, or None at the deadline."""
+        while True:
+            idx = self._buffer.find(b"\n")
+            if idx >= 0:
+                line = bytes(self._buffer[:idx])
+                del self._buffer[: idx + 1]
+                return line
+            if len(self._buffer) > _MAX_PENDING:
+                line = bytes(self._buffer)
+                self._buffer.clear()
+                return line
+            if time.monotonic() >= deadline:
+                return None
+            try:
+                chunk = self._serial.read(1)
+                if chunk:
+                    waiting = self._serial.in_waiting
+                    if waiting:
+                        chunk += self._serial.read(waiting)
+            except self._serial_errors as exc:
+                self._lost(exc)
+            self._buffer.extend(chunk)
+
+    def _lost(self, exc: BaseException):
+        self.close()
+        raise DeviceError(
+            f"{self.name} on {self.url}: connection lost ({exc}); check the cable and the controller, "
+            f"then create the robot again"
+        ) from exc
+
+
+def _error_name(code: int) -> str:
+    try:
+        return P.ErrorCode(code).name.lower()
+    except ValueError:
+        return "unknown code"
