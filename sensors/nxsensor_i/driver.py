@@ -403,6 +403,8 @@ class NxSensorDriver:
             try:
                 mine = self.counter.place(shot, frame.frame_counter)
             except CounterMismatch as exc:
+                self.counter.forget()  # the next read flushes the input and learns the counter again
+                self._flushed = False
                 raise CounterMismatch(f"{self.device_name}: {exc}") from None
             if mine:
                 return frame
