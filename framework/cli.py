@@ -185,14 +185,16 @@ def _significance(text: str) -> float:
     return v
 
 
-def _transform_options(p: argparse.ArgumentParser, role: str) -> None:
-    """--transform, --tooldata, --std-mm and --std-deg (compare and validate)."""
+def _transform_options(p: argparse.ArgumentParser, role: str, with_std: bool = True) -> None:
+    """--transform and --tooldata (compare and validate), --std-mm and --std-deg (compare)."""
     p.add_argument("--transform", metavar="X", help=f"a transform {role}: x,y,z,qw,qx,qy,qz (translation in mm, "
                    "unit quaternion w first, as in result.json), or a file: a result.json or run folder, or a text "
                    "file holding those seven numbers or a controller frame line")
     p.add_argument("--tooldata", metavar="LINE", help=f"a transform {role} as the robot controller stores it (a tool "
                    "or work-object data line, quaternion w first for ABB RAPID), read by the robot plugin that knows "
                    "its syntax (docs/cli.md)")
+    if not with_std:
+        return
     p.add_argument("--std-mm", type=_non_negative_float, metavar="MM", help="1-sigma per axis of the translation of "
                    "--transform/--tooldata given as numbers, mm (default 0: known exactly)")
     p.add_argument("--std-deg", type=_non_negative_float, metavar="DEG", help="1-sigma per axis of its rotation, deg "
@@ -229,8 +231,11 @@ def cmd_validate(args) -> int:
     from .config import load_config
     from .runner import run_validate
 
-    outcome = run_validate(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask)
+    loaded = load_config(args.config)
+    given = _given_transform(args, robot_type=loaded.config.robot["type"])
+    outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None,
+                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask,
+                           transform=given)
     from .validation import format_outcome
 
     print(format_outcome(outcome))
@@ -252,10 +257,10 @@ def _given_transform(args, robot_type: str | None = None):
         est = cmp.estimate_of_frame(cmp.read_controller_frame(args.tooldata, "--tooldata", robot_type=robot_type),
                                     "--tooldata")
     else:
-        if args.std_mm is not None or args.std_deg is not None:
+        if getattr(args, "std_mm", None) is not None or getattr(args, "std_deg", None) is not None:
             raise ConfigError("--std-mm and --std-deg are the uncertainty of --transform or --tooldata: give one")
         return None
-    if args.std_mm is not None or args.std_deg is not None:
+    if getattr(args, "std_mm", None) is not None or getattr(args, "std_deg", None) is not None:
         if est.covariance.any():
             raise ConfigError(f"--std-mm/--std-deg: {est.source} has its own covariance; give them only with a "
                               "transform given as numbers or a controller frame")
@@ -374,10 +379,13 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("validate", help="acceptance test of a calibration: P_F, P_S, SD, F against the MPEs",
                        description="Scan the sphere (and a ball bar and a flat, if configured) with the calibrated "
                        "system at views other than the calibration's; report the figures per position and their "
-                       "maximum; exit 5 when one exceeds its MPE.")
+                       "maximum; exit 5 when one exceeds its MPE. The transform is the calibration's result.json, "
+                       "or one spherecal did not compute (--transform, --tooldata).")
     v.add_argument("config", help="configuration file (TOML) with a [validation] section")
     v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
+    _transform_options(v, "to validate instead of the calibration's result.json (e.g. the controller's current "
+                       "tool)", with_std=False)
     v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     v.set_defaults(func=cmd_validate)
 

@@ -18,7 +18,7 @@ from .devices import DeviceContext
 from .errors import ConfigError, InputError, SpherecalError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
-from .models import SPHERE_FRAME
+from .models import SPHERE_FRAME, TRANSFORM_NAME
 from .report.assess import Verdict
 from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
@@ -786,32 +786,48 @@ def _result_for(loaded: LoadedConfig, section, out: Path):
     return path, result
 
 
-def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, out_dir: Path | None):
+def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, out_dir: Path | None,
+                      read_result: bool = True):
     """What validate and scan both need first: their section, the acquisition settings,
-    the output folder and the calibration result in it."""
+    the output folder and the calibration result in it (``(out, None, None)`` without
+    ``read_result``)."""
     cfg = loaded.config
     if section is None:
         raise ConfigError(f"{loaded.path}: {missing}")
     if cfg.acquisition is None:
         raise ConfigError(f"{loaded.path}: {moving} moves the robot: it needs [acquisition] (speeds, workspace)")
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
-    return (out, *_result_for(loaded, section, out))
+    return (out, *_result_for(loaded, section, out)) if read_result else (out, None, None)
 
 
 def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
-                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input):
+                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input,
+                 transform=None):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
-    system, compute the acceptance figures, compare with the MPEs."""
+    system, compute the acceptance figures, compare with the MPEs. ``transform`` (a
+    :class:`~spherecal.compare.TransformEstimate`): validate that transform, one spherecal
+    did not compute (the controller's current tool or work object, a pose file), instead
+    of the calibration's ``result.json``; the report is then left alone."""
     from .validation import evaluate, measure, plan_validation
 
     cfg = loaded.config
-    out, result_path, result = _calibrated_setup(
-        loaded, cfg.validation, "no [validation] section: say what to validate against which MPEs", "validation", out_dir
-    )
-    X = result.transform
+    missing = "no [validation] section: say what to validate against which MPEs"
+    if transform is None:
+        out, result_path, result = _calibrated_setup(loaded, cfg.validation, missing, "validation", out_dir)
+        X, source = result.transform, str(result_path)
+    else:
+        out, result_path, result = _calibrated_setup(loaded, cfg.validation, missing, "validation", out_dir,
+                                                     read_result=False)
+        expected = TRANSFORM_NAME[cfg.mounting]
+        if transform.transform_name not in (None, expected):
+            raise ConfigError(f"{transform.source} is {transform.transform_name}, but {loaded.path} calibrates "
+                              f"{expected} ({cfg.mounting}): validate a transform of the configuration's mounting")
+        X, source = transform.pose, transform.source
+        if transform.note:
+            log(f"note: {transform.note}")
     sweeps = plan_validation(cfg, X)
     targets = [t for s in sweeps for t in s.targets]
-    log(f"validating {result_path}: {len(sweeps)} sweeps, {len(targets)} shots")
+    log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
     _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
     exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
@@ -826,7 +842,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     with open_devices(loaded, host, cell, log) as (robot, sensor):
         _check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
         with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
-                                  provenance={"source": "spherecal validate", "result": str(result_path)},
+                                  provenance={"source": "spherecal validate", "result": source,
+                                              "transform": X.model_dump()},
                                   fsync=True) as writer:
             from .models import Observation
 
@@ -839,7 +856,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     outcome = evaluate(cfg, X, measured)
     import json
 
-    text = json.dumps({"passed": outcome.passed, "result": str(result_path), "journal": journal.name,
+    text = json.dumps({"passed": outcome.passed, "result": source, "transform": X.model_dump(),
+                       "transform_given": transform is not None, "journal": journal.name,
                        "figures": outcome.table(), "report": outcome.report.model_dump(),
                        "centres_mm": outcome.centres_mm}, indent=2, default=float)
     from . import safeio
@@ -847,7 +865,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     safeio.write_text(out / f"validation-{stamp}.json", text)
     safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
     calib_journal = out / JOURNAL_NAME
-    if report and calib_journal.exists():
+    if report and transform is None and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
         solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
                          host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
