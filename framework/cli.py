@@ -54,7 +54,7 @@ def cmd_calibrate(args) -> int:
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
-        report=not args.no_report, force=args.force, yes=args.yes, ask=_ask,
+        report=not args.no_report, force=args.force, yes=args.yes, ask=_ask, operator=args.operator,
     )
     if outcome.finished:
         print(f"{Path(args.out) if args.out else loaded.output_dir} holds a finished run: nothing to resume; its "
@@ -63,6 +63,9 @@ def cmd_calibrate(args) -> int:
     if outcome.solution is None:
         return EXIT_OK
     print(summary(outcome.solution, outcome.verdict))
+    if loaded.config.validation is not None and outcome.verdict.level != "red":
+        print(f"acceptance test: spherecal validate {args.config} (its figures then join this verdict, in the "
+              "terminal and the report)")
     from . import dataio
 
     journal = outcome.files.get("journal")
@@ -126,9 +129,13 @@ def cmd_solve(args) -> int:
 
         check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
                             "exports and report", exports)
+    from .runner import traceability
+
     solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
                                                 report=not args.no_report, force=args.force, kinematics=arm,
-                                                exports=exports)
+                                                exports=exports,
+                                                provenance=traceability(dataset, Path(args.dataset),
+                                                                        operator=args.operator))
     host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out, exports_written=written,
                               robot_type=robot_type, sensor_type=sensor_type)
     print(summary(solution, graded))
@@ -236,10 +243,12 @@ def cmd_validate(args) -> int:
     outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None,
                            log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask,
                            transform=given)
+    from .runner import format_verdict
     from .validation import format_outcome
 
     print(format_outcome(outcome))
     print("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
+    print(format_verdict(outcome.verdict))
     return EXIT_OK if outcome.passed else EXIT_VALIDATION
 
 
@@ -329,6 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
     c.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
+    c.add_argument("--operator", metavar="NAME", help="who runs the calibration, for the report and the result "
+                   "(default: [report] operator of the configuration)")
     c.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     c.set_defaults(func=cmd_calibrate)
 
@@ -360,6 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
     s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
+    s.add_argument("--operator", metavar="NAME", help="who ran the calibration, for the report and the result")
     s.add_argument("--overwrite", action="store_true", help="replace the result, exports and report already in the "
                    "output folder (default: refuse)")
     s.set_defaults(func=cmd_solve)
