@@ -198,8 +198,7 @@ def _transform_options(p: argparse.ArgumentParser, role: str, with_std: bool = T
                    "unit quaternion w first, as in result.json), or a file: a result.json or run folder, or a text "
                    "file holding those seven numbers or a controller frame line")
     p.add_argument("--tooldata", metavar="LINE", help=f"a transform {role} as the robot controller stores it (a tool "
-                   "or work-object data line, quaternion w first for ABB RAPID), read by the robot plugin that knows "
-                   "its syntax (docs/cli.md)")
+                   "or work-object data line), read by the robot plugin that knows its syntax (docs/cli.md)")
     if not with_std:
         return
     p.add_argument("--std-mm", type=_non_negative_float, metavar="MM", help="1-sigma per axis of the translation of "

@@ -83,7 +83,7 @@ def parse_xyz_quat(text: str, what: str = "--transform") -> Pose:
     """``x,y,z,qw,qx,qy,qz``: seven finite numbers (mm) and a unit quaternion (w first);
     :class:`ConfigError` naming ``what`` and the value at fault otherwise."""
     usage = f"{what} takes {_XYZ_QUAT_USAGE}"
-    parts = text.replace(";", ",").strip().strip("[]()").split(",")
+    parts = _parts(text)
     if len(parts) != 7:
         raise ConfigError(f"{usage}; got {len(parts)} value(s) in {text!r:.80}")
     values = []
@@ -102,11 +102,15 @@ def parse_xyz_quat(text: str, what: str = "--transform") -> Pose:
     return Pose.from_abb(values[:3], values[3:])
 
 
+def _parts(text: str) -> list[str]:
+    """The comma-separated values of ``x,y,z,...`` (brackets around them allowed)."""
+    return text.replace(";", ",").strip().strip("[]()").split(",")
+
+
 def looks_like_numbers(text: str) -> bool:
     """True when ``text`` is a list of numbers (``--transform`` given as numbers)."""
-    parts = text.replace(";", ",").strip().strip("[]()").split(",")
     try:
-        [float(p) for p in parts]
+        [float(p) for p in _parts(text)]
     except ValueError:
         return False
     return True

@@ -28,6 +28,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from .. import __version__
+from .. import geometry as geo
 from ..errors import InputError
 from ..exporters import ExportNote
 from ..models import SPHERE_FRAME, CalibrationResult
@@ -361,16 +362,12 @@ def point_uncertainty(result: CalibrationResult, distance_mm: float) -> dict:
     the expanded 3-D figure (k = 2: twice the RMS), mm."""
     R = result.transform.rotation_matrix
     v = R @ np.array([0.0, 0.0, -float(distance_mm)])
-    J = np.hstack([-_skew(v), np.eye(3)])
+    J = np.hstack([-geo.skew(v), np.eye(3)])
     cov = J @ np.asarray(result.covariance, dtype=float)[:6, :6] @ J.T
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     rms = float(np.sqrt(max(np.trace(cov), 0.0)))
     return {"distance_mm": float(distance_mm), "sd_mm": tuple(float(x) for x in sd), "rms_mm": rms,
             "expanded_k2_mm": K_EXPANDED * rms}
-
-
-def _skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def _point_html(result: CalibrationResult, distance_mm: float) -> str:
