@@ -140,9 +140,13 @@ def read_controller_frame(text: str, what: str = "--tooldata", host=None, robot_
                 raise PluginError(f"robot type {t.name!r}: read_frame returned {frame!r:.100}, not a ControllerFrame "
                                   f"of {' or '.join(TRANSFORM_NAME.values())}")
             return frame
+    if robot_type and not readers:
+        raise ConfigError(f"{what}: robot type {robot_type!r} reads no controller frames; give the transform as "
+                          "numbers with --transform")
     known = ", ".join(t.name for t in readers) or "none installed"
-    raise ConfigError(f"{what}: {text.strip()[:60]!r} is not a frame any installed robot plugin reads "
-                      f"(robot types that read controller frames: {known})")
+    raise ConfigError(f"{what}: {text.strip()[:60]!r} is not a frame "
+                      + (f"robot type {robot_type!r} reads" if robot_type else "any installed robot plugin reads")
+                      + f" (robot types that read controller frames: {known})")
 
 
 def read_transform_argument(text: str, what: str = "--transform", host=None, robot_type: str | None = None,
