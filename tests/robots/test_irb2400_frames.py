@@ -44,13 +44,13 @@ def test_a_stationary_tool_is_base_from_sensor():
 
 
 def test_what_the_exporter_writes_reads_back():
-    from spherecal.report import export
     from spherecal.estimation import calibrate
+    from spherecal.robots.abb_irb2400.export import rapid_declaration
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     for mounting in ("eye_in_hand", "eye_to_hand"):
         result = calibrate(simulate_dataset(standard_cell(mounting, seed=2), SweepPlan(profiles_per_station=5)))
-        frame = read_frame(export.rapid_declaration(result))
+        frame = read_frame(rapid_declaration(result))
         assert frame.transform_name == result.transform_name
         # the export rounds to 4 decimals (mm) and 8 (quaternion)
         np.testing.assert_allclose(frame.pose.translation, result.transform.translation, atol=1e-4)
