@@ -56,6 +56,10 @@ class AbbIrb2400Config(LineLinkSettings):
     spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md). The link
     and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`)."""
 
+    serial_number: str | None = Field(
+        None, max_length=100, description="the robot's serial number (its nameplate), for the report and the "
+        "result's provenance; the controller protocol does not report it"
+    )
     pose_source: Literal["controller", "joints"] = Field(
         "controller",
         description="flange pose from the controller (GETP, CRobT tool0/wobj0) or from the joint "

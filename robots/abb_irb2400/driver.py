@@ -37,8 +37,7 @@ from typing import Callable
 
 import numpy as np
 
-from spherecal import linelink
-from spherecal import lineproto as P
+from spherecal import lineproto, linelink
 from spherecal.errors import DeviceError
 from spherecal.geometry import rotvec_from_matrix
 from spherecal.linelink import MIN_SPEED_MM_S, LineRobot  # noqa: F401 - MIN_SPEED_MM_S re-exported
@@ -99,7 +98,7 @@ class AbbIrb2400Robot(LineRobot):
         DeviceError, saying what to do; nothing has moved. The same check catches a
         ``geometry`` or ``j23_coupled`` that does not match the arm."""
         joints = self.read_joints_deg()
-        world_pose = P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
+        world_pose = lineproto.parse_pose_reply(self._exchange("GETP", lineproto.getp_request, "P"))
         base_pose = self.nominal_kin.flange_pose_from_joints(joints, check_limits=False)
         offset_mm = float(np.linalg.norm(world_pose.translation - base_pose.translation))
         angle_deg = float(np.degrees(np.linalg.norm(
@@ -136,3 +135,13 @@ class AbbIrb2400Robot(LineRobot):
             seed = self.last_joints_deg if self.last_joints_deg is not None else np.zeros(6)
             target_joints_deg = self.calibrated.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
         return self.nominal_kin.flange_pose_from_joints(target_joints_deg, check_limits=False)
+
+    def identity(self) -> dict[str, str]:
+        """What this robot is (spherecal.devices.device_identity): the model, the serial
+        number from the configuration (the protocol does not report it) and the
+        controller program it talks to."""
+        found = {"manufacturer": "ABB", "model": "IRB 2400",
+                 "controller": f"SpherecalServer.mod, protocol version {lineproto.PROTOCOL_VERSION}, on {self.url}"}
+        if self.config.serial_number:
+            found["serial_number"] = self.config.serial_number
+        return found
