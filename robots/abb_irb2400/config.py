@@ -45,8 +45,12 @@ class SimulatedControllerSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    transport: Literal["tcp", "pty"] = Field(
-        "tcp", description="tcp: a socket:// server on 127.0.0.1; pty: a pseudo-terminal device (POSIX only)"
+    transport: Literal["tcp", "pty", "socket"] = Field(
+        "tcp",
+        description="the link the simulated controller serves: tcp: the serial server's line carried over TCP "
+        "on 127.0.0.1 (socket://); pty: a pseudo-terminal device (POSIX only); socket: the RAPID socket server "
+        "of an IRC5 (SpherecalSocket.mod) on 127.0.0.1 (socket://), whose every new connection is a new "
+        "session that forgets the staged target",
     )
     pose_noise: Literal["cell", "settings"] = Field(
         "cell",
@@ -70,18 +74,41 @@ class SimulatedControllerSettings(BaseModel):
     seed: int | None = Field(0, description="seed of the simulator's noise generator (None: random)")
 
 
+#: The scheme of a TCP port: ``socket://host:port``.
+SOCKET_SCHEME = "socket://"
+
+
+def parse_socket_url(url: str) -> tuple[str, int]:
+    """(host, port) of ``socket://host:port``; ValueError saying what is wrong."""
+    if not url.lower().startswith(SOCKET_SCHEME):
+        raise ValueError(f"{url!r} is not a socket://host:port address")
+    rest = url[len(SOCKET_SCHEME):]
+    host, sep, port = rest.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host  # [::1]
+    if not sep or not host or any(c in rest for c in "/?#@ "):
+        raise ValueError(f"{url!r}: write a TCP port as socket://host:port (for example socket://192.168.125.1:5000)")
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"{url!r}: the TCP port {port!r} must be a number 1..65535")
+    return host, int(port)
+
+
 class AbbIrb2400Config(BaseModel):
-    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod``, talking the
-    spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md)."""
+    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod`` with a link
+    module, talking the spherecal line protocol over a serial line (``SpherecalSerial.mod``)
+    or, on an IRC5, over TCP (``SpherecalSocket.mod``; see docs/robot-abb-irb2400.md)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     port: str = Field(
         "/dev/ttyS0",
-        description="serial device path (/dev/ttyS0, /dev/ttyUSB0, COM1) or pyserial URL "
-        "(socket://host:port, rfc2217://...); ignored in simulated runs",
+        description="the link to the controller: a serial device (/dev/ttyS0, /dev/ttyUSB0, COM1) or another "
+        "pyserial URL (rfc2217://...) for SpherecalSerial.mod, or socket://host:port for the IRC5 socket server "
+        "SpherecalSocket.mod (its SERVER_ADDRESS and SERVER_PORT); ignored in simulated runs",
     )
-    baudrate: int = Field(9600, gt=0, description="serial speed, baud; must match the controller's serial port setting")
+    baudrate: int = Field(
+        9600, gt=0, le=10_000_000,
+        description="serial speed, baud; must match the controller's serial port setting (not used over TCP)",
+    )
     parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
     stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
     timeout_s: float = Field(2.0, gt=0, le=600, description="time to wait for a reply (besides a move's duration), s")
@@ -123,6 +150,20 @@ class AbbIrb2400Config(BaseModel):
         "come from the joint readings through it. A relative path resolves against the configuration file's "
         "folder when the host is given it, else the working directory",
     )
+
+    @field_validator("port", mode="after")
+    @classmethod
+    def _check_port(cls, v: str) -> str:
+        if not v.strip():
+            raise ValueError("port is empty: give a serial device (/dev/ttyS0, COM1) or socket://host:port")
+        if v.lower().startswith(SOCKET_SCHEME):
+            parse_socket_url(v)
+        return v
+
+    @property
+    def transport(self) -> Literal["serial", "socket"]:
+        """``socket`` when :attr:`port` is ``socket://host:port`` (TCP), else ``serial``."""
+        return "socket" if self.port.lower().startswith(SOCKET_SCHEME) else "serial"
 
     @field_validator("calibrated_model", mode="after")
     @classmethod

@@ -1,15 +1,21 @@
-"""Serial driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
+"""Driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
 
-Built on ``serial.serial_for_url``, so the same code talks to a serial device
-(``/dev/ttyS0``, ``COM1``, a pseudo-terminal) or to a pyserial URL such as
-``socket://127.0.0.1:PORT`` (the simulated controller).
+Two links, one driver: a serial line (``SpherecalSerial.mod`` on the controller), opened
+with ``serial.serial_for_url`` (a device such as ``/dev/ttyS0``, ``COM1`` or a
+pseudo-terminal, or another pyserial URL), or a TCP connection to the IRC5 socket server
+(``SpherecalSocket.mod``) when the port is ``socket://host:port``
+(:class:`~.tcp_link.TcpLink`). Framing, timeouts, resends and the stale-reply rules below
+are the same code for both.
 
 Every exchange is one request and one reply carrying the same sequence number.
 Replies whose seq does not match the request (late replies of an earlier attempt) are
 discarded; a corrupted line (checksum or syntax) or a timeout makes the driver resend
 the request with a fresh seq, up to ``retries`` times, then raise
 :class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
-DeviceError at once. Requests are idempotent (a MOVL names its staged target, and the
+DeviceError at once (over TCP: the controller closed the connection, or it broke), and
+the driver never reconnects by itself: the robot must be created again, which starts a
+new connection (and, for the socket server, a new session that has no staged target).
+Requests are idempotent (a MOVL names its staged target, and the
 controller moves to a target once), so a resend never makes the robot move twice.
 
 Replies of an earlier session: on open the driver discards whatever waits on the link,
@@ -45,8 +51,9 @@ from spherecal.geometry import rotvec_from_matrix as _rotvec
 from spherecal.models import Pose
 
 from . import protocol as P
-from .config import AbbIrb2400Config
+from .config import SOCKET_SCHEME, AbbIrb2400Config
 from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics, UnreachableError
+from .tcp_link import TcpLink
 
 #: Longest single blocking read, s (the overall deadline is checked between reads).
 _POLL_S = 0.05
@@ -99,23 +106,29 @@ class AbbIrb2400Robot:
         self.stale_replies = 0  #: replies discarded because their seq did not match
         self.resends = 0  #: requests sent again after a timeout or a corrupted line
         self.last_joints_deg: np.ndarray | None = None
+        #: "socket" (TCP to SpherecalSocket.mod) or "serial" (SpherecalSerial.mod)
+        self.transport = "socket" if self.url.lower().startswith(SOCKET_SCHEME) else "serial"
         try:
-            self._serial = serial.serial_for_url(
-                self.url,
-                baudrate=config.baudrate,
-                bytesize=serial.EIGHTBITS,
-                parity=config.parity,
-                stopbits=config.stopbits,
-                timeout=min(config.timeout_s, _POLL_S),
-                write_timeout=config.timeout_s,
-            )
+            if self.transport == "socket":
+                self._serial = TcpLink(self.url, timeout=min(config.timeout_s, _POLL_S),
+                                       write_timeout=config.timeout_s, connect_timeout=config.timeout_s)
+            else:
+                self._serial = serial.serial_for_url(
+                    self.url,
+                    baudrate=config.baudrate,
+                    bytesize=serial.EIGHTBITS,
+                    parity=config.parity,
+                    stopbits=config.stopbits,
+                    timeout=min(config.timeout_s, _POLL_S),
+                    write_timeout=config.timeout_s,
+                )
         except (serial.SerialException, OSError, ValueError) as exc:
             self._closed = True
             if on_close is not None:
                 on_close()
-            raise DeviceError(
-                f"IRB 2400: cannot open {self.url!r} ({exc}); check robot.port and that the device exists"
-            ) from exc
+            what = ("that SpherecalSocket runs on the controller and listens on this address"
+                    if self.transport == "socket" else "that the device exists")
+            raise DeviceError(f"IRB 2400: cannot open {self.url!r} ({exc}); check robot.port and {what}") from exc
         # a reply of an earlier session may wait on the link: never take it for ours
         # (pyserial's own backends flush on open too; do not depend on it)
         try:
@@ -193,7 +206,7 @@ class AbbIrb2400Robot:
         return v_tcp, v_ori, duration
 
     def close(self) -> None:
-        """Close the serial link (and stop the simulated controller, if any). Idempotent."""
+        """Close the link (and stop the simulated controller, if any). Idempotent."""
         if self._closed:
             return
         self._closed = True
@@ -356,10 +369,15 @@ class AbbIrb2400Robot:
                         f"IRB 2400 on {self.url}: reply {msg.kind} to {kind} (seq {seq}); expected {expect}"
                     )
                 return msg
+        if self.transport == "socket":
+            check = ("Check that SpherecalServer is running on the controller and serves no other "
+                     "connection (it serves one at a time)")
+        else:
+            check = (f"Check the cable, the serial settings (baudrate {self.config.baudrate}, "
+                     f"parity {self.config.parity}) and that SpherecalServer is running on the controller")
         raise DeviceError(
             f"IRB 2400 on {self.url}: no valid reply to {kind} after {attempts} attempt(s); last problem: "
-            f"{problem}. Check the cable, the serial settings (baudrate {self.config.baudrate}, "
-            f"parity {self.config.parity}) and that SpherecalServer is running on the controller"
+            f"{problem}. {check}"
         )
 
     def _write(self, data: bytes) -> None:
@@ -395,9 +413,10 @@ class AbbIrb2400Robot:
 
     def _lost(self, exc: BaseException):
         self.close()
+        where = "the network" if self.transport == "socket" else "the cable"
         raise DeviceError(
-            f"IRB 2400 on {self.url}: connection lost ({exc}); check the cable and the controller, "
-            f"then create the robot again"
+            f"IRB 2400 on {self.url}: connection lost ({exc}); nothing is sent again: check {where} and the "
+            f"controller, then create the robot again"
         ) from exc
 
 

@@ -1,11 +1,19 @@
 """A simulated IRB 2400 controller that serves the spherecal line protocol over a real
-serial link: a TCP server on 127.0.0.1 (pyserial ``socket://127.0.0.1:PORT``) or a
-pseudo-terminal pair (the driver opens the slave device path).
+link, in one of three flavours (``SimulatedControllerSettings.transport``):
+
+* ``tcp``: the serial server's line carried over TCP on 127.0.0.1 (``socket://``), as a
+  serial device server would; a serial line has no sessions, so a reconnecting driver
+  finds the controller as it left it;
+* ``pty``: the serial server on a pseudo-terminal pair (the driver opens the slave
+  device path);
+* ``socket``: the IRC5 socket server (``SpherecalSocket.mod``) on 127.0.0.1
+  (``socket://``): one connection at a time (others wait in the listen backlog), and
+  every accepted connection is a new session, in which no target is staged.
 
 :class:`SimulatedIrb2400` is the controller logic (one request line in, one reply line
 out); :class:`SimulatorServer` runs it in a thread behind a transport and injects faults
 at runtime through :class:`Faults` (reply delay, dropped requests or replies, truncated
-replies, corrupted bytes, a disconnect).
+replies, corrupted bytes, the connection closed mid-request, a disconnect).
 
 Moves: a ``MOVL`` target becomes joints by inverse kinematics (the solution nearest the
 current joints, as the RAPID server's ``MoveL ... ConfL\\Off``); the true flange pose
@@ -100,6 +108,15 @@ class SimulatedIrb2400:
     line: bytes = b""  #: the RAPID ``line`` variable: the last line read, b"" after a failed read
     reads_without_line: int = 0  #: reads that ended without a line (timeouts, restarts)
     _reached: int | None = None  #: seq of the staged target once it has been moved to
+    #: the link session (``spherecal_link_session``): 1 on a serial line; on the socket
+    #: server, one more with every accepted connection
+    session: int = 1
+    _staged_session: int | None = None  #: the session the staged target was staged in
+
+    def new_session(self) -> None:
+        """The socket server accepted a new connection: a new session, in which a target
+        staged over an earlier connection is not moved to (``ERR 4``)."""
+        self.session += 1
 
     def handle(self, line: bytes) -> bytes:
         """One turn of the server's loop with ``line`` read: the reply to it (both with
@@ -188,6 +205,7 @@ class SimulatedIrb2400:
             return P.pose_reply(msg.seq, pose)
         if msg.kind == "TGT":
             self.staged = (msg.seq, P.parse_target_request(msg))
+            self._staged_session = self.session
             self._reached = None
             return P.ok_reply(msg.seq)
         if msg.kind == "MOVL":
@@ -219,6 +237,9 @@ class SimulatedIrb2400:
         if self.staged is None or self.staged[0] != target_seq:
             have = "none" if self.staged is None else self.staged[0]
             return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET, f"no target {target_seq} staged (have {have})")
+        if self._staged_session != self.session:
+            return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET,
+                                 f"target {target_seq} was staged over an earlier connection")
         if self._target_reached(target_seq):
             # moved there already (a MOVL resent after a lost reply, or left in the buffer):
             # never move to the same target twice, the arm may have been jogged since
@@ -262,6 +283,9 @@ class Faults:
     #: before the next request is read, N reads end without a line (ERR_DEV_MAXTIME), as
     #: after N quiet spells; not limited by only_kinds
     read_timeouts: int = 0
+    #: serve the next N requests, then close the connection instead of replying: the
+    #: controller drops the link mid-request (a move is made, its reply never sent)
+    close_before_reply: int = 0
 
 
 class SimulatorServer:
@@ -271,9 +295,9 @@ class SimulatorServer:
     manager or call :meth:`stop`; stopping closes every socket and file descriptor and
     joins the thread."""
 
-    def __init__(self, controller: SimulatedIrb2400, transport: Literal["tcp", "pty"] = "tcp"):
-        if transport not in ("tcp", "pty"):
-            raise ValueError(f"transport must be 'tcp' or 'pty', got {transport!r}")
+    def __init__(self, controller: SimulatedIrb2400, transport: Literal["tcp", "pty", "socket"] = "tcp"):
+        if transport not in ("tcp", "pty", "socket"):
+            raise ValueError(f"transport must be 'tcp', 'pty' or 'socket', got {transport!r}")
         self.controller = controller
         self.transport = transport
         self.faults = Faults()
@@ -288,10 +312,11 @@ class SimulatorServer:
         self._slave: int | None = None
         self.url = ""
         self.error: BaseException | None = None
+        self.connections = 0  #: connections accepted (tcp and socket)
 
     # lifecycle -----------------------------------------------------------------------
     def start(self) -> "SimulatorServer":
-        if self.transport == "tcp":
+        if self.transport in ("tcp", "socket"):
             self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self._listener.bind(("127.0.0.1", 0))
             self._listener.listen(1)
@@ -319,7 +344,8 @@ class SimulatorServer:
 
     def disconnect(self, timeout_s: float = 2.0) -> None:
         """Drop the connection now (the driver sees the link go away); returns once the
-        link is closed. A TCP server then accepts a new connection; a pty is gone."""
+        link is closed. A TCP server then accepts a new connection (on the socket server, a
+        new session); a pty is gone."""
         self._disconnected.clear()
         self._disconnect.set()
         if self.running and not self._disconnected.wait(timeout_s):  # pragma: no cover
@@ -364,6 +390,9 @@ class SimulatorServer:
                 continue
             conn, _ = self._listener.accept()
             self._conn = conn
+            self.connections += 1
+            if self.transport == "socket":  # SpherecalSocket.mod: a new connection, a new session
+                self.controller.new_session()
             self._disconnect.clear()
             self._serve_stream(lambda n: conn.recv(n), conn.sendall, conn.fileno())
             if self._conn is not None:
@@ -445,6 +474,9 @@ class SimulatorServer:
         if self._take("corrupt_requests", kind):
             line = _flip_byte(line)
         reply = self.controller.handle(line)
+        if self._take("close_before_reply", kind):
+            self._disconnect.set()  # the stream loop returns, and the link is closed
+            return
         delay = self.faults.reply_delay_s
         if self._take("late_replies", kind):
             delay += self.faults.late_reply_delay_s
