@@ -434,7 +434,10 @@ class SimulatorServer:
                 idx = buffer.index(b"\n")
                 line = bytes(buffer[: idx + 1])
                 del buffer[: idx + 1]
-                self._serve_line(line, send)
+                try:
+                    self._serve_line(line, send)
+                except OSError:  # the driver has gone while the reply was on its way
+                    return
                 if self._disconnect.is_set() or self._stop.is_set():
                     return
             if len(buffer) > 2 * P.MAX_LINE_CHARS:  # garbage without LF: answer and resync
