@@ -279,10 +279,7 @@ class _Parser:
             self.declare(t, "data", local or task, module_level)
         if self.at("{"):
             self.take()
-            self.expr()
-            while self.at(","):
-                self.take()
-                self.expr()
+            self.expr_list()
             self.expect("}", "the array size")
         if self.at(":="):
             self.take()
@@ -441,10 +438,7 @@ class _Parser:
             while self.at("CASE"):
                 self.take()
                 cases += 1
-                self.expr()
-                while self.at(","):
-                    self.take()
-                    self.expr()
+                self.expr_list()
                 self.expect(":", "CASE's values")
                 self.statements({"CASE", "DEFAULT", "ENDTEST"})
             if self.at("DEFAULT"):
@@ -516,6 +510,13 @@ class _Parser:
             self.skip_to_semicolon()
 
     # expressions ---------------------------------------------------------------------------
+    def expr_list(self) -> None:
+        """One or more expressions separated by commas."""
+        self.expr()
+        while self.at(","):
+            self.take()
+            self.expr()
+
     def expr(self) -> None:
         self.unary()
         while self.tok.kind in ("op", "word") and self.tok.up in _BINARY:
@@ -539,10 +540,7 @@ class _Parser:
             self.expect(")", "the expression in brackets")
         elif self.at("["):
             self.take()
-            self.expr()
-            while self.at(","):
-                self.take()
-                self.expr()
+            self.expr_list()
             self.expect("]", "the aggregate")
         elif t.kind == "name" and self.peek().text == "(":
             self.take()
@@ -564,10 +562,7 @@ class _Parser:
         self.ref("data", t)
         while self.at("{", "."):
             if self.take().text == "{":
-                self.expr()
-                while self.at(","):
-                    self.take()
-                    self.expr()
+                self.expr_list()
                 self.expect("}", f"the index of {t.text}")
             else:
                 self.name("a component name")
