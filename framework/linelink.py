@@ -77,7 +77,7 @@ def parse_socket_url(url: str) -> tuple[str, int]:
     host, sep, port = rest.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host  # [::1]
     if not sep or not host or any(c in rest for c in "/?#@ "):
-        raise ValueError(f"{url!r}: write a TCP port as socket://host:port (for example socket://192.168.125.1:5000)")
+        raise ValueError(f"{url!r}: write a TCP port as socket://host:port (for example socket://192.168.0.10:5000)")
     if not port.isdigit() or not 1 <= int(port) <= 65535:
         raise ValueError(f"{url!r}: the TCP port {port!r} must be a number 1..65535")
     return host, int(port)
