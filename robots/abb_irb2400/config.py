@@ -33,7 +33,7 @@ class WorkspaceBox(CoreWorkspaceBox):
 
 class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     """The simulated controller used when the run is simulated (a SimulatedCell is
-    given): it serves the same protocol over a real pyserial link on localhost (the
+    given): it serves the same protocol over a real link on localhost (the
     core's settings, :class:`spherecal.sim.controller.SimulatedControllerSettings`, with
     the IRB 2400's home joints and its RAPID server's links)."""
 
