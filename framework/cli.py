@@ -91,7 +91,8 @@ def cmd_solve(args) -> int:
     from . import dataio
     from .estimation import CalibrationOptions
     from .models import Pose
-    from .runner import solve_and_write, solve_kinematics, summary, truth_check
+    from .runner import (make_host, provenance_type, solve_and_write, solve_kinematics, solve_robot_type, summary,
+                         truth_check)
 
     dataset = dataio.read_dataset(args.dataset)
     if not dataset.observations:
@@ -99,9 +100,12 @@ def cmd_solve(args) -> int:
     nominal = None
     if args.nominal is not None:
         nominal = _parse_nominal(args.nominal)
-    fk, dataset, arm = solve_kinematics(
-        dataset, args.robot, Path(args.robot_config) if args.robot_config else None, args.pose_from
-    )
+    robot_config = Path(args.robot_config) if args.robot_config else None
+    host = make_host()
+    fk, dataset, arm = solve_kinematics(dataset, args.robot, robot_config, args.pose_from, host=host)
+    robot_type = solve_robot_type(dataset, args.robot, robot_config)
+    sensor_type = provenance_type(dataset, "sensor")
+    exports = host.export_plan(None, dataset.mounting, robot_type)
     options = CalibrationOptions(
         fit_radius=args.fit_radius, nominal_transform=nominal,
         station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
@@ -117,9 +121,12 @@ def cmd_solve(args) -> int:
         from .runner import check_output_folder
 
         check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
-                            "exports and report")
+                            "exports and report", exports)
     solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
-                                                report=not args.no_report, force=args.force, kinematics=arm)
+                                                report=not args.no_report, force=args.force, kinematics=arm,
+                                                exports=exports)
+    host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out, exports_written=written,
+                              robot_type=robot_type, sensor_type=sensor_type)
     print(summary(solution, graded))
     check = truth_check(solution, dataset)
     if check:

@@ -247,6 +247,28 @@ class SimulationConfig(_Section):
     )
 
 
+class ExportConfig(BaseModel):
+    """``[export]``: which exporters run and their settings. ``run`` lists exporters by
+    name (default: every installed exporter that applies to the mounting and robot type;
+    ``[]``: none, only ``result.json``); each ``[export.<exporter>]`` table holds one
+    exporter's settings, validated by the plugin host against that exporter's own model
+    (``spherecal plugins`` lists them). See docs/configuration.md."""
+
+    model_config = ConfigDict(frozen=True, extra="allow")
+
+    run: list[str] | None = Field(
+        None, description="exporters to run, by name (default: every one that applies to the run)"
+    )
+
+    @model_validator(mode="after")
+    def _tables(self):
+        for key, value in (self.model_extra or {}).items():
+            if not isinstance(value, dict):
+                raise ValueError(f"{key}: expected a table [export.{key}] of that exporter's settings, got "
+                                 f"{type(value).__name__}")
+        return self
+
+
 class RunConfig(_Section):
     """The root of a configuration file."""
 
@@ -264,6 +286,7 @@ class RunConfig(_Section):
     simulation: SimulationConfig | None = Field(None, description="simulate the cell instead of using hardware")
     validation: ValidationConfig | None = Field(None, description="settings of `spherecal validate`")
     scan: ScanConfig | None = Field(None, description="settings of `spherecal scan`")
+    export: ExportConfig = Field(default_factory=ExportConfig, description="exporters to run and their settings")
 
     @field_validator("robot", "sensor")
     @classmethod
@@ -369,12 +392,14 @@ def _unwrap(ann: Any) -> Any:
             return ann
 
 
-def _bool_problems(value: Any, keys: list, out: list[str]) -> None:
+def _bool_problems(value: Any, keys: list, out: list[str], root: type[BaseModel] = RunConfig,
+                   prefix: str = "") -> None:
     """true/false or a string where the model wants a number: TOML booleans and strings
-    are never numbers here (pydantic would read true as 1.0 and "19.1" as 19.1)."""
+    are never numbers here (pydantic would read true as 1.0 and "19.1" as 19.1). ``root``
+    is the model ``value`` is checked against; ``prefix`` leads every path in messages."""
     if isinstance(value, (bool, str)):
-        ann = _field_annotation(RunConfig, keys)
-        path = ".".join(str(k) if not isinstance(k, int) else f"[{k}]" for k in keys).replace(".[", "[")
+        ann = _field_annotation(root, keys)
+        path = prefix + ".".join(str(k) if not isinstance(k, int) else f"[{k}]" for k in keys).replace(".[", "[")
         if ann in (float, int):
             shown = str(value).lower() if isinstance(value, bool) else repr(value)
             out.append(f"{path}: {shown:.40} is a {'boolean' if isinstance(value, bool) else 'string'}; "
@@ -384,10 +409,19 @@ def _bool_problems(value: Any, keys: list, out: list[str]) -> None:
             out.append(f"{path}: {str(value).lower()} is a boolean; expected {getattr(ann, '__name__', ann)}")
     elif isinstance(value, dict):
         for k, v in value.items():
-            _bool_problems(v, [*keys, k], out)
+            _bool_problems(v, [*keys, k], out, root, prefix)
     elif isinstance(value, list):
         for i, v in enumerate(value):
-            _bool_problems(v, [*keys, i], out)
+            _bool_problems(v, [*keys, i], out, root, prefix)
+
+
+def not_numbers(table: Any, model: type[BaseModel], path: str) -> list[str]:
+    """Every boolean or string in ``table`` (parsed TOML) where ``model`` wants a number,
+    by dotted path under ``path``: pydantic would take them (true as 1.0, "2" as 2.0), a
+    hand-written file must not. For plugin-owned sections (``[export.<name>]``)."""
+    out: list[str] = []
+    _bool_problems(table, [], out, model, f"{path}.")
+    return out
 
 
 def read_toml(path, what: str = "configuration") -> dict:

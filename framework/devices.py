@@ -2,8 +2,8 @@
 
 The core talks to devices only through these interfaces; it never imports a plugin.
 A plugin registers a :class:`RobotType` or :class:`SensorType` (a name, a pydantic
-configuration model and a factory) through the ``spherecal_`` hooks in
-``spherecal.plugins.hookspec``.
+configuration model and a factory) through the ``spherecal_register_devices`` hook, one
+of the hooks in :mod:`spherecal.plugins.hookspecs`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,19 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @runtime_checkable
 class Robot(Protocol):
-    """A connected robot. Poses are ``base_from_flange`` (ABB: tool0 in wobj0), mm."""
+    """A connected robot. Poses are ``base_from_flange`` (the flange in the robot's base
+    frame, as its controller reports them), mm, quaternion (w, x, y, z).
+
+    Besides the four methods below a robot may have ``check_target(base_from_flange,
+    speed_mm_s) -> None``: a pre-motion check of one planned target against the robot's
+    own limits (reach, joint limits, workspace, speed) that moves nothing and raises a
+    :class:`~spherecal.errors.SpherecalError` naming the limit. A robot that has it joins
+    the plan check: ``calibrate`` (``--dry-run`` too), ``validate`` and ``scan`` call it for
+    every target of an automatic plan before the first motion, and refuse the whole plan, listing
+    each target at fault, when one fails. Without it only the configured limits
+    (``[acquisition]``) are checked before motion, and the robot's own limits only when
+    ``move_linear`` refuses a move. It is optional so that the runtime protocol check
+    (``isinstance(device, Robot)``) does not require it."""
 
     def read_flange_pose(self) -> Pose:
         """The flange pose now (robot standing still), ``base_from_flange``."""
@@ -40,9 +52,6 @@ class Robot(Protocol):
     def close(self) -> None:
         """Release the connection. Safe to call twice."""
 
-    # Optional: ``check_target(base_from_flange, speed_mm_s) -> None`` checks a planned
-    # target against the robot's own limits without moving and raises a SpherecalError
-    # naming the limit; the acquisition calls it for every target before any motion.
 
 
 @runtime_checkable

@@ -135,7 +135,7 @@ class Pose(BaseModel):
         return geo.matrix_from_rt(self.rotation_matrix, self.translation)
 
     def as_abb(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """(xyz in mm, quaternion (w, x, y, z)) as an ABB robtarget/tooldata wants them."""
+        """(xyz in mm, quaternion (w, x, y, z)) as an ABB robtarget wants them."""
         return self.translation_mm, self.quaternion_wxyz
 
     # algebra ---------------------------------------------------------------------------

@@ -24,25 +24,27 @@ from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
 JOURNAL_NAME = "journal.jsonl"
 RESULT_NAME = "result.json"
-#: What a calibration writes into its folder (the exports are named after the transform).
-OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png", "*.mod", "ros_static_transform.*",
-                   "*_from_*_4x4.txt", "*_from_*_xyz_quat_wxyz.txt")
+#: What a calibration writes into its folder besides its exporters' files (an
+#: :class:`~spherecal.exporters.ExportPlan` gives theirs).
+OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png")
 
 
-def existing_outputs(out: Path) -> list[Path]:
-    """The files in ``out`` that writing a calibration there would replace (links too)."""
+def existing_outputs(out: Path, patterns: tuple[str, ...] = ()) -> list[Path]:
+    """The files in ``out`` that writing a calibration there would replace (links too):
+    :data:`OUTPUT_PATTERNS` and the exporters' ``patterns``."""
     if not out.is_dir():
         return []
-    found = {p for pattern in OUTPUT_PATTERNS for p in out.glob(pattern)}
+    found = {p for pattern in (*OUTPUT_PATTERNS, *patterns) for p in out.glob(pattern)}
     return sorted(found)
 
 
-def check_output_folder(out: Path, what: str, how: str) -> None:
+def check_output_folder(out: Path, what: str, how: str, exports=None) -> None:
     """Refuse (InputError naming the file) to write a calibration into ``out`` when that
-    would replace a file already there: ``what`` is the command, ``how`` how to proceed."""
+    would replace a file already there: ``what`` is the command, ``how`` how to proceed,
+    ``exports`` the run's :class:`~spherecal.exporters.ExportPlan` (its files count too)."""
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} is not a folder: give an output folder")
-    found = existing_outputs(out)
+    found = existing_outputs(out, exports.file_patterns() if exports is not None else ())
     journal = out / JOURNAL_NAME
     if found:
         kind = "a calibration run" if journal.exists() else "a result"
@@ -93,6 +95,17 @@ def make_host(enable: list[str] | None = None):
     from spherecal.plugins.host import PluginHost
 
     return PluginHost(enable=enable) if enable else PluginHost()
+
+
+def export_plan(loaded: LoadedConfig, host, log: Callable[[str], None] | None = None):
+    """The exporters of a configured run (``[export]``), checked before anything moves;
+    ``log`` hears which exporters were left out and why."""
+    cfg = loaded.config
+    plan = _in_file(loaded, host.export_plan, cfg.export, cfg.mounting, cfg.robot["type"])
+    if log is not None:
+        for why in plan.left_out.values():
+            log(f"export: {why}")
+    return plan
 
 
 def _in_file(loaded: LoadedConfig, fn, *args, **kwargs):
@@ -289,6 +302,7 @@ def run_calibrate(
     fk = _in_file(loaded, host.robot_kinematics, cfg.robot, base_dir=loaded.path.parent)
     arm = robot_arm(loaded, host)
     _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
+    exports = export_plan(loaded, host, log)
     outcome = Outcome()
 
     if resume and (out / RESULT_NAME).exists():
@@ -298,7 +312,7 @@ def run_calibrate(
     if cfg.replay is not None:
         path = loaded.resolve(cfg.replay)
         if not dry_run:
-            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
+            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)", exports)
         log(f"replaying {path}")
         dataset = dataio.read_dataset(path)
         if dataset.mounting != cfg.mounting:
@@ -332,7 +346,7 @@ def run_calibrate(
                 "or choose another output_dir (nothing is ever overwritten)"
             )
         if not journal.exists():
-            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)")
+            check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)", exports)
         cell = make_cell(cfg, arm)
         if not manual and cell is None:
             confirm_motion("calibrate", f"{len(targets)} shots in {len(set(t.station for t in targets))} stations "
@@ -376,7 +390,8 @@ def run_calibrate(
                 journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                 provenance=provenance, resume=journal.exists(), fsync=True,
             ) as writer:
-                notify = lambda obs: host.observation_taken(observation=obs)  # noqa: E731
+                kinds = {"robot_type": cfg.robot["type"], "sensor_type": cfg.sensor["type"]}
+                notify = lambda obs: host.observation_taken(observation=obs, **kinds)  # noqa: E731
                 if manual:
                     rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
                                          rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance(),
@@ -388,12 +403,14 @@ def run_calibrate(
         for s in rep.skipped:
             log(f"skipped {s}")
         dataset = dataio.read_dataset(journal)
-        host.acquisition_finished(dataset=dataset)
+        host.acquisition_finished(dataset=dataset, robot_type=cfg.robot["type"], sensor_type=cfg.sensor["type"])
         outcome.files["journal"] = journal
 
     solution, outcome.verdict, outcome.exports_written = solve_and_write(
-        dataset, calibration_options(cfg), out, fk, log, report=report, force=force, kinematics=arm)
-    host.calibration_finished(result=solution.result, dataset=dataset)
+        dataset, calibration_options(cfg), out, fk, log, report=report, force=force, kinematics=arm, exports=exports)
+    host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out,
+                              exports_written=outcome.exports_written, robot_type=cfg.robot["type"],
+                              sensor_type=cfg.sensor["type"])
     outcome.solution = solution
     outcome.files.update(written_files(out))
     return outcome
@@ -403,13 +420,27 @@ def written_files(out: Path) -> dict[str, Path]:
     return {p.name: p for p in sorted(out.iterdir()) if p.is_file()} if out.exists() else {}
 
 
-def _provenance_robot_type(dataset: Dataset) -> str | None:
-    """The robot type a dataset's provenance names (``"robot": "abb_irb2400"`` as
-    ``spherecal calibrate`` writes it, or ``"robot": {"type": ...}``), or None."""
-    robot = dataset.provenance.get("robot")
+def provenance_type(dataset: Dataset, kind: str = "robot") -> str | None:
+    """The robot (or, with ``kind="sensor"``, sensor) type a dataset's provenance names
+    (``"robot": "abb_irb2400"`` as ``spherecal calibrate`` writes it, or ``"robot":
+    {"type": ...}``), or None."""
+    robot = dataset.provenance.get(kind)
     if isinstance(robot, dict):
         robot = robot.get("type")
     return robot if isinstance(robot, str) and robot else None
+
+
+def solve_robot_type(dataset: Dataset, robot_type: str | None = None, robot_config: Path | None = None) -> str | None:
+    """The robot type of a ``spherecal solve``: ``robot_type`` (``--robot``), else the
+    ``type`` of ``robot_config``, else the one the dataset's provenance names; None when
+    nothing says (then every exporter for the mounting runs)."""
+    if robot_type:
+        return robot_type
+    if robot_config is not None:
+        given = read_robot_section(robot_config).get("type")
+        if isinstance(given, str) and given:
+            return given
+    return provenance_type(dataset)
 
 
 def read_robot_section(path: Path) -> dict:
@@ -451,7 +482,7 @@ def solve_kinematics(
     name, where = (robot_type, "--robot") if robot_type else (given, f"{robot_config}: robot.type")
     needed = pose_from == "joints" or any(o.base_from_flange is None for o in dataset.observations)
     if name is None:
-        name, where = _provenance_robot_type(dataset), "the dataset's provenance robot"
+        name, where = provenance_type(dataset), "the dataset's provenance robot"
         if name is None or not needed:
             if pose_from == "joints":
                 raise ConfigError("--pose-from joints needs the robot's kinematics: give --robot TYPE "
@@ -504,21 +535,25 @@ def solve_and_write(
     report: bool = True,
     force: bool = False,
     kinematics=None,
+    exports=None,
 ) -> tuple[Solution, "Verdict", bool]:
     """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
     ``result.json``, the exports and the HTML report in ``out``. A RED result's
     ``result.json`` and exports are written only with ``force``; its report is written
     (it says why). Returns the solution, its verdict and whether the result and exports
     were written. ``kinematics``: the robot's arm model, for the kinematic robot error
-    model."""
+    model. ``exports``: the run's :class:`~spherecal.exporters.ExportPlan` (None: every
+    installed exporter for the mounting, with default settings)."""
+    from .exporters import write_exports
+
     solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
     graded = assess_solution(solution, dataset, options, fk, log)
-    from .report.export import write_exports
-
+    if exports is None:
+        exports = make_host().export_plan(None, dataset.mounting, None)
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
     if written:
-        write_exports(solution.result, out, overwrite=True)  # result.json among them; derived files only
+        write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
         urdf = write_calibrated_urdf(solution, kinematics, out)
         if urdf is not None:
             log(f"calibrated robot model: {urdf}")
@@ -528,7 +563,7 @@ def solve_and_write(
         except ImportError:  # pragma: no cover
             write_report = None
         if write_report is not None:
-            write_report(solution, out, verdict_override=graded)
+            write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result))
     return solution, graded, written
 
 
@@ -779,6 +814,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     log(f"validating {result_path}: {len(sweeps)} sweeps, {len(targets)} shots")
     _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
+    exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
     cell = make_cell(cfg, robot_arm(loaded, host))
     if cell is None:
         confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
@@ -818,7 +854,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
         if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
             from .report.html import write_report
 
-            write_report(solution, out, validation=outcome.table())
+            write_report(solution, out, validation=outcome.table(),
+                         notes=exports.notes(solution.result))
         else:
             log(f"report.html not updated: {result_path} is not the calibration of {calib_journal}")
     return outcome

@@ -1,5 +1,6 @@
-"""The plugin host: loads plugins, keeps the registry of robot and sensor types,
-validates their configuration sections and creates devices.
+"""The plugin host: loads plugins, keeps the registries of robot and sensor types and of
+exporters, validates their configuration sections, creates devices and chooses the
+exporters of a run.
 
 The rest of spherecal talks to plugins only through :class:`PluginHost`; nothing else
 touches the pluggy plugin manager. A host is built per run (there is no module-level
@@ -7,7 +8,8 @@ manager), so two hosts never share state::
 
     host = PluginHost()                      # built-ins + installed third-party plugins
     robot = host.create_robot({"type": "abb_irb2400", ...}, context)
-    host.observation_taken(observation=obs)  # lifecycle hooks: keyword arguments only
+    host.observation_taken(observation=obs, robot_type="abb_irb2400")  # keyword arguments only
+    plan = host.export_plan(config.export, "eye_in_hand", "abb_irb2400")  # the run's exporters
 
 Where plugins come from
 -----------------------
@@ -43,6 +45,7 @@ from pydantic_core import PydanticUndefined
 
 from spherecal.devices import DeviceContext, Robot, RobotType, Sensor, SensorType
 from spherecal.errors import ConfigError, PluginError, SpherecalError
+from spherecal.exporters import MOUNTINGS, TEMPLATE_FIELDS, Exporter, ExportPlan, SelectedExporter
 
 from . import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
 from . import hookspecs as _hookspec_module
@@ -113,6 +116,18 @@ class DeviceDescription:
     has_kinematics: bool = False
 
 
+@dataclass(frozen=True)
+class ExporterDescription:
+    """An installed exporter, for listings (``spherecal plugins``)."""
+
+    name: str
+    plugin: str
+    description: str
+    files: tuple[str, ...]
+    applies: str
+    fields: tuple[FieldDescription, ...]
+
+
 # ---------------------------------------------------------------------------------------
 # Registry (handed to spherecal_register_devices)
 # ---------------------------------------------------------------------------------------
@@ -128,6 +143,8 @@ class DeviceRegistry:
         self._sensors: dict[str, SensorType] = {}
         self._provider: dict[tuple[str, str], str] = {}
         self._current_plugin: str | None = None
+        #: Third-party entry points installed but not loaded (autoload off), for messages.
+        self.not_loaded: tuple[str, ...] = ()
 
     # used by plugins -------------------------------------------------------------------
     def add_robot(self, robot_type: RobotType) -> None:
@@ -171,10 +188,15 @@ class DeviceRegistry:
             close = difflib.get_close_matches(name, list(table), n=1)
             if close:
                 hint = f" Did you mean '{close[0]}'?"
-        raise ConfigError(
-            f"{path}: unknown {kind} type {name!r}; installed {kind} types: {available}.{hint} "
-            f"Fix the name, or install the plugin that provides it (list them with `spherecal plugins`)."
-        )
+        if self.not_loaded:
+            advice = (
+                f"Third-party plugins are not loaded because {DISABLE_AUTOLOAD_ENV} is set (installed but not "
+                f"loaded: {', '.join(self.not_loaded)}): if one of them provides it, unset {DISABLE_AUTOLOAD_ENV} "
+                f"or enable that plugin by name (PluginHost(enable=[...]))."
+            )
+        else:
+            advice = "Fix the name, or install the plugin that provides it (list them with `spherecal plugins`)."
+        raise ConfigError(f"{path}: unknown {kind} type {name!r}; installed {kind} types: {available}.{hint} {advice}")
 
     def _add(self, kind: DeviceKind, item: Any, cls: type, table: dict) -> None:
         plugin = self._current_plugin or "<unknown plugin>"
@@ -218,6 +240,86 @@ class DeviceRegistry:
             )
         table[name] = item
         self._provider[(kind, name)] = plugin
+
+
+# ---------------------------------------------------------------------------------------
+# Exporter registry (handed to spherecal_register_exporters)
+# ---------------------------------------------------------------------------------------
+#: The key of ``[export]`` that lists the exporters to run (so no exporter may be called so).
+EXPORT_RUN_KEY = "run"
+
+
+class ExporterRegistry:
+    """Exporters by name, and which plugin provided each. Plugins add to it from
+    ``spherecal_register_exporters(registry)`` with :meth:`add_exporter`."""
+
+    def __init__(self) -> None:
+        self._exporters: dict[str, Exporter] = {}
+        self._provider: dict[str, str] = {}
+        self._current_plugin: str | None = None
+
+    def add_exporter(self, exporter: Exporter) -> None:
+        """Register a :class:`~spherecal.exporters.Exporter`. Its name must be new."""
+        plugin = self._current_plugin or "<unknown plugin>"
+        where = f"plugin '{plugin}'"
+        if not isinstance(exporter, Exporter):
+            raise PluginError(f"{where} passed {type(exporter).__name__} to registry.add_exporter(); "
+                              "expected a spherecal.exporters.Exporter")
+        name = exporter.name
+        if not isinstance(name, str) or not _TYPE_NAME_RE.match(name) or name == EXPORT_RUN_KEY:
+            raise PluginError(f"{where} registered an exporter named {name!r}; an exporter name must be lower case "
+                              f"letters, digits and underscores, starting with a letter, and not "
+                              f"'{EXPORT_RUN_KEY}' (e.g. 'abb_rapid')")
+        model = exporter.settings_model
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            raise PluginError(f"{where}: exporter '{name}' has settings_model {model!r}; expected a pydantic "
+                              "BaseModel subclass")
+        if model.model_config.get("extra") != "forbid":
+            raise PluginError(f"{where}: the settings_model {model.__name__} of exporter '{name}' must set "
+                              "model_config = ConfigDict(extra='forbid', frozen=True), so that a misspelled setting "
+                              "is an error rather than silently ignored")
+        if not (isinstance(exporter.files, tuple) and exporter.files and all(isinstance(f, str) for f in exporter.files)):
+            raise PluginError(f"{where}: exporter '{name}' must declare its files as a non-empty tuple of file-name "
+                              f"templates, got {exporter.files!r}")
+        try:
+            unknown = exporter.template_fields() - set(TEMPLATE_FIELDS) - set(model.model_fields)
+        except ValueError as exc:
+            raise PluginError(f"{where}: exporter '{name}' has a malformed file-name template: {exc}") from None
+        if unknown:
+            raise PluginError(f"{where}: the file names of exporter '{name}' use {sorted(unknown)}, which are neither "
+                              f"{', '.join(TEMPLATE_FIELDS)} nor fields of {model.__name__}")
+        if not exporter.mountings or any(m not in MOUNTINGS for m in exporter.mountings):
+            raise PluginError(f"{where}: exporter '{name}' has mountings {exporter.mountings!r}; give some of "
+                              f"{', '.join(MOUNTINGS)}")
+        rt = exporter.robot_types
+        if rt is not None and not (isinstance(rt, tuple) and rt and all(isinstance(t, str) for t in rt)):
+            raise PluginError(f"{where}: exporter '{name}' has robot_types {rt!r}; give a non-empty tuple of robot "
+                              "type names, or None for any robot")
+        if not callable(exporter.write) or not (exporter.note is None or callable(exporter.note)):
+            raise PluginError(f"{where}: exporter '{name}': write (and note, when given) must be callable")
+        if name in self._exporters:
+            raise PluginError(f"exporter '{name}' is registered twice: by plugin '{self._provider[name]}' and by "
+                              f"plugin '{plugin}'. Uninstall one of the two, or disable one")
+        self._exporters[name] = exporter
+        self._provider[name] = plugin
+
+    @property
+    def exporters(self) -> Mapping[str, Exporter]:
+        return types.MappingProxyType(self._exporters)
+
+    def provider(self, name: str) -> str:
+        """Name of the plugin that registered the exporter."""
+        return self._provider[name]
+
+    def exporter(self, name: Any, path: str) -> Exporter:
+        """The exporter called ``name``; a :class:`ConfigError` at ``path`` listing the
+        installed ones if there is none."""
+        if isinstance(name, str) and name in self._exporters:
+            return self._exporters[name]
+        close = difflib.get_close_matches(name, list(self._exporters), n=1) if isinstance(name, str) else []
+        hint = f" Did you mean '{close[0]}'?" if close else ""
+        raise ConfigError(f"{path}: unknown exporter {name!r}; installed exporters: "
+                          f"{', '.join(sorted(self._exporters)) or 'none'}.{hint}")
 
 
 # ---------------------------------------------------------------------------------------
@@ -336,6 +438,16 @@ def _format_loc(path: str, loc: Sequence[Any]) -> str:
     return text
 
 
+def _field_description(model: type[BaseModel], loc: Sequence[Any]) -> str:
+    info = model.model_fields.get(loc[0]) if loc and isinstance(loc[0], str) else None
+    return (info.description if info is not None and info.description else "required")
+
+
+def _applies_text(exporter: Exporter) -> str:
+    robots = "any robot" if exporter.robot_types is None else "robot types " + ", ".join(exporter.robot_types)
+    return f"it is for {' and '.join(exporter.mountings)}, {robots}"
+
+
 def format_validation_error(error: ValidationError, path: str, model: type[BaseModel]) -> list[str]:
     """One line per pydantic error: ``<dotted path>: <message> (got <input>)``."""
     lines = []
@@ -376,7 +488,8 @@ class PluginHost:
     :param enable: names of third-party entry points to load even when autoloading is off.
     :param environ: the environment to read (default ``os.environ``).
     :raises PluginError: a plugin failed to import, to register, has a misspelled hook,
-        raised in ``spherecal_register_devices`` or registered a bad or duplicate type.
+        raised in ``spherecal_register_devices`` or ``spherecal_register_exporters``, or
+        registered a bad or duplicate device type or exporter.
     """
 
     def __init__(
@@ -392,6 +505,7 @@ class PluginHost:
         self._pm.add_hookspecs(_hookspec_module)
         self._infos: dict[str, PluginInfo] = {}
         self.registry = DeviceRegistry()
+        self.exporters = ExporterRegistry()
         if autoload is None:
             autoload = not autoload_disabled(environ)
         self.autoload = autoload
@@ -408,7 +522,8 @@ class PluginHost:
                 name = getattr(plugin, "__name__", None) or type(plugin).__name__
             self._register(plugin, PluginInfo(name=name, module=_module_name(plugin), source="registered"))
         self._check_pending()
-        self._collect_devices()
+        self._collect("spherecal_register_devices", self.registry)
+        self._collect("spherecal_register_exporters", self.exporters)
 
     # loading ---------------------------------------------------------------------------
     def _load_entry_points(self, autoload: bool, enable: set[str]) -> None:
@@ -421,12 +536,14 @@ class PluginHost:
                 f"'{ENTRY_POINT_GROUP}'; installed: {', '.join(sorted(names)) or 'none'}"
             )
         seen: set[tuple[str, str]] = set()
+        not_loaded: list[str] = []
         for ep in sorted(found, key=lambda e: (not e.value.startswith(BUILTIN_MODULE_PREFIX), e.name)):
             if (ep.name, ep.value) in seen:
                 continue  # the same distribution seen twice on sys.path
             seen.add((ep.name, ep.value))
             builtin = ep.value.startswith(BUILTIN_MODULE_PREFIX)
             if not builtin and not autoload and ep.name not in enable:
+                not_loaded.append(ep.name)
                 continue
             dist = getattr(ep, "dist", None)
             dist_text = f"{dist.name} {dist.version}" if dist is not None else None
@@ -447,6 +564,7 @@ class PluginHost:
                     f"{info.label()} failed to import: {type(exc).__name__}: {exc}.{hint}"
                 ) from exc
             self._register(plugin, info)
+        self.registry.not_loaded = tuple(sorted(set(not_loaded)))
 
     def _register(self, plugin: object, info: PluginInfo) -> None:
         if info.name in self._infos:
@@ -480,31 +598,27 @@ class PluginHost:
                 )
         self._pm.check_pending()  # belt and braces: pluggy's own check
 
-    def _collect_devices(self) -> None:
-        caller = self._pm.hook.spherecal_register_devices
+    def _collect(self, hook_name: str, registry) -> None:
+        """Call a registration hook one plugin at a time, so that the registry knows who
+        registers what."""
+        caller = getattr(self._pm.hook, hook_name)
         impls = caller.get_hookimpls()
         all_plugins = [impl.plugin for impl in impls]
-        # One plugin at a time, so that the registry knows who registers what.
         for impl in impls:  # get_hookimpls() lists them in registration order
-            only = self._pm.subset_hook_caller(
-                "spherecal_register_devices", [p for p in all_plugins if p is not impl.plugin]
-            )
-            self.registry._current_plugin = impl.plugin_name
+            only = self._pm.subset_hook_caller(hook_name, [p for p in all_plugins if p is not impl.plugin])
+            registry._current_plugin = impl.plugin_name
             try:
-                only(registry=self.registry)
+                only(registry=registry)
             except SpherecalError as exc:
                 if isinstance(exc, PluginError):
                     raise
-                raise PluginError(
-                    f"{self._infos[impl.plugin_name].label()} failed in spherecal_register_devices: {exc}"
-                ) from exc
+                raise PluginError(f"{self._infos[impl.plugin_name].label()} failed in {hook_name}: {exc}") from exc
             except Exception as exc:
                 raise PluginError(
-                    f"{self._infos[impl.plugin_name].label()} raised in spherecal_register_devices: "
-                    f"{type(exc).__name__}: {exc}"
+                    f"{self._infos[impl.plugin_name].label()} raised in {hook_name}: {type(exc).__name__}: {exc}"
                 ) from exc
             finally:
-                self.registry._current_plugin = None
+                registry._current_plugin = None
 
     # hooks -----------------------------------------------------------------------------
     def _call(self, hook_name: str, **kwargs: Any) -> list[Any]:
@@ -528,17 +642,22 @@ class PluginHost:
         names = ", ".join(f"'{impl.plugin_name}'" for impl in impls)
         return f"one of the plugins {names}"
 
-    def observation_taken(self, *, observation) -> None:
+    def observation_taken(self, *, observation, robot_type: str | None = None, sensor_type: str | None = None) -> None:
         """Call ``spherecal_observation_taken`` (see :mod:`spherecal.plugins.hookspecs`)."""
-        self._call("spherecal_observation_taken", observation=observation)
+        self._call("spherecal_observation_taken", observation=observation, robot_type=robot_type,
+                   sensor_type=sensor_type)
 
-    def acquisition_finished(self, *, dataset) -> None:
+    def acquisition_finished(self, *, dataset, robot_type: str | None = None, sensor_type: str | None = None) -> None:
         """Call ``spherecal_acquisition_finished``."""
-        self._call("spherecal_acquisition_finished", dataset=dataset)
+        self._call("spherecal_acquisition_finished", dataset=dataset, robot_type=robot_type, sensor_type=sensor_type)
 
-    def calibration_finished(self, *, result, dataset) -> None:
-        """Call ``spherecal_calibration_finished``."""
-        self._call("spherecal_calibration_finished", result=result, dataset=dataset)
+    def calibration_finished(self, *, result, dataset, out_dir=None, exports_written: bool = False,
+                             robot_type: str | None = None, sensor_type: str | None = None) -> None:
+        """Call ``spherecal_calibration_finished``; ``out_dir`` None: no files were written
+        (then ``exports_written`` is False too)."""
+        self._call("spherecal_calibration_finished", result=result, dataset=dataset, out_dir=out_dir,
+                   exports_written=bool(exports_written and out_dir is not None), robot_type=robot_type,
+                   sensor_type=sensor_type)
 
     # plugins ---------------------------------------------------------------------------
     @property
@@ -677,6 +796,95 @@ class PluginHost:
         describe = self.registry.robot_type(type_name).arm_kinematics
         return None if describe is None else describe(config)
 
+    # exporters -------------------------------------------------------------------------
+    def export_plan(self, section: Mapping[str, Any] | BaseModel | None, mounting: str, robot_type: str | None,
+                    path: str = "export") -> ExportPlan:
+        """The exporters a run uses, with their validated settings.
+
+        :param section: the ``[export]`` section (a mapping, or the configuration's
+            ``ExportConfig``; None: all defaults): ``run`` lists the exporters to run
+            (default: every installed one that applies), and each ``[export.<name>]``
+            table holds one exporter's settings.
+        :param mounting: the run's mounting mode.
+        :param robot_type: the run's robot type, None when not known (then every exporter
+            for the mounting applies).
+        :param path: where the section sits in the configuration, for messages.
+        :return: an :class:`~spherecal.exporters.ExportPlan`: the robot's own exporters
+            first, then the others by name; ``left_out`` says why an exporter that would
+            have run by default did not (its required settings are missing).
+        :raises ConfigError: an unknown exporter (listed or with a settings table), one
+            listed in ``run`` that does not apply to this mounting or robot, a listed one
+            whose required settings are missing, or invalid settings; every message names
+            the key at fault (``export.abb_rapid.mass_kg: ...``).
+        """
+        if isinstance(section, BaseModel):
+            section = {**section.model_dump(exclude_none=True, exclude=set(section.model_extra or {})),
+                       **(section.model_extra or {})}
+        section = dict(section or {})
+        run = section.pop(EXPORT_RUN_KEY, None)
+        reg = self.exporters
+        given = {}
+        for name, table in section.items():  # every table is checked, for this run's exporters or not
+            e = reg.exporter(name, f"{path}.{name}")
+            if not isinstance(table, Mapping):
+                raise ConfigError(f"{path}.{name}: expected a table [{path}.{name}] of the exporter's settings, got "
+                                  f"{type(table).__name__}")
+            given[name] = self._export_settings(e, table, f"{path}.{name}")
+        if run is not None:
+            if not isinstance(run, (list, tuple)) or not all(isinstance(n, str) for n in run):
+                raise ConfigError(f"{path}.{EXPORT_RUN_KEY}: expected a list of exporter names, got {run!r:.60}")
+            dupes = sorted({n for n in run if list(run).count(n) > 1})
+            if dupes:
+                raise ConfigError(f"{path}.{EXPORT_RUN_KEY}: {', '.join(dupes)} listed twice")
+            for k, name in enumerate(run):
+                e = reg.exporter(name, f"{path}.{EXPORT_RUN_KEY}[{k}]")
+                if not e.applies_to(mounting, robot_type):
+                    raise ConfigError(f"{path}.{EXPORT_RUN_KEY}[{k}]: exporter '{name}' does not apply to this run "
+                                      f"({_applies_text(e)}; the run is {mounting} with robot type "
+                                      f"{robot_type or 'unknown'}): remove it")
+            names = list(run)
+        else:
+            names = [n for n, e in reg.exporters.items() if e.applies_to(mounting, robot_type)]
+        selected, left_out = [], {}
+        for name in names:
+            e = reg.exporters[name]
+            where = f"{path}.{name}"
+            settings = given[name] if name in given else self._export_settings(e, {}, where)
+            if isinstance(settings, list):  # required settings missing
+                why = (f"exporter '{name}' (plugin '{reg.provider(name)}') needs settings: " + "; ".join(settings)
+                       + f". Set them in [{where}]")
+                if run is not None:
+                    raise ConfigError(why)
+                left_out[name] = why + f", or list the exporters to run in {path}.{EXPORT_RUN_KEY}"
+                continue
+            selected.append(SelectedExporter(e, settings, reg.provider(name)))
+        own = [s for s in selected if s.exporter.robot_types is not None]
+        rest = sorted((s for s in selected if s.exporter.robot_types is None), key=lambda s: s.name)
+        return ExportPlan(tuple(sorted(own, key=lambda s: s.name) + rest), left_out, robot_type)
+
+    def _export_settings(self, exporter: Exporter, table: Mapping[str, Any], where: str):
+        """The validated settings, or the list of missing required settings (one line
+        each, with their description); ConfigError for any other problem."""
+        from spherecal.config import not_numbers
+
+        model = exporter.settings_model
+        problems = not_numbers(dict(table), model, where)
+        if problems:
+            raise ConfigError("\n  ".join([f"invalid settings for exporter '{exporter.name}' (plugin "
+                                           f"'{self.exporters.provider(exporter.name)}'):", *problems]))
+        try:
+            return model.model_validate(dict(table))
+        except ValidationError as exc:
+            errors = exc.errors(include_url=False)
+            if all(err.get("type") == "missing" and len(err["loc"]) == 1 and err["loc"][0] not in table
+                   for err in errors):
+                return [f"{_format_loc(where, err['loc'])} ({_field_description(model, err['loc'])})"
+                        for err in errors]
+            lines = format_validation_error(exc, where, model)
+            head = (f"invalid settings for exporter '{exporter.name}' (plugin '{self.exporters.provider(exporter.name)}'), "
+                    f"{len(lines)} error{'s' if len(lines) != 1 else ''}:")
+            raise ConfigError("\n  ".join([head, *lines])) from None
+
     # listing ---------------------------------------------------------------------------
     def describe(self) -> list[DeviceDescription]:
         """Every installed robot and sensor type with its configuration fields, robots
@@ -697,8 +905,18 @@ class PluginHost:
                 )
         return out
 
+    def describe_exporters(self) -> list[ExporterDescription]:
+        """Every installed exporter with its files, what it applies to and its settings
+        (``[export.<name>]``), sorted by name."""
+        reg = self.exporters
+        return [ExporterDescription(name=n, plugin=reg.provider(n), description=e.description, files=e.files,
+                                    applies=_applies_text(e).removeprefix("it is "),
+                                    fields=tuple(_describe_fields(e.settings_model)))
+                for n, e in sorted(reg.exporters.items())]
+
     def format_description(self) -> str:
-        """:meth:`describe` as text, for a ``spherecal plugins`` command."""
+        """:meth:`describe` and :meth:`describe_exporters` as text, for a ``spherecal
+        plugins`` command."""
         lines = ["plugins:"]
         for info in self.plugins:
             lines.append(f"  {info.name}: {info.source}, {info.module}"
@@ -711,4 +929,11 @@ class PluginHost:
                 default = "required" if f.required else f"default {f.default!r}"
                 extra = f", {f.constraints}" if f.constraints else ""
                 lines.append(f"    {f.name} ({f.type}, {default}{extra}): {f.description}")
+        for e in self.describe_exporters():
+            lines.append(f"exporter '{e.name}' (plugin '{e.plugin}'): {e.description}; {e.applies}; "
+                         f"writes {', '.join(e.files)}")
+            for f in e.fields:
+                default = "required" if f.required else f"default {f.default!r}"
+                extra = f", {f.constraints}" if f.constraints else ""
+                lines.append(f"    export.{e.name}.{f.name} ({f.type}, {default}{extra}): {f.description}")
         return "\n".join(lines)

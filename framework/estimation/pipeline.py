@@ -72,8 +72,9 @@ class CalibrationOptions(BaseModel):
         "auto", description="the robot's systematic error (docs/estimation.md): 'kinematic': the arm's geometric "
         "error (joint zero offsets, joint origins, axis tilts), from each shot's joints through the robot's "
         "kinematics, marginalised; 'station': a pose offset shared by the shots of a station, marginalised; "
-        "'kinematic+station': both; 'none': pose noise only; 'auto': kinematic when the joints and the robot's "
-        "kinematics are known, else station"
+        "'kinematic+station': both; 'none': pose noise only; 'auto': with the joints and the robot's kinematics "
+        "known, kinematic when the data show the arm's geometric error (else pose noise only, the arm's geometry "
+        "considered in the uncertainty), without them station"
     )
     identify_kinematics: bool = Field(
         False, description="estimate the arm's identifiable geometric errors (kinematic calibration, "

@@ -1,8 +1,10 @@
 """Reports and exports of calibration results.
 
-- :mod:`.export`: the result as 4x4 matrices (both directions), xyz + ABB quaternion,
-  a RAPID tooldata/wobjdata declaration, a ROS 2 static transform and JSON, each with a
-  reader; :func:`write_exports` writes them all.
+- :mod:`.export`: the core's brand-free exports, the result as 4x4 matrices (both
+  directions), xyz + quaternion (w, x, y, z), ROS 2 (static transform command, YAML,
+  launch file, URDF joint) and JSON, each with a reader, and the built-in plugin that
+  registers them as exporters; :func:`write_exports` (:mod:`spherecal.exporters`) writes
+  the files of any exporters, a robot plugin's included.
 - :mod:`.assess`: the green/amber/red verdict and the advice driven by the diagnostics.
 - :mod:`.html`: :func:`write_report`, a self-contained HTML report (imports matplotlib,
   so it is loaded on first use).
@@ -11,7 +13,7 @@ See docs/results.md.
 """
 
 from .assess import Advice, Thresholds, Verdict, advice, verdict
-from .export import write_exports
+from ..exporters import write_exports
 
 __all__ = ["Advice", "Thresholds", "Verdict", "advice", "verdict", "write_exports", "write_report"]
 

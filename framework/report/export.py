@@ -1,64 +1,82 @@
-"""Exports of a :class:`~spherecal.models.CalibrationResult` in the forms people load.
+"""The core's exports of a :class:`~spherecal.models.CalibrationResult`, brand-free, and
+the built-in plugin that registers them as exporters.
 
 Every export is a pure function returning text, and every one has a reader here that
 parses it back (the tests check each export against the result it came from):
 
-========================  =====================================  ===========================
-export                    writer                                 reader
-========================  =====================================  ===========================
-4x4 matrices, both ways   :func:`matrix_text`                    :func:`read_matrix_text`
-xyz + ABB quaternion      :func:`xyz_quaternion_text`            :func:`read_xyz_quaternion`
-RAPID declaration         :func:`rapid_declaration`,             :func:`read_rapid`
-                          :func:`rapid_module`
-ROS 2 static transform    :func:`ros_static_transform_command`,  :func:`read_ros_command`,
-                          :func:`ros_static_transform_yaml`      :func:`read_ros_yaml`
-JSON result               :func:`json_text`                      :func:`read_json`
-========================  =====================================  ===========================
+==============================  =====================================  ===========================
+export                          writer                                 reader
+==============================  =====================================  ===========================
+4x4 matrices, both ways         :func:`matrix_text`                    :func:`read_matrix_text`
+xyz + quaternion (w, x, y, z)   :func:`xyz_quaternion_text`            :func:`read_xyz_quaternion`
+ROS 2 static transform          :func:`ros_static_transform_command`,  :func:`read_ros_command`,
+                                :func:`ros_static_transform_yaml`,     :func:`read_ros_yaml`,
+                                :func:`ros_launch_py`                  :func:`read_ros_launch`
+URDF/xacro joint (ROS 2)        :func:`ros_urdf_joint`                 :func:`read_ros_urdf_joint`
+JSON result                     :func:`json_text`                      :func:`read_json`
+==============================  =====================================  ===========================
 
-:func:`write_exports` writes them all into a folder.
+As exporters (:class:`spherecal.exporters.Exporter`) they are :data:`MATRIX_EXPORTER`
+(``matrix``), :data:`XYZ_QUATERNION_EXPORTER` (``xyz_quaternion``) and
+:data:`ROS2_EXPORTER` (``ros2``, settings :class:`Ros2ExportSettings`), together
+:data:`CORE_EXPORTERS`; this module is the built-in plugin ``core_exports`` that
+registers them (entry point in pyproject.toml). A robot's own controller format comes
+from its plugin (docs/results.md).
 
 Conventions (docs/conventions.md, docs/results.md): ``A_from_B`` maps points from B to
 A, ``p_A = T_A_from_B p_B``; lengths in mm, except the ROS exports, which are in metres
-as ROS requires. Quaternions are (w, x, y, z) -- ABB ``[q1, q2, q3, q4]`` -- except in the
-ROS exports, which use ROS's (x, y, z, w). Each file says its order in a comment.
+as ROS requires. Quaternions are (w, x, y, z), scalar first, except in the ROS exports,
+which use ROS's (x, y, z, w); the URDF joint gives roll-pitch-yaw in radians as URDF
+defines them. Each file says its units and order in a comment.
 """
 
 from __future__ import annotations
 
+import ast
 import math
 import re
-from pathlib import Path
+import xml.etree.ElementTree as ET
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from .. import safeio
-from ..dataio import write_result
 from ..errors import InputError
+from ..exporters import ExportNote, Exporter, write_exports
 from ..models import CalibrationResult, Pose
+from ..plugins import hookimpl
 
 __all__ = [
     "MM_DECIMALS",
     "QUAT_DECIMALS",
     "METRE_DECIMALS",
     "MATRIX_DECIMALS",
-    "RAPID_MAX_LINE",
+    "fixed",
+    "check_result",
+    "rounded_quaternion_wxyz",
+    "uncertainty_sentence",
     "inverse_name",
     "frames_of",
     "matrix_text",
     "read_matrix_text",
     "xyz_quaternion_text",
     "read_xyz_quaternion",
-    "check_rapid_identifier",
-    "rapid_declaration",
-    "rapid_module",
-    "read_rapid",
     "default_ros_frames",
     "ros_static_transform_command",
     "ros_static_transform_yaml",
+    "ros_launch_py",
+    "ros_urdf_joint",
+    "rpy_from_matrix",
     "read_ros_command",
     "read_ros_yaml",
+    "read_ros_launch",
+    "read_ros_urdf_joint",
     "json_text",
     "read_json",
+    "Ros2ExportSettings",
+    "MATRIX_EXPORTER",
+    "XYZ_QUATERNION_EXPORTER",
+    "ROS2_EXPORTER",
+    "CORE_EXPORTERS",
     "write_exports",
 ]
 
@@ -70,15 +88,9 @@ QUAT_DECIMALS = 8
 METRE_DECIMALS = 7
 #: Decimals of every element of the 4x4 matrices.
 MATRIX_DECIMALS = 10
-#: Longest line written into a RAPID file (the FlexPendant shows about this many;
-#: a RAPID string holds at most 80 characters).
-RAPID_MAX_LINE = 80
-
-_FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-
 
 # --- small helpers ----------------------------------------------------------------------------
-def _fmt(value: float, decimals: int) -> str:
+def fixed(value: float, decimals: int) -> str:
     """Fixed-point text without a negative zero."""
     text = f"{float(value):.{decimals}f}"
     if float(text) == 0.0:
@@ -100,24 +112,24 @@ def inverse_name(name: str) -> str:
     return f"{b}_from_{a}"
 
 
-def _check_result(result) -> CalibrationResult:
+def check_result(result) -> CalibrationResult:
     if not isinstance(result, CalibrationResult):
         raise InputError(f"expected a CalibrationResult, got {type(result).__name__}")
     return result
 
 
-def _uncertainty_sentence(result: CalibrationResult) -> str:
+def uncertainty_sentence(result: CalibrationResult) -> str:
     target, _ = frames_of(result.transform_name)
-    rot = " ".join(_fmt(v, 4) for v in result.std_rotation_deg)
-    tr = " ".join(_fmt(v, 4) for v in result.std_translation_mm)
+    rot = " ".join(fixed(v, 4) for v in result.std_rotation_deg)
+    tr = " ".join(fixed(v, 4) for v in result.std_translation_mm)
     return (f"1-sigma: rotation {rot} deg about the {target} x y z axes; "
             f"translation {tr} mm along {target} x y z")
 
 
-def _rounded_quaternion(pose: Pose) -> list[str]:
+def rounded_quaternion_wxyz(pose: Pose) -> list[str]:
     """Quaternion (w, x, y, z), w >= 0 as the Pose stores it, as text with
     :data:`QUAT_DECIMALS` decimals (rounding leaves the norm within 2e-8 of 1)."""
-    return [_fmt(c, QUAT_DECIMALS) for c in pose.quaternion_wxyz]
+    return [fixed(c, QUAT_DECIMALS) for c in pose.quaternion_wxyz]
 
 
 # --- 4x4 matrices -------------------------------------------------------------------------------
@@ -125,7 +137,7 @@ def matrix_text(result: CalibrationResult) -> str:
     """The transform in both directions as 4x4 homogeneous matrices (mm), each under its
     name in brackets, row-major, :data:`MATRIX_DECIMALS` decimals. Read back with
     :func:`read_matrix_text`."""
-    result = _check_result(result)
+    result = check_result(result)
     name = result.transform_name
     inv = inverse_name(name)
     a, b = frames_of(name)
@@ -136,13 +148,13 @@ def matrix_text(result: CalibrationResult) -> str:
         "T_A_from_B maps points from frame B into frame A",
         "# units: translation (last column) in millimetres; rotation part dimensionless",
         f"# [{name}]: points of the {b} frame into the {a} frame; [{inv}] is its inverse",
-        f"# {_uncertainty_sentence(result)}",
+        f"# {uncertainty_sentence(result)}",
         "# each block: a [name] line, then 4 rows of 4 numbers",
     ]
     for label, T in ((name, result.transform.as_matrix()), (inv, result.transform.inverse().as_matrix())):
         lines.append(f"[{label}]")
         for row in T:
-            lines.append(" ".join(f"{_fmt(v, MATRIX_DECIMALS):>20}" for v in row))
+            lines.append(" ".join(f"{fixed(v, MATRIX_DECIMALS):>20}" for v in row))
     return "\n".join(lines) + "\n"
 
 
@@ -187,18 +199,18 @@ def read_matrix_text(text: str) -> dict[str, np.ndarray]:
 # --- xyz + quaternion line ----------------------------------------------------------------------
 def xyz_quaternion_text(result: CalibrationResult) -> str:
     """One line ``<name> x y z q1 q2 q3 q4``: translation in mm (:data:`MM_DECIMALS`
-    decimals) and the ABB quaternion (w, x, y, z), scalar first (:data:`QUAT_DECIMALS`
+    decimals) and the quaternion (w, x, y, z), scalar first (:data:`QUAT_DECIMALS`
     decimals), after comment lines that say so."""
-    result = _check_result(result)
+    result = check_result(result)
     name = result.transform_name
     a, b = frames_of(name)
-    xyz = " ".join(_fmt(v, MM_DECIMALS) for v in result.transform.translation_mm)
-    q = " ".join(_rounded_quaternion(result.transform))
+    xyz = " ".join(fixed(v, MM_DECIMALS) for v in result.transform.translation_mm)
+    q = " ".join(rounded_quaternion_wxyz(result.transform))
     return (
         f"# {name} ({result.mounting}): p_{a} = R p_{b} + t\n"
         "# columns: name, x y z (mm, origin of the "
-        f"{b} frame in the {a} frame), q1 q2 q3 q4 = quaternion (w, x, y, z), scalar FIRST (ABB order)\n"
-        f"# {_uncertainty_sentence(result)}\n"
+        f"{b} frame in the {a} frame), q1 q2 q3 q4 = quaternion (w, x, y, z), scalar FIRST\n"
+        f"# {uncertainty_sentence(result)}\n"
         f"{name} {xyz} {q}\n"
     )
 
@@ -221,194 +233,11 @@ def read_xyz_quaternion(text: str) -> tuple[str, np.ndarray, np.ndarray]:
     raise InputError("no data line found (only comments or blank lines)")
 
 
-# --- RAPID ----------------------------------------------------------------------------------------
-_RAPID_RESERVED = frozenset(
-    """ALIAS AND BACKWARD CASE CONNECT CONST DEFAULT DIV DO ELSE ELSEIF ENDFOR ENDFUNC ENDIF
-    ENDMODULE ENDPROC ENDRECORD ENDTEST ENDTRAP ENDWHILE ERROR EXIT FALSE FOR FROM FUNC GOTO IF
-    INOUT LOCAL MOD MODULE NOSTEPIN NOT NOVIEW OR PERS PROC RAISE READONLY RECORD RETRY RETURN
-    STEP SYSMODULE TASK TEST THEN TO TRAP TRUE TRYNEXT UNDO VAR VIEWONLY WHILE WITH XOR""".split()
-)
-#: Predefined data a declaration must not redefine.
-_RAPID_PREDEFINED = frozenset({"TOOL0", "WOBJ0", "LOAD0"})
-
-
-def check_rapid_identifier(name: str, what: str = "RAPID name") -> str:
-    """Return ``name`` if it is a valid RAPID identifier (a letter, then letters, digits
-    or underscores, at most 32 characters, not a reserved word nor tool0/wobj0/load0);
-    else raise InputError saying why."""
-    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
-        raise InputError(
-            f"{what} {name!r} is not a valid RAPID identifier: start with a letter, then use only "
-            "letters, digits and underscores"
-        )
-    if len(name) > 32:
-        raise InputError(f"{what} {name!r} has {len(name)} characters; RAPID identifiers have at most 32")
-    if name.upper() in _RAPID_RESERVED:
-        raise InputError(f"{what} {name!r} is a RAPID reserved word; choose another name")
-    if name.upper() in _RAPID_PREDEFINED:
-        raise InputError(f"{what} {name!r} is predefined on the controller and must not be redefined")
-    return name
-
-
-def _rapid_comment_lines(result: CalibrationResult, extra: list[str]) -> list[str]:
-    a, b = frames_of(result.transform_name)
-    lines = [
-        f"! spherecal: {result.transform_name} ({result.mounting}), mm,",
-        "! orient [q1,q2,q3,q4] = quaternion (w, x, y, z)",
-        f"! 1-sigma rotation deg about {a} x y z: "
-        + " ".join(_fmt(v, 4) for v in result.std_rotation_deg),
-        f"! 1-sigma translation mm along {a} x y z: "
-        + " ".join(_fmt(v, 4) for v in result.std_translation_mm),
-    ]
-    return lines + extra
-
-
-def rapid_declaration(
-    result: CalibrationResult,
-    name: str | None = None,
-    *,
-    mass_kg: float = 1.0,
-    cog_mm: tuple[float, float, float] | None = None,
-) -> str:
-    """A RAPID ``PERS`` declaration with comments, every line at most
-    :data:`RAPID_MAX_LINE` characters.
-
-    Eye-in-hand: ``PERS tooldata <name> := [TRUE, [[x,y,z],[q1,q2,q3,q4]],
-    [mass,[cog],[1,0,0,0],0,0,0]];`` -- the sensor frame as the tool frame (``tframe`` is
-    ``flange_from_sensor``), robot-held. ``name`` defaults to ``tSensor``. The load is
-    the sensor and its bracket: ``mass_kg`` (default 1.0 kg, must be > 0) and ``cog_mm``
-    (in tool0, default half way from the flange to the sensor origin); both are rough
-    defaults to replace with the real values (LoadIdentify or the data sheet).
-
-    Eye-to-hand: ``PERS wobjdata <name> := [FALSE, TRUE, "", [[x,y,z],[q1..q4]],
-    [[0,0,0],[1,0,0,0]]];`` -- the sensor frame as a fixed user frame (``uframe`` is
-    ``base_from_sensor``; the controller reads it in world coordinates, equal to base
-    unless the robot's base frame was moved). ``name`` defaults to ``wobjSensor``.
-
-    Positions to :data:`MM_DECIMALS` decimals, quaternions to :data:`QUAT_DECIMALS`.
-    """
-    result = _check_result(result)
-    xyz = "[" + ", ".join(_fmt(v, MM_DECIMALS) for v in result.transform.translation_mm) + "]"
-    quat = "[" + ", ".join(_rounded_quaternion(result.transform)) + "]"
-    if result.mounting == "eye_in_hand":
-        name = check_rapid_identifier(name or "tSensor", "tooldata name")
-        if not (math.isfinite(mass_kg) and mass_kg > 0):
-            raise InputError(f"mass_kg = {mass_kg}: the tool load must have a mass > 0 kg (the controller rejects 0)")
-        cog = np.asarray(result.transform.translation_mm, dtype=float) / 2 if cog_mm is None else np.asarray(cog_mm, float)
-        if cog.shape != (3,) or not np.all(np.isfinite(cog)):
-            raise InputError(f"cog_mm must be 3 finite numbers (mm, in tool0), got {cog_mm!r}")
-        cog_txt = "[" + ", ".join(_fmt(v, 1) for v in cog) + "]"
-        comments = _rapid_comment_lines(result, [
-            f"! load: {_fmt(mass_kg, 3)} kg at {cog_txt} mm (tool0): estimates, replace",
-            "! them with the real values (LoadIdentify or the data sheet)",
-        ])
-        body = [
-            f"PERS tooldata {name} := [TRUE,",
-            f"    [{xyz},",
-            f"     {quat}],",
-            f"    [{_fmt(mass_kg, 3)}, {cog_txt}, [1, 0, 0, 0], 0, 0, 0]];",
-        ]
-    else:
-        name = check_rapid_identifier(name or "wobjSensor", "wobjdata name")
-        comments = _rapid_comment_lines(result, [
-            "! user frame = sensor frame, fixed in the cell (not robot-held);",
-            "! uframe is read in world coordinates (= base unless the base moved)",
-        ])
-        body = [
-            f"PERS wobjdata {name} := [FALSE, TRUE, \"\",",
-            f"    [{xyz},",
-            f"     {quat}],",
-            "    [[0, 0, 0], [1, 0, 0, 0]]];",
-        ]
-    return _check_rapid_lines(comments + body)
-
-
-def _check_rapid_lines(lines: list[str]) -> str:
-    for line in lines:
-        if len(line) > RAPID_MAX_LINE:  # only implausibly large coordinates get here
-            raise InputError(
-                f"RAPID line of {len(line)} characters exceeds {RAPID_MAX_LINE}: {line!r}; "
-                "check that the translation is in mm and plausible"
-            )
-    return "\n".join(lines) + "\n"
-
-
-def rapid_module(
-    result: CalibrationResult,
-    name: str | None = None,
-    *,
-    module_name: str = "SpherecalSensor",
-    mass_kg: float = 1.0,
-    cog_mm: tuple[float, float, float] | None = None,
-) -> str:
-    """:func:`rapid_declaration` wrapped in ``MODULE <module_name> ... ENDMODULE``, a file
-    the controller loads as a program module."""
-    check_rapid_identifier(module_name, "module name")
-    decl = rapid_declaration(result, name, mass_kg=mass_kg, cog_mm=cog_mm)
-    return _check_rapid_lines([f"MODULE {module_name}"] + ["  " + line for line in decl.splitlines()] + ["ENDMODULE"])
-
-
-_RAPID_TOOL = re.compile(
-    rf"PERS\s+tooldata\s+(?P<name>[A-Za-z]\w*)\s*:=\s*\[\s*(?P<robhold>TRUE|FALSE)\s*,"
-    rf"\s*\[\s*\[(?P<xyz>[^\]]*)\]\s*,\s*\[(?P<q>[^\]]*)\]\s*\]\s*,"
-    rf"\s*\[\s*(?P<mass>{_FLOAT})\s*,\s*\[(?P<cog>[^\]]*)\]\s*,\s*\[(?P<aom>[^\]]*)\]"
-    rf"\s*,\s*(?P<ix>{_FLOAT})\s*,\s*(?P<iy>{_FLOAT})\s*,\s*(?P<iz>{_FLOAT})\s*\]\s*\]\s*;",
-    re.IGNORECASE,
-)
-_RAPID_WOBJ = re.compile(
-    r"PERS\s+wobjdata\s+(?P<name>[A-Za-z]\w*)\s*:=\s*\[\s*(?P<robhold>TRUE|FALSE)\s*,"
-    r"\s*(?P<ufprog>TRUE|FALSE)\s*,\s*\"(?P<ufmec>[^\"]*)\"\s*,"
-    r"\s*\[\s*\[(?P<xyz>[^\]]*)\]\s*,\s*\[(?P<q>[^\]]*)\]\s*\]\s*,"
-    r"\s*\[\s*\[(?P<oxyz>[^\]]*)\]\s*,\s*\[(?P<oq>[^\]]*)\]\s*\]\s*\]\s*;",
-    re.IGNORECASE,
-)
-
-
-def _numbers(text: str, n: int, what: str) -> np.ndarray:
-    try:
-        values = np.array([float(v) for v in text.split(",")])
-    except ValueError:
-        raise InputError(f"{what}: not a list of numbers: [{text}]") from None
-    if values.size != n:
-        raise InputError(f"{what}: expected {n} numbers, got {values.size}: [{text}]")
-    return values
-
-
-def read_rapid(text: str) -> dict:
-    """Parse the tooldata or wobjdata declaration in ``text`` (comments ignored).
-
-    Returns ``{"kind": "tooldata"|"wobjdata", "name", "robhold", "xyz_mm",
-    "quaternion_wxyz"}`` plus ``"mass_kg"`` and ``"cog_mm"`` for a tooldata, ``"ufprog"``
-    for a wobjdata."""
-    code = "\n".join(line.split("!", 1)[0] for line in text.splitlines())
-    m = _RAPID_TOOL.search(code)
-    if m:
-        return {
-            "kind": "tooldata",
-            "name": m["name"],
-            "robhold": m["robhold"].upper() == "TRUE",
-            "xyz_mm": _numbers(m["xyz"], 3, "tframe.trans"),
-            "quaternion_wxyz": _numbers(m["q"], 4, "tframe.rot"),
-            "mass_kg": float(m["mass"]),
-            "cog_mm": _numbers(m["cog"], 3, "tload.cog"),
-        }
-    m = _RAPID_WOBJ.search(code)
-    if m:
-        return {
-            "kind": "wobjdata",
-            "name": m["name"],
-            "robhold": m["robhold"].upper() == "TRUE",
-            "ufprog": m["ufprog"].upper() == "TRUE",
-            "xyz_mm": _numbers(m["xyz"], 3, "uframe.trans"),
-            "quaternion_wxyz": _numbers(m["q"], 4, "uframe.rot"),
-        }
-    raise InputError("no 'PERS tooldata' or 'PERS wobjdata' declaration found")
-
-
 # --- ROS ----------------------------------------------------------------------------------------
 def default_ros_frames(result: CalibrationResult) -> tuple[str, str]:
     """(parent frame id, child frame id): ``("tool0", "sensor")`` eye-in-hand,
-    ``("base", "sensor")`` eye-to-hand (ROS-Industrial names of ABB's tool0 and base)."""
+    ``("base", "sensor")`` eye-to-hand: the ROS-Industrial names of the flange frame and
+    of the robot's base frame as its controller reports poses in (REP-199)."""
     return ("tool0", "sensor") if result.mounting == "eye_in_hand" else ("base", "sensor")
 
 
@@ -427,8 +256,8 @@ def _ros_values(result: CalibrationResult, frame_id, child_frame_id):
     child = _check_frame_id(child_frame_id or child, "child_frame_id")
     if parent == child:
         raise InputError(f"frame_id and child_frame_id are both {parent!r}; they must differ")
-    xyz_m = [_fmt(v / 1000.0, METRE_DECIMALS) for v in result.transform.translation_mm]
-    w, x, y, z = _rounded_quaternion(result.transform)
+    xyz_m = [fixed(v / 1000.0, METRE_DECIMALS) for v in result.transform.translation_mm]
+    w, x, y, z = rounded_quaternion_wxyz(result.transform)
     return parent, child, xyz_m, (x, y, z, w)
 
 
@@ -438,7 +267,7 @@ def ros_static_transform_command(
     """A comment and the ``ros2 run tf2_ros static_transform_publisher`` command that
     publishes the result: ``frame_id`` is the parent (the A of ``A_from_B``),
     ``child_frame_id`` the sensor; translation in METRES, quaternion (x, y, z, w)."""
-    result = _check_result(result)
+    result = check_result(result)
     parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
     return (
         f"# {result.transform_name} from spherecal: pose of '{child}' in '{parent}'; "
@@ -455,14 +284,14 @@ def ros_static_transform_yaml(
 ) -> str:
     """A ``geometry_msgs/TransformStamped`` in YAML (no launch file needed): translation
     in METRES, rotation quaternion in ROS order (x, y, z, w)."""
-    result = _check_result(result)
+    result = check_result(result)
     parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
     a, b = frames_of(result.transform_name)
     return (
         f"# {result.transform_name} ({result.mounting}) from spherecal, as geometry_msgs/TransformStamped\n"
         f"# parent '{parent}' = spherecal '{a}', child '{child}' = spherecal '{b}'\n"
         "# translation in METRES; rotation quaternion in ROS order (x, y, z, w), scalar LAST\n"
-        f"# {_uncertainty_sentence(result)}\n"
+        f"# {uncertainty_sentence(result)}\n"
         "header:\n"
         f"  frame_id: {parent}\n"
         f"child_frame_id: {child}\n"
@@ -479,22 +308,29 @@ def ros_static_transform_yaml(
     )
 
 
+#: The static_transform_publisher arguments every ROS export carries (ROS 2 Humble and later).
+_ROS_ARGS = ("x", "y", "z", "qx", "qy", "qz", "qw", "frame-id", "child-frame-id")
+
+
+def _ros_args(args: dict, what: str) -> dict:
+    missing = [k for k in _ROS_ARGS if k not in args]
+    if missing:
+        raise InputError(f"{what} lacks --{', --'.join(missing)}")
+    try:
+        xyz = np.array([float(args[k]) for k in ("x", "y", "z")])
+        q = np.array([float(args[k]) for k in ("qx", "qy", "qz", "qw")])
+    except ValueError as exc:
+        raise InputError(f"{what}: not a number: {exc}") from None
+    return {"xyz_m": xyz, "quaternion_xyzw": q, "frame_id": args["frame-id"], "child_frame_id": args["child-frame-id"]}
+
+
 def read_ros_command(text: str) -> dict:
     """Parse :func:`ros_static_transform_command`: ``{"xyz_m", "quaternion_xyzw",
     "frame_id", "child_frame_id"}``."""
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
     if len(lines) != 1 or "static_transform_publisher" not in lines[0]:
         raise InputError("expected one 'ros2 run tf2_ros static_transform_publisher' command line")
-    args = dict(re.findall(r"--([a-z-]+)\s+(\S+)", lines[0]))
-    missing = [k for k in ("x", "y", "z", "qx", "qy", "qz", "qw", "frame-id", "child-frame-id") if k not in args]
-    if missing:
-        raise InputError(f"static_transform_publisher command lacks --{', --'.join(missing)}")
-    return {
-        "xyz_m": np.array([float(args[k]) for k in ("x", "y", "z")]),
-        "quaternion_xyzw": np.array([float(args[k]) for k in ("qx", "qy", "qz", "qw")]),
-        "frame_id": args["frame-id"],
-        "child_frame_id": args["child-frame-id"],
-    }
+    return _ros_args(dict(re.findall(r"--([a-z-]+)\s+(\S+)", lines[0])), "static_transform_publisher command")
 
 
 def read_ros_yaml(text: str) -> dict:
@@ -528,10 +364,157 @@ def read_ros_yaml(text: str) -> dict:
         raise InputError(f"TransformStamped YAML lacks {exc.args[0]}") from None
 
 
+def _ros_node_name(parent: str, child: str) -> str:
+    """A valid ROS node name for the publisher (letters, digits and underscores)."""
+    return re.sub(r"[^A-Za-z0-9_]", "_", f"spherecal_{parent}_to_{child}")
+
+
+def ros_launch_py(result: CalibrationResult, frame_id: str | None = None, child_frame_id: str | None = None) -> str:
+    """A ROS 2 Python launch file (``ros2 launch ./ros_static_transform.launch.py``) that
+    runs ``tf2_ros static_transform_publisher`` with the result, in the argument form of
+    ROS 2 Humble and later: translation in METRES, quaternion (x, y, z, w). Frames as in
+    :func:`ros_static_transform_command`. Read back with :func:`read_ros_launch`."""
+    result = check_result(result)
+    parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
+    args = [("--x", xyz[0]), ("--y", xyz[1]), ("--z", xyz[2]),
+            ("--qx", q[0]), ("--qy", q[1]), ("--qz", q[2]), ("--qw", q[3]),
+            ("--frame-id", parent), ("--child-frame-id", child)]
+    arg_lines = "".join(f'                "{k}", "{v}",\n' for k, v in args)
+    return (
+        f"# {result.transform_name} ({result.mounting}) from spherecal: pose of '{child}' in '{parent}'.\n"
+        "# Translation in METRES; quaternion in ROS order (x, y, z, w), scalar LAST.\n"
+        f"# {uncertainty_sentence(result)}\n"
+        "# Run: ros2 launch ./ros_static_transform.launch.py (ROS 2 Humble or later)\n"
+        '"""Publish the spherecal calibration as a static transform on /tf_static."""\n'
+        "\n"
+        "from launch import LaunchDescription\n"
+        "from launch_ros.actions import Node\n"
+        "\n"
+        "\n"
+        "def generate_launch_description():\n"
+        "    return LaunchDescription([\n"
+        "        Node(\n"
+        '            package="tf2_ros",\n'
+        '            executable="static_transform_publisher",\n'
+        f'            name="{_ros_node_name(parent, child)}",\n'
+        "            arguments=[\n"
+        f"{arg_lines}"
+        "            ],\n"
+        "        ),\n"
+        "    ])\n"
+    )
+
+
+def read_ros_launch(text: str) -> dict:
+    """Parse :func:`ros_launch_py`: the file must compile as Python, and the arguments
+    of its ``static_transform_publisher`` node are read without running it. Same keys as
+    :func:`read_ros_command`."""
+    try:
+        tree = ast.parse(compile(text, "launch.py", "exec", ast.PyCF_ONLY_AST))
+    except SyntaxError as exc:
+        raise InputError(f"the launch file is not valid Python: line {exc.lineno}: {exc.msg}") from None
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        kw = {k.arg: k.value for k in node.keywords if k.arg}
+        try:
+            if ast.literal_eval(kw.get("executable", ast.Constant(None))) != "static_transform_publisher":
+                continue
+            values = ast.literal_eval(kw["arguments"])
+        except (KeyError, ValueError) as exc:
+            raise InputError(f"the static_transform_publisher node's arguments are not a literal list: {exc}") from None
+        if not (isinstance(values, list) and len(values) % 2 == 0 and all(isinstance(v, str) for v in values)):
+            raise InputError("the static_transform_publisher node's arguments are not pairs of strings")
+        if any(not k.startswith("--") for k in values[::2]):
+            raise InputError(f"expected '--name value' pairs in the node's arguments, got {values!r:.80}")
+        return _ros_args({k[2:]: v for k, v in zip(values[::2], values[1::2])}, "the launch file's node")
+    raise InputError("no static_transform_publisher node in the launch file")
+
+
+def rpy_from_matrix(R) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) in radians of a rotation matrix as URDF defines them: about the
+    fixed x, y, z axes in that order, ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+
+    Accurate to rounding error everywhere, gimbal lock (pitch = +-90 deg) included: yaw
+    is taken first, then pitch and roll from what remains after undoing it, so an
+    ill-determined yaw is absorbed by the roll instead of spoiling the rotation."""
+    R = np.asarray(R, dtype=float)
+    yaw = math.atan2(R[1, 0], R[0, 0])
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    N = np.array([[cy, sy, 0.0], [-sy, cy, 0.0], [0.0, 0.0, 1.0]]) @ R  # = Ry(pitch) Rx(roll)
+    pitch = math.atan2(-N[2, 0], N[0, 0])
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    M = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]]) @ N  # = Rx(roll)
+    roll = math.atan2(M[2, 1], M[1, 1])
+    return roll, pitch, yaw
+
+
+def ros_urdf_joint(result: CalibrationResult, frame_id: str | None = None, child_frame_id: str | None = None) -> str:
+    """A URDF snippet, also a xacro file to include: the sensor's ``<link>`` and the
+    fixed ``<joint>`` that places it on its parent, the flange (``tool0``) eye-in-hand or
+    the robot's base (``base``) eye-to-hand, or the frames given. ``<origin>`` carries xyz
+    in METRES and rpy in RADIANS (:func:`rpy_from_matrix`), both at full precision (they
+    give back the transform to about 1e-15). Read back with :func:`read_ros_urdf_joint`."""
+    result = check_result(result)
+    parent, child, _, _ = _ros_values(result, frame_id, child_frame_id)
+    X = result.transform
+    xyz = " ".join(repr(float(v) / 1000.0) for v in X.translation_mm)
+    rpy = " ".join(repr(float(v)) for v in rpy_from_matrix(X.rotation_matrix))
+    a, b = frames_of(result.transform_name)
+    where = "on the flange" if result.mounting == "eye_in_hand" else "fixed in the cell, relative to the robot's base"
+    return (
+        '<?xml version="1.0"?>\n'
+        "<!--\n"
+        f"  spherecal {result.transform_name} ({result.mounting}): the sensor frame '{child}' {where} '{parent}'\n"
+        f"  (spherecal '{a}' = '{parent}', '{b}' = '{child}').\n"
+        "  origin: xyz in METRES, rpy in RADIANS about the fixed parent axes x, y, z in that order\n"
+        "  (R = Rz(yaw) Ry(pitch) Rx(roll), as URDF defines it); full precision, do not round.\n"
+        f"  {uncertainty_sentence(result)}\n"
+        "  Use: paste the link and the joint into the robot's URDF, or include this file from a\n"
+        "  xacro description: <xacro:include filename=\"ros_sensor_joint.urdf.xacro\"/>\n"
+        "-->\n"
+        '<robot name="spherecal_sensor" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+        f'  <link name="{child}"/>\n'
+        f'  <joint name="{parent}_to_{child}" type="fixed">\n'
+        f'    <parent link="{parent}"/>\n'
+        f'    <child link="{child}"/>\n'
+        f'    <origin xyz="{xyz}" rpy="{rpy}"/>\n'
+        "  </joint>\n"
+        "</robot>\n"
+    )
+
+
+def read_ros_urdf_joint(text: str) -> dict:
+    """Parse :func:`ros_urdf_joint` as XML: ``{"xyz_m", "rpy_rad", "frame_id",
+    "child_frame_id", "joint"}`` of its one fixed joint."""
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise InputError(f"the URDF snippet is not well-formed XML: {exc}") from None
+    joints = root.findall("joint")
+    if len(joints) != 1 or joints[0].get("type") != "fixed":
+        raise InputError(f"expected one fixed <joint> in the URDF snippet, found {len(joints)} joint(s)")
+    j = joints[0]
+    parent, child, origin = j.find("parent"), j.find("child"), j.find("origin")
+    if parent is None or child is None or origin is None:
+        raise InputError(f"joint {j.get('name')!r} lacks <parent>, <child> or <origin>")
+    try:
+        xyz = np.array([float(v) for v in origin.get("xyz", "0 0 0").split()])
+        rpy = np.array([float(v) for v in origin.get("rpy", "0 0 0").split()])
+    except ValueError as exc:
+        raise InputError(f"joint {j.get('name')!r}: <origin> is not numbers: {exc}") from None
+    if xyz.shape != (3,) or rpy.shape != (3,):
+        raise InputError(f"joint {j.get('name')!r}: <origin> xyz and rpy need 3 numbers each")
+    if root.find(f"link[@name='{child.get('link')}']") is None:
+        raise InputError(f"the URDF snippet does not define the child link {child.get('link')!r}")
+    return {"xyz_m": xyz, "rpy_rad": rpy, "frame_id": parent.get("link"), "child_frame_id": child.get("link"),
+            "joint": j.get("name")}
+
+
 # --- JSON ---------------------------------------------------------------------------------------
 def json_text(result: CalibrationResult) -> str:
     """The full result as JSON (the ``spherecal-result`` document of docs/file-formats.md)."""
-    return _check_result(result).model_dump_json(indent=2) + "\n"
+    return check_result(result).model_dump_json(indent=2) + "\n"
 
 
 def read_json(text: str) -> CalibrationResult:
@@ -539,46 +522,92 @@ def read_json(text: str) -> CalibrationResult:
     return CalibrationResult.model_validate_json(text)
 
 
-# --- all at once --------------------------------------------------------------------------------
-def write_exports(
-    result: CalibrationResult,
-    out_dir: str | Path,
-    *,
-    rapid_name: str | None = None,
-    rapid_module_name: str = "SpherecalSensor",
-    mass_kg: float = 1.0,
-    cog_mm: tuple[float, float, float] | None = None,
-    ros_frame_id: str | None = None,
-    ros_child_frame_id: str | None = None,
-    overwrite: bool = False,
-) -> dict[str, Path]:
-    """Write every export into ``out_dir`` (created if needed) and return
-    ``{export name: path}``. Names: ``matrix``, ``xyz_quaternion``, ``rapid``,
-    ``ros_command``, ``ros_yaml``, ``json``. Existing files are replaced only with
-    ``overwrite=True``; nothing is written if any would be refused."""
-    result = _check_result(result)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    name = result.transform_name
-    texts = {
-        "matrix": (f"{name}_4x4.txt", matrix_text(result)),
-        "xyz_quaternion": (f"{name}_xyz_quat_wxyz.txt", xyz_quaternion_text(result)),
-        "rapid": (f"{rapid_module_name}.mod", rapid_module(
-            result, rapid_name, module_name=rapid_module_name, mass_kg=mass_kg, cog_mm=cog_mm)),
-        "ros_command": ("ros_static_transform.sh", ros_static_transform_command(
-            result, ros_frame_id, ros_child_frame_id)),
-        "ros_yaml": ("ros_static_transform.yaml", ros_static_transform_yaml(
-            result, ros_frame_id, ros_child_frame_id)),
-    }
-    paths = {key: out / fname for key, (fname, _) in texts.items()}
-    paths["json"] = out / "result.json"
-    if not overwrite:
-        existing = [str(p) for p in paths.values() if p.exists()]
-        if existing:
-            raise InputError(f"{existing[0]} exists; pass overwrite=True to replace the exports")
-    for p in paths.values():  # no link nor device among them: nothing is written if one is refused
-        safeio.check_writable_target(p)
-    for key, (_, text) in texts.items():
-        safeio.write_text(paths[key], text)
-    write_result(paths["json"], result, overwrite=True)
-    return paths
+
+
+# --- the core's exporters ---------------------------------------------------------------------------------
+#: Longest frame id accepted (tf2 sets no limit; this is a typo guard).
+MAX_FRAME_ID_LENGTH = 256
+
+
+class Ros2ExportSettings(BaseModel):
+    """``[export.ros2]``: the frame names of the ROS 2 exports (tf2 frame ids)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    frame_id: str | None = Field(
+        None, max_length=MAX_FRAME_ID_LENGTH,
+        description="parent frame: the flange (eye_in_hand) or the robot's base (eye_to_hand); default 'tool0' or "
+        "'base' (the ROS-Industrial names)")
+    child_frame_id: str = Field("sensor", max_length=MAX_FRAME_ID_LENGTH, description="the sensor's frame")
+
+    @field_validator("frame_id", "child_frame_id")
+    @classmethod
+    def _frame(cls, v, info):
+        if v is not None:
+            try:
+                _check_frame_id(v, info.field_name)
+            except InputError as exc:
+                raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _differ(self):
+        if self.frame_id == self.child_frame_id:
+            raise ValueError(f"frame_id and child_frame_id are both {self.frame_id!r}; they must differ")
+        return self
+
+
+MATRIX_EXPORTER = Exporter(
+    name="matrix",
+    description="the transform in both directions as 4x4 homogeneous matrices, mm",
+    files=("{transform_name}_4x4.txt",),
+    write=lambda r, s: {f"{r.transform_name}_4x4.txt": matrix_text(r)},
+)
+
+XYZ_QUATERNION_EXPORTER = Exporter(
+    name="xyz_quaternion",
+    description="one line: name, x y z in mm, quaternion (w, x, y, z) scalar first",
+    files=("{transform_name}_xyz_quat_wxyz.txt",),
+    write=lambda r, s: {f"{r.transform_name}_xyz_quat_wxyz.txt": xyz_quaternion_text(r)},
+)
+
+#: The ROS 2 files, in the order they are written.
+ROS2_FILES = ("ros_static_transform.sh", "ros_static_transform.yaml", "ros_static_transform.launch.py",
+              "ros_sensor_joint.urdf.xacro")
+
+
+def _ros2_files(result: CalibrationResult, s: Ros2ExportSettings) -> dict[str, str]:
+    makers = (ros_static_transform_command, ros_static_transform_yaml, ros_launch_py, ros_urdf_joint)
+    return {name: make(result, s.frame_id, s.child_frame_id) for name, make in zip(ROS2_FILES, makers)}
+
+
+def _ros2_note(result: CalibrationResult, s: Ros2ExportSettings) -> ExportNote:
+    parent, child, _, _ = _ros_values(result, s.frame_id, s.child_frame_id)
+    return ExportNote(
+        title="ROS 2",
+        text=(f"The sensor frame '{child}' in '{parent}': run the command below or "
+              "'ros2 launch ./ros_static_transform.launch.py' (ROS 2 Humble or later) to publish it on /tf_static, "
+              "or add ros_sensor_joint.urdf.xacro to the robot description. Metres; quaternion (x, y, z, w)."),
+        code=ros_static_transform_command(result, s.frame_id, s.child_frame_id),
+    )
+
+
+ROS2_EXPORTER = Exporter(
+    name="ros2",
+    description="ROS 2: static_transform_publisher command, TransformStamped YAML, launch.py, URDF/xacro joint "
+    "(metres, quaternion x y z w)",
+    files=ROS2_FILES,
+    write=_ros2_files,
+    settings_model=Ros2ExportSettings,
+    note=_ros2_note,
+)
+
+#: The core's brand-free exporters, registered by this module as the plugin ``core_exports``.
+CORE_EXPORTERS = (MATRIX_EXPORTER, XYZ_QUATERNION_EXPORTER, ROS2_EXPORTER)
+
+
+@hookimpl
+def spherecal_register_exporters(registry) -> None:
+    """The ``core_exports`` plugin's hook: register :data:`CORE_EXPORTERS`."""
+    for exporter in CORE_EXPORTERS:
+        registry.add_exporter(exporter)

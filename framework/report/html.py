@@ -15,7 +15,7 @@ import base64
 import html
 import io
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from importlib import resources
 from pathlib import Path
@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 
 from .. import __version__
 from ..errors import InputError
+from ..exporters import ExportNote
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
 from .. import safeio
@@ -51,7 +52,7 @@ def _e(value: Any) -> str:
 def _n(value: float | None, decimals: int = 4) -> str:
     if value is None:
         return "&ndash;"
-    return export._fmt(value, decimals)
+    return export.fixed(value, decimals)
 
 
 def _station_colours(labels: list[str]) -> dict[str, Any]:
@@ -217,11 +218,20 @@ def _table(header: list[str], rows: list[list[str]], row_classes: list[str] | No
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
-def _headline(result: CalibrationResult, ver, th: Thresholds) -> str:
+def _notes_html(notes: Sequence[ExportNote]) -> str:
+    """The exporters' notes: how to use the result on the controller, the robot's own
+    exporter first."""
+    if not notes:
+        return ("<p>No exporter of this run says how to load the result on a controller; the files next to this "
+                "report hold it (docs/results.md).</p>")
+    return "".join(f"<h4>{_e(n.title)}</h4><p>{_e(n.text)}</p>" + (f"<pre>{_e(n.code)}</pre>" if n.code else "")
+                   for n in notes)
+
+
+def _headline(result: CalibrationResult, ver, th: Thresholds, notes: Sequence[ExportNote] = ()) -> str:
     name = result.transform_name
     a, b = export.frames_of(name)
     inv = export.inverse_name(name)
-    abb = "tooldata.tframe" if result.mounting == "eye_in_hand" else "wobjdata.uframe"
     x, y, z = result.transform.translation_mm
     q = result.transform.quaternion_wxyz
     sr, st = result.std_rotation_deg, result.std_translation_mm
@@ -249,14 +259,12 @@ def _headline(result: CalibrationResult, ver, th: Thresholds) -> str:
 <h2 id="transform">The transform: <code>{_e(name)}</code></h2>
 <p class="direction"><b>{_e(name)}</b> maps points from the <b>{_e(b)}</b> frame into the <b>{_e(a)}</b> frame:
 <code>p_{_e(a)} = R p_{_e(b)} + t</code>; its translation is the origin of {_e(b)} in {_e(a)} (mm).
-Mounting: {_e(result.mounting)}; on an ABB controller this is <code>{abb}</code>.
-Its inverse is <code>{_e(inv)}</code>.</p>
+Mounting: {_e(result.mounting)}. Its inverse is <code>{_e(inv)}</code>.</p>
 <div class="cards">{card_html}</div>
 <h3>As 4x4 matrices (mm), both directions</h3>
 <pre>{_e(export.matrix_text(result))}</pre>
-<h3>For the robot controller and for ROS</h3>
-<pre>{_e(export.rapid_declaration(result))}</pre>
-<pre>{_e(export.ros_static_transform_command(result))}</pre>
+<h3 id="controller">For the robot controller and for ROS</h3>
+{_notes_html(notes)}
 <p class="muted">Uncertainties are one standard deviation (double them for about 95 %), after scaling by the
 a-posteriori variance factor {result.variance_factor:.3f}. Rotations are small rotations about the axes of the
 {_e(a)} frame. The files next to this report hold the same numbers (see docs/results.md).</p>
@@ -374,14 +382,18 @@ def write_report(
     thresholds: Thresholds | None = None,
     filename: str = "report.html",
     verdict_override: Verdict | None = None,
+    notes: Sequence[ExportNote] = (),
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
     it as ``<stem>_<figure>.png`` (:data:`FIGURE_NAMES`). ``validation`` is an optional
     mapping ``{figure name: value or {column: value}}`` shown as a table (a row whose
     ``passed`` is False is marked). ``verdict_override``: the verdict to show (e.g. with
-    the likely cause the runner found), else the result's own. Returns the path of the
-    HTML file. Overwrites an earlier report of the same name."""
+    the likely cause the runner found), else the result's own. ``notes``: what the run's
+    exporters say about using the result on the controller (:class:`ExportNote`, from
+    ``ExportPlan.notes(result)``; the robot's own exporter first), shown under the
+    transform. Returns the path of the HTML file. Overwrites an earlier report of the
+    same name."""
     result = getattr(solution, "result", None)
     if not isinstance(result, CalibrationResult) or not hasattr(solution, "problem"):
         raise InputError(
@@ -389,6 +401,8 @@ def write_report(
         )
     if not filename.endswith(".html") or Path(filename).name != filename:
         raise InputError(f"filename {filename!r} must be a plain file name ending in .html")
+    if isinstance(notes, (str, bytes)) or not all(isinstance(n, ExportNote) for n in notes):
+        raise InputError("notes must be a sequence of spherecal.exporters.ExportNote")
     if validation is not None and not isinstance(validation, Mapping):
         raise InputError(f"validation must be a mapping of acceptance figures, got {type(validation).__name__}")
     th = thresholds or Thresholds()
@@ -435,7 +449,7 @@ def write_report(
         f'<p class="sub">{_e(result.mounting)} &middot; {_e(result.transform_name)} &middot; '
         f"{result.residuals.n_profiles_used} profiles &middot; generated {now} by spherecal {_e(__version__)}</p>",
         "<nav>" + "".join(f'<a href="#{s}">{s}</a>' for s in nav) + "</nav>",
-        _headline(result, ver, th),
+        _headline(result, ver, th, notes),
         '<h2 id="advice">What to do when something is off</h2>',
         _advice_html(items),
         '<h2 id="residuals">Residuals</h2>',

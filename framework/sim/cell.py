@@ -401,10 +401,13 @@ def standard_cell(
     """A cell with a generic (not axis-aligned) true transform, laid out for an arm's reach.
 
     For the reference arm (an IRB 2400-class arm, :data:`REFERENCE_REACH_MM`, shoulder at
-    :data:`REFERENCE_SHOULDER_MM`): eye-in-hand, the sensor sits about 160 mm out from the
-    flange looking along the flange's z, and the sphere stands at (1100, 150, 400) mm in
-    base; eye-to-hand, the sensor hangs at about (1250, -200, 900) mm in base looking down
-    (along base -z) at the sphere, which is on a 150 mm stylus on the flange's z axis.
+    :data:`REFERENCE_SHOULDER_MM`); the sensor looks towards its own -z (module
+    docstring). Eye-in-hand: the sensor sits about 160 mm out from the flange and looks
+    along the flange's +z, away from the flange; the sphere stands at (1100, 150, 400) mm
+    in base. Eye-to-hand: the sensor frame's origin is at about (1250, -200, 900) mm in
+    base with its z axis pointing down, so the sensor looks **up** (along base +z, within
+    6 deg), and the robot, reaching down, holds the sphere above it on a 150 mm stylus on
+    the flange's z axis.
 
     For another arm (``reach_mm`` and ``shoulder_mm``, base frame, mm; by default those of
     ``arm``, :func:`arm_layout`) the points fixed in base (the eye-in-hand sphere, the

@@ -28,6 +28,7 @@ from spherecal.plugins import hookimpl
 
 from .config import AbbIrb2400Config
 from .driver import AbbIrb2400Robot
+from .export import RAPID_EXPORTER
 from .kinematics import Irb2400Kinematics, kinematics_for
 from .simulator import start_simulator
 
@@ -91,3 +92,9 @@ ROBOT_TYPE = RobotType(
 @hookimpl
 def spherecal_register_devices(registry) -> None:
     registry.add_robot(ROBOT_TYPE)
+
+
+@hookimpl
+def spherecal_register_exporters(registry) -> None:
+    """The RAPID tooldata/wobjdata export, for this robot type (docs/results.md)."""
+    registry.add_exporter(RAPID_EXPORTER)

@@ -404,6 +404,21 @@ def config_cases() -> list[Case]:
          "n_columns"),
     ]:
         cases.append(cfg_case(id, repl, culprit))
+    mounting = r'^mounting = "eye_in_hand"$'
+    for id, export, culprit in [  # [export]: the core's keys and the exporters' own settings
+        ("export-mass-nan", "{ abb_rapid = { mass_kg = nan } }", "export.abb_rapid.mass_kg"),
+        ("export-mass-huge", "{ abb_rapid = { mass_kg = 1e308 } }", "export.abb_rapid.mass_kg"),
+        ("export-mass-string", '{ abb_rapid = { mass_kg = "2" } }', "export.abb_rapid.mass_kg"),
+        ("export-cog-inf", "{ abb_rapid = { cog_mm = [0, 0, inf] } }", "export.abb_rapid.cog_mm"),
+        ("export-tool-name", '{ abb_rapid = { tool_name = "tool0" } }', "export.abb_rapid.tool_name"),
+        ("export-frame-space", '{ ros2 = { frame_id = "tool 0" } }', "export.ros2.frame_id"),
+        ("export-frame-long", '{ ros2 = { child_frame_id = "' + "f" * 300 + '" } }', "export.ros2.child_frame_id"),
+        ("export-run-string", '{ run = "ros2" }', "export.run"),
+        ("export-run-unknown", '{ run = ["ros"] }', "export.run[0]"),
+        ("export-unknown-table", "{ rapid = {} }", "export.rapid"),
+        ("export-table-number", "{ ros2 = 5 }", "export.ros2"),
+    ]:
+        cases.append(cfg_case(id, {mounting: f'mounting = "eye_in_hand"\nexport = {export}'}, culprit))
     # the scan's own numbers are checked where scan reads them too
     cases.append(cfg_case("scan-ply-escape", {r"^passes = 2$": "passes = 2\nply = '../../x.ply'"}, "scan.ply",
                           command="scan"))

@@ -115,6 +115,8 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
     host = PluginHost()
     robot_cfg = host.validate_robot_config("abb_irb2400", cfg.robot)
     host.validate_sensor_config("nxsensor_i", cfg.sensor)
+    exports = host.export_plan(cfg.export, cfg.mounting, cfg.robot["type"])
+    assert exports.names[0] == "abb_rapid" and exports.selected[0].settings.cog_mm == (0.0, 0.0, 80.0)
     targets = plan_targets(cfg)
     assert check_targets(targets, cfg.acquisition) == []
     from spherecal.robots.abb_irb2400.kinematics import kinematics_for

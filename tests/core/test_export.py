@@ -8,6 +8,8 @@ from scipy.spatial.transform import Rotation
 from spherecal.dataio import read_result
 from spherecal.errors import InputError
 from spherecal.estimation import solve
+from spherecal.exporters import write_exports
+from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
@@ -73,79 +75,6 @@ def test_xyz_quaternion_line_round_trip(result):
     np.testing.assert_allclose(_R_from_wxyz(q), result.transform.rotation_matrix, atol=1e-7)
 
 
-# --- RAPID --------------------------------------------------------------------------------------------
-def test_rapid_tooldata_eye_in_hand(results):
-    r = results["eye_in_hand"]
-    text = ex.rapid_declaration(r)
-    d = ex.read_rapid(text)
-    assert d["kind"] == "tooldata" and d["name"] == "tSensor" and d["robhold"] is True
-    np.testing.assert_allclose(d["xyz_mm"], r.transform.translation_mm, atol=MM_TOL)
-    np.testing.assert_allclose(d["quaternion_wxyz"], r.transform.quaternion_wxyz, atol=Q_TOL)
-    assert abs(np.linalg.norm(d["quaternion_wxyz"]) - 1) < 1e-7
-    # the tool frame is flange_from_sensor: orient [q1..q4] is (w, x, y, z)
-    np.testing.assert_allclose(_R_from_wxyz(d["quaternion_wxyz"]), r.transform.rotation_matrix, atol=1e-7)
-    # default load: 1 kg at half way from the flange to the sensor
-    assert d["mass_kg"] == 1.0
-    np.testing.assert_allclose(d["cog_mm"], np.asarray(r.transform.translation_mm) / 2, atol=0.05)
-    assert f"{r.std_rotation_deg[1]:.4f}" in text and f"{r.std_translation_mm[0]:.4f}" in text
-
-
-def test_rapid_wobjdata_eye_to_hand(results):
-    r = results["eye_to_hand"]
-    text = ex.rapid_declaration(r)
-    d = ex.read_rapid(text)
-    assert d["kind"] == "wobjdata" and d["name"] == "wobjSensor"
-    assert d["robhold"] is False and d["ufprog"] is True  # fixed user frame, not robot-held
-    np.testing.assert_allclose(d["xyz_mm"], r.transform.translation_mm, atol=MM_TOL)
-    np.testing.assert_allclose(d["quaternion_wxyz"], r.transform.quaternion_wxyz, atol=Q_TOL)
-    assert '[FALSE, TRUE, "",' in text and "[[0, 0, 0], [1, 0, 0, 0]]];" in text
-
-
-def test_rapid_options_and_module(results, mounting):
-    r = results[mounting]
-    text = ex.rapid_module(r, "tLaser_2", module_name="CalibData", mass_kg=2.25, cog_mm=(1.0, -2.0, 55.5))
-    assert text.startswith("MODULE CalibData\n") and text.rstrip().endswith("ENDMODULE")
-    d = ex.read_rapid(text)
-    assert d["name"] == "tLaser_2"
-    np.testing.assert_allclose(d["xyz_mm"], r.transform.translation_mm, atol=MM_TOL)
-    if mounting == "eye_in_hand":
-        assert d["mass_kg"] == 2.25
-        np.testing.assert_allclose(d["cog_mm"], [1.0, -2.0, 55.5])
-    for line in text.splitlines():
-        assert len(line) <= ex.RAPID_MAX_LINE, line
-
-
-@pytest.mark.parametrize(
-    "name, message",
-    [
-        ("1tool", "not a valid RAPID identifier"),
-        ("my tool", "not a valid RAPID identifier"),
-        ("tSensor-1", "not a valid RAPID identifier"),
-        ("t" * 33, "at most 32"),
-        ("PERS", "reserved word"),
-        ("endmodule", "reserved word"),
-        ("tool0", "predefined"),
-    ],
-)
-def test_rapid_names_must_be_identifiers(results, name, message):
-    with pytest.raises(InputError, match=message):
-        ex.rapid_declaration(results["eye_in_hand"], name)
-    with pytest.raises(InputError, match=message):
-        ex.rapid_module(results["eye_to_hand"], module_name=name)
-
-
-def test_rapid_tool_load_must_have_mass(results):
-    with pytest.raises(InputError, match="mass > 0"):
-        ex.rapid_declaration(results["eye_in_hand"], mass_kg=0.0)
-    with pytest.raises(InputError, match="cog_mm must be 3 finite numbers"):
-        ex.rapid_declaration(results["eye_in_hand"], cog_mm=(1.0, 2.0))
-
-
-def test_rapid_reader_ignores_comments_and_finds_nothing_else():
-    with pytest.raises(InputError, match="no 'PERS tooldata' or 'PERS wobjdata'"):
-        ex.read_rapid("! PERS tooldata t := [TRUE, [[0,0,0],[1,0,0,0]], [1,[0,0,0],[1,0,0,0],0,0,0]];\n")
-
-
 # --- ROS ------------------------------------------------------------------------------------------------
 def _check_ros(d, r, parent, child):
     assert d["frame_id"] == parent and d["child_frame_id"] == child
@@ -182,29 +111,141 @@ def test_ros_frame_ids_are_checked(results):
         ex.ros_static_transform_command(r, frame_id="sensor")
 
 
+def test_ros_launch_compiles_and_publishes_the_result(result):
+    text = ex.ros_launch_py(result, frame_id="robot/tool0", child_frame_id="laser")
+    compile(text, "ros_static_transform.launch.py", "exec")  # valid Python, as `ros2 launch` needs
+    d = ex.read_ros_launch(text)
+    _check_ros(d, result, "robot/tool0", "laser")
+    assert "def generate_launch_description():" in text and 'executable="static_transform_publisher"' in text
+    assert 'package="tf2_ros"' in text and "METRES" in text and "(x, y, z, w)" in text
+    # the same arguments as the command line, in the Humble+ form (--x ... --child-frame-id)
+    assert d.keys() == ex.read_ros_command(ex.ros_static_transform_command(result, "robot/tool0", "laser")).keys()
+
+
+def test_ros_launch_runs_with_the_launch_api_stubbed(result, monkeypatch):
+    """Executed, not only parsed: generate_launch_description() builds one Node with
+    the arguments static_transform_publisher takes."""
+    import sys
+    import types
+
+    made = []
+    launch, launch_ros, actions = (types.ModuleType(n) for n in ("launch", "launch_ros", "launch_ros.actions"))
+    launch.LaunchDescription = lambda entities: ("description", entities)
+    actions.Node = lambda **kw: made.append(kw) or kw
+    launch_ros.actions = actions
+    for name, mod in (("launch", launch), ("launch_ros", launch_ros), ("launch_ros.actions", actions)):
+        monkeypatch.setitem(sys.modules, name, mod)
+    namespace = {}
+    exec(compile(ex.ros_launch_py(result), "launch.py", "exec"), namespace)
+    kind, (node,) = namespace["generate_launch_description"]()
+    assert kind == "description" and made == [node]
+    assert (node["package"], node["executable"]) == ("tf2_ros", "static_transform_publisher")
+    args = dict(zip(node["arguments"][::2], node["arguments"][1::2]))
+    parent = "tool0" if result.mounting == "eye_in_hand" else "base"
+    assert (args["--frame-id"], args["--child-frame-id"]) == (parent, "sensor")
+    np.testing.assert_allclose([float(args[k]) * 1000.0 for k in ("--x", "--y", "--z")],
+                               result.transform.translation_mm, atol=1e-4)
+
+
+def test_ros_launch_reader_rejects_what_is_not_one():
+    with pytest.raises(InputError, match="not valid Python: line 1"):
+        ex.read_ros_launch("def (:\n")
+    with pytest.raises(InputError, match="no static_transform_publisher node"):
+        ex.read_ros_launch("x = 1\n")
+
+
+def _R_from_urdf_rpy(rpy):
+    """URDF: rpy about the fixed x, y, z axes (extrinsic), R = Rz(yaw) Ry(pitch) Rx(roll);
+    SciPy's lower-case 'xyz' is extrinsic: independent of spherecal's rpy_from_matrix."""
+    return Rotation.from_euler("xyz", rpy).as_matrix()
+
+
+def test_urdf_joint_parses_and_round_trips_the_transform(result):
+    text = ex.ros_urdf_joint(result)
+    d = ex.read_ros_urdf_joint(text)  # well-formed XML with one fixed joint
+    parent = "tool0" if result.mounting == "eye_in_hand" else "base"
+    assert (d["frame_id"], d["child_frame_id"], d["joint"]) == (parent, "sensor", f"{parent}_to_sensor")
+    np.testing.assert_allclose(d["xyz_m"] * 1000.0, result.transform.translation_mm, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_R_from_urdf_rpy(d["rpy_rad"]), result.transform.rotation_matrix, rtol=0, atol=1e-12)
+    assert "METRES" in text and "RADIANS" in text and 'xmlns:xacro="http://www.ros.org/wiki/xacro"' in text
+
+
+def test_urdf_joint_places_the_sensor_as_pinocchio_reads_it(result):
+    """An independent URDF parser (Pinocchio's) puts the sensor link where the result
+    says: the flange eye-in-hand, the base eye-to-hand."""
+    import xml.etree.ElementTree as ET
+
+    import pinocchio as pin
+
+    parent = "tool0" if result.mounting == "eye_in_hand" else "base"
+    snippet = ET.fromstring(ex.ros_urdf_joint(result))
+    robot = ET.Element("robot", name="cell")
+    ET.SubElement(robot, "link", name=parent)
+    robot.extend(list(snippet))
+    model = pin.buildModelFromXML(ET.tostring(robot, encoding="unicode"))
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    pin.updateFramePlacements(model, data)
+    M = data.oMf[model.getFrameId("sensor")]  # in the root link, the parent
+    np.testing.assert_allclose(M.translation * 1000.0, result.transform.translation_mm, atol=1e-9)
+    np.testing.assert_allclose(M.rotation, result.transform.rotation_matrix, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rpy_round_trips_everywhere_even_at_gimbal_lock(seed):
+    rng = np.random.default_rng(seed)
+    rotations = list(Rotation.random(200, random_state=rng).as_matrix())
+    for pitch in (np.pi / 2, -np.pi / 2, np.pi / 2 - 1e-9, -np.pi / 2 + 1e-7):  # pitch +-90 deg and next to it
+        rotations.append(Rotation.from_euler("xyz", [rng.uniform(-3, 3), pitch, rng.uniform(-3, 3)]).as_matrix())
+    for R in rotations:
+        rpy = ex.rpy_from_matrix(R)
+        np.testing.assert_allclose(_R_from_urdf_rpy(rpy), R, rtol=0, atol=1e-12)
+
+
+def test_ros2_settings_are_checked():
+    with pytest.raises(ValueError, match="child_frame_id 'my sensor' is not a valid tf2 frame id"):
+        ex.Ros2ExportSettings(child_frame_id="my sensor")
+    with pytest.raises(ValueError, match="both 'sensor'"):
+        ex.Ros2ExportSettings(frame_id="sensor")
+    with pytest.raises(ValueError, match="at most 256 characters"):
+        ex.Ros2ExportSettings(frame_id="f" * 257)
+
+
 # --- JSON and all files at once -----------------------------------------------------------------------------
 def test_json_round_trip(result):
     assert ex.read_json(ex.json_text(result)) == result
 
 
 def test_write_exports_writes_every_export_readably(result, tmp_path):
-    paths = ex.write_exports(result, tmp_path / "out", rapid_name="tLaser", ros_child_frame_id="laser")
-    assert set(paths) == {"matrix", "xyz_quaternion", "rapid", "ros_command", "ros_yaml", "json"}
+    plan = PluginHost().export_plan({"run": ["matrix", "xyz_quaternion", "ros2"],
+                                     "ros2": {"child_frame_id": "laser"}}, result.mounting, None)
+    paths = write_exports(result, tmp_path / "out", plan)
+    name = result.transform_name
+    assert set(paths) == {f"{name}_4x4.txt", f"{name}_xyz_quat_wxyz.txt", *ex.ROS2_FILES, "result.json"}
     assert all(p.parent == tmp_path / "out" and p.is_file() for p in paths.values())
-    assert read_result(paths["json"]) == result
-    T = ex.read_matrix_text(paths["matrix"].read_text())[result.transform_name]
+    assert read_result(paths["result.json"]) == result
+    T = ex.read_matrix_text(paths[f"{name}_4x4.txt"].read_text())[result.transform_name]
     np.testing.assert_allclose(T, result.transform.as_matrix(), atol=1e-9)
-    name, xyz, q = ex.read_xyz_quaternion(paths["xyz_quaternion"].read_text())
+    _, xyz, q = ex.read_xyz_quaternion(paths[f"{name}_xyz_quat_wxyz.txt"].read_text())
     np.testing.assert_allclose(xyz, result.transform.translation_mm, atol=MM_TOL)
-    d = ex.read_rapid(paths["rapid"].read_text())
-    assert d["name"] == "tLaser"
-    np.testing.assert_allclose(d["quaternion_wxyz"], result.transform.quaternion_wxyz, atol=Q_TOL)
-    assert ex.read_ros_command(paths["ros_command"].read_text())["child_frame_id"] == "laser"
-    assert ex.read_ros_yaml(paths["ros_yaml"].read_text())["child_frame_id"] == "laser"
+    assert ex.read_ros_command(paths["ros_static_transform.sh"].read_text())["child_frame_id"] == "laser"
+    assert ex.read_ros_yaml(paths["ros_static_transform.yaml"].read_text())["child_frame_id"] == "laser"
+    assert ex.read_ros_launch(paths["ros_static_transform.launch.py"].read_text())["child_frame_id"] == "laser"
+    assert ex.read_ros_urdf_joint(paths["ros_sensor_joint.urdf.xacro"].read_text())["child_frame_id"] == "laser"
     # a second run refuses to replace the files unless asked
     with pytest.raises(InputError, match="exists; pass overwrite=True"):
-        ex.write_exports(result, tmp_path / "out")
-    ex.write_exports(result, tmp_path / "out", overwrite=True)
+        write_exports(result, tmp_path / "out", plan)
+    write_exports(result, tmp_path / "out", plan, overwrite=True)
+
+
+def test_write_exports_defaults_to_every_installed_exporter(result, tmp_path):
+    """Without a plan: every installed exporter for the mounting, default settings (the
+    robot is not known, so the built-in robot's export is written too)."""
+    paths = write_exports(result, tmp_path)
+    host = PluginHost()
+    expected = {f for e in host.exporters.exporters.values() if result.mounting in e.mountings
+                for f in e.file_names(result, e.settings_model())}
+    assert set(paths) == expected | {"result.json"} and len(expected) >= 6
 
 
 def test_exports_need_a_result():

@@ -8,6 +8,7 @@ import pytest
 
 from spherecal.errors import InputError
 from spherecal.estimation import solve
+from spherecal.exporters import ExportNote
 from spherecal.models import ObservationFlag, Pose
 from spherecal.report.assess import Thresholds, advice, calibration_std, inconsistent_stations, verdict
 from spherecal.report.html import FIGURE_NAMES, mapped_points, write_report
@@ -41,8 +42,13 @@ def bad_report(bad_solution, tmp_path_factory):
         "probe point error (mm)": {"value": 0.42, "limit": 0.2, "passed": False},
         "check poses": 12,
     }
-    path = write_report(bad_solution, out, title="Cell 3 <eye-in-hand>", validation=validation)
+    path = write_report(bad_solution, out, title="Cell 3 <eye-in-hand>", validation=validation, notes=NOTES)
     return path, path.read_text(encoding="utf-8")
+
+
+#: What the run's exporters say about the controller: a robot plugin's first, then ROS.
+NOTES = (ExportNote("Toy controller", "On a toy controller this is <tool.frame>.", code="TOOL t := [1, 2, 3];"),
+         ExportNote("ROS 2", "Publish it with the command below.", code="ros2 run tf2_ros static_transform_publisher"))
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +92,11 @@ def test_report_shows_the_key_numbers(bad_solution, bad_report):
     assert f"{r.residuals.rms_mm:.4f}" in text
     for label, cons in r.diagnostics["station_consistency"].items():
         assert f"<td>{label}</td>" in text and f"{cons['rms_mm']:.4f}" in text
-    assert "PERS tooldata tSensor" in text and "static_transform_publisher" in text
+    section = text[text.index('id="controller"'):text.index('id="advice"')]
+    # the exporters' notes in their order, escaped: the report itself names no controller
+    assert section.index("Toy controller") < section.index("ROS 2")
+    assert "On a toy controller this is &lt;tool.frame&gt;." in section and "<pre>TOOL t := [1, 2, 3];</pre>" in section
+    assert "static_transform_publisher" in section
 
 
 def test_report_lists_the_flagged_observation_and_why(bad_solution, bad_report):
@@ -117,7 +127,7 @@ def test_report_without_validation_and_other_mounting(clean_solution, tmp_path):
     text = path.read_text()
     assert 'id="validation"' not in text
     assert all((tmp_path / f"cal_{k}.png").is_file() for k in FIGURE_NAMES)
-    assert "base_from_sensor" in text and "PERS wobjdata wobjSensor" in text
+    assert "base_from_sensor" in text and "No exporter of this run says how to load the result" in text
     assert 'class="verdict green"' in text and "Nothing calls for action" in text
 
 
@@ -128,6 +138,8 @@ def test_report_rejects_what_is_not_a_solution(clean_solution, tmp_path):
         write_report(clean_solution, tmp_path, filename="../x.html")
     with pytest.raises(InputError, match="validation must be a mapping"):
         write_report(clean_solution, tmp_path, validation=[1, 2])
+    with pytest.raises(InputError, match="notes must be a sequence of spherecal.exporters.ExportNote"):
+        write_report(clean_solution, tmp_path, notes=["On a controller ..."])
 
 
 def test_mapped_points_lie_on_the_fitted_sphere(clean_solution):

@@ -250,6 +250,48 @@ def test_calibration_finished_receives_result_and_dataset():
     assert got == {"result": "R", "dataset": "D"}
 
 
+def test_lifecycle_hooks_tell_a_plugin_which_devices_ran():
+    """A robot plugin tells its own runs apart by the type name, not the provenance."""
+    got = []
+
+    def spherecal_observation_taken(observation, robot_type, sensor_type):
+        got.append(("observation", robot_type, sensor_type))
+
+    def spherecal_acquisition_finished(robot_type):
+        got.append(("acquisition", robot_type))
+
+    def spherecal_calibration_finished(out_dir, exports_written, robot_type):
+        got.append(("calibration", out_dir, exports_written, robot_type))
+
+    host = PluginHost(plugins=[("mine", make_plugin(
+        "mine", spherecal_observation_taken=spherecal_observation_taken,
+        spherecal_acquisition_finished=spherecal_acquisition_finished,
+        spherecal_calibration_finished=spherecal_calibration_finished))], load_entry_points=False)
+    host.observation_taken(observation=_observation(), robot_type="toy_robot", sensor_type="toy_sensor")
+    host.acquisition_finished(dataset="D", robot_type="toy_robot", sensor_type="toy_sensor")
+    host.calibration_finished(result="R", dataset="D", out_dir="/out", exports_written=True, robot_type="toy_robot")
+    host.calibration_finished(result="R", dataset="D", exports_written=True)  # no folder: nothing was written
+    assert got == [("observation", "toy_robot", "toy_sensor"), ("acquisition", "toy_robot"),
+                   ("calibration", "/out", True, "toy_robot"), ("calibration", None, False, None)]
+
+
+def test_with_autoload_off_an_unknown_type_does_not_say_install(fake_entry_points):
+    builtin = make_plugin("spherecal.fake_builtin", robots=["fake_robot"])
+    third = make_plugin("acme_plugins.robot", robots=["acme_arm"])
+    fake_entry_points({"fake_builtin": ("spherecal.fake_builtin", builtin), "acme": ("acme_plugins.robot", third)})
+    host = PluginHost(environ={DISABLE_AUTOLOAD_ENV: "1"})
+    with pytest.raises(ConfigError) as info:
+        host.create_robot({"type": "acme_arm"})
+    text = str(info.value)
+    assert text.startswith("robot.type: unknown robot type 'acme_arm'; installed robot types: fake_robot.")
+    assert "install the plugin" not in text
+    assert f"not loaded because {DISABLE_AUTOLOAD_ENV} is set (installed but not loaded: acme)" in text
+    assert f"unset {DISABLE_AUTOLOAD_ENV} or enable that plugin by name" in text
+    # with autoload on, a type nobody provides still says to install its plugin
+    with pytest.raises(ConfigError, match="install the plugin that provides it"):
+        PluginHost(environ={}).create_robot({"type": "nobodys_arm"})
+
+
 # --- registry lookups and configuration --------------------------------------------------------
 @pytest.fixture
 def toy_host():

@@ -28,16 +28,20 @@ DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 @pytest.fixture(scope="module")
 def exported_modules(tmp_path_factory):
-    """{file name: text} of every RAPID module (.mod, .sys) the exports write, for a result
-    of each mounting mode."""
+    """{file name: text} of every RAPID module (.mod, .sys) the exports of an IRB 2400 run
+    write (its plugin's and the core's exporters, with their default settings), for a
+    result of each mounting mode."""
     from spherecal.estimation import solve
-    from spherecal.report.export import write_exports
+    from spherecal.exporters import write_exports
+    from spherecal.plugins.host import PluginHost
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
+    host = PluginHost()
     found = {}
     for mounting in ("eye_in_hand", "eye_to_hand"):
         result = solve(simulate_dataset(standard_cell(mounting, seed=4), SweepPlan(profiles_per_station=6))).result
-        paths = write_exports(result, tmp_path_factory.mktemp(mounting))
+        plan = host.export_plan(None, mounting, "abb_irb2400")
+        paths = write_exports(result, tmp_path_factory.mktemp(mounting), plan)
         rapid = [p for p in paths.values() if p.suffix.lower() in (".mod", ".sys")]
         assert rapid, f"the {mounting} exports wrote no RAPID module: {sorted(paths)}"
         found.update({f"{mounting}/{p.name}": p.read_text() for p in rapid})
