@@ -61,12 +61,16 @@ __all__ = [
 
 #: ``format`` value on line 1 of every dataset file.
 DATASET_FORMAT = "spherecal-dataset"
-#: Newest dataset format version this module reads and the one it writes.
-DATASET_VERSION = 1
+#: Newest dataset format version this module reads and the one it writes. Version 2 adds
+#: centre observations (``circle``, ``sphere_centre_mm``) beside ``profile``.
+DATASET_VERSION = 2
+#: Observation fields that need format version 2.
+_VERSION_2_FIELDS = ("circle", "sphere_centre_mm", "sphere_centre_covariance_mm2")
 #: ``format`` value of every result file.
 RESULT_FORMAT = "spherecal-result"
-#: Newest result format version this module reads and the one it writes.
-RESULT_VERSION = 1
+#: Newest result format version this module reads and the one it writes. Version 2 adds
+#: the centre observations' figures to ``residuals``.
+RESULT_VERSION = 2
 
 _OBSERVATION_KIND = "observation"
 #: Longest line of a dataset file (a profile of 3200 points is about 130 kB).
@@ -157,6 +161,14 @@ def _parse_timestamp(value: Any) -> datetime:
     return ts
 
 
+def _within_limit(v: int | float) -> bool:
+    """A finite number of magnitude at most MAX_ABS_VALUE (a huge int overflows float)."""
+    try:
+        return abs(float(v)) <= MAX_ABS_VALUE
+    except OverflowError:
+        return False
+
+
 def _number_array(value: Any, field: str) -> np.ndarray:
     """A JSON list of numbers as a float array, refusing strings, booleans and nulls
     (which NumPy would otherwise convert, or keep as objects)."""
@@ -190,11 +202,7 @@ def _number_array(value: Any, field: str) -> np.ndarray:
                 raise _FieldError(field, f"expected a flat list of numbers, item {i} is a list")
             shown = "null" if v is None else json.dumps(v) if isinstance(v, (bool, str)) else repr(v)
             raise _FieldError(field, f"must hold only numbers; item {i} is {shown} ({type(v).__name__})")
-        try:
-            ok = abs(float(v)) <= MAX_ABS_VALUE
-        except OverflowError:
-            ok = False
-        if not ok:
+        if not _within_limit(v):
             raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} mm "
                                      "(check the units)")
     return np.asarray(value, dtype=float)
@@ -206,11 +214,7 @@ def _small_numbers(value: Any, field: str) -> Any:
         for i, v in enumerate(value):
             if type(v) is bool or not isinstance(v, (int, float)):
                 raise _FieldError(field, f"must hold only numbers; item {i} is {json.dumps(v)}")
-            try:
-                ok = abs(float(v)) <= MAX_ABS_VALUE
-            except OverflowError:
-                ok = False
-            if not ok:
+            if not _within_limit(v):
                 raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} "
                                          "(check the units)")
         return tuple(value)
@@ -242,7 +246,41 @@ def _keep_written_quaternion(pose: Pose, raw: Any) -> Pose:
     return pose
 
 
-def _observation_from_json(obj: Any) -> Observation:
+def _scalar_number(value: Any, field: str) -> Any:
+    """One JSON number, finite and at most MAX_ABS_VALUE (null passes: the model says
+    whether it may be absent)."""
+    if value is None:
+        return value
+    if type(value) is bool or not isinstance(value, (int, float)):
+        shown = json.dumps(value) if isinstance(value, (str, bool)) else repr(value)
+        raise _FieldError(field, f"must be a number, got {shown:.40}")
+    if not _within_limit(value):
+        raise _FieldError(field, f"{value!r:.40} is not a finite number of at most {MAX_ABS_VALUE:g} (check the units)")
+    return value
+
+
+def _centre_input(data: dict) -> None:
+    """The version-2 fields of an observation, checked number by number (in place)."""
+    circle = data.get("circle")
+    if isinstance(circle, dict):
+        circle = dict(circle)
+        if "centre_yz_mm" in circle:
+            circle["centre_yz_mm"] = _small_numbers(circle["centre_yz_mm"], "circle.centre_yz_mm")
+        for key in ("radius_mm", "centre_std_mm", "radius_std_mm"):
+            if key in circle:
+                circle[key] = _scalar_number(circle[key], f"circle.{key}")
+        data["circle"] = circle
+    if data.get("sphere_centre_mm") is not None:
+        data["sphere_centre_mm"] = _small_numbers(data["sphere_centre_mm"], "sphere_centre_mm")
+    cov = data.get("sphere_centre_covariance_mm2")
+    if cov is not None:
+        field = "sphere_centre_covariance_mm2"
+        if not isinstance(cov, list) or len(cov) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in cov):
+            raise _FieldError(field, "expected a 3x3 matrix: a list of 3 rows of 3 numbers, mm^2")
+        data[field] = tuple(_small_numbers(row, f"{field}[{i}]") for i, row in enumerate(cov))
+
+
+def _observation_from_json(obj: Any, version: int = DATASET_VERSION) -> Observation:
     if not isinstance(obj, dict):
         raise _FieldError("", f"expected a JSON object, got {type(obj).__name__}")
     if "format" in obj and "kind" not in obj:
@@ -261,6 +299,14 @@ def _observation_from_json(obj: Any) -> Observation:
         data["base_from_flange"] = _pose_input(data["base_from_flange"], "base_from_flange")
     if data.get("joints_deg") is not None:
         data["joints_deg"] = _small_numbers(data["joints_deg"], "joints_deg")
+    if version < 2:
+        late = [k for k in _VERSION_2_FIELDS if k in data]
+        if late:
+            raise _FieldError(late[0], f"needs dataset format version 2 (the header says version {version}): "
+                                       "write \"version\": 2 on line 1")
+        if "profile" not in data:
+            raise _FieldError("profile", "missing (required in version 1 files)")
+    _centre_input(data)
     profile = data.get("profile")
     if isinstance(profile, dict):
         profile = dict(profile)
@@ -289,9 +335,11 @@ def _observation_line(obs: Observation) -> bytes:
             f"observation {obs.index}: timestamp {ts.isoformat()} has no time zone; "
             "files hold ISO 8601 with a time zone (use datetime.now(timezone.utc))"
         )
-    y, z = obs.profile.y_mm, obs.profile.z_mm
-    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
-        raise InputError(f"observation {obs.index}: profile contains NaN or infinite values; not written")
+    profile = obs.profile
+    if profile is not None:
+        y, z = profile.y_mm, profile.z_mm
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+            raise InputError(f"observation {obs.index}: profile contains NaN or infinite values; not written")
     pose = obs.base_from_flange
     doc = {
         "kind": _OBSERVATION_KIND,
@@ -302,16 +350,33 @@ def _observation_line(obs: Observation) -> bytes:
         if pose is None
         else {"translation_mm": list(pose.translation_mm), "quaternion_wxyz": list(pose.quaternion_wxyz)},
         "joints_deg": None if obs.joints_deg is None else list(obs.joints_deg),
-        "profile": {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)},
     }
+    centre_numbers: list[float] = []
+    if profile is not None:
+        doc["profile"] = {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)}
+    elif obs.circle is not None:
+        c = obs.circle
+        doc["circle"] = {"centre_yz_mm": list(c.centre_yz_mm), "radius_mm": c.radius_mm}
+        if c.centre_std_mm is not None:
+            doc["circle"].update(centre_std_mm=c.centre_std_mm, radius_std_mm=c.radius_std_mm)
+        centre_numbers = [*c.centre_yz_mm, c.radius_mm]
+    else:
+        doc["sphere_centre_mm"] = list(obs.sphere_centre_mm)
+        centre_numbers = list(obs.sphere_centre_mm)
+        if obs.sphere_centre_covariance_mm2 is not None:
+            doc["sphere_centre_covariance_mm2"] = [list(r) for r in obs.sphere_centre_covariance_mm2]
+            centre_numbers += [v for r in obs.sphere_centre_covariance_mm2 for v in r]
     if obs.target is not None:
         doc["target"] = obs.target
     small = [*(pose.translation_mm if pose else ()), *(pose.quaternion_wxyz if pose else ()), *(obs.joints_deg or ())]
     if not all(math.isfinite(v) for v in small):
         raise InputError(f"observation {obs.index}: pose or joints contain NaN or infinite values; not written")
+    if not all(math.isfinite(v) for v in centre_numbers):
+        raise InputError(f"observation {obs.index}: {obs.kind} contains NaN or infinite values; not written")
     if _orjson is not None:
         return _orjson.dumps(doc, option=_orjson.OPT_SERIALIZE_NUMPY | _orjson.OPT_APPEND_NEWLINE)
-    doc["profile"] = {"y_mm": y.tolist(), "z_mm": z.tolist()}
+    if profile is not None:
+        doc["profile"] = {"y_mm": y.tolist(), "z_mm": z.tolist()}
     return (json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
 
 
@@ -505,7 +570,7 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
         idx = obj.get("index") if isinstance(obj, dict) else None
         where = f"{name} line {lineno}" + (f" (observation {idx})" if type(idx) is int else "")
         try:
-            obs = _observation_from_json(obj)
+            obs = _observation_from_json(obj, header.version)
         except _FieldError as exc:
             raise DatasetFileError(f"{where}: {exc}") from None
         if obs.index in seen:
@@ -668,7 +733,7 @@ class DatasetWriter:
         if h.version != DATASET_VERSION:
             raise DatasetFileError(
                 f"{name} is in dataset format version {h.version}; only version {DATASET_VERSION} files "
-                "can be continued: start a new file"
+                "can be continued: start a new file (read_dataset reads it; write_dataset writes it anew)"
             )
         if h.mounting != mounting or h.sphere_radius_mm != radius:
             raise DatasetFileError(

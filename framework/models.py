@@ -186,13 +186,78 @@ class Profile(BaseModel):
         return int(self.y_mm.size)
 
 
+class Circle(BaseModel):
+    """What a sensor that fits on board reports of one line: the circle the laser plane
+    cuts from the sphere, in the sensor's x = 0 plane, mm. It gives the sphere centre up
+    to the side of the plane: (+-sqrt(r^2 - radius^2), y, z)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    centre_yz_mm: tuple[float, float] = Field(description="circle centre (y, z) in the laser plane, sensor frame, mm")
+    radius_mm: float = Field(gt=0, description="circle radius, mm")
+    centre_std_mm: float | None = Field(
+        None, gt=0, description="standard deviation of each of the centre's y and z, mm (None: estimated from the data)")
+    radius_std_mm: float | None = Field(
+        None, gt=0, description="standard deviation of the radius, mm (None: estimated from the data)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        _finite((*self.centre_yz_mm, self.radius_mm), "circle")
+        for name in ("centre_std_mm", "radius_std_mm"):
+            v = getattr(self, name)
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {v}")
+        if (self.centre_std_mm is None) != (self.radius_std_mm is None):
+            raise ValueError("give both centre_std_mm and radius_std_mm, or neither (then both are estimated)")
+        if self.radius_mm > MAX_SPHERE_RADIUS_MM:
+            raise ValueError(f"radius_mm = {self.radius_mm:g} is implausibly large (at most {MAX_SPHERE_RADIUS_MM:g} mm)")
+        return self
+
+
+#: Relative tolerance on the symmetry of a given covariance, and on a negative eigenvalue
+#: (of the largest) taken as rounding.
+_COV_RTOL = 1e-9
+
+
+def check_covariance_3x3(value, what: str) -> tuple[tuple[float, float, float], ...]:
+    """A 3x3 covariance (mm^2): finite, symmetric and positive definite, else ValueError
+    saying which."""
+    C = np.asarray(value, dtype=float)
+    if C.shape != (3, 3):
+        raise ValueError(f"{what}: expected a 3x3 matrix (3 rows of 3 numbers), got shape {C.shape}")
+    if not np.all(np.isfinite(C)):
+        raise ValueError(f"{what}: contains NaN or infinite values")
+    scale = float(np.abs(C).max())
+    if scale == 0.0:
+        raise ValueError(f"{what}: is all zeros; a measurement has some noise (leave it out to have it estimated)")
+    if np.abs(C - C.T).max() > _COV_RTOL * scale:
+        i, j = np.unravel_index(int(np.argmax(np.abs(C - C.T))), C.shape)
+        raise ValueError(f"{what}: not symmetric (row {i} column {j} is {C[i, j]!r}, row {j} column {i} is {C[j, i]!r})")
+    w = np.linalg.eigvalsh((C + C.T) / 2)
+    if w[0] < -_COV_RTOL * scale:
+        raise ValueError(f"{what}: not positive semi-definite (eigenvalue {w[0]:.4g} mm^2): not a covariance")
+    if w[0] <= _COV_RTOL * scale:
+        raise ValueError(f"{what}: singular (smallest eigenvalue {w[0]:.4g} mm^2): a measurement has some noise in "
+                         "every direction")
+    return tuple(tuple(float(x) for x in row) for row in C)
+
+
+#: The three kinds of observation (what the sensor reported of the sphere).
+OBSERVATION_KINDS = ("profile", "circle", "sphere_centre")
+
+
 class Observation(BaseModel):
     """One shot: where the robot was and what the sensor saw.
 
     ``base_from_flange`` is the flange pose as the controller reported it (or as forward
     kinematics gave it); ``joints_deg`` the joint reading (controller convention). At
     least one of the two must be present. Observations of one ``station`` share one
-    flange orientation (pure translations between them)."""
+    flange orientation (pure translations between them).
+
+    What the sensor saw is exactly one of: ``profile`` (the raw laser line), ``circle``
+    (the circle fitted to it, on board) or ``sphere_centre_mm`` (the sphere centre
+    already resolved, sensor frame, with an optional covariance
+    ``sphere_centre_covariance_mm2``); :attr:`kind` says which."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -202,7 +267,13 @@ class Observation(BaseModel):
     timestamp: datetime = Field(default_factory=lambda: datetime.now(timezone.utc))
     base_from_flange: Pose | None = None
     joints_deg: tuple[float, float, float, float, float, float] | None = None
-    profile: Profile
+    profile: Profile | None = None
+    circle: Circle | None = None
+    sphere_centre_mm: tuple[float, float, float] | None = Field(
+        None, description="sphere centre (x, y, z) in the sensor frame, mm")
+    sphere_centre_covariance_mm2: tuple[tuple[float, float, float], tuple[float, float, float],
+                                        tuple[float, float, float]] | None = Field(
+        None, description="covariance of sphere_centre_mm, sensor frame, mm^2 (None: estimated from the data)")
     target: int | None = Field(None, ge=0, description="index of the planned target it was taken at, if any")
 
     @model_validator(mode="after")
@@ -211,7 +282,24 @@ class Observation(BaseModel):
             raise ValueError("needs base_from_flange or joints_deg (neither given)")
         if self.joints_deg is not None:
             _finite(self.joints_deg, "joints_deg")
+        given = [k for k, v in (("profile", self.profile), ("circle", self.circle),
+                                ("sphere_centre_mm", self.sphere_centre_mm)) if v is not None]
+        if len(given) != 1:
+            raise ValueError(
+                "needs exactly one of profile, circle and sphere_centre_mm "
+                + (f"(got {' and '.join(given)})" if given else "(none given)"))
+        if self.sphere_centre_mm is not None:
+            _finite(self.sphere_centre_mm, "sphere_centre_mm")
+        if self.sphere_centre_covariance_mm2 is not None:
+            if self.sphere_centre_mm is None:
+                raise ValueError("sphere_centre_covariance_mm2 is given without sphere_centre_mm")
+            check_covariance_3x3(self.sphere_centre_covariance_mm2, "sphere_centre_covariance_mm2")
         return self
+
+    @property
+    def kind(self) -> str:
+        """'profile', 'circle' or 'sphere_centre' (:data:`OBSERVATION_KINDS`)."""
+        return "profile" if self.profile is not None else "circle" if self.circle is not None else "sphere_centre"
 
 
 class Dataset(BaseModel):
@@ -251,8 +339,11 @@ class ObservationFlag(BaseModel):
 
 
 class ResidualStats(BaseModel):
-    """Residuals of the final fit: in-plane distance of each profile point to the
-    predicted circle (the sphere cut by the laser plane), mm."""
+    """Residuals of the final fit, mm: the in-plane distance of each profile point to the
+    predicted circle (the sphere cut by the laser plane) and, for centre observations,
+    each component of the centre residual (sphere centre: x, y, z; circle: y, z and the
+    radius; docs/estimation.md). ``rms_mm``, ``max_abs_mm``, ``p95_abs_mm`` and
+    ``per_station_rms_mm`` are over all of these scalars."""
 
     rms_mm: float
     max_abs_mm: float
@@ -261,6 +352,9 @@ class ResidualStats(BaseModel):
     n_points_rejected: int
     n_profiles_used: int
     per_station_rms_mm: dict[str, float]
+    n_centres_used: int = Field(0, description="centre observations (circles, sphere centres) used")
+    centre_rms_mm: float | None = Field(None, description="RMS length of the centre residuals (3-D), mm")
+    centre_max_mm: float | None = Field(None, description="largest length of a centre residual, mm")
 
 
 class KinematicParameter(BaseModel):
@@ -328,7 +422,7 @@ class CalibrationResult(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     format: Literal["spherecal-result"] = "spherecal-result"
-    version: Literal[1] = 1
+    version: Literal[1, 2] = 2
     mounting: MountingMode
     transform_name: str
     transform: Pose

@@ -712,7 +712,9 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
         f"{b}_from_{a}: translation_mm = [{', '.join(f'{v:.4f}' for v in inv.translation_mm)}], "
         f"quaternion_wxyz = [{', '.join(f'{v:.8f}' for v in inv.quaternion_wxyz)}]",
         f"residuals: RMS {r.residuals.rms_mm:.4f} mm over {r.residuals.n_points_used} points of "
-        f"{r.residuals.n_profiles_used} profiles; {r.residuals.n_points_rejected} stray points rejected",
+        f"{r.residuals.n_profiles_used} profiles; {r.residuals.n_points_rejected} stray points rejected"
+        + (f"; {r.residuals.n_centres_used} centre observations, their residuals {r.residuals.centre_rms_mm:.4f} mm "
+           f"RMS (3-D), {r.residuals.centre_max_mm:.4f} mm at most" if r.residuals.n_centres_used else ""),
     ]
     re = r.robot_error
     if re is not None:

@@ -8,6 +8,9 @@ transform with its uncertainty.
 4. :mod:`.refine`: joint refinement over every point with the robot pose noise in the
    noise model, and the covariance; :func:`.refine.cramer_rao_bound`.
 5. :mod:`.pipeline`: screening, outlier rejection, diagnostics, the result.
+
+Centre observations (a circle fitted on board, a sphere centre from a table) join every
+step beside the profiles; :mod:`.centres` checks a typed table row by row.
 """
 
 from .pipeline import CalibrationOptions, Solution, calibrate, solve

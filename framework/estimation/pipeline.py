@@ -3,7 +3,7 @@ refinement, outlier rejection, diagnostics."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Literal
 
 import numpy as np
@@ -18,9 +18,13 @@ from ..models import (
 )
 from .circle import CircleFit, fit_circle
 from .prediction import point_error_budget
-from .problem import Problem, build_problem, derived_station_rotation_tolerance_deg, screen_station_orientations
+from .problem import (
+    KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, build_problem,
+    derived_station_rotation_tolerance_deg, screen_station_orientations,
+)
 from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
-from .twostep import TwoStepResult, two_step
+from .centres import screen_table, settle_pairs
+from .twostep import CentreShot, TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
 CHI2_3DOF_1E4 = 21.108
@@ -172,6 +176,50 @@ def solve(
             "(spherecal solve --robot TYPE)"
         )
     joints_known = problem.q_rad is not None
+    # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
+    table_keep, table_flags, pairs = screen_table(problem)
+    for f in table_flags:
+        say(f"observation {f.index}: {f.reason}")
+    if not table_keep.any():
+        raise DegenerateDataError("every observation was left out: " + "; ".join(
+            f"observation {f.index}: {f.reason}" for f in table_flags[:5]))
+
+    def attempt(keep, flags):
+        try:
+            return _solve(dataset, problem.subset(keep) if not keep.all() else problem, opt, say, kinematics,
+                          joints_known, list(flags))
+        except DegenerateDataError as exc:
+            if not flags:
+                raise
+            raise DegenerateDataError(f"{exc} (left out before: " + "; ".join(
+                f"observation {f.index}: {f.reason}" for f in flags[:5]) + ")") from None
+
+    solution = attempt(table_keep, table_flags)
+    if not pairs:
+        return solution
+    # two rows of a station that disagree, nothing within it telling which is wrong: the
+    # solution of the other observations may tell; the row that agrees with it is used
+    ref = solution.refined
+    noise_mm = ref.centre_noise_mm or float(solution.result.diagnostics["noise"]["point_noise_mm"])
+    settled = settle_pairs(problem, pairs, ref.R, ref.t, ref.centre, np.hypot(noise_mm, opt.pose_translation_noise_mm),
+                           opt.profile_outlier_chi2)
+    if not settled:
+        return solution
+    keep, flags = table_keep.copy(), list(table_flags)
+    for good, bad, chi_good, chi_bad in settled:
+        keep[good] = True
+        g, b = int(problem.obs_index[good]), int(problem.obs_index[bad])
+        flags = [f for f in flags if f.index != g]
+        flags = [f.model_copy(update={"reason": f.reason.replace(
+            "one of the two rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out",
+            f"the typo is in this row (a sign, metres for millimetres?): the solution of the other observations puts "
+            f"observation {g} where it was seen (chi2 {chi_good:.1f}, 3 dof) and this one not (chi2 {chi_bad:.3g})")})
+                 if f.index == b else f for f in flags]
+        say(f"observation {g} agrees with the solution of the others and is used; observation {b} is left out")
+    return attempt(keep, flags)
+
+
+def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) -> Solution:
     robot_effects = {
         "station_effects": opt.station_effects(joints_known),
         "kinematic_effects": opt.kinematic_effects(kinematics.chain)
@@ -184,15 +232,21 @@ def solve(
         opt.min_profiles_per_station,
     )
     problem = ori.problem
-    flags: list[ObservationFlag] = list(ori.flags)
+    flags: list[ObservationFlag] = table_flags + list(ori.flags)
     for note in ori.notes:
         say(note)
     hint = _turned_hint(ori.flags, ori.diagnostics["tolerance_deg"])
     r = problem.radius_mm
 
-    say(f"fitting circles to {problem.n_profiles} profiles")
-    fits: dict[int, CircleFit] = {}
+    kinds = problem.kinds
+    n_centres = int(np.count_nonzero(kinds != KIND_PROFILE))
+    say(f"fitting circles to {problem.n_profiles - n_centres} profiles"
+        + (f"; {n_centres} centre observations" if n_centres else ""))
+    fits: dict[int, CircleFit | CentreShot] = {}
     for i, pts in enumerate(problem.profiles):
+        if kinds[i] != KIND_PROFILE:
+            fits[i] = _centre_shot(problem, i)
+            continue
         if len(pts) < opt.min_points_per_profile:
             flags.append(_flag(problem, i, f"only {len(pts)} points (needs {opt.min_points_per_profile}): "
                                            "the line barely touches the sphere or misses it"))
@@ -245,16 +299,21 @@ def solve(
                 f"and profiles and re-acquire{hint}"
             )
 
+    circle_fits = [f for f in sub_fits.values() if isinstance(f, CircleFit)]
     if opt.point_noise_mm is not None:
         sigma = opt.point_noise_mm
-    else:
-        num = sum(f.rms**2 * f.n_inliers for f in sub_fits.values())
-        den = sum(max(f.n_inliers - 3, 1) for f in sub_fits.values())
+    elif circle_fits:
+        num = sum(f.rms**2 * f.n_inliers for f in circle_fits)
+        den = sum(max(f.n_inliers - 3, 1) for f in circle_fits)
         sigma = float(np.sqrt(num / den))
+    else:
+        sigma = DEFAULT_POINT_NOISE_MM  # no profile: the points' noise enters only the point-error budget
     noise = NoiseAssumptions(max(sigma, 1e-7), opt.pose_translation_noise_mm, opt.pose_rotation_noise_deg)
 
-    clean = sub.with_profiles([p[sub_fits[j].inliers] for j, p in enumerate(sub.profiles)])
-    say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points")
+    clean = sub.with_profiles([p[sub_fits[j].inliers] if isinstance(sub_fits[j], CircleFit) else p
+                               for j, p in enumerate(sub.profiles)])
+    say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points"
+        + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
     ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      **robot_effects)
 
@@ -263,16 +322,18 @@ def solve(
     # wrong. It is left out and flagged (worst first, refitting after each), never refitted
     # empty; once the rejection budget is spent, only profiles that would keep too few
     # points are left out, the others are trimmed.
-    while True:
+    keep_pts = [np.ones(len(e), dtype=bool) for e in ref.residuals]
+    while (clean.kinds == KIND_PROFILE).any():
+        is_profile = clean.kinds == KIND_PROFILE
         all_res = np.concatenate(ref.residuals)
         limit = opt.point_outlier_k * max(1.4826 * np.median(np.abs(all_res)), noise.point_noise_mm)
         keep_pts = [np.abs(e) <= limit for e in ref.residuals]
         lost = np.array([int((~k).sum()) for k in keep_pts])
         counts = np.array([len(k) for k in keep_pts])
-        too_few = counts - lost < opt.min_points_per_profile
-        bad = too_few | (lost > opt.max_stray_point_fraction * counts)
+        too_few = is_profile & (counts - lost < opt.min_points_per_profile)
+        bad = too_few | (is_profile & (lost > opt.max_stray_point_fraction * counts))
         if rejected < max_reject and bad.any():
-            drop = [int(np.argmax(np.where(bad, lost / counts, -1.0)))]
+            drop = [int(np.argmax(np.where(bad, lost / np.maximum(counts, 1), -1.0)))]
         elif too_few.any():
             drop = np.flatnonzero(too_few).tolist()
         else:
@@ -298,9 +359,16 @@ def solve(
         worst = int(np.argmax(chi2))
         if chi2[worst] <= opt.profile_outlier_chi2:
             break
-        shift = float(np.sqrt(chi2[worst] * np.trace(ref.centre_cov[worst]) / 3))
-        flags.append(_flag(clean, worst, f"inconsistent with the other profiles (chi2 {chi2[worst]:.1f} on 3 dof, "
-                                         f"about {shift:.3f} mm): a pose read at the wrong moment or a bad pairing"))
+        if clean.kinds[worst] == KIND_PROFILE:
+            shift = float(np.sqrt(chi2[worst] * np.trace(ref.centre_cov[worst]) / 3))
+            flags.append(_flag(clean, worst, f"inconsistent with the other profiles (chi2 {chi2[worst]:.1f} on 3 dof, "
+                                             f"about {shift:.3f} mm): a pose read at the wrong moment or a bad pairing"))
+        else:
+            off = float(np.linalg.norm(ref.centre_residuals[worst]))
+            flags.append(_flag(clean, worst, f"inconsistent with the other observations (chi2 {chi2[worst]:.1f} on 3 "
+                                             f"dof): its {KIND_NAMES[clean.kinds[worst]]} is {off:.3f} mm from where the "
+                                             "fit puts it: a typo in the row, a pose read at the wrong moment or a bad "
+                                             "pairing"))
         keep = np.ones(clean.n_profiles, dtype=bool)
         keep[worst] = False
         clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
@@ -308,11 +376,51 @@ def solve(
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      **robot_effects)
 
-    n_point_rejected = sum(original_points[int(i)] - len(p) for i, p in zip(clean.obs_index, clean.profiles))
+    if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
+        # no profile shows the sensor's point noise: the centres' per-axis noise stands in
+        # for it (in the expected residual and the point-error budget)
+        noise = replace(noise, point_noise_mm=_typical_centre_sd(clean, ref))
+    n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
-    return Solution(result, clean, ts, ref, fits)
+    return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+
+
+#: Point noise assumed, for the point-error budget only, when no profile shows it, mm.
+DEFAULT_POINT_NOISE_MM = 0.01
+
+
+def _centre_shot(problem: Problem, i: int) -> CentreShot:
+    """A centre observation as the two-step takes it (:class:`.twostep.CentreShot`)."""
+    v = problem.centre_meas[i]
+    if problem.kinds[i] == KIND_CIRCLE:
+        return CentreShot(v[:2].copy(), float(v[2]))
+    r = problem.radius_mm
+    return CentreShot(v[1:].copy(), float(np.sqrt(max(r * r - v[0] ** 2, 0.0))), float(v[0]))
+
+
+def _typical_centre_sd(problem: Problem, ref: RefineResult) -> float:
+    """RMS per-axis standard deviation of the centre observations, mm: the estimated one
+    for those given without a covariance, the given ones' otherwise."""
+    given = problem.centre_cov
+    known = ~np.isnan(given[:, 0, 0])
+    var = np.where(known, np.trace(np.where(known[:, None, None], given, 0.0), axis1=1, axis2=2) / 3,
+                   (ref.centre_noise_mm or 0.0) ** 2)
+    return float(np.sqrt(np.mean(var[problem.kinds != KIND_PROFILE])))
+
+
+def station_minimum(kinds: np.ndarray, opt: "CalibrationOptions") -> tuple[int, str, str]:
+    """The fewest usable shots a station of these kinds needs, and why. Profiles:
+    ``min_profiles_per_station`` (each decides its side of the laser plane and is checked
+    against the others). Sphere centres only: 1 (each gives its centre; the translation
+    needs one shot per orientation). With circles: 2 (a move within the station decides
+    their side of the laser plane)."""
+    if (kinds == KIND_PROFILE).all():
+        return opt.min_profiles_per_station, "profiles", "add profiles to its sweep"
+    if (kinds == KIND_SPHERE_CENTRE).all():
+        return 1, "observations", "add a shot to the station"
+    return 2, "observations", "a move within the station decides the side of the laser plane: add a shot to it"
 
 
 def _turned_hint(turned: list[ObservationFlag], tolerance_deg: float) -> str:
@@ -330,10 +438,13 @@ def _thin_stations(problem: Problem, keep: np.ndarray, flags: list[ObservationFl
     keep = keep.copy()
     for k, label in enumerate(problem.station_labels):
         members = np.flatnonzero((problem.station_of == k) & keep)
-        if 0 < len(members) < opt.min_profiles_per_station:
+        if not len(members):
+            continue
+        need, what, advice = station_minimum(problem.kinds[members], opt)
+        if len(members) < need:
             for i in members:
-                flags.append(_flag(problem, i, f"station {label} has only {len(members)} usable profiles {context}"
-                                               f"(needs {opt.min_profiles_per_station}): add profiles to its sweep"))
+                flags.append(_flag(problem, i, f"station {label} has only {len(members)} usable {what} {context}"
+                                               f"(needs {need}): {advice}"))
             keep[members] = False
     return keep
 
@@ -491,9 +602,23 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
     cov = ref.covariance * 1.0
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     res = np.concatenate(ref.residuals)
+    n_points = int(res.size)
     per_station = {}
+    centre_res = ref.centre_residuals
+    centre_stats = {}
+    if centre_res is not None:
+        # the components of the centre residuals join the points' (docs/estimation.md)
+        used = ~np.isnan(centre_res[:, 0])
+        res = np.concatenate([res, centre_res[used].ravel()])
+        lengths = np.linalg.norm(centre_res[used], axis=1)
+        centre_stats = {"n_centres_used": int(used.sum()), "centre_rms_mm": float(np.sqrt(np.mean(lengths**2))),
+                        "centre_max_mm": float(lengths.max())}
     for k, label in enumerate(clean.station_labels):
-        e = np.concatenate([ref.residuals[i] for i in np.flatnonzero(clean.station_of == k)])
+        members = np.flatnonzero(clean.station_of == k)
+        e = np.concatenate([ref.residuals[i] for i in members])
+        if centre_res is not None:
+            c = centre_res[members]
+            e = np.concatenate([e, c[~np.isnan(c[:, 0])].ravel()])
         per_station[label] = float(np.sqrt(np.mean(e**2)))
     mode = dataset.mounting
     return CalibrationResult(
@@ -515,14 +640,16 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
             rms_mm=float(np.sqrt(np.mean(res**2))),
             max_abs_mm=float(np.abs(res).max()),
             p95_abs_mm=float(np.percentile(np.abs(res), 95)),
-            n_points_used=int(res.size),
+            n_points_used=n_points,
             n_points_rejected=int(n_point_rejected),
-            n_profiles_used=clean.n_profiles,
+            n_profiles_used=int(np.count_nonzero(clean.kinds == KIND_PROFILE)),
             per_station_rms_mm=per_station,
+            **centre_stats,
         ),
         flagged=sorted(flags, key=lambda f: f.index),
         method="two-step (Ren, Yin and Zhu 2012) start, then joint refinement over all points "
-        "(generalised least squares with robot pose noise, stray points and inconsistent profiles rejected)",
+        "(generalised least squares with robot pose noise, stray points and inconsistent profiles rejected)"
+        + (" and centre observations, each with its covariance" if clean.has_centres else ""),
         two_step_transform=Pose.from_rt(ts.R, ts.t),
         diagnostics={
             "orientations": orientations,
@@ -543,6 +670,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
                 "pose_translation_noise_mm": noise.pose_translation_noise_mm * np.sqrt(ref.pose_noise_scale),
                 "pose_rotation_noise_deg": noise.pose_rotation_noise_deg * np.sqrt(ref.pose_noise_scale),
                 "pose_noise_estimated": opt.estimate_pose_noise,
+                **({"centre_noise_mm": ref.centre_noise_mm} if centre_res is not None else {}),
             },
         },
         provenance={"dataset": dataset.provenance.get("source", "unknown")},

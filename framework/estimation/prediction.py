@@ -64,7 +64,9 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     many shots of one station (a sphere centre fitted from a sweep): the per-shot pose
     noise and the point noise average out, the station's offset does not."""
     pts = np.vstack(problem.profiles)
-    p = np.array([0.0, *pts.mean(axis=0)])
+    # without profiles (centre observations only): where the sphere centres were seen,
+    # brought into the laser plane
+    p = np.array([0.0, *(pts.mean(axis=0) if len(pts) else ref.predicted[:, 1:].mean(axis=0))])
     JX, JR, Jp = _jacobians(problem, ref.R, ref.t, p)
     kt = ref.kinematic_terms
     S_shot = _pose_cov(noise) * ref.pose_noise_scale / shots_averaged

@@ -9,7 +9,7 @@ or ``base_from_sensor``), every profile point p = (0, y, z) satisfies
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -17,6 +17,11 @@ import numpy as np
 from .. import geometry as geo
 from ..errors import DegenerateDataError, InputError, SpherecalError
 from ..models import Dataset, ObservationFlag, Pose
+
+
+#: Kinds of shot in :attr:`Problem.kind`.
+KIND_PROFILE, KIND_CIRCLE, KIND_SPHERE_CENTRE = 0, 1, 2
+KIND_NAMES = {KIND_PROFILE: "profile", KIND_CIRCLE: "circle", KIND_SPHERE_CENTRE: "sphere centre"}
 
 
 @dataclass
@@ -34,10 +39,28 @@ class Problem:
     station_of: np.ndarray  # (n,) station number of each profile
     station_labels: list[str]
     q_rad: np.ndarray | None = None  # (n, joints) model joint angles of each shot, when known
+    # centre observations (docs/estimation.md, "Centre observations"); None: every shot is a profile
+    kind: np.ndarray | None = None  # (n,) KIND_PROFILE, KIND_CIRCLE or KIND_SPHERE_CENTRE
+    centre_meas: np.ndarray | None = None  # (n, 3) circle (y, z, radius) or sphere centre (x, y, z), mm; NaN for profiles
+    centre_cov: np.ndarray | None = None  # (n, 3, 3) its given covariance, mm^2; NaN where not given (estimated)
 
     @property
     def n_profiles(self) -> int:
+        """Shots (rows) of the problem, whatever their kind (historical name)."""
         return len(self.profiles)
+
+    @property
+    def kinds(self) -> np.ndarray:
+        """(n,) kind of each shot (all KIND_PROFILE without centre observations)."""
+        return self.kind if self.kind is not None else np.zeros(len(self.profiles), dtype=int)
+
+    @property
+    def has_centres(self) -> bool:
+        return self.kind is not None and bool(np.any(self.kind != KIND_PROFILE))
+
+    def _take(self, keep: np.ndarray, name: str):
+        v = getattr(self, name)
+        return None if v is None else v[keep]
 
     def subset(self, keep: np.ndarray) -> "Problem":
         """The same problem restricted to the profiles where ``keep`` is True."""
@@ -56,14 +79,12 @@ class Problem:
             np.array([remap[s] for s in self.station_of[keep]], dtype=int),
             [self.station_labels[i] for i in labels_used],
             None if self.q_rad is None else self.q_rad[keep],
+            self._take(keep, "kind"), self._take(keep, "centre_meas"), self._take(keep, "centre_cov"),
         )
 
     def with_profiles(self, profiles: list[np.ndarray]) -> "Problem":
         """The same problem with other point sets (e.g. stray points removed)."""
-        return Problem(
-            self.mounting, self.radius_mm, self.R0, self.t0, self.R_A, self.t_A, profiles,
-            self.obs_index, self.station_of, self.station_labels, self.q_rad,
-        )
+        return replace(self, profiles=profiles)
 
 
 def sphere_frame_from_base(mounting: str, R0: np.ndarray, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -109,8 +130,11 @@ def build_problem(
         t0.append(pose.translation)
     R0 = np.array(R0)
     t0 = np.array(t0)
-    profiles = [o.profile.points_mm for o in obs]
+    profiles = [o.profile.points_mm if o.profile is not None else np.zeros((0, 2)) for o in obs]
     _check_units(dataset, t0, profiles)
+    kind = centre_meas = centre_cov = None
+    if any(o.profile is None for o in obs):
+        kind, centre_meas, centre_cov = centre_arrays(obs)
 
     labels: list[str] = []
     station_of = np.empty(len(obs), dtype=int)
@@ -124,8 +148,30 @@ def build_problem(
         q_rad = np.array([model_joints_rad(np.asarray(o.joints_deg, dtype=float)) for o in obs])
     return Problem(
         dataset.mounting, dataset.sphere_radius_mm, R0, t0, R_A, t_A, profiles,
-        np.array([o.index for o in obs]), station_of, labels, q_rad,
+        np.array([o.index for o in obs]), station_of, labels, q_rad, kind, centre_meas, centre_cov,
     )
+
+
+def centre_arrays(observations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kind (n,), measurement (n, 3) and given covariance (n, 3, 3) of each observation
+    (see :class:`Problem`): a circle's standard deviations become a diagonal covariance
+    of (y, z, radius); NaN where nothing is given (the fit estimates it)."""
+    n = len(observations)
+    kind = np.zeros(n, dtype=int)
+    meas = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    for i, o in enumerate(observations):
+        if o.circle is not None:
+            kind[i] = KIND_CIRCLE
+            meas[i] = [*o.circle.centre_yz_mm, o.circle.radius_mm]
+            if o.circle.centre_std_mm is not None:
+                cov[i] = np.diag([o.circle.centre_std_mm**2] * 2 + [o.circle.radius_std_mm**2])
+        elif o.sphere_centre_mm is not None:
+            kind[i] = KIND_SPHERE_CENTRE
+            meas[i] = o.sphere_centre_mm
+            if o.sphere_centre_covariance_mm2 is not None:
+                cov[i] = np.array(o.sphere_centre_covariance_mm2, dtype=float)
+    return kind, meas, cov
 
 
 # --- one orientation per station ------------------------------------------------------------
@@ -275,10 +321,7 @@ def screen_station_orientations(
                            f"(tolerance {tolerance_deg:.3f} deg): "
                            "within a station the robot may only translate",
                 ))
-    shaped = Problem(
-        problem.mounting, problem.radius_mm, problem.R0, problem.t0, problem.R_A, problem.t_A,
-        problem.profiles, problem.obs_index, station_of, labels, problem.q_rad,
-    )
+    shaped = replace(problem, station_of=station_of, station_labels=labels)
     diagnostics = {
         "tolerance_deg": float(tolerance_deg),
         "tolerance_derived": derived,
@@ -293,7 +336,7 @@ def screen_station_orientations(
 
 def _check_units(dataset: Dataset, t0: np.ndarray, profiles: list[np.ndarray]) -> None:
     r = dataset.sphere_radius_mm
-    extent = max(float(np.abs(p).max()) for p in profiles)
+    extent = max((float(np.abs(p).max()) for p in profiles if len(p)), default=np.inf)
     if extent < 0.05 * r and extent < 1.0:
         raise InputError(
             f"profile points span at most {extent:.4g} from the sensor origin while the sphere radius is "

@@ -26,7 +26,7 @@ from .. import geometry as geo
 from ..kinematics import (
     SerialChain, chain_with_errors, error_parameter_names, flange_corrections, flange_error_jacobian,
 )
-from .problem import Problem, sphere_frame_from_base
+from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, sphere_frame_from_base
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,10 @@ class RefineResult:
     # design (n, 6, q) at each shot, influence (P, q) of their true values on the estimate,
     # prior covariance (q, q), posterior mean (q,) and covariance (q, q)
     kinematic_terms: dict | None = None
+    # centre observations: residual of each shot (n, 3), mm (NaN rows for profiles), and the
+    # per-axis standard deviation estimated for those given without a covariance (mm)
+    centre_residuals: np.ndarray | None = None
+    centre_noise_mm: float | None = None
 
 
 def _centres(problem: Problem, R, t, c):
@@ -126,34 +130,80 @@ class _Whitener:
         return np.sum(Y**2, axis=1)
 
 
+class _MixedWhitener:
+    """Profiles' points (rows 0..M-1, :class:`_Whitener`) and centre observations (three
+    rows each, after them): each centre's residual is whitened by ``L_j^-1``, ``L_j L_j^T``
+    its covariance (measurement plus pose noise)."""
+
+    def __init__(self, points: _Whitener | None, Wc: np.ndarray, M: int, n: int, shots: np.ndarray,
+                 centre_shots: np.ndarray):
+        self.points, self.Wc, self.M, self.n = points, Wc, M, n
+        self.shots, self.centre_shots = shots, centre_shots
+
+    def apply(self, x):
+        x2 = x if x.ndim == 2 else x[:, None]
+        m, K = len(self.centre_shots), x2.shape[1]
+        top = self.points.apply(x2[:self.M]) if self.M else np.zeros((0, K))
+        bottom = np.einsum("mij,mjk->mik", self.Wc, x2[self.M:].reshape(m, 3, K)).reshape(3 * m, K)
+        out = np.vstack([top, bottom])
+        return out if x.ndim == 2 else out[:, 0]
+
+    def profile_chi2(self, e):
+        """Whitened chi^2 of each shot (n,): a profile's 3-D 'pose' subspace, a centre's
+        three components."""
+        out = np.zeros(self.n)
+        if self.M:
+            out[self.shots] = self.points.profile_chi2(e[:self.M])
+        ec = np.einsum("mij,mj->mi", self.Wc, e[self.M:].reshape(-1, 3))
+        out[self.centre_shots] = np.sum(ec**2, axis=1)
+        return out
+
+
 @dataclass
 class _Linearisation:
-    res: np.ndarray  # (M,) residuals, mm
+    res: np.ndarray  # (M,) residuals, mm (then 3 per centre observation)
     J: np.ndarray  # (M, P) d res / d params
-    W: _Whitener
+    W: _Whitener | _MixedWhitener
     C: np.ndarray  # (n, 3) predicted sensor-frame centres
     SC: np.ndarray  # (n, 3, 3) their covariance from pose noise
-    G: np.ndarray  # (M, 3) d res / d C per point
+    G: np.ndarray  # (M, 3) d res / d C per point (and per centre residual row)
     Jd: np.ndarray  # (n, 3, 6) d C / d(pose error) per profile
+    centre_parts: tuple | None = None  # centre residuals (m, 3), their pose-noise covariance (m, 3, 3), given (m, 3, 3)
 
 
 class _Points:
-    """All profile points stacked, with the profile of each."""
+    """All profile points stacked, with the profile of each; then the centre
+    observations' rows (three each). ``pid``: the shot of each point; ``rid``: the shot of
+    every residual row."""
 
     def __init__(self, problem: Problem):
         counts = np.array([len(p) for p in problem.profiles])
         self.counts = counts
-        self.starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        self.pid = np.repeat(np.arange(problem.n_profiles), counts)
-        self.P = np.vstack(problem.profiles)
+        self.centre_shots = np.flatnonzero(problem.kinds != KIND_PROFILE)
+        if not len(self.centre_shots):
+            self.starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            self.pid = np.repeat(np.arange(problem.n_profiles), counts)
+            self.P = np.vstack(problem.profiles)
+            self.shots, self.local, self.rid = np.arange(problem.n_profiles), self.pid, self.pid
+        else:
+            self.shots = np.flatnonzero(problem.kinds == KIND_PROFILE)
+            c = counts[self.shots]
+            self.starts = np.concatenate([[0], np.cumsum(c)[:-1]]).astype(int)
+            self.local = np.repeat(np.arange(len(self.shots)), c)
+            self.pid = self.shots[self.local]
+            self.P = np.vstack([problem.profiles[i] for i in self.shots]) if len(self.shots) else np.zeros((0, 2))
+            self.rid = np.concatenate([self.pid, np.repeat(self.centre_shots, 3)])
+        self.M = len(self.pid)
 
 
 def _pose_cov(noise: NoiseAssumptions) -> np.ndarray:
     return np.diag([np.radians(noise.pose_rotation_noise_deg) ** 2] * 3 + [noise.pose_translation_noise_mm**2] * 3)
 
 
-def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma) -> _Linearisation:
-    """Residuals, Jacobian and whitening at (R, t, c, r); see the module docstring."""
+def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s2_centre=None) -> _Linearisation:
+    """Residuals, Jacobian and whitening at (R, t, c, r); see the module docstring.
+    ``s2_centre`` (mm^2, per axis): the variance of centre observations given without
+    one."""
     pid = pts.pid
     u, C = _centres(problem, R, t, c)
     rho = np.sqrt(np.maximum(r * r - C[:, 0] ** 2, 1e-6))
@@ -161,13 +211,85 @@ def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma) -
     dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
     res = dist - rho[pid]
     G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
-    J = np.einsum("mk,mkp->mp", G, _centre_jacobian(problem, R, u)[pid])
+    Jc = _centre_jacobian(problem, R, u)
+    J = np.einsum("mk,mkp->mp", G, Jc[pid])
     if fit_radius:
         J = np.column_stack([J, -(r / rho)[pid]])
     Jd = _pose_noise_jacobian(problem, R, c)
     SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
-    W = _Whitener(G, pid, pts.starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
-    return _Linearisation(res, J, W, C, SC, G, Jd)
+    if not len(pts.centre_shots):
+        W = _Whitener(G, pid, pts.starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
+        return _Linearisation(res, J, W, C, SC, G, Jd)
+    Wp = _Whitener(G, pts.local, pts.starts, np.linalg.cholesky(SC[pts.shots] + 1e-18 * np.eye(3)), sigma) \
+        if pts.M else None
+    res_c, J_c, G_c, Wc, parts = _centre_rows(problem, pts.centre_shots, C, Jc, rho, r, SC, fit_radius, s2_centre)
+    W = _MixedWhitener(Wp, Wc, pts.M, problem.n_profiles, pts.shots, pts.centre_shots)
+    return _Linearisation(np.concatenate([res, res_c]), np.vstack([J, J_c]), W, C, SC, np.vstack([G, G_c]), Jd,
+                          parts)
+
+
+def _centre_rows(problem, cs, C, Jc, rho, r, SC, fit_radius, s2_centre):
+    """Residuals (3 m,), Jacobian rows (3 m, P), d res / d C rows (3 m, 3) and whitening
+    matrices (m, 3, 3) of the centre observations ``cs``. A sphere centre: C_i minus the
+    measured centre. A circle: (C_y, C_z) minus the measured centre and the radius of the
+    circle the laser plane cuts from the predicted sphere, ``sqrt(r^2 - C_x^2)``, minus the
+    measured radius (no side of the plane needed). Covariance: the given one (else
+    ``s2_centre`` I) plus the pose noise's ``G S_C G^T``."""
+    kinds, meas, given = problem.kind[cs], problem.centre_meas[cs], problem.centre_cov[cs]
+    m = len(cs)
+    Gc = np.zeros((m, 3, 3))
+    res = np.zeros((m, 3))
+    sph, cir = kinds == KIND_SPHERE_CENTRE, kinds == KIND_CIRCLE
+    Gc[sph] = np.eye(3)
+    res[sph] = C[cs[sph]] - meas[sph]
+    Cc, rc = C[cs[cir]], rho[cs[cir]]
+    Gc[cir, 0, 1] = 1.0
+    Gc[cir, 1, 2] = 1.0
+    Gc[cir, 2, 0] = -Cc[:, 0] / rc
+    res[cir] = np.column_stack([Cc[:, 1:] - meas[cir, :2], rc - meas[cir, 2]])
+    J = Gc @ Jc[cs]
+    if fit_radius:
+        col = np.zeros((m, 3, 1))
+        col[cir, 2, 0] = r / rc
+        J = np.concatenate([J, col], axis=2)
+    pose_part = Gc @ SC[cs] @ np.swapaxes(Gc, 1, 2)
+    unknown = np.isnan(given[:, 0, 0])
+    S = np.where(unknown[:, None, None], (s2_centre if s2_centre is not None else 1.0) * np.eye(3), given)
+    L = np.linalg.cholesky(S + pose_part)
+    Wc = np.linalg.inv(L)
+    return res.ravel(), J.reshape(3 * m, -1), Gc.reshape(3 * m, 3), Wc, (res, pose_part, given)
+
+
+#: Bounds of the estimated variance of centre observations given without one, mm^2.
+_CENTRE_VARIANCE_BOUNDS = (1e-8, 2500.0)
+
+
+def _centre_variance(parts, dof: float, s2_start: float) -> float:
+    """The per-axis variance ``s2`` (mm^2) of the centre observations given without a
+    covariance that makes the centres' whitened chi^2 equal its degrees of freedom
+    (a variance component; the given covariances and the pose noise stay as they are).
+    Bisection on log s2: chi^2 falls as s2 grows."""
+    e, P, given = parts
+    unknown = np.isnan(given[:, 0, 0])
+    if not unknown.any() or dof <= 0:
+        return s2_start
+
+    def chi2(s2):
+        S = np.where(unknown[:, None, None], s2 * np.eye(3), given) + P
+        return float(np.einsum("mi,mi->", e, np.linalg.solve(S, e[:, :, None])[:, :, 0]))
+
+    lo, hi = np.log(_CENTRE_VARIANCE_BOUNDS[0]), np.log(_CENTRE_VARIANCE_BOUNDS[1])
+    if chi2(np.exp(lo)) <= dof:
+        return float(np.exp(lo))
+    if chi2(np.exp(hi)) >= dof:
+        return float(np.exp(hi))
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if chi2(np.exp(mid)) > dof:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(0.5 * (lo + hi)))
 
 
 @dataclass(frozen=True)
@@ -404,7 +526,18 @@ def refine(
     se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
     ke = kinematic_effects if kinematic_effects is not None and problem.q_rad is not None else None
     delta = np.zeros((K, 6))
-    station_rows = [np.flatnonzero(problem.station_of[pts.pid] == k) for k in range(K)]
+    station_rows = [np.flatnonzero(problem.station_of[pts.rid] == k) for k in range(K)]
+    # centre observations given without a covariance: one variance per axis, estimated
+    # from their residuals (a variance component, like the pose noise's scale)
+    n_shots = problem.n_profiles
+    m_centres = len(pts.centre_shots)
+    estimate_centre = bool(m_centres) and bool(np.any(np.isnan(problem.centre_cov[pts.centre_shots, 0, 0])))
+    s2_centre = None
+    if m_centres:
+        s2_centre = 1.0 if estimate_centre else None
+        if estimate_centre:
+            start = _linearise(problem, pts, R, t, c, r, fit_radius, pose_cov, sigma, 1.0)
+            s2_centre = _centre_variance(start.centre_parts, 3 * m_centres - 9 * m_centres / n_shots, 1.0)
     fixed = (None if se is None else
              (None if se.rotation_deg is None else np.radians(se.rotation_deg),
               se.translation_mm))
@@ -443,12 +576,12 @@ def refine(
         return _apply_station_offsets(p, delta)
 
     def linearise(scale_):
-        return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma)
+        return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma, s2_centre)
 
     def kin_point_columns(lin):
         """Whitened d res / d kappa (M, n_kin)."""
         Kc = lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad)  # (n, 3, n_kin)
-        return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, Kc[pts.pid]))
+        return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, Kc[pts.rid]))
 
     def sqrt_prior(sv, lam_):
         blocks = []
@@ -496,7 +629,7 @@ def refine(
             cost += float(np.sum(np.where(sd > 0, d / np.where(sd > 0, sd, 1.0), 0.0) ** 2))
         return cost
 
-    for outer in range(4 if estimate_pose_noise else 1):
+    for outer in range(max(4 if estimate_pose_noise else 1, 8 if estimate_centre else 1)):
         lin = None
         near = False  # scales are re-estimated only near a solution, where the linearisation holds
         for it in range(1, max_iterations + 1):
@@ -509,7 +642,7 @@ def refine(
             else:
                 yw = -ew
                 if Jw_s is not None:
-                    yw = yw + _stack_station_effect(Jw_s, delta, problem.station_of[pts.pid])
+                    yw = yw + _stack_station_effect(Jw_s, delta, problem.station_of[pts.rid])
                 if Jw_k is not None:
                     yw = yw + Jw_k @ kappa[rand_cols]
                 A_tt, A_td, A_dd, b_t, b_d = _effect_blocks(Jw, Jw_s, Jw_k, yw, station_rows)
@@ -587,12 +720,29 @@ def refine(
         # variance component of the pose noise: whitened chi^2 in the profiles' 3-D subspaces
         lin = linearise(scale)
         n_effects = (6 * K if se else 0) + (int(np.count_nonzero(kin_identifiable)) if n_kin_fitted else 0)
-        dof_profiles = 3 * problem.n_profiles - n_geo - n_effects
-        s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
-        if not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0 or abs(s2_profiles - 1) < 0.05:
+        if not m_centres:
+            dof_profiles = 3 * problem.n_profiles - n_geo - n_effects
+            s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
+            update_centre = False
+        else:
+            # the degrees of freedom shared out between profiles and centres by their count
+            dof_all = 3 * n_shots - n_geo - n_effects
+            dof_profiles = dof_all * len(pts.shots) / n_shots
+            s2_profiles = float(lin.W.profile_chi2(lin.res)[pts.shots].sum() / max(dof_profiles, 1)) \
+                if len(pts.shots) else 1.0
+            update_centre = False
+            if estimate_centre:
+                s2_new = _centre_variance(lin.centre_parts, dof_all * m_centres / n_shots, s2_centre)
+                update_centre = abs(s2_new / s2_centre - 1.0) >= 0.02
+        update_pose = not (not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0
+                           or abs(s2_profiles - 1) < 0.05)
+        if not update_pose and not update_centre:
             break
-        # move the assumed pose-noise variance toward what the profiles show, and refit
-        scale = float(np.clip(scale * s2_profiles, 1e-8, 1e4))
+        if update_centre:
+            s2_centre = s2_new
+        if update_pose:
+            # move the assumed pose-noise variance toward what the profiles show, and refit
+            scale = float(np.clip(scale * s2_profiles, 1e-8, 1e4))
 
     lin = linearise(scale)
     ew = lin.W.apply(lin.res)
@@ -716,12 +866,18 @@ def refine(
         kin_scales = (float(np.sqrt(np.mean(E[:, :3] ** 2))), float(np.sqrt(np.mean(E[:, 3:] ** 2))))
         station_scales = tuple(float(np.hypot(a, b)) for a, b in zip(station_scales, kin_scales))
     dof = max(len(lin.res) - n_par, 1)
+    centre_res = None
+    if m_centres:
+        centre_res = np.full((n_shots, 3), np.nan)
+        centre_res[pts.centre_shots] = lin.centre_parts[0]
+        diagnostics["centre_noise_mm"] = float(np.sqrt(s2_centre)) if estimate_centre else None
     return RefineResult(
-        R, t, c, r, cov, np.split(lin.res, np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
+        R, t, c, r, cov, np.split(lin.res[:pts.M], np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
         converged, float(ew @ ew / dof), scale, diagnostics, covariance_without_robot_error=cov_fixed,
         covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=station_scales,
         kinematic_errors=kappa if ke is not None else None,
         kinematic_sd=kin_posterior_sd if ke is not None else None, kinematic_terms=kinematic_terms,
+        centre_residuals=centre_res, centre_noise_mm=float(np.sqrt(s2_centre)) if estimate_centre else None,
     )
 
 
@@ -761,7 +917,7 @@ def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):
 
 def _station_jacobian(lin: "_Linearisation", pts: _Points) -> np.ndarray:
     """Whitened d res / d(station offset), (M, 6): each point against its station's offset."""
-    return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.pid]))
+    return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.rid]))
 
 
 def _stack_station_effect(Jw_d, delta, station_of_point):

@@ -13,6 +13,12 @@ station from the robot's moves (:func:`station_centres`), never per profile.
 Step 2, translation: with Rx known and Tx = 0 the points of station k lie on a sphere
 of radius r centred at ``Xb_k = c - R_Ak Tx``; stacking ``R_Ak Tx - c = -Xb_k`` over
 stations gives [Tx; c] by linear least squares (the paper's eqs. 13-20, solved directly).
+
+Centre observations (a circle fitted on board, or a sphere centre already resolved) enter
+as :class:`CentreShot` beside the profiles' circle fits: a circle goes through the same
+side-of-plane decision as a fitted profile's circle; a sphere centre's x is known. In
+step 2 each centre shot gives its own rows ``R_Ai Tx - c = -(R_Ai Rx C_i + tA_i)``, so a
+station of one sphere centre, or of two circles (one move decides the side), is usable.
 """
 
 from __future__ import annotations
@@ -25,12 +31,46 @@ import numpy as np
 from .. import geometry as geo
 from ..errors import DegenerateDataError
 from .circle import CircleFit, half_chord_depth
-from .problem import Problem
+from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
 #: Relative singular value under which a direction counts as not excited.
 RANK_TOLERANCE = 0.05
 #: ... and the RMS extent (mm) under which it counts as not excited.
 MIN_EXTENT_MM = 0.5
+
+
+@dataclass(frozen=True)
+class CentreShot:
+    """A centre observation as the two-step sees it, in the place of a profile's circle
+    fit: the circle (centre (y, z) and radius, laser plane, mm) and, for a sphere centre,
+    its known x (else None). A sphere centre's ``radius`` is that of the circle the laser
+    plane would cut, ``sqrt(max(r^2 - x^2, 0))``."""
+
+    centre_yz: np.ndarray
+    radius: float
+    x_mm: float | None = None
+
+
+def _depths(problem: Problem, fits: dict, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|x| of the sphere centre of each shot ``idx``, and its known x (NaN where the side
+    of the laser plane is to be decided)."""
+    h = np.array([half_chord_depth(problem.radius_mm, fits[i].radius) for i in idx])
+    x_known = np.array([np.nan if getattr(fits[i], "x_mm", None) is None else fits[i].x_mm for i in idx])
+    known = ~np.isnan(x_known)
+    h[known] = np.abs(x_known[known])
+    return h, x_known
+
+
+def _apply_known_x(candidates: list[np.ndarray], x_known: np.ndarray) -> list[np.ndarray]:
+    """Sphere centres whose x is known: keep the mirror candidate that agrees with them
+    (the side of the laser plane is then decided) and put their measured x in."""
+    known = ~np.isnan(x_known)
+    if not known.any() or not candidates:
+        return candidates
+    best = min(candidates, key=lambda cand: float(np.sum((cand[known, 0] - x_known[known]) ** 2)))
+    best = best.copy()
+    best[known, 0] = x_known[known]
+    return [best]
 
 
 @dataclass
@@ -77,6 +117,9 @@ def station_centres(problem: Problem, fits: dict[int, CircleFit], label_index: i
         return StationCentres(problem.station_labels[label_index], idx, np.zeros((0, 3)), [], 0)
     yz = np.array([fits[i].centre_yz for i in idx])
     h = np.array([half_chord_depth(problem.radius_mm, fits[i].radius) for i in idx])
+    centres = problem.has_centres and bool(np.any(problem.kinds[idx] != KIND_PROFILE))
+    if centres:
+        h, x_known = _depths(problem, fits, idx)
     R_A = problem.R_A[idx[0]]
     tA = problem.t_A[idx]
     d = -(tA - tA.mean(axis=0)) @ R_A  # rows: R_A^T (tA_mean - tA_i)
@@ -85,7 +128,12 @@ def station_centres(problem: Problem, fits: dict[int, CircleFit], label_index: i
     k = int(np.sum((s > RANK_TOLERANCE * max(s[0], 1e-12)) & (s / np.sqrt(n) > MIN_EXTENT_MM)))
     label = problem.station_labels[label_index]
     if k == 0:
-        return StationCentres(label, idx, d, [], 0)
+        if not centres:
+            return StationCentres(label, idx, d, [], 0)
+        # no move to decide the side of the laser plane: a station of centre observations
+        # still serves the translation, each side a candidate (sphere centres: known)
+        candidates = [np.column_stack([sign * h, yz]) for sign in (1.0, -1.0)]
+        return StationCentres(label, idx, d, _apply_known_x(candidates, x_known), 0)
     B = Vt[:k].T
     c = d @ B
     design = np.column_stack([np.ones(n), c])
@@ -102,6 +150,8 @@ def station_centres(problem: Problem, fits: dict[int, CircleFit], label_index: i
     else:
         signs = [v, -v]
     candidates = [np.column_stack([_signs_and_offset(c @ vv, h), yz]) for vv in signs]
+    if centres:
+        candidates = _apply_known_x(candidates, x_known)
     return StationCentres(label, idx, d, candidates, k)
 
 
@@ -147,10 +197,23 @@ def translation_from_orientations(
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Step 2: [Tx; c] by linear least squares over the stations' fitted centres."""
     rows, rhs = [], []
+    kinds = problem.kinds
     for st, ch in zip(stations, choice):
         R_A = problem.R_A[st.profiles[0]]
-        pts = np.vstack([points_3d(inlier_profiles[i]) @ R.T @ R_A.T + problem.t_A[i] for i in st.profiles])
-        start = np.mean(st.candidates[ch] @ R.T @ R_A.T + problem.t_A[st.profiles], axis=0)
+        is_centre = kinds[st.profiles] != KIND_PROFILE
+        if is_centre.any():
+            # each centre shot: R_Ai Tx - c = -(R_Ai Rx C_i + tA_i)
+            for i, C in zip(st.profiles[is_centre], st.candidates[ch][is_centre]):
+                rows.append(np.hstack([problem.R_A[i], -np.eye(3)]))
+                rhs.append(-(problem.R_A[i] @ (R @ C) + problem.t_A[i]))
+            if is_centre.all():
+                continue
+            prof = st.profiles[~is_centre]
+            cands = st.candidates[ch][~is_centre]
+        else:
+            prof, cands = st.profiles, st.candidates[ch]
+        pts = np.vstack([points_3d(inlier_profiles[i]) @ R.T @ R_A.T + problem.t_A[i] for i in prof])
+        start = np.mean(cands @ R.T @ R_A.T + problem.t_A[prof], axis=0)
         xb = fit_sphere_fixed_radius(pts, problem.radius_mm, start)
         rows.append(np.hstack([R_A, -np.eye(3)]))
         rhs.append(-xb)
@@ -181,14 +244,49 @@ def _orientation_advice(problem: Problem, stations: list[StationCentres]) -> str
 
 
 def point_rms(problem: Problem, R, t, centre, profiles) -> float:
-    """RMS distance (mm) of all mapped points to the sphere |A_i X p - c| = r."""
+    """RMS distance (mm) of all mapped points to the sphere |A_i X p - c| = r; with
+    centre observations, their residuals' components (:func:`centre_residuals`) join
+    the points."""
     sq, n = 0.0, 0
     for i, p in enumerate(profiles):
+        if not len(p):
+            continue
         q = (points_3d(p) @ R.T + t) @ problem.R_A[i].T + problem.t_A[i]
         res = np.linalg.norm(q - centre, axis=1) - problem.radius_mm
         sq += float(res @ res)
         n += len(res)
+    if problem.has_centres:
+        e = centre_residuals(problem, R, t, centre)
+        e = e[~np.isnan(e[:, 0])]
+        sq += float(np.sum(e**2))
+        n += e.size
     return float(np.sqrt(sq / max(n, 1)))
+
+
+def predicted_sensor_centres(problem: Problem, R, t, centre) -> np.ndarray:
+    """The sphere centre in the sensor frame at each shot, ``X^-1 A_i^-1 c`` (n, 3), mm."""
+    u = np.einsum("nji,nj->ni", problem.R_A, np.asarray(centre, float) - problem.t_A) - t
+    return u @ R
+
+
+def centre_residuals(problem: Problem, R, t, centre, radius: float | None = None) -> np.ndarray:
+    """Residual of each centre observation (n, 3), mm; NaN rows for profiles. A sphere
+    centre: predicted minus measured (x, y, z). A circle: (y, z) of the predicted centre
+    minus the circle's, and the radius of the circle the laser plane cuts from the
+    predicted sphere, ``sqrt(r^2 - x^2)``, minus the measured radius (no side of the
+    plane is needed)."""
+    r = problem.radius_mm if radius is None else radius
+    C = predicted_sensor_centres(problem, R, t, centre)
+    out = np.full((problem.n_profiles, 3), np.nan)
+    if not problem.has_centres:
+        return out
+    kinds, meas = problem.kinds, problem.centre_meas
+    sph = kinds == KIND_SPHERE_CENTRE
+    out[sph] = C[sph] - meas[sph]
+    cir = kinds == KIND_CIRCLE
+    rho = np.sqrt(np.maximum(r * r - C[cir, 0] ** 2, 0.0))
+    out[cir] = np.column_stack([C[cir, 1:] - meas[cir, :2], rho - meas[cir, 2]])
+    return out
 
 
 def two_step(
@@ -204,7 +302,8 @@ def two_step(
     by a large rotation can fit equally well (within ``ambiguity_ratio`` of the best
     RMS); ``nominal_R`` (the rough rotation of X, e.g. from the configuration) then picks
     one, and without it a :class:`DegenerateDataError` says what to add."""
-    inliers = [p[fits[i].inliers] if i in fits else p[:0] for i, p in enumerate(problem.profiles)]
+    inliers = [p[fits[i].inliers] if isinstance(fits.get(i), CircleFit) else p[:0]
+               for i, p in enumerate(problem.profiles)]
     stations = [station_centres(problem, fits, k) for k in range(len(problem.station_labels))]
     stations = [st for st in stations if st.candidates]
     if not stations:

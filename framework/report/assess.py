@@ -105,7 +105,7 @@ def expected_rms_mm(result: CalibrationResult, thresholds: Thresholds | None = N
 
 
 def _n_observations(result: CalibrationResult) -> int:
-    return result.residuals.n_profiles_used + len(result.flagged)
+    return result.residuals.n_profiles_used + result.residuals.n_centres_used + len(result.flagged)
 
 
 def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> Verdict:

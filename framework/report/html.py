@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 
 from .. import __version__
 from ..errors import InputError
+from ..estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
 from ..exporters import ExportNote
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
@@ -37,8 +38,10 @@ from .assess import Thresholds, Verdict, advice, expected_rms_mm, inconsistent_s
 
 __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
 
-#: Figures of the report, by key: saved as ``<stem>_<key>.png``.
-FIGURE_NAMES = ("residuals_per_profile", "residuals_per_station", "residual_histogram", "sphere_3d")
+#: Figures of the report, by key: saved as ``<stem>_<key>.png``. A dataset without profiles
+#: has no ``residuals_per_profile``; one without centre observations no ``residuals_per_centre``.
+FIGURE_NAMES = ("residuals_per_profile", "residuals_per_centre", "residuals_per_station", "residual_histogram",
+                "sphere_3d")
 
 _DPI = 100
 _MAX_POINTS_3D_PER_PROFILE = 60
@@ -83,12 +86,74 @@ def mapped_points(solution) -> list[np.ndarray]:
     return out
 
 
+def mapped_centres(solution) -> dict[int, tuple[int, np.ndarray]]:
+    """Each used centre observation mapped into the sphere frame through ``A_i X``, by
+    position in the problem: a sphere centre as one point (1, 3) (it should fall on the
+    fitted centre); a circle as points along it (it should lie on the fitted sphere). mm."""
+    prob, ref = solution.problem, solution.refined
+    out = {}
+    theta = np.linspace(0.0, 2 * np.pi, 49)
+    for i in _centre_rows(solution):
+        v = prob.centre_meas[i]
+        if prob.kinds[i] == KIND_SPHERE_CENTRE:
+            p_s = v[None, :]
+        else:  # the circle lies in the laser plane x = 0
+            p_s = np.column_stack([np.zeros_like(theta), v[0] + v[2] * np.cos(theta), v[1] + v[2] * np.sin(theta)])
+        out[int(i)] = (int(prob.kinds[i]), (p_s @ ref.R.T + ref.t) @ prob.R_A[i].T + prob.t_A[i])
+    return out
+
+
 # --- figures ----------------------------------------------------------------------------------------
+def _is_profile(solution, index: int) -> bool:
+    """Whether observation ``index`` of the dataset is a profile (the solution keeps the
+    kinds of every observation, used or flagged)."""
+    return solution.extras.get("kinds", {}).get(int(index), "profile") == "profile"
+
+
+def _centre_rows(solution) -> np.ndarray:
+    """Positions of the centre observations used."""
+    return np.flatnonzero(solution.problem.kinds != KIND_PROFILE)
+
+
+def _station_residuals(solution, members) -> np.ndarray:
+    """The points' residuals and the centre residuals' components of shots ``members``, mm."""
+    ref = solution.refined
+    parts = [ref.residuals[i] for i in members]
+    if ref.centre_residuals is not None:
+        c = ref.centre_residuals[members]
+        parts.append(c[~np.isnan(c[:, 0])].ravel())
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _flagged_mark(ax, k: int, index: int, label_y: float) -> None:
+    """A flagged observation at position k: a red band and cross, 'obs <index> flagged'."""
+    ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
+    ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
+    ax.annotate(f"obs {index}\nflagged", (k, label_y), ha="center", va="bottom", fontsize=7, color="#c5221f")
+
+
+def _station_axis(ax, entries: list[tuple], label_y: float) -> None:
+    """The x axis of per-observation figures (entries: (station, index, ...)): dashed
+    lines between stations, each station's label centred above its entries at
+    ``label_y``, the observation indices as ticks."""
+    stations = [e[0] for e in entries]
+    n = len(stations)
+    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
+    ax.set_xlim(-0.7, n - 0.3)
+    ax.set_xlabel("observation index (grouped by station)")
+    for k in range(1, n):
+        if stations[k] != stations[k - 1]:
+            ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
+    starts = [0] + [k for k in range(1, n) if stations[k] != stations[k - 1]] + [n]
+    for a, b in zip(starts[:-1], starts[1:]):
+        ax.text((a + b - 1) / 2, label_y, stations[a], ha="center", va="center", fontsize=9, fontweight="bold")
+
+
 def _fig_per_profile(solution, result, colours) -> Figure:
     prob, ref = solution.problem, solution.refined
     entries = [(prob.station_labels[prob.station_of[i]], int(prob.obs_index[i]), ref.residuals[i], None)
-               for i in range(prob.n_profiles)]
-    entries += [(f.station, f.index, None, f.reason) for f in result.flagged]
+               for i in range(prob.n_profiles) if prob.kinds[i] == KIND_PROFILE]
+    entries += [(f.station, f.index, None, f.reason) for f in result.flagged if _is_profile(solution, f.index)]
     order = list(prob.station_labels) + sorted({f.station for f in result.flagged} - set(prob.station_labels))
     entries.sort(key=lambda e: (order.index(e[0]), e[1]))
     n = len(entries)
@@ -106,30 +171,43 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     ax.set_ylim(-1.15 * lim, 1.3 * lim)
     for k, e in enumerate(entries):
         if e[2] is None:
-            ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
-            ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
-            ax.annotate(f"obs {e[1]}\nflagged", (k, -1.05 * lim), ha="center", va="bottom", fontsize=7,
-                        color="#c5221f")
-    # station separators and labels
-    for k in range(1, n):
-        if entries[k][0] != entries[k - 1][0]:
-            ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
-    starts = [0] + [k for k in range(1, n) if entries[k][0] != entries[k - 1][0]] + [n]
-    for a, b in zip(starts[:-1], starts[1:]):
-        ax.text((a + b - 1) / 2, 1.22 * lim, entries[a][0], ha="center", va="center", fontsize=9, fontweight="bold")
+            _flagged_mark(ax, k, e[1], -1.05 * lim)
+    _station_axis(ax, entries, 1.22 * lim)
     ax.axhline(0, color="black", lw=0.6)
-    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
-    ax.set_xlim(-0.7, n - 0.3)
-    ax.set_xlabel("observation index (grouped by station)")
     ax.set_ylabel("in-plane residual (mm)")
     ax.set_title("Residuals per profile (box: quartiles, whiskers: 1-99 %; red: flagged and left out)", fontsize=10)
+    return fig
+
+
+def _fig_per_centre(solution, result, colours) -> Figure:
+    """The length of each centre observation's residual (mm), grouped by station; the
+    flagged ones marked in red."""
+    prob, ref = solution.problem, solution.refined
+    entries = [(prob.station_labels[prob.station_of[i]], int(prob.obs_index[i]),
+                float(np.linalg.norm(ref.centre_residuals[i]))) for i in _centre_rows(solution)]
+    entries += [(f.station, f.index, None) for f in result.flagged if not _is_profile(solution, f.index)]
+    order = list(prob.station_labels) + sorted({e[0] for e in entries} - set(prob.station_labels))
+    entries.sort(key=lambda e: (order.index(e[0]), e[1]))
+    n = len(entries)
+    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.0), layout="constrained")
+    ax = fig.add_subplot()
+    top = max([e[2] for e in entries if e[2] is not None] + [1e-3])
+    for k, (label, index, length) in enumerate(entries):
+        if length is None:
+            _flagged_mark(ax, k, index, 0.55 * top)
+        else:
+            ax.bar([k], [length], width=0.7, color=colours.get(label, "grey"), alpha=0.8)
+    _station_axis(ax, entries, 1.12 * top)
+    ax.set_ylim(0, 1.22 * top)
+    ax.set_ylabel("centre residual, length (mm)")
+    ax.set_title("Residual of every centre observation used (red: flagged and left out)", fontsize=10)
     return fig
 
 
 def _fig_per_station(solution, result, colours) -> Figure:
     prob, ref = solution.problem, solution.refined
     labels = list(prob.station_labels)
-    data = [np.concatenate([ref.residuals[i] for i in np.flatnonzero(prob.station_of == k)]) for k in range(len(labels))]
+    data = [_station_residuals(solution, np.flatnonzero(prob.station_of == k)) for k in range(len(labels))]
     fig = Figure(figsize=(max(5.0, 1.2 * len(labels) + 2.5), 3.8), layout="constrained")
     ax = fig.add_subplot()
     bp = ax.boxplot(data, positions=range(len(labels)), widths=0.6, showfliers=False, whis=(1, 99), patch_artist=True)
@@ -146,13 +224,13 @@ def _fig_per_station(solution, result, colours) -> Figure:
     ax.axhline(0, color="black", lw=0.6)
     ax.set_xticks(range(len(labels)), labels)
     ax.set_xlabel("station")
-    ax.set_ylabel("in-plane residual (mm)")
+    ax.set_ylabel("residual (mm)")
     ax.set_title("Residuals per station", fontsize=10)
     return fig
 
 
 def _fig_histogram(solution, result) -> Figure:
-    res = np.concatenate(solution.refined.residuals)
+    res = _station_residuals(solution, np.arange(solution.problem.n_profiles))
     rms = result.residuals.rms_mm
     point = float(result.diagnostics.get("noise", {}).get("point_noise_mm", 0.0) or 0.0)
     fig = Figure(figsize=(6.5, 3.8), layout="constrained")
@@ -166,7 +244,7 @@ def _fig_histogram(solution, result) -> Figure:
     if point > 0:
         ax.plot(x, np.exp(-0.5 * (x / point) ** 2) / (point * np.sqrt(2 * np.pi)), color="#5f6368", lw=1.2,
                 ls="--", label=f"normal, sd = point noise {point:.4f} mm")
-    ax.set_xlabel("in-plane residual (mm)")
+    ax.set_xlabel("residual (mm)")
     ax.set_ylabel("density (1/mm)")
     ax.set_title("Histogram of the residuals with the expected normal curves", fontsize=10)
     ax.legend(fontsize=8)
@@ -193,6 +271,15 @@ def _fig_sphere(solution, result, colours) -> Figure:
             ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=1.5, color=colours[label], depthshade=False,
                        label=None if label in seen else f"station {label}")
             seen.add(label)
+        for i, (kind, q) in mapped_centres(solution).items():
+            label = prob.station_labels[prob.station_of[i]]
+            if kind == KIND_SPHERE_CENTRE:
+                ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=18, marker="x", color=colours[label], depthshade=False,
+                           label=None if label in seen else f"station {label}")
+            else:
+                ax.plot(q[:, 0], q[:, 1], q[:, 2], lw=0.8, color=colours[label],
+                        label=None if label in seen else f"station {label}")
+            seen.add(label)
         for setter, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
             setter(c[k] - 1.15 * r, c[k] + 1.15 * r)
         ax.set_box_aspect((1, 1, 1))
@@ -203,7 +290,8 @@ def _fig_sphere(solution, result, colours) -> Figure:
         ax.tick_params(labelsize=7)
         if j == 0:
             ax.legend(fontsize=8, markerscale=5, loc="upper left")
-    fig.suptitle(f"Fitted sphere (r = {r:.3f} mm) and every profile mapped into the {frame} frame "
+    what = "every profile" if (prob.kinds == KIND_PROFILE).any() else "every observation"
+    fig.suptitle(f"Fitted sphere (r = {r:.3f} mm) and {what} mapped into the {frame} frame "
                  f"through A_i X", fontsize=10)
     return fig
 
@@ -247,6 +335,8 @@ def _headline(result: CalibrationResult, ver, th: Thresholds, notes: Sequence[Ex
         ("sensor point noise (mm)", f"{_n(point)}" + (
             f" <span class='muted'>RMS / noise {result.residuals.rms_mm / point:.1f}</span>" if point else "")),
         ("profiles used / flagged", f"{result.residuals.n_profiles_used} / {len(result.flagged)}"),
+        *([("centre observations used", f"{result.residuals.n_centres_used} (residual RMS "
+            f"{_n(result.residuals.centre_rms_mm)} mm, 3-D)")] if result.residuals.n_centres_used else []),
         ("points used / rejected", f"{result.residuals.n_points_used} / {result.residuals.n_points_rejected}"),
     ]
     card_html = "".join(f'<div class="card"><div class="label">{_e(lbl)}</div><div class="value">{val}</div></div>'
@@ -412,10 +502,15 @@ def write_report(
 
     colours = _station_colours(list(solution.problem.station_labels)
                                + sorted({f.station for f in result.flagged} - set(solution.problem.station_labels)))
+    has_profiles = bool((solution.problem.kinds == KIND_PROFILE).any())
+    has_centres = len(_centre_rows(solution)) > 0
     makers = {
         "residuals_per_profile": (lambda: _fig_per_profile(solution, result, colours),
                                   "Residuals of every profile used, grouped by station; flagged observations "
                                   "(left out of the solution) are marked in red."),
+        "residuals_per_centre": (lambda: _fig_per_centre(solution, result, colours),
+                                 "The residual of every centre observation used (its length, mm), grouped by "
+                                 "station; flagged observations are marked in red."),
         "residuals_per_station": (lambda: _fig_per_station(solution, result, colours),
                                   "Residuals per station. A station clearly wider than the others deserves a look."),
         "residual_histogram": (lambda: _fig_histogram(solution, result),
@@ -425,6 +520,10 @@ def write_report(
                       "The fitted sphere (wireframe) and the profile points mapped into the sphere frame through "
                       "A_i X, coloured by station: they should lie on the sphere."),
     }
+    if not has_profiles:
+        del makers["residuals_per_profile"]
+    if not has_centres:
+        del makers["residuals_per_centre"]
     figures = {}
     for key, (make, caption) in makers.items():
         with matplotlib.rc_context({"text.parse_math": False}):  # labels are data: '$x$' is not mathtext
@@ -433,6 +532,8 @@ def write_report(
         figures[key] = (base64.b64encode(png).decode("ascii"), caption)
 
     def fig_html(key):
+        if key not in figures:
+            return ""
         data, caption = figures[key]
         return (f'<figure id="fig-{key}"><img alt="{_e(key.replace("_", " "))}" '
                 f'src="data:image/png;base64,{data}"><figcaption>{_e(caption)}</figcaption></figure>')
@@ -447,15 +548,23 @@ def write_report(
     sections = [
         f"<h1>{_e(title)}</h1>",
         f'<p class="sub">{_e(result.mounting)} &middot; {_e(result.transform_name)} &middot; '
-        f"{result.residuals.n_profiles_used} profiles &middot; generated {now} by spherecal {_e(__version__)}</p>",
+        f"{result.residuals.n_profiles_used} profiles"
+        + (f" &middot; {result.residuals.n_centres_used} centre observations" if has_centres else "")
+        + f" &middot; generated {now} by spherecal {_e(__version__)}</p>",
         "<nav>" + "".join(f'<a href="#{s}">{s}</a>' for s in nav) + "</nav>",
         _headline(result, ver, th, notes),
         '<h2 id="advice">What to do when something is off</h2>',
         _advice_html(items),
         '<h2 id="residuals">Residuals</h2>',
-        "<p>A residual is the in-plane distance (mm) of a profile point from the circle where the laser plane cuts "
-        "the fitted sphere.</p>",
+        "<p>"
+        + ("A residual is the in-plane distance (mm) of a profile point from the circle where the laser plane cuts "
+           "the fitted sphere. " if has_profiles else "")
+        + ("A centre observation's residual has three components (mm): a sphere centre's x, y and z from where "
+           "the fit puts the centre; a circle's centre y and z, and its radius against the circle the laser plane "
+           "cuts from the fitted sphere." if has_centres else "")
+        + "</p>",
         fig_html("residuals_per_profile"),
+        fig_html("residuals_per_centre"),
         fig_html("residuals_per_station"),
         fig_html("residual_histogram"),
         '<h2 id="sphere">The sphere and the mapped points</h2>',

@@ -3,7 +3,7 @@ simulated devices."""
 
 from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, arm_layout, standard_cell
 from .objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
-from .planner import SweepPlan, plan_stations, simulate_dataset
+from .planner import SweepPlan, plan_stations, simulate_centre_dataset, simulate_dataset
 from .robot_error import RobotErrorModel, SimulatedArm
 
 __all__ = [
@@ -21,5 +21,6 @@ __all__ = [
     "standard_cell",
     "SweepPlan",
     "plan_stations",
+    "simulate_centre_dataset",
     "simulate_dataset",
 ]

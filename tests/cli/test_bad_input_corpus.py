@@ -197,6 +197,20 @@ def dataset_cases() -> list[Case]:
     add(ds_case("obs-translation-1e400", with_raw(obs_set("base_from_flange.translation_mm.0", raw_number("-1e400"))),
                 "base_from_flange"))
     add(ds_case("obs-duplicate-index", lambda: dataset_bytes(lambda o: o.__setitem__("index", 1)), "index"))
+    # centre observations (format version 2) in the place of the first profile
+    def centre(**fields):
+        return lambda: dataset_bytes(lambda o: (o.pop("profile"), o.update(fields)))
+    add(ds_case("obs-two-kinds", obs_set("circle", {"centre_yz_mm": [1.0, -20.0], "radius_mm": 10.0}), "circle"))
+    add(ds_case("obs-sphere-centre-nan", centre(sphere_centre_mm=[1.0, float("nan"), -20.0]), "sphere_centre_mm"))
+    add(ds_case("obs-sphere-centre-1e300", centre(sphere_centre_mm=[1.0, 1e300, -20.0]), "sphere_centre_mm"))
+    add(ds_case("obs-covariance-not-psd", centre(sphere_centre_mm=[1.0, 2.0, -20.0], sphere_centre_covariance_mm2=[
+        [1e-4, 0, 0], [0, -1e-4, 0], [0, 0, 1e-4]]), "sphere_centre_covariance_mm2"))
+    add(ds_case("obs-covariance-2x2", centre(sphere_centre_mm=[1.0, 2.0, -20.0], sphere_centre_covariance_mm2=[
+        [1e-4, 0], [0, 1e-4]]), "sphere_centre_covariance_mm2"))
+    add(ds_case("obs-circle-radius-nan", centre(circle={"centre_yz_mm": [1.0, -20.0], "radius_mm": float("nan")}),
+                "circle.radius_mm"))
+    add(ds_case("obs-circle-radius-string", centre(circle={"centre_yz_mm": [1.0, -20.0], "radius_mm": "10"}),
+                "circle.radius_mm"))
     cases[:] = [c for c in cases if c.code is not None]
     return cases
 
@@ -285,7 +299,7 @@ def result_cases() -> list[Case]:
         result_case("radius-1e400", with_raw(result_bytes("sphere_radius_mm", raw_number("1e400"))), "sphere_radius_mm"),
     ]
     for path, value, culprit in [
-        ("format", "spherecal-dataset", "format"), ("version", 2, "version"), ("version", "1", "version"),
+        ("format", "spherecal-dataset", "format"), ("version", 3, "version"), ("version", "1", "version"),
         ("mounting", "eye_on_hand", "mounting"), ("transform_name", "a_from_b", "transform_name"),
         ("std_rotation_deg.0", float("nan"), "std_rotation_deg"), ("std_rotation_deg.1", float("inf"), "std_rotation_deg"),
         ("std_rotation_deg.0", -1.0, "std_rotation_deg"),

@@ -13,6 +13,7 @@ import pytest
 
 from spherecal import dataio
 from spherecal.dataio import (
+    DATASET_VERSION,
     DatasetWriter,
     TruncatedFileWarning,
     read_dataset,
@@ -34,17 +35,6 @@ from spherecal.models import (
 from spherecal.sim import simulate_dataset, standard_cell
 
 T0 = datetime(2026, 3, 4, 5, 6, 7, 123456, tzinfo=timezone.utc)
-
-
-@pytest.fixture(params=["orjson", "stdlib"])
-def parser(request, monkeypatch):
-    """Run a test with the orjson accelerator and with the standard library's json."""
-    if request.param == "orjson":
-        if dataio._orjson is None:
-            pytest.skip("orjson not installed")
-    else:
-        monkeypatch.setattr(dataio, "_orjson", None)
-    return request.param
 
 
 def small_obs(index: int, n_points: int = 4, seed: int = 0, station: str = "S1", **kw) -> Observation:
@@ -107,7 +97,8 @@ def test_simulated_dataset_round_trip_is_exact(tmp_path, mounting, parser):
     assert back.provenance["true_transform_name"] == ds.provenance["true_transform_name"]
     assert_same_observations(back.observations, ds.observations)
     header = read_dataset_header(path)
-    assert (header.format, header.version, header.mounting) == ("spherecal-dataset", 1, mounting)
+    assert (header.format, header.version, header.mounting) == ("spherecal-dataset", DATASET_VERSION, mounting)
+    assert DATASET_VERSION == 2
     assert header.created.tzinfo is not None
 
 
@@ -389,7 +380,7 @@ def obs_dict(index: int, /, **changes) -> dict:
     [
         ({"format": "spherecal-result"}, r'line 1 has format "spherecal-result".*use read_result\(\)'),
         ({"format": "laser-scans"}, r'not a spherecal dataset: line 1 has format "laser-scans", expected \'spherecal-dataset\''),
-        ({"version": 2}, r"dataset format version 2 is newer than this spherecal .* \(versions 1 to 1\); upgrade spherecal"),
+        ({"version": 3}, r"dataset format version 3 is newer than this spherecal .* \(versions 1 to 2\); upgrade spherecal"),
         ({"version": "1"}, r'line 1 \(header\): version must be a whole number >= 1, found "1"'),
         ({"mounting": "eye_on_hand"}, r"line 1 \(header\): mounting: Input should be 'eye_in_hand' or 'eye_to_hand'"),
         ({"sphere_radius_mm": 0.019}, r"line 1 \(header\): sphere_radius_mm: .*looks like metres"),
@@ -526,7 +517,7 @@ def test_result_round_trip(tmp_path):
     expected = result.model_copy(update={"diagnostics": {**result.diagnostics, "history": [1.5, 0.2, 0.01]}})
     assert back == expected
     text = path.read_text(encoding="utf-8")
-    assert text.startswith('{\n  "format": "spherecal-result",\n  "version": 1,\n')
+    assert text.startswith('{\n  "format": "spherecal-result",\n  "version": 2,\n')
     cov_rows = [line for line in text.splitlines() if line.startswith("    [")]
     assert len(cov_rows) == 9  # one covariance row per line
     assert '"quaternion_wxyz": [' in text and '"translation_mm": [42.51234567890123, -18.3, 163.7]' in text
@@ -556,7 +547,7 @@ def test_bad_result_files(tmp_path):
         with pytest.raises(DatasetFileError, match=r"r\.json: " + message):
             read_result(path)
 
-    check(lambda d: d.update(version=2), r"result format version 2 is newer than this spherecal .* upgrade spherecal")
+    check(lambda d: d.update(version=3), r"result format version 3 is newer than this spherecal .* upgrade spherecal")
     check(lambda d: d.update(format="spherecal-dataset"), r"not a spherecal result: .*use read_dataset\(\)")
     check(lambda d: d["transform"].update(quaternion_wxyz=[1.0, 0.0, 0.0]), r"transform\.quaternion_wxyz")
     check(lambda d: d.update(variance_factor="1.07"), r"variance_factor: Input should be a valid number")

@@ -60,7 +60,8 @@ def clean_solution():
 def test_report_is_written_with_its_figures(bad_report):
     path, text = bad_report
     assert path.name == "report.html" and text.startswith("<!DOCTYPE html>")
-    for key in FIGURE_NAMES:
+    assert not (path.parent / "report_residuals_per_centre.png").exists()  # profiles only: no centre figure
+    for key in [k for k in FIGURE_NAMES if k != "residuals_per_centre"]:
         png = path.parent / f"report_{key}.png"
         data = png.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
@@ -126,7 +127,7 @@ def test_report_without_validation_and_other_mounting(clean_solution, tmp_path):
     path = write_report(clean_solution, tmp_path, filename="cal.html")
     text = path.read_text()
     assert 'id="validation"' not in text
-    assert all((tmp_path / f"cal_{k}.png").is_file() for k in FIGURE_NAMES)
+    assert all((tmp_path / f"cal_{k}.png").is_file() == (k != "residuals_per_centre") for k in FIGURE_NAMES)
     assert "base_from_sensor" in text and "No exporter of this run says how to load the result" in text
     assert 'class="verdict green"' in text and "Nothing calls for action" in text
 

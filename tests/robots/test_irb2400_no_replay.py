@@ -130,7 +130,7 @@ def test_read_timeouts_between_requests_over_the_wire(model):
     old model replays the MOVL twice (its stale OKs reach the driver, which discards them)
     and drives the arm back to the old target."""
     ctl = model(KIN, SETTINGS)
-    config = AbbIrb2400Config(timeout_s=0.5, retries=0, move_timeout_extra_s=0.0)
+    config = AbbIrb2400Config(timeout_s=5.0, retries=0, move_timeout_extra_s=0.0)
     with SimulatorServer(ctl, "pty") as srv, AbbIrb2400Robot(config, url=srv.url, kinematics=KIN) as robot:
         robot.move_linear(TARGET, 100.0)
         jogged = KIN.joints_from_flange_pose(JOGGED_TO, seed_joints_deg=ctl.joints_deg)

@@ -1,0 +1,246 @@
+"""Checks of a table of robot poses and sensor readings, row by row, before any fit.
+
+A table typed by hand (a published experiment, an integrator's log) has typos. What a
+typo does and what catches it, naming the row (the observation index):
+
+- a quaternion that is not unit beyond rounding: refused when the file is read
+  (:class:`spherecal.models.Pose`, norm within 1e-3);
+- a translation in metres among millimetres (robot pose, sphere centre or circle): the
+  row's magnitude is hundreds of times below the other rows' (:func:`screen_table`);
+- a circle larger than the sphere: not the sphere, or the radius in other units;
+- a sign flipped in one component of a pose or of a centre, or any other gross error
+  within a station: a pure translation moves the sphere centre in the sensor frame by
+  exactly what the robot moved, so the distance between two shots' centres equals the
+  distance between their flange positions, whatever the unknown rotation. The row that
+  breaks this with the other rows of its station is flagged with the size of the
+  inconsistency in mm (:func:`pairwise_move_check`). A flipped quaternion component
+  turns the pose: the station orientation screening
+  (:func:`.problem.screen_station_orientations`) flags it with its angle.
+
+Finer inconsistencies are judged after the two-step (the centre moved unlike the robot,
+in robust standard deviations) and by the joint fit's chi^2; flagged rows are left out,
+never used silently. Applies to centre observations; the units check of the robot poses
+to every row.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..models import ObservationFlag
+from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
+
+__all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "circles_from_profiles"]
+
+#: A row whose magnitude is below the median of the others' divided by this looks like
+#: metres among millimetres (a factor of 1000; 200 leaves room for real spread).
+METRES_RATIO = 200.0
+#: Below this median magnitude (mm) the units check says nothing (too little to compare).
+METRES_MIN_MEDIAN_MM = 20.0
+#: A circle this much larger than the sphere is not the sphere.
+CIRCLE_RADIUS_SLACK = 1.02
+#: Gross inconsistency between two shots of a station: the distance their centres moved
+#: in the sensor frame and the distance the robot moved differ by more than this, mm
+#: (plus GROSS_MOVE_RELATIVE of the move, and six standard deviations where the
+#: covariances are given). Finer errors are left to the fits, which know the noise.
+GROSS_MOVE_MM = 1.0
+GROSS_MOVE_RELATIVE = 0.02
+
+
+def _flag(problem: Problem, i: int, reason: str) -> ObservationFlag:
+    return ObservationFlag(index=int(problem.obs_index[i]), station=problem.station_labels[problem.station_of[i]],
+                           reason=reason)
+
+
+def _metres_rows(values: np.ndarray, rows: np.ndarray) -> list[tuple[int, float, float]]:
+    """Rows (of ``rows``) whose magnitude is METRES_RATIO times below the median of the
+    others': (row, its magnitude, the median)."""
+    if len(rows) < 3:
+        return []
+    mag = np.linalg.norm(values[rows], axis=1)
+    out = []
+    for k, i in enumerate(rows):
+        others = np.median(np.delete(mag, k))
+        if others >= METRES_MIN_MEDIAN_MM and mag[k] < others / METRES_RATIO:
+            out.append((int(i), float(mag[k]), float(others)))
+    return out
+
+
+def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
+    """Rows that are typos in units or size, and gross breaks of the pure-translation
+    rule within a station (see the module docstring). Returns the rows to keep, the
+    flags of those left out, and the pairs of rows (positions) left out together because
+    nothing within their station told which of the two is wrong
+    (:func:`settle_pairs` may tell it from the solution of the others)."""
+    n = problem.n_profiles
+    keep = np.ones(n, dtype=bool)
+    flags: list[ObservationFlag] = []
+    for i, mag, med in _metres_rows(problem.t0, np.arange(n)):
+        keep[i] = False
+        flags.append(_flag(problem, i, f"base_from_flange.translation_mm is {mag:.4g} from the base origin while "
+                                       f"the other rows' are about {med:.4g}: metres among millimetres? "
+                                       "Give every translation in mm"))
+    if not problem.has_centres:
+        return keep, flags, []
+    kinds, meas, r = problem.kind, problem.centre_meas, problem.radius_mm
+    sph = np.flatnonzero((kinds == KIND_SPHERE_CENTRE) & keep)
+    for i, mag, med in _metres_rows(meas, sph):
+        keep[i] = False
+        flags.append(_flag(problem, i, f"sphere_centre_mm is {mag:.4g} from the sensor origin while the other rows' "
+                                       f"are about {med:.4g}: metres among millimetres? Give the centre in mm"))
+    cir = np.flatnonzero((kinds == KIND_CIRCLE) & keep)
+    for i in cir:
+        if meas[i, 2] > CIRCLE_RADIUS_SLACK * r:
+            keep[i] = False
+            flags.append(_flag(problem, i, f"circle.radius_mm {meas[i, 2]:.4g} exceeds the sphere radius {r:g} mm: "
+                                           "not the sphere, a diameter for a radius, or other units"))
+    cir = np.flatnonzero((kinds == KIND_CIRCLE) & keep)
+    for i, mag, med in _metres_rows(meas, cir):
+        keep[i] = False
+        flags.append(_flag(problem, i, f"circle (centre_yz_mm, radius_mm) is {mag:.4g} in size while the other rows' "
+                                       f"are about {med:.4g}: metres among millimetres? Give the circle in mm"))
+    more_keep, more_flags, pairs = pairwise_move_check(problem, keep)
+    return more_keep, flags + more_flags, pairs
+
+
+def _centre_distances(problem: Problem, i: int, j: int) -> tuple[float, ...]:
+    """The possible distances (mm) between the sphere centres of shots i and j in the
+    sensor frame: one for two sphere centres; for a circle, whose side of the laser plane
+    is not decided here, one per side."""
+    r = problem.radius_mm
+    a, b = problem.centre_meas[i], problem.centre_meas[j]
+    ka, kb = problem.kind[i], problem.kind[j]
+    if ka == KIND_SPHERE_CENTRE and kb == KIND_SPHERE_CENTRE:
+        return (float(np.linalg.norm(a - b)),)
+
+    def split(kind, v):
+        if kind == KIND_SPHERE_CENTRE:
+            return v[1:], (v[0],)
+        h = float(np.sqrt(max(r * r - v[2] ** 2, 0.0)))
+        return v[:2], (h, -h)
+
+    yz_a, xa = split(ka, a)
+    yz_b, xb = split(kb, b)
+    in_plane = float(np.sum((yz_a - yz_b) ** 2))
+    return tuple(float(np.sqrt(in_plane + (p - q) ** 2)) for p in xa for q in xb)
+
+
+def _given_sd(problem: Problem, i: int) -> float:
+    """Largest standard deviation of shot i's given covariance, mm (0 when none)."""
+    C = problem.centre_cov[i]
+    return 0.0 if np.isnan(C[0, 0]) else float(np.sqrt(np.linalg.eigvalsh(C)[-1]))
+
+
+def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
+    """Within each station, the sphere centre must move in the sensor frame by the
+    distance the flange moved (a pure translation): compares every pair of centre
+    observations. The row that disagrees with most of its station (worst first, then
+    again without it) is left out and flagged with its inconsistency in mm; two rows that
+    disagree with each other and with nothing else to tell which is wrong are both
+    flagged, and returned as a pair."""
+    n = problem.n_profiles
+    keep = np.ones(n, dtype=bool) if keep is None else keep.copy()
+    flags: list[ObservationFlag] = []
+    pairs: list[tuple[int, int]] = []
+    kinds = problem.kinds
+    for k, label in enumerate(problem.station_labels):
+        rows = [int(i) for i in np.flatnonzero((problem.station_of == k) & keep & (kinds != KIND_PROFILE))]
+        if len(rows) < 2:
+            continue
+        m = len(rows)
+        excess = np.zeros((m, m))  # inconsistency beyond the tolerance, mm (0: consistent)
+        gap = np.zeros((m, m))  # the inconsistency itself, mm
+        moved = np.zeros((m, m))
+        for a in range(m):
+            for b in range(a + 1, m):
+                i, j = rows[a], rows[b]
+                D = float(np.linalg.norm(problem.t0[i] - problem.t0[j]))
+                g = min(abs(d - D) for d in _centre_distances(problem, i, j))
+                tol = GROSS_MOVE_MM + GROSS_MOVE_RELATIVE * D + 6.0 * np.hypot(_given_sd(problem, i), _given_sd(problem, j))
+                gap[a, b] = gap[b, a] = g
+                moved[a, b] = moved[b, a] = D
+                excess[a, b] = excess[b, a] = max(g - tol, 0.0)
+        alive = list(range(m))
+        while len(alive) >= 2:
+            sub = excess[np.ix_(alive, alive)]
+            bad = (sub > 0).sum(axis=1)
+            if not bad.any():
+                break
+            if len(alive) == 2:
+                a, b = alive
+                for x, y in ((a, b), (b, a)):
+                    i = rows[x]
+                    keep[i] = False
+                    flags.append(_flag(problem, i, (
+                        f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station by "
+                        f"{gap[x, y]:.3f} mm: the robot moved {moved[x, y]:.3f} mm between them, the sphere centre "
+                        "moved otherwise in the sensor frame (a pure translation moves both alike); one of the two "
+                        "rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out")))
+                pairs.append((rows[a], rows[b]))
+                alive = []
+                break
+            worst = max(range(len(alive)), key=lambda x: (bad[x], sub[x].sum()))
+            x = alive[worst]
+            i = rows[x]
+            others = [y for y in alive if y != x]
+            size = float(np.median(gap[x, others]))
+            keep[i] = False
+            flags.append(_flag(problem, i, (
+                f"inconsistent with {bad[worst]} of the {len(others)} other rows of its station by {size:.3f} mm "
+                "(median): its sphere centre did not move in the sensor frame by the distance the robot moved (a pure "
+                "translation moves both alike): a typo in the pose or the centre (a sign, metres for millimetres)?")))
+            alive = others
+    return keep, flags, pairs
+
+
+def settle_pairs(problem: Problem, pairs: list[tuple[int, int]], R, t, centre, noise_mm: float,
+                 limit: float) -> list[tuple[int, int, float, float]]:
+    """Of each pair of rows left out together (:func:`pairwise_move_check`), the one that
+    agrees with a solution of the other observations (``R``, ``t``, ``centre``) while the
+    other does not: ``[(good, bad, chi2 of good, chi2 of bad), ...]`` (positions in
+    ``problem``). A row's chi^2 (3 dof) is that of its centre residual under its given
+    covariance, else ``noise_mm`` per axis; ``limit`` is the chi^2 above which a row
+    disagrees."""
+    from .twostep import centre_residuals
+
+    e = centre_residuals(problem, R, t, centre)
+    out = []
+
+    def chi2(i):
+        C = problem.centre_cov[i]
+        S = noise_mm**2 * np.eye(3) if np.isnan(C[0, 0]) else C
+        return float(e[i] @ np.linalg.solve(S, e[i]))
+
+    for a, b in pairs:
+        ca, cb = chi2(a), chi2(b)
+        if ca <= limit < cb:
+            out.append((a, b, ca, cb))
+        elif cb <= limit < ca:
+            out.append((b, a, cb, ca))
+    return out
+
+
+def circles_from_profiles(dataset, min_points: int = 20, max_rms_mm: float = 0.5):
+    """The dataset a sensor that fits on board would have given: each profile replaced
+    by the circle fitted to it (:func:`.circle.fit_circle`, robust to stray points), its
+    standard deviations left to the estimator. Profiles with fewer than ``min_points``
+    points or a poor fit (rms above ``max_rms_mm``) are dropped, as such a sensor would
+    report nothing. Other observations are kept as they are."""
+    from ..models import Circle, Dataset
+    from .circle import fit_circle
+
+    out = []
+    for o in dataset.observations:
+        if o.profile is None:
+            out.append(o)
+            continue
+        if len(o.profile) < min_points:
+            continue
+        fit = fit_circle(o.profile.points_mm)
+        if not fit.converged or fit.rms > max_rms_mm or fit.n_inliers < min_points:
+            continue
+        circle = Circle(centre_yz_mm=(float(fit.centre_yz[0]), float(fit.centre_yz[1])), radius_mm=fit.radius)
+        out.append(o.model_copy(update={"profile": None, "circle": circle}))
+    return Dataset(mounting=dataset.mounting, sphere_radius_mm=dataset.sphere_radius_mm, observations=out,
+                   provenance={**dataset.provenance, "reduced_to": "circles fitted to the profiles"})

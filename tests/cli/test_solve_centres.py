@@ -1,0 +1,55 @@
+"""`spherecal solve` on dataset format version 2: centre observations alone and mixed
+with profiles, end to end with the report."""
+
+import numpy as np
+import pytest
+
+from spherecal import dataio
+from spherecal import geometry as geo
+from spherecal.cli import EXIT_OK, main
+from spherecal.estimation.centres import circles_from_profiles
+from spherecal.sim import NoiseModel, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell
+
+NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+
+
+def within_truth(result, cell, k=5.0):
+    rot = geo.rotation_angle_deg(cell.true_transform.rotation_matrix, result.transform.rotation_matrix)
+    dt = np.linalg.norm(cell.true_transform.translation - result.transform.translation)
+    return rot < k * np.linalg.norm(result.std_rotation_deg) and dt < k * np.linalg.norm(result.std_translation_mm)
+
+
+@pytest.mark.parametrize("mounting, kind", [("eye_in_hand", "sphere_centre"), ("eye_to_hand", "circle")])
+def test_solve_a_dataset_of_centres_with_its_report(tmp_path, capsys, mounting, kind):
+    cell = standard_cell(mounting, seed=9, noise=NOISE)
+    path = tmp_path / "centres.dataset.jsonl"
+    dataio.write_dataset(path, simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind,
+                                                       centre_noise_mm=0.02))
+    assert dataio.read_dataset_header(path).version == 2
+    out = tmp_path / "res"
+    assert main(["solve", str(path), "--out", str(out)]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert "24 centre observations" in printed and "simulated truth: error" in printed
+    result = dataio.read_result(out / "result.json")
+    assert within_truth(result, cell)
+    assert result.residuals.n_centres_used == 24 and result.residuals.n_profiles_used == 0
+    html = (out / "report.html").read_text()
+    assert "24 centre observations" in html and "fig-residuals_per_centre" in html
+    assert "fig-residuals_per_profile" not in html and not (out / "report_residuals_per_profile.png").exists()
+    assert (out / "report_residuals_per_centre.png").exists() and (out / "report_sphere_3d.png").exists()
+
+
+def test_solve_a_file_mixing_profiles_and_circles(tmp_path, capsys):
+    cell = standard_cell("eye_to_hand", seed=2, noise=NOISE)
+    profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    circles = {o.index: o for o in circles_from_profiles(profiles).observations}
+    mixed = [circles.get(o.index) if o.station in ("S2", "S4") else o for o in profiles.observations]
+    path = tmp_path / "mixed.dataset.jsonl"
+    dataio.write_dataset(path, profiles.model_copy(update={"observations": [o for o in mixed if o is not None]}))
+    out = tmp_path / "res"
+    assert main(["solve", str(path), "--out", str(out)]) == EXIT_OK
+    result = dataio.read_result(out / "result.json")
+    assert within_truth(result, cell)
+    assert result.residuals.n_profiles_used == 12 and result.residuals.n_centres_used == 12
+    for fig in ("residuals_per_profile", "residuals_per_centre", "residuals_per_station", "sphere_3d"):
+        assert (out / f"report_{fig}.png").exists(), fig

@@ -1,0 +1,293 @@
+"""Calibration from centre observations (circles fitted on board, sphere centres already
+resolved), alone or beside profiles: known answers from the simulated cell in both
+mounting modes, the paper's minimal procedure, the checks of hand-typed tables."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from spherecal import geometry as geo
+from spherecal.dataio import read_dataset, write_dataset
+from spherecal.errors import DatasetFileError, DegenerateDataError
+from spherecal.estimation import CalibrationOptions, solve
+from spherecal.estimation.centres import circles_from_profiles
+from spherecal.models import Circle, Dataset, Pose
+from spherecal.sim import NoiseModel, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell
+
+NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+#: chi^2 with 6 degrees of freedom exceeded with probability 1e-4
+CHI2_6_1E4 = 27.86
+
+
+def transform_error(result, cell):
+    """(rotation angle deg, translation mm, chi^2 of the 6-dof error against the result's covariance)."""
+    X = cell.true_transform
+    w = geo.rotvec_from_matrix(result.transform.rotation_matrix @ X.rotation_matrix.T)
+    e = np.concatenate([w, result.transform.translation - X.translation])
+    chi2 = float(e @ np.linalg.solve(np.array(result.covariance)[:6, :6], e))
+    return float(np.degrees(np.linalg.norm(w))), float(np.linalg.norm(e[3:])), chi2
+
+
+def assert_known_answer(result, cell, rot_deg=0.15, trans_mm=0.2, centre_mm=0.5):
+    rot, trans, chi2 = transform_error(result, cell)
+    assert rot < rot_deg and trans < trans_mm, (rot, trans)
+    assert chi2 < CHI2_6_1E4, f"error {rot:.4f} deg, {trans:.4f} mm is not within the stated covariance (chi2 {chi2:.1f})"
+    assert np.linalg.norm(np.subtract(result.sphere_centre_mm, cell.sphere_centre_mm)) < centre_mm
+
+
+def sphere_centres_from_fits(dataset: Dataset, cell) -> Dataset:
+    """Circles fitted to simulated profiles, resolved to sphere centres with the side of
+    the laser plane a sensor that resolves it would report (here: the truth's)."""
+    circles = circles_from_profiles(dataset)
+    r = dataset.sphere_radius_mm
+    truth = {o.index: o for o in dataset.observations}
+    out = []
+    for o in circles.observations:
+        c = o.circle
+        # the reported pose is off the true one by the pose noise only: the side is the true side
+        true_x = cell.sphere_centre_in_sensor(truth[o.index].base_from_flange)[0]
+        x = np.copysign(np.sqrt(max(r * r - c.radius_mm**2, 0.0)), true_x)
+        out.append(o.model_copy(update={"circle": None, "sphere_centre_mm": (float(x), *c.centre_yz_mm)}))
+    return circles.model_copy(update={"observations": out})
+
+
+# --- known answers ---------------------------------------------------------------------------------
+def test_fitted_circles_of_simulated_profiles_give_the_known_answer(mounting):
+    cell = standard_cell(mounting, seed=4, noise=NOISE)
+    profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    circles = circles_from_profiles(profiles)
+    assert all(o.kind == "circle" for o in circles.observations) and len(circles.observations) >= 20
+    res = solve(circles, CalibrationOptions(robot_error_model="none")).result
+    assert_known_answer(res, cell)
+    assert res.residuals.n_centres_used == len(circles.observations) and res.residuals.n_profiles_used == 0
+    assert res.residuals.n_points_used == 0 and not res.flagged
+    # the same shots resolved to sphere centres
+    spheres = sphere_centres_from_fits(profiles, cell)
+    res2 = solve(spheres, CalibrationOptions(robot_error_model="none")).result
+    assert_known_answer(res2, cell)
+
+
+@pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
+@pytest.mark.parametrize("given", [False, True], ids=["estimated-noise", "given-noise"])
+def test_centres_from_the_true_geometry_plus_noise_give_the_known_answer(mounting, kind, given):
+    cell = standard_cell(mounting, seed=7, noise=NOISE)
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind, centre_noise_mm=0.03,
+                                 give_covariance=given)
+    sol = solve(ds, CalibrationOptions(robot_error_model="none"))
+    res = sol.result
+    assert_known_answer(res, cell)
+    est = res.diagnostics["noise"]["centre_noise_mm"]
+    if given:
+        assert est is None
+    else:  # the variance component finds the centres' noise (pose noise apart)
+        assert 0.02 < est < 0.045, est
+    # the pure-translation consistency per station, on centres
+    cons = res.diagnostics["station_consistency"]
+    assert set(cons) == {"S1", "S2", "S3", "S4"} and max(c["rms_mm"] for c in cons.values()) < 0.2
+
+
+def test_the_station_robot_error_model_on_centres():
+    """The station random effect works on centre rows as on profiles (its default 'auto')."""
+    cell = standard_cell("eye_in_hand", seed=11, noise=NOISE)
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="sphere_centre", centre_noise_mm=0.02)
+    res = solve(ds).result
+    assert res.robot_error is not None and res.robot_error.model == "station"
+    assert_known_answer(res, cell)
+
+
+def test_the_kinematic_robot_error_model_on_centres(mounting):
+    """An arm whose geometry differs from its nominal model (joints recorded): the
+    kinematic model acts on centre rows as on profiles, and its covariance stays honest."""
+    from spherecal.plugins.host import PluginHost
+    from spherecal.sim import RobotErrorModel
+
+    kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
+    cell = standard_cell(mounting, seed=12, noise=NOISE, robot_error=RobotErrorModel(), arm=kin)
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="sphere_centre", centre_noise_mm=0.01)
+    assert all(o.joints_deg is not None for o in ds.observations)
+    res = solve(ds, CalibrationOptions(robot_error_model="kinematic"), kinematics=kin).result
+    assert res.robot_error.model == "kinematic" and res.robot_error.kinematic_parameters
+    # the arm's error is 0.5-2 mm at the flange: what one sphere cannot see moves the transform or the sphere
+    assert_known_answer(res, cell, rot_deg=0.3, trans_mm=3.0, centre_mm=3.0)
+
+
+# --- the paper's minimal procedure ----------------------------------------------------------------
+def minimal(ds: Dataset) -> Dataset:
+    """One station of four pure translations (rotation), three stations of two shots
+    (translation): the paper's procedure."""
+    keep = [o for o in ds.observations if o.station == "S1" or (o.index % 4) in (0, 3)]
+    return ds.model_copy(update={"observations": keep})
+
+
+@pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
+def test_the_papers_minimal_procedure_solves(mounting, kind):
+    cell = standard_cell(mounting, seed=3, noise=NOISE)
+    full = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind=kind, centre_noise_mm=0.01)
+    assert len(full.observations) == 16
+    ds = minimal(full)
+    assert [sum(o.station == s for o in ds.observations) for s in ("S1", "S2", "S3", "S4")] == [4, 2, 2, 2]
+    res = solve(ds, CalibrationOptions(robot_error_model="none")).result
+    assert not res.flagged and res.residuals.n_centres_used == 10
+    assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
+
+
+def test_three_non_collinear_translations_fix_the_rotation_and_collinear_ones_do_not():
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre",
+                                         centre_noise_mm=0.01))
+    three = [o for o in ds.observations if o.index != 3]  # S1: three shots, not on one line
+    res = solve(ds.model_copy(update={"observations": three}), CalibrationOptions(robot_error_model="none")).result
+    assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
+    # every station of two shots: each move on one line and all parallel in the sensor -> no rotation
+    pairs = [o for o in ds.observations if (o.index % 4) in (0, 3)]
+    with pytest.raises(DegenerateDataError, match="all along one line: the rotation is not determined"):
+        solve(ds.model_copy(update={"observations": pairs}), CalibrationOptions(robot_error_model="none"))
+
+
+def test_a_circle_station_needs_two_shots_a_sphere_centre_station_one():
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    opts = CalibrationOptions(robot_error_model="none")
+    for kind, kept in (("circle", False), ("sphere_centre", True)):
+        ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind=kind, centre_noise_mm=0.01))
+        lone = [o for o in ds.observations if o.index != 7]  # S2 keeps one shot, observation 4
+        res = solve(ds.model_copy(update={"observations": lone}), opts).result
+        flagged = {f.index: f.reason for f in res.flagged}
+        if kept:
+            assert not flagged and res.residuals.n_centres_used == 9
+        else:
+            assert list(flagged) == [4] and "station S2 has only 1 usable observations" in flagged[4]
+            assert "(needs 2)" in flagged[4] and "side of the laser plane" in flagged[4]
+
+
+# --- mixed files ---------------------------------------------------------------------------------------
+def test_a_file_mixing_profiles_circles_and_sphere_centres(tmp_path, mounting):
+    cell = standard_cell(mounting, seed=5, noise=NOISE)
+    profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    circles = {o.index: o for o in circles_from_profiles(profiles).observations}
+    spheres = {o.index: o for o in sphere_centres_from_fits(profiles, cell).observations}
+    mixed = [o if o.station in ("S1", "S2") else circles.get(o.index) if o.station == "S3" else spheres.get(o.index)
+             for o in profiles.observations]
+    ds = profiles.model_copy(update={"observations": [o for o in mixed if o is not None]})
+    path = tmp_path / "mixed.dataset.jsonl"
+    write_dataset(path, ds)
+    back = read_dataset(path)
+    assert {o.kind for o in back.observations} == {"profile", "circle", "sphere_centre"}
+    res = solve(back, CalibrationOptions(robot_error_model="none")).result
+    assert_known_answer(res, cell)
+    n_prof = sum(o.kind == "profile" for o in back.observations)
+    assert res.residuals.n_profiles_used == n_prof and res.residuals.n_centres_used == len(back.observations) - n_prof
+    assert res.residuals.n_points_used > 1000
+
+
+# --- typed tables: typos are caught and the row is named ------------------------------------------
+def table(seed=21, kind="sphere_centre") -> tuple[Dataset, object]:
+    cell = standard_cell("eye_in_hand", seed=seed, noise=NOISE)
+    return simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind, centre_noise_mm=0.01), cell
+
+
+def with_row(ds: Dataset, index: int, **update) -> Dataset:
+    obs = [o.model_copy(update=update) if o.index == index else o for o in ds.observations]
+    return ds.model_copy(update={"observations": obs})
+
+
+def flagged_reasons(ds: Dataset) -> tuple[dict[int, str], object]:
+    res = solve(ds, CalibrationOptions(robot_error_model="none")).result
+    return {f.index: f.reason for f in res.flagged}, res
+
+
+def test_a_translation_in_metres_among_millimetres_is_named():
+    ds, cell = table()
+    pose = ds.observations[8].base_from_flange
+    bad = with_row(ds, 8, base_from_flange=Pose(translation_mm=tuple(np.divide(pose.translation_mm, 1000)),
+                                                 quaternion_wxyz=pose.quaternion_wxyz))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [8] and "metres among millimetres" in flags[8] and "base_from_flange.translation_mm" in flags[8]
+    assert_known_answer(res, cell)
+    # a sphere centre typed in metres
+    c = ds.observations[13].sphere_centre_mm
+    flags, _ = flagged_reasons(with_row(ds, 13, sphere_centre_mm=tuple(np.divide(c, 1000))))
+    assert list(flags) == [13] and "sphere_centre_mm" in flags[13] and "metres among millimetres" in flags[13]
+
+
+@pytest.mark.parametrize("where", ["pose", "centre"])
+def test_a_sign_flip_in_one_component_is_named_with_its_size(where):
+    ds, cell = table()
+    o = ds.observations[9]
+    if where == "pose":
+        t = list(o.base_from_flange.translation_mm)
+        t[1] = -t[1]  # y: ~150 mm in this cell
+        bad = with_row(ds, 9, base_from_flange=Pose(translation_mm=tuple(t),
+                                                    quaternion_wxyz=o.base_from_flange.quaternion_wxyz))
+    else:
+        c = list(o.sphere_centre_mm)
+        c[2] = -c[2]  # z: about -20 mm in the sensor frame
+        bad = with_row(ds, 9, sphere_centre_mm=tuple(c))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [9], flags
+    assert "did not move in the sensor frame by the distance the robot moved" in flags[9]
+    size = float(flags[9].split(" by ")[1].split(" mm")[0])
+    expected = 2 * abs(o.base_from_flange.translation_mm[1]) if where == "pose" else 2 * abs(o.sphere_centre_mm[2])
+    assert size == pytest.approx(expected, rel=0.5)  # the distance check sees most of the jump
+    assert_known_answer(res, cell)
+
+
+def test_a_sign_flip_in_a_quaternion_component_is_named_with_its_angle():
+    ds, cell = table()
+    q = list(ds.observations[14].base_from_flange.quaternion_wxyz)
+    k = 1 + int(np.argmax(np.abs(q[1:])))
+    q[k] = -q[k]
+    bad = with_row(ds, 14, base_from_flange=Pose(translation_mm=ds.observations[14].base_from_flange.translation_mm,
+                                                 quaternion_wxyz=tuple(q)))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [14] and "turned" in flags[14] and "within a station the robot may only translate" in flags[14]
+    assert_known_answer(res, cell)
+
+
+def test_a_hand_typed_table_with_a_non_unit_quaternion_names_the_line(tmp_path):
+    ds, _ = table()
+    path = tmp_path / "paper-table.dataset.jsonl"
+    write_dataset(path, ds)
+    lines = path.read_text().splitlines()
+    row = json.loads(lines[6])
+    q = row["base_from_flange"]["quaternion_wxyz"]
+    row["base_from_flange"]["quaternion_wxyz"] = [round(q[0] + 0.05, 4), *(round(v, 4) for v in q[1:])]
+    lines[6] = json.dumps(row)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetFileError, match=r"line 7 \(observation 5\): base_from_flange\.quaternion_wxyz: .*has norm "
+                                               r"1\.0\d+; expected a unit quaternion"):
+        read_dataset(path)
+    # rounding to 4 decimals, as tables print them, is not a typo
+    row["base_from_flange"]["quaternion_wxyz"] = [round(v, 4) for v in q]
+    lines[6] = json.dumps(row)
+    path.write_text("\n".join(lines) + "\n")
+    assert read_dataset(path).observations[5].base_from_flange is not None
+
+
+def test_a_small_inconsistency_is_flagged_in_mm_never_used():
+    ds, cell = table(kind="circle")
+    c = ds.observations[10].circle
+    bad = with_row(ds, 10, circle=Circle(centre_yz_mm=(c.centre_yz_mm[0] + 0.4, c.centre_yz_mm[1]),
+                                         radius_mm=c.radius_mm))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [10]
+    assert "0.4" in flags[10] or "0.3" in flags[10], flags[10]  # the size of the inconsistency, mm
+    assert res.residuals.n_centres_used == len(ds.observations) - 1
+    assert_known_answer(res, cell)
+
+
+def test_in_a_station_of_two_the_solution_of_the_others_names_the_row_with_the_typo():
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre",
+                                         centre_noise_mm=0.01))
+    o = next(x for x in ds.observations if x.index == 7)  # S2 holds observations 4 and 7
+    t = list(o.base_from_flange.translation_mm)
+    t[1] = -t[1]
+    bad = with_row(ds, 7, base_from_flange=Pose(translation_mm=tuple(t), quaternion_wxyz=o.base_from_flange.quaternion_wxyz))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [7], flags  # not 4, its station's other row
+    assert "inconsistent with observation 4 of its station by" in flags[7] and "the typo is in this row" in flags[7]
+    assert res.residuals.n_centres_used == 9
+    assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)

@@ -1,0 +1,56 @@
+"""Profile-only calibrations are unchanged by centre observations (issue 14): the
+results of a few simulated profile datasets, solved by the code before centre
+observations existed (main at commit 1977c88, stored in data/profile_results_before_centres.json
+by :func:`solve_cases`), are reproduced to 1e-12. A change that is meant to alter
+profile results regenerates that file on purpose:
+``python -c "import tests.core.test_profiles_unchanged as t; t.write_reference()"``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REFERENCE = Path(__file__).parent / "data" / "profile_results_before_centres.json"
+
+
+def solve_cases() -> dict:
+    from spherecal.estimation import CalibrationOptions, solve
+    from spherecal.plugins.host import PluginHost
+    from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell
+
+    noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002,
+                       stray_profile_fraction=0.2)
+    kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
+    cases = {
+        "eye_in_hand-station": (standard_cell("eye_in_hand", seed=5, noise=noise), "station", None),
+        "eye_to_hand-none": (standard_cell("eye_to_hand", seed=5, noise=noise), "none", None),
+        "eye_in_hand-auto-exact-arm": (standard_cell("eye_in_hand", seed=6, noise=noise, arm=kin), "auto", kin),
+        "eye_in_hand-kinematic": (standard_cell("eye_in_hand", seed=6, noise=noise, robot_error=RobotErrorModel(),
+                                                arm=kin), "kinematic", kin),
+    }
+    out = {}
+    for name, (cell, model, kinematics) in cases.items():
+        ds = simulate_dataset(cell, SweepPlan(profiles_per_station=4 if model == "kinematic" else 6))
+        r = solve(ds, CalibrationOptions(robot_error_model=model), kinematics=kinematics).result
+        out[name] = {"transform": [*r.transform.translation_mm, *r.transform.quaternion_wxyz],
+                     "sphere_centre_mm": list(r.sphere_centre_mm), "covariance": r.covariance,
+                     "variance_factor": r.variance_factor, "rms_mm": r.residuals.rms_mm,
+                     "n_points_used": r.residuals.n_points_used, "flagged": [f.index for f in r.flagged]}
+    return out
+
+
+def write_reference() -> None:
+    REFERENCE.write_text(json.dumps(solve_cases(), indent=1) + "\n")
+
+
+def test_profile_only_results_are_bit_for_bit_those_before_centre_observations():
+    before = json.loads(REFERENCE.read_text())
+    now = solve_cases()
+    assert set(now) == set(before)
+    for name in before:
+        for key, value in before[name].items():
+            np.testing.assert_allclose(np.asarray(now[name][key], float), np.asarray(value, float), rtol=1e-12,
+                                       atol=1e-15, err_msg=f"{name}: {key}")
