@@ -101,6 +101,12 @@ class RobotType:
     description: str = ""
     flange_pose_from_joints: Callable[[BaseModel, np.ndarray], Pose] | None = None
     arm_kinematics: Callable[[BaseModel], "ArmKinematics"] | None = None
+    #: ``read_frame(text) -> ControllerFrame | None``: reads a frame as this robot's
+    #: controller writes it (a tool or work-object data line), for ``compare --tooldata``
+    #: and ``validate --tooldata``. Returns None when the text is not in its controller's
+    #: syntax; raises :class:`~spherecal.errors.InputError` naming the field at fault when
+    #: it is but is malformed. None: this robot type reads no such text.
+    read_frame: Callable[[str], "ControllerFrame | None"] | None = None
 
 
 @dataclass(frozen=True)
@@ -112,3 +118,45 @@ class SensorType:
     config_model: type[BaseModel]
     factory: Callable[[BaseModel, DeviceContext], Sensor]
     description: str = ""
+
+
+@dataclass(frozen=True)
+class ControllerFrame:
+    """A calibrated frame as a robot controller stores it, read by the robot plugin that
+    knows the controller's syntax (:attr:`RobotType.read_frame`).
+
+    ``transform_name`` is ``flange_from_sensor`` (a robot-held tool) or
+    ``base_from_sensor`` (a fixed frame, read in the controller's world frame, taken as
+    the robot's base); ``pose`` the transform (mm, quaternion (w, x, y, z)); ``kind`` what
+    the text was (e.g. ``"tooldata"``), ``name`` the declared name if the text declared
+    one, ``note`` an assumption the reader made, for the user."""
+
+    transform_name: str
+    pose: Pose
+    kind: str
+    name: str | None = None
+    note: str = ""
+
+
+#: Keys :func:`device_identity` keeps from a device's ``identity()``, in this order.
+IDENTITY_KEYS = ("manufacturer", "model", "serial_number", "firmware", "controller")
+
+
+def device_identity(device: Any) -> dict[str, str]:
+    """What a connected robot or sensor says it is, for the report and the result's
+    provenance (traceability): the device's optional ``identity()`` method, which returns
+    a mapping with any of :data:`IDENTITY_KEYS` (strings: ``manufacturer``, ``model``,
+    ``serial_number``, ``firmware``, ``controller``). A device without the method, or
+    whose method fails, reports nothing (an empty dict): identity is informative and never
+    stops a run. Other keys and empty values are dropped; values are cut to 200
+    characters."""
+    method = getattr(device, "identity", None)
+    if not callable(method):
+        return {}
+    try:
+        found = method()
+    except Exception:  # noqa: BLE001 - informative only: a failing identity() must not stop a run
+        return {}
+    if not isinstance(found, dict):
+        return {}
+    return {k: str(found[k])[:200] for k in IDENTITY_KEYS if found.get(k) not in (None, "")}

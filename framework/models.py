@@ -411,6 +411,39 @@ class RobotErrorSummary(BaseModel):
     dominant: str = Field(description="the part that dominates the point error")
 
 
+class ParameterCorrelation(BaseModel):
+    """The correlation matrix of a result's parameters, derived from its covariance:
+    ``matrix[i][j] = cov[i][j] / (sd_i sd_j)``, rows and columns named by ``parameters``
+    in the covariance's order (rotation about the target axes, translation, sphere
+    centre[, radius])."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    parameters: list[str]
+    matrix: list[list[float]]
+
+
+def parameter_labels(transform_name: str, sphere_centre_frame: str, radius_fitted: bool) -> list[str]:
+    """Names of the covariance's rows, e.g. ``rotation about flange x``."""
+    a = transform_name.split("_from_")[0]
+    labels = [f"rotation about {a} {ax}" for ax in "xyz"] + [f"translation along {a} {ax}" for ax in "xyz"]
+    labels += [f"sphere centre {ax} ({sphere_centre_frame})" for ax in "xyz"]
+    return labels + (["sphere radius"] if radius_fitted else [])
+
+
+def correlation_matrix(covariance) -> np.ndarray:
+    """``cov[i][j] / (sd_i sd_j)``; a parameter with zero variance correlates 0 with the
+    others (1 with itself)."""
+    cov = np.asarray(covariance, dtype=float)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    safe = np.where(sd > 0, sd, 1.0)
+    corr = cov / np.outer(safe, safe)
+    corr[sd == 0, :] = 0.0
+    corr[:, sd == 0] = 0.0
+    np.fill_diagonal(corr, 1.0)
+    return np.clip(corr, -1.0, 1.0)
+
+
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.
 
@@ -438,6 +471,14 @@ class CalibrationResult(BaseModel):
         description="covariance of (rotation about target axes rad x3, translation mm x3, "
         "sphere centre mm x3[, radius mm]), including the robot's systematic error (robot_error)"
     )
+    covariance_robot_frame: list[list[float]] | None = Field(
+        None, description="the same covariance relative to the robot's own frame: without the robot's error shared "
+        "by every station (its accuracy), which cancels between calibrations on one robot; None when the robot "
+        "error model adds no such error (covariance is then relative to the robot's frame already)"
+    )
+    correlation: ParameterCorrelation | None = Field(
+        None, description="correlations of the parameters, derived from covariance (filled in when absent)"
+    )
     variance_factor: float = Field(description="chi^2 / dof of the whitened residuals")
     residuals: ResidualStats
     flagged: list[ObservationFlag] = Field(default_factory=list)
@@ -458,4 +499,27 @@ class CalibrationResult(BaseModel):
             raise ValueError(
                 f"sphere_centre_frame {self.sphere_centre_frame!r} does not match mounting {self.mounting!r}"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _derive_correlation(self):
+        """The correlation is derived from the covariance: filled in when absent, checked
+        when given (a hand-edited file whose two disagree is refused)."""
+        n = len(self.covariance)
+        if n == 0 or any(len(row) != n for row in self.covariance):
+            return self
+        labels = parameter_labels(self.transform_name, self.sphere_centre_frame, self.radius_fitted)
+        if len(labels) != n:
+            return self
+        derived = correlation_matrix(self.covariance)
+        if self.correlation is None:
+            self.correlation = ParameterCorrelation(parameters=labels, matrix=np.round(derived, 6).tolist())
+            return self
+        given = np.asarray(self.correlation.matrix, dtype=float)
+        if self.correlation.parameters != labels:
+            raise ValueError(f"correlation.parameters {self.correlation.parameters} do not name the covariance's "
+                             f"rows {labels}")
+        if given.shape != derived.shape or not np.allclose(given, derived, atol=1e-5):
+            raise ValueError("correlation does not match the covariance it is derived from (leave it out to have it "
+                             "derived)")
         return self

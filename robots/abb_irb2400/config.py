@@ -66,6 +66,10 @@ class AbbIrb2400Config(LineLinkSettings):
         "SpherecalSocket.mod (its SERVER_ADDRESS and SERVER_PORT); ignored in simulated runs",
     )
 
+    serial_number: str | None = Field(
+        None, max_length=100, description="the robot's serial number (its nameplate), for the report and the "
+        "result's provenance; the controller protocol does not report it"
+    )
     pose_source: Literal["controller", "joints"] = Field(
         "controller",
         description="flange pose from the controller (GETP, CRobT tool0/wobj0) or from the joint "

@@ -43,7 +43,7 @@ from typing import Callable
 
 import numpy as np
 
-from spherecal import linelink
+from spherecal import lineproto, linelink
 from spherecal.linelink import MIN_SPEED_MM_S, LineRobot  # noqa: F401 - MIN_SPEED_MM_S re-exported
 from spherecal.models import Pose
 
@@ -104,3 +104,13 @@ class AbbIrb2400Robot(LineRobot):
             seed = self.last_joints_deg if self.last_joints_deg is not None else np.zeros(6)
             target_joints_deg = self.calibrated.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
         return self.nominal_kin.flange_pose_from_joints(target_joints_deg, check_limits=False)
+
+    def identity(self) -> dict[str, str]:
+        """What this robot is (spherecal.devices.device_identity): the model, the serial
+        number from the configuration (the protocol does not report it) and the
+        controller program it talks to."""
+        found = {"manufacturer": "ABB", "model": "IRB 2400",
+                 "controller": f"SpherecalServer.mod, protocol version {lineproto.PROTOCOL_VERSION}, on {self.url}"}
+        if self.config.serial_number:
+            found["serial_number"] = self.config.serial_number
+        return found

@@ -29,6 +29,7 @@ from spherecal.plugins import hookimpl
 from .config import AbbIrb2400Config
 from .driver import AbbIrb2400Robot
 from .export import RAPID_EXPORTER
+from .frames import read_frame
 from .kinematics import Irb2400Kinematics, kinematics_for
 from .simulator import start_simulator
 
@@ -86,6 +87,7 @@ ROBOT_TYPE = RobotType(
     description=DESCRIPTION,
     flange_pose_from_joints=flange_pose_from_joints,
     arm_kinematics=arm_kinematics,
+    read_frame=read_frame,
 )
 
 

@@ -98,6 +98,21 @@ class NxSensorDriver:
         serial = f", serial {self.config.serial_number}" if self.config.serial_number else ""
         return f"nxSensor-I (USB {self.wire.usb_id}{serial})"
 
+    def identity(self) -> dict[str, str]:
+        """What this unit says it is (spherecal.devices.device_identity): its USB
+        manufacturer, product and serial number strings; a string it cannot give is left
+        out."""
+        found: dict[str, str] = {}
+        dev = self._dev
+        for key, index in (("manufacturer", "iManufacturer"), ("model", "iProduct"), ("serial_number", "iSerialNumber")):
+            try:
+                value = usb.util.get_string(dev, getattr(dev, index))
+            except (usb.core.USBError, ValueError, AttributeError, NotImplementedError):
+                continue
+            if value:
+                found[key] = value
+        return found
+
     def _error(self, operation: str, what: str, hint: str) -> DeviceError:
         return DeviceError(f"{self.device_name}: {what} while {operation}. {hint}")
 
