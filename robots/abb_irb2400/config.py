@@ -34,10 +34,17 @@ class WorkspaceBox(CoreWorkspaceBox):
 
 class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     """The simulated controller used when the run is simulated (a SimulatedCell is
-    given): it serves the same protocol over a real pyserial link on localhost (the
+    given): it serves the same protocol over a real link on localhost (the
     core's settings, :class:`spherecal.sim.controller.SimulatedControllerSettings`, with
-    the IRB 2400's home joints)."""
+    the IRB 2400's home joints and its RAPID server's links)."""
 
+    transport: Literal["tcp", "pty", "socket"] = Field(
+        "tcp",
+        description="the link the simulated controller serves: tcp: the serial server's line carried over TCP "
+        "on 127.0.0.1 (socket://); pty: a pseudo-terminal device (POSIX only); socket: the RAPID socket server "
+        "of an IRC5 (SpherecalSocket.mod) on 127.0.0.1 (socket://), whose every new connection is a new "
+        "session that forgets the staged target",
+    )
     single_precision: bool = Field(
         True, description="round reported values to 32-bit floats, as RAPID num does"
     )
@@ -52,9 +59,18 @@ class SimulatedControllerSettings(CoreSimulatedControllerSettings):
 
 
 class AbbIrb2400Config(LineLinkSettings):
-    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod``, talking the
-    spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md). The link
-    and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`)."""
+    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod`` with a link
+    module, talking the spherecal line protocol over a serial line (``SpherecalSerial.mod``)
+    or, on an IRC5, over TCP (``SpherecalSocket.mod``; see docs/robot-abb-irb2400.md). The
+    link and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`,
+    which also checks a ``socket://host:port`` port)."""
+
+    port: str = Field(
+        "/dev/ttyS0",
+        description="the link to the controller: a serial device (/dev/ttyS0, /dev/ttyUSB0, COM1) or another "
+        "pyserial URL (rfc2217://...) for SpherecalSerial.mod, or socket://host:port for the IRC5 socket server "
+        "SpherecalSocket.mod (its SERVER_ADDRESS and SERVER_PORT); ignored in simulated runs",
+    )
 
     serial_number: str | None = Field(
         None, max_length=100, description="the robot's serial number (its nameplate), for the report and the "

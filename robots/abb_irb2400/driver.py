@@ -1,16 +1,22 @@
-"""Serial driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
+"""Driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
 
-Built on ``serial.serial_for_url``, so the same code talks to a serial device
-(``/dev/ttyS0``, ``COM1``, a pseudo-terminal) or to a pyserial URL such as
-``socket://127.0.0.1:PORT`` (the simulated controller).
+Two links, one driver: a serial line (``SpherecalSerial.mod`` on the controller), opened
+with ``serial.serial_for_url`` (a device such as ``/dev/ttyS0``, ``COM1`` or a
+pseudo-terminal, or another pyserial URL), or a TCP connection to the IRC5 socket server
+(``SpherecalSocket.mod``) when the port is ``socket://host:port`` (the core's
+:class:`~spherecal.linelink.TcpLink`). Framing, timeouts, resends and the stale-reply
+rules below are the same code for both.
 
 Every exchange is one request and one reply carrying the same sequence number.
 Replies whose seq does not match the request (late replies of an earlier attempt) are
 discarded; a corrupted line (checksum or syntax) or a timeout makes the driver resend
 the request with a fresh seq, up to ``retries`` times, then raise
 :class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
-DeviceError at once. Requests are idempotent (a MOVL names its staged target, and the
-controller moves to a target once), so a resend never makes the robot move twice.
+DeviceError at once (over TCP: the controller closed the connection, or it broke), and
+the driver never reconnects by itself: the robot must be created again, which starts a
+new connection (and, for the socket server, a new session that has no staged target).
+Requests are idempotent (a MOVL names its staged target, and the controller moves to a
+target once), so a resend never makes the robot move twice.
 
 Replies of an earlier session: on open the driver discards whatever waits on the link,
 and it starts its sequence numbers at a random value, so that a reply of an earlier
@@ -61,6 +67,7 @@ class AbbIrb2400Robot(LineRobot):
 
     name = "IRB 2400"
     server_hint = "that SpherecalServer is running on the controller"
+    socket_hint = "that SpherecalSocket runs on the controller and listens on this address"
     version_hint = "load the SpherecalServer.mod shipped with this package"
 
     def __init__(

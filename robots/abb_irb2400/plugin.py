@@ -35,8 +35,9 @@ from .simulator import start_simulator
 
 NAME = "abb_irb2400"
 DESCRIPTION = (
-    "ABB IRB 2400 on an IRC5 or S4C+ controller running SpherecalServer.mod over a serial line "
-    "(spherecal line protocol; simulated controller on localhost in simulated runs)"
+    "ABB IRB 2400 on an IRC5 or S4C+ controller running SpherecalServer.mod over a serial line, or on an "
+    "IRC5 over TCP (port = socket://host:port) (spherecal line protocol; simulated controller on localhost "
+    "in simulated runs)"
 )
 
 

@@ -1,10 +1,19 @@
 """A simulated IRB 2400 controller that serves the spherecal line protocol over a real
-serial link: a TCP server on 127.0.0.1 (pyserial ``socket://127.0.0.1:PORT``) or a
-pseudo-terminal pair (the driver opens the slave device path).
+link, in one of three flavours (``SimulatedControllerSettings.transport``):
+
+* ``tcp``: the serial server's line (``SpherecalSerial.mod``) carried over TCP on
+  127.0.0.1 (``socket://``), as a serial device server would; a serial line has no
+  sessions, so a reconnecting driver finds the controller as it left it;
+* ``pty``: the serial server on a pseudo-terminal pair (the driver opens the slave
+  device path);
+* ``socket``: the IRC5 socket server (``SpherecalSocket.mod``) on 127.0.0.1
+  (``socket://``): one connection at a time (others wait in the listen backlog), and
+  every accepted connection is a new session, in which no target is staged.
 
 The brand-free controller and its server live in the core
 (:mod:`spherecal.sim.controller`): moves by inverse kinematics from the current joints,
-the cell's true arm, pose and joint noise, fault injection. :class:`SimulatedIrb2400`
+the cell's true arm, pose and joint noise, the sessions of a socket server, fault
+injection (the connection closed mid-request among them). :class:`SimulatedIrb2400`
 adds the IRB 2400's kinematics and its RAPID server's read loop:
 :meth:`~SimulatedIrb2400.handle` is one turn of the loop (clear the line, read one, serve
 it), and :meth:`~SimulatedIrb2400.read_timeout` and :meth:`~SimulatedIrb2400.restart`
@@ -117,7 +126,7 @@ def start_simulator(
     cell: "SimulatedCell | None" = None,
 ) -> ControllerServer:
     """Start a simulated IRB 2400 controller on the settings' transport; returns the
-    running server (its ``url`` is for ``serial.serial_for_url``)."""
+    running server (its ``url`` is the driver's port)."""
     settings = settings or SimulatedControllerSettings()
     controller = SimulatedIrb2400(kinematics, settings, cell)
     return ControllerServer(controller, settings.transport).start()
