@@ -67,12 +67,12 @@ class SimulatedIrb2400(SimulatedController):
         return pose if self.world_from_base is None else self.world_from_base @ pose
 
     def _dispatch(self, msg: P.Message) -> bytes:
-        if msg.kind == "TGT" and self.world_from_base is not None:
-            # the target is tool0 in wobj0 (world): staged in base, where the joints are solved
-            self.staged = (msg.seq, self.world_from_base.inverse() @ P.parse_target_request(msg))
-            self._reached = None
-            return P.ok_reply(msg.seq)
-        return super()._dispatch(msg)
+        reply = super()._dispatch(msg)
+        if msg.kind == "TGT" and self.world_from_base is not None and self.staged is not None:
+            # the target is tool0 in wobj0 (world): kept in base, where the joints are solved
+            seq, world_target = self.staged
+            self.staged = (seq, self.world_from_base.inverse() @ world_target)
+        return reply
 
     # the RAPID server's read loop -------------------------------------------------------
     # SpherecalServer.mod loops: ``line := "";``, ``line := ReadStr(channel
