@@ -84,6 +84,38 @@ def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> 
     return problems
 
 
+def check_first_move(robot, target: Target, acq: AcquisitionConfig) -> list[str]:
+    """Every problem with the move from wherever the arm stands now to ``target``, the
+    first of a run (or of a resumed run), before anything moves.
+
+    Every other move runs between two planned targets, both checked by
+    :func:`check_targets` against ``acquisition.workspace``, so its straight path stays
+    in that box (a box is convex). The first starts where the arm happens to be: the
+    arm's pose now must be in the box too (else the problem says how much of the path
+    would leave it), and the robot plugin checks the move itself (``robot.check_move``,
+    where it has one: its limits from the arm's actual joints along the path, as it
+    checks every move before sending it)."""
+    problems = []
+    start = robot.read_flange_pose()
+    box = acq.workspace
+    outside = box.fraction_outside(start.translation, target.pose.translation)
+    if not box.contains(start.translation):
+        problems.append(
+            f"the arm stands at {np.round(start.translation, 1).tolist()} mm, outside acquisition.workspace "
+            f"{list(box.min_mm)}..{list(box.max_mm)}: the straight move to the first target {target.index} (station "
+            f"{target.station}) would run outside it for {outside:.0%} of the way. Jog the arm into the workspace, "
+            "near the first target, and start again"
+        )
+    check = getattr(robot, "check_move", None)
+    if check is not None:
+        try:
+            check(target.pose, target.speed_mm_s)
+        except SpherecalError as exc:
+            problems.append(f"the first move, from where the arm stands to target {target.index} (station "
+                            f"{target.station}): {exc}")
+    return problems
+
+
 def describe_plan(targets: list[Target]) -> str:
     """A table of the stations: orientation, number of shots and the extent of the sweep."""
     lines = [f"{'station':8s} {'shots':>5s}  {'flange quaternion (w, x, y, z)':34s} {'first target (mm)':>28s}"]

@@ -11,6 +11,7 @@ Exit codes (scripts may rely on them; docs/cli.md):
   6  plugin error (a plugin failed to load or misbehaved)
   7  the result is RED (do not use it): the verdict says why; result.json and the exports
      are written only with --force (the report always)
+  8  compare --fail-on-drift: drift found (a difference beyond a threshold and significant)
   130 interrupted (Ctrl-C); what was taken is kept (calibrate: continue with --resume)
 """
 
@@ -32,6 +33,7 @@ EXIT_DEVICE = 4
 EXIT_VALIDATION = 5
 EXIT_PLUGIN = 6
 EXIT_RED = 7
+EXIT_DRIFT = 8
 EXIT_INTERRUPTED = 130
 
 
@@ -52,7 +54,7 @@ def cmd_calibrate(args) -> int:
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
-        report=not args.no_report, force=args.force, yes=args.yes, ask=_ask,
+        report=not args.no_report, force=args.force, yes=args.yes, ask=_ask, operator=args.operator,
     )
     if outcome.finished:
         print(f"{Path(args.out) if args.out else loaded.output_dir} holds a finished run: nothing to resume; its "
@@ -61,6 +63,9 @@ def cmd_calibrate(args) -> int:
     if outcome.solution is None:
         return EXIT_OK
     print(summary(outcome.solution, outcome.verdict))
+    if loaded.config.validation is not None and outcome.verdict.level != "red":
+        print(f"acceptance test: spherecal validate {args.config} (its figures then join this verdict, in the "
+              "terminal and the report)")
     from . import dataio
 
     journal = outcome.files.get("journal")
@@ -99,7 +104,9 @@ def cmd_solve(args) -> int:
         raise InputError(f"{args.dataset}: the dataset holds no observations (only its header): nothing to solve")
     nominal = None
     if args.nominal is not None:
-        nominal = _parse_nominal(args.nominal)
+        from .compare import parse_xyz_quat
+
+        nominal = parse_xyz_quat(args.nominal, "--nominal")
     robot_config = Path(args.robot_config) if args.robot_config else None
     host = make_host()
     fk, dataset, arm = solve_kinematics(dataset, args.robot, robot_config, args.pose_from, host=host)
@@ -122,9 +129,13 @@ def cmd_solve(args) -> int:
 
         check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
                             "exports and report", exports)
+    from .runner import traceability
+
     solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
                                                 report=not args.no_report, force=args.force, kinematics=arm,
-                                                exports=exports)
+                                                exports=exports,
+                                                provenance=traceability(dataset, Path(args.dataset),
+                                                                        operator=args.operator))
     host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out, exports_written=written,
                               robot_type=robot_type, sensor_type=sensor_type)
     print(summary(solution, graded))
@@ -132,31 +143,6 @@ def cmd_solve(args) -> int:
     if check:
         print(check)
     return _finish(out, graded, written)
-
-
-def _parse_nominal(text: str):
-    """``--nominal x,y,z,qw,qx,qy,qz``: finite numbers, a unit quaternion."""
-    import math
-
-    from .models import Pose
-
-    usage = "--nominal takes x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)"
-    parts = text.split(",")
-    if len(parts) != 7:
-        raise ConfigError(f"{usage}; got {len(parts)} value(s) in {text!r:.80}")
-    values = []
-    for i, part in enumerate(parts):
-        try:
-            v = float(part)
-        except ValueError:
-            raise ConfigError(f"{usage}; value {i + 1} is {part!r:.40}, not a number") from None
-        if not math.isfinite(v) or abs(v) > 1e6:
-            raise ConfigError(f"{usage}; value {i + 1} is {part!r:.40}: a finite number of at most 1e6 is needed")
-        values.append(v)
-    n = math.sqrt(sum(c * c for c in values[3:]))
-    if abs(n - 1.0) > 1e-3:
-        raise ConfigError(f"{usage}; the quaternion {values[3:]} has norm {n:.6f}, not 1")
-    return Pose.from_abb(values[:3], values[3:])
 
 
 def _number(text: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float:
@@ -199,6 +185,28 @@ def _int_in(lo: int, hi: int):
     return parse
 
 
+def _significance(text: str) -> float:
+    v = _number(text, 0.0, 1.0, lo_open=True)
+    if v >= 1.0:
+        raise argparse.ArgumentTypeError(f"must be below 1, got {text}")
+    return v
+
+
+def _transform_options(p: argparse.ArgumentParser, role: str, with_std: bool = True) -> None:
+    """--transform and --tooldata (compare and validate), --std-mm and --std-deg (compare)."""
+    p.add_argument("--transform", metavar="X", help=f"a transform {role}: x,y,z,qw,qx,qy,qz (translation in mm, "
+                   "unit quaternion w first, as in result.json), or a file: a result.json or run folder, or a text "
+                   "file holding those seven numbers or a controller frame line")
+    p.add_argument("--tooldata", metavar="LINE", help=f"a transform {role} as the robot controller stores it (a tool "
+                   "or work-object data line), read by the robot plugin that knows its syntax (docs/cli.md)")
+    if not with_std:
+        return
+    p.add_argument("--std-mm", type=_non_negative_float, metavar="MM", help="1-sigma per axis of the translation of "
+                   "--transform/--tooldata given as numbers, mm (default 0: known exactly)")
+    p.add_argument("--std-deg", type=_non_negative_float, metavar="DEG", help="1-sigma per axis of its rotation, deg "
+                   "(default 0)")
+
+
 def cmd_simulate(args) -> int:
     from . import dataio
     from .sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
@@ -229,13 +237,65 @@ def cmd_validate(args) -> int:
     from .config import load_config
     from .runner import run_validate
 
-    outcome = run_validate(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask)
+    loaded = load_config(args.config)
+    given = _given_transform(args, robot_type=loaded.config.robot["type"])
+    outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None,
+                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask,
+                           transform=given)
+    from .runner import format_verdict
     from .validation import format_outcome
 
     print(format_outcome(outcome))
     print("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
+    print(format_verdict(outcome.verdict))
     return EXIT_OK if outcome.passed else EXIT_VALIDATION
+
+
+def _given_transform(args, robot_type: str | None = None):
+    """The transform of --transform or --tooldata (None when neither is given), with the
+    covariance of --std-mm/--std-deg."""
+    from . import compare as cmp
+
+    if args.transform is not None and args.tooldata is not None:
+        raise ConfigError("give one of --transform and --tooldata")
+    if args.transform is not None:
+        est = cmp.read_transform_argument(args.transform, "--transform", robot_type=robot_type,
+                                          uncertainty=getattr(args, "uncertainty", "robot-frame"))
+    elif args.tooldata is not None:
+        est = cmp.estimate_of_frame(cmp.read_controller_frame(args.tooldata, "--tooldata", robot_type=robot_type),
+                                    "--tooldata")
+    else:
+        if getattr(args, "std_mm", None) is not None or getattr(args, "std_deg", None) is not None:
+            raise ConfigError("--std-mm and --std-deg are the uncertainty of --transform or --tooldata: give one")
+        return None
+    if getattr(args, "std_mm", None) is not None or getattr(args, "std_deg", None) is not None:
+        if est.covariance.any():
+            raise ConfigError(f"--std-mm/--std-deg: {est.source} has its own covariance; give them only with a "
+                              "transform given as numbers or a controller frame")
+        est = cmp.TransformEstimate(est.pose, est.transform_name,
+                                    cmp.covariance_from_std(args.std_mm or 0.0, args.std_deg or 0.0),
+                                    est.source, est.note)
+    return est
+
+
+def cmd_compare(args) -> int:
+    from . import compare as cmp
+
+    result, where = cmp.read_result_operand(args.a)
+    a = cmp.TransformEstimate.of_result(result, str(where), args.uncertainty)
+    given = _given_transform(args)
+    if (args.b is None) == (given is None):
+        raise ConfigError("compare A with one of: a second result (B), --transform or --tooldata")
+    if given is None:
+        other, where_b = cmp.read_result_operand(args.b)
+        given = cmp.TransformEstimate.of_result(other, str(where_b), args.uncertainty)
+    c = cmp.compare(a, given, threshold_mm=args.threshold_mm, threshold_deg=args.threshold_deg,
+                    significance_level=args.significance)
+    print(cmp.format_comparison(c))
+    if c.drift and args.fail_on_drift:
+        _err("drift found (exit 8): see the comparison above")
+        return EXIT_DRIFT
+    return EXIT_OK
 
 
 def cmd_scan(args) -> int:
@@ -277,6 +337,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
     c.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
+    c.add_argument("--operator", metavar="NAME", help="who runs the calibration, for the report and the result "
+                   "(default: [report] operator of the configuration)")
     c.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     c.set_defaults(func=cmd_calibrate)
 
@@ -308,6 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
     s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
+    s.add_argument("--operator", metavar="NAME", help="who ran the calibration, for the report and the result")
     s.add_argument("--overwrite", action="store_true", help="replace the result, exports and report already in the "
                    "output folder (default: refuse)")
     s.set_defaults(func=cmd_solve)
@@ -327,10 +390,13 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("validate", help="acceptance test of a calibration: P_F, P_S, SD, F against the MPEs",
                        description="Scan the sphere (and a ball bar and a flat, if configured) with the calibrated "
                        "system at views other than the calibration's; report the figures per position and their "
-                       "maximum; exit 5 when one exceeds its MPE.")
+                       "maximum; exit 5 when one exceeds its MPE. The transform is the calibration's result.json, "
+                       "or one spherecal did not compute (--transform, --tooldata).")
     v.add_argument("config", help="configuration file (TOML) with a [validation] section")
     v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
+    _transform_options(v, "to validate instead of the calibration's result.json (e.g. the controller's current "
+                       "tool)", with_std=False)
     v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     v.set_defaults(func=cmd_validate)
 
@@ -341,6 +407,31 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
     n.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     n.set_defaults(func=cmd_scan)
+
+    k = sub.add_parser("compare", help="the difference between two calibrations (or a calibration and a given "
+                       "transform) and whether it is drift",
+                       description="B relative to A in mm and degrees, about and along the axes of the transform's "
+                       "target frame (flange or base), with its significance from both covariances (Mahalanobis "
+                       "distance over the 6 parameters, and each component in sigma). Drift: a difference beyond "
+                       "--threshold-mm or --threshold-deg that is also significant at --significance (without any "
+                       "covariance the thresholds alone decide). Results of different transforms "
+                       "(flange_from_sensor, base_from_sensor) are refused.")
+    k.add_argument("a", metavar="A", help="the reference calibration: result.json or a run folder holding one")
+    k.add_argument("b", metavar="B", nargs="?", help="the calibration to compare with A: result.json or a run folder")
+    _transform_options(k, "instead of B")
+    k.add_argument("--threshold-mm", type=_non_negative_float, default=0.1, metavar="MM",
+                   help="drift threshold on the translation difference's length, mm (default 0.1)")
+    k.add_argument("--threshold-deg", type=_non_negative_float, default=0.05, metavar="DEG",
+                   help="drift threshold on the rotation angle between the two, deg (default 0.05)")
+    k.add_argument("--significance", type=_significance, default=0.01, metavar="ALPHA",
+                   help="significance level of the difference (chi-square, 6 degrees of freedom; default 0.01)")
+    k.add_argument("--uncertainty", choices=["robot-frame", "full"], default="robot-frame",
+                   help="robot-frame (default): the calibrations' own uncertainty, relative to the robot's frame (the "
+                   "robot's accuracy, shared by two calibrations on one robot, cancels); full: with the robot's "
+                   "accuracy, for calibrations on different robots")
+    k.add_argument("--fail-on-drift", action="store_true", help="exit 8 when drift is found (default: exit 0 "
+                   "and say so)")
+    k.set_defaults(func=cmd_compare)
 
     g = sub.add_parser("plugins", help="list installed robots and sensors with their configuration fields")
     g.set_defaults(func=cmd_plugins)

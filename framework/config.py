@@ -64,6 +64,11 @@ class TransformConfig(_Section):
 
 class SphereConfig(_Section):
     radius_mm: float = Field(gt=0, le=10_000, description="certified radius of the reference sphere, mm")
+    radius_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10, description="expanded uncertainty (k = 2) of the certified radius, from the certificate, "
+        "mm; shown in the report and recorded in the result (not propagated into the transform's uncertainty)"
+    )
+    certificate: str | None = Field(None, max_length=200, description="the sphere's certificate (number, issuer)")
 
     @field_validator("radius_mm")
     @classmethod
@@ -88,6 +93,20 @@ class WorkspaceConfig(_Section):
 
     def contains(self, p) -> bool:
         return all(lo <= v <= hi for v, lo, hi in zip(p, self.min_mm, self.max_mm))
+
+    def fraction_outside(self, a, b) -> float:
+        """The fraction (0..1) of the straight segment from point ``a`` to point ``b``
+        (mm, base) that lies outside the box. A box is convex: 0 when both ends are in it."""
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        s0, s1 = 0.0, 1.0
+        for lo, hi, p, d in zip(self.min_mm, self.max_mm, a, b - a):
+            if d == 0.0:
+                if not lo <= p <= hi:
+                    return 1.0
+                continue
+            t0, t1 = sorted(((lo - p) / d, (hi - p) / d))
+            s0, s1 = max(s0, t0), min(s1, t1)
+        return 1.0 if s1 < s0 else 1.0 - (s1 - s0)
 
 
 class AcquisitionConfig(_Section):
@@ -280,6 +299,16 @@ class ExportConfig(BaseModel):
                                  f"{type(value).__name__}")
         return self
 
+class ReportConfig(_Section):
+    """What the report and the result's provenance say besides the numbers."""
+
+    operator: str | None = Field(None, max_length=200, description="who ran the calibration (--operator overrides)")
+    cell: str | None = Field(None, max_length=200, description="the cell's name or number")
+    point_distance_mm: float = Field(
+        100.0, gt=0, le=10_000, description="the report gives the uncertainty of a point this far from the sensor, "
+        "mm (along its line of sight)"
+    )
+
 
 class RunConfig(_Section):
     """The root of a configuration file."""
@@ -299,6 +328,7 @@ class RunConfig(_Section):
     validation: ValidationConfig | None = Field(None, description="settings of `spherecal validate`")
     scan: ScanConfig | None = Field(None, description="settings of `spherecal scan`")
     export: ExportConfig = Field(default_factory=ExportConfig, description="exporters to run and their settings")
+    report: ReportConfig = Field(default_factory=ReportConfig, description="operator, cell and report settings")
 
     @field_validator("robot", "sensor")
     @classmethod

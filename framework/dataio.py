@@ -354,6 +354,8 @@ def _observation_line(obs: Observation) -> bytes:
     centre_numbers: list[float] = []
     if profile is not None:
         doc["profile"] = {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)}
+        if profile.shot_id is not None:
+            doc["profile"]["shot_id"] = profile.shot_id
     elif obs.circle is not None:
         c = obs.circle
         doc["circle"] = {"centre_yz_mm": list(c.centre_yz_mm), "radius_mm": c.radius_mm}
@@ -376,7 +378,7 @@ def _observation_line(obs: Observation) -> bytes:
     if _orjson is not None:
         return _orjson.dumps(doc, option=_orjson.OPT_SERIALIZE_NUMPY | _orjson.OPT_APPEND_NEWLINE)
     if profile is not None:
-        doc["profile"] = {"y_mm": y.tolist(), "z_mm": z.tolist()}
+        doc["profile"].update(y_mm=y.tolist(), z_mm=z.tolist())
     return (json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
 
 

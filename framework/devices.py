@@ -34,8 +34,12 @@ class Robot(Protocol):
     every target of an automatic plan before the first motion, and refuse the whole plan, listing
     each target at fault, when one fails. Without it only the configured limits
     (``[acquisition]``) are checked before motion, and the robot's own limits only when
-    ``move_linear`` refuses a move. It is optional so that the runtime protocol check
-    (``isinstance(device, Robot)``) does not require it."""
+    ``move_linear`` refuses a move. Likewise optional, ``check_move(base_from_flange,
+    speed_mm_s) -> None`` checks the straight move from wherever the arm stands now to the
+    target (the limits ``move_linear`` checks before sending it, along the path) without
+    moving, raising the same way; the same commands call it for the first move of a run
+    (or of a resumed run) before the first motion. Both are optional so that the runtime
+    protocol check (``isinstance(device, Robot)``) does not require them."""
 
     def read_flange_pose(self) -> Pose:
         """The flange pose now (robot standing still), ``base_from_flange``."""
@@ -53,13 +57,14 @@ class Robot(Protocol):
         """Release the connection. Safe to call twice."""
 
 
-
 @runtime_checkable
 class Sensor(Protocol):
     """A connected laser line sensor. Profiles are (y, z) in the sensor frame, mm."""
 
     def read_profile(self) -> Profile | None:
-        """One profile on request; None when the line sees nothing valid."""
+        """One profile on request, taken now (never one of an earlier call); None when
+        the line sees nothing valid. Its optional ``shot_id`` is the sensor's name for
+        the shot, kept in the journal for audits."""
 
     def close(self) -> None:
         """Release the device. Safe to call twice."""
@@ -101,6 +106,12 @@ class RobotType:
     description: str = ""
     flange_pose_from_joints: Callable[[BaseModel, np.ndarray], Pose] | None = None
     arm_kinematics: Callable[[BaseModel], "ArmKinematics"] | None = None
+    #: ``read_frame(text) -> ControllerFrame | None``: reads a frame as this robot's
+    #: controller writes it (a tool or work-object data line), for ``compare --tooldata``
+    #: and ``validate --tooldata``. Returns None when the text is not in its controller's
+    #: syntax; raises :class:`~spherecal.errors.InputError` naming the field at fault when
+    #: it is but is malformed. None: this robot type reads no such text.
+    read_frame: Callable[[str], "ControllerFrame | None"] | None = None
 
 
 @dataclass(frozen=True)
@@ -112,3 +123,45 @@ class SensorType:
     config_model: type[BaseModel]
     factory: Callable[[BaseModel, DeviceContext], Sensor]
     description: str = ""
+
+
+@dataclass(frozen=True)
+class ControllerFrame:
+    """A calibrated frame as a robot controller stores it, read by the robot plugin that
+    knows the controller's syntax (:attr:`RobotType.read_frame`).
+
+    ``transform_name`` is ``flange_from_sensor`` (a robot-held tool) or
+    ``base_from_sensor`` (a fixed frame, read in the controller's world frame, taken as
+    the robot's base); ``pose`` the transform (mm, quaternion (w, x, y, z)); ``kind`` what
+    the text was (e.g. ``"tooldata"``), ``name`` the declared name if the text declared
+    one, ``note`` an assumption the reader made, for the user."""
+
+    transform_name: str
+    pose: Pose
+    kind: str
+    name: str | None = None
+    note: str = ""
+
+
+#: Keys :func:`device_identity` keeps from a device's ``identity()``, in this order.
+IDENTITY_KEYS = ("manufacturer", "model", "serial_number", "firmware", "controller")
+
+
+def device_identity(device: Any) -> dict[str, str]:
+    """What a connected robot or sensor says it is, for the report and the result's
+    provenance (traceability): the device's optional ``identity()`` method, which returns
+    a mapping with any of :data:`IDENTITY_KEYS` (strings: ``manufacturer``, ``model``,
+    ``serial_number``, ``firmware``, ``controller``). A device without the method, or
+    whose method fails, reports nothing (an empty dict): identity is informative and never
+    stops a run. Other keys and empty values are dropped; values are cut to 200
+    characters."""
+    method = getattr(device, "identity", None)
+    if not callable(method):
+        return {}
+    try:
+        found = method()
+    except Exception:  # noqa: BLE001 - informative only: a failing identity() must not stop a run
+        return {}
+    if not isinstance(found, dict):
+        return {}
+    return {k: str(found[k])[:200] for k in IDENTITY_KEYS if found.get(k) not in (None, "")}

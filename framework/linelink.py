@@ -1,26 +1,33 @@
 """A robot behind the spherecal line protocol (:mod:`spherecal.lineproto`), PC side, brand-free.
 
-:class:`LineRobot` implements :class:`spherecal.devices.Robot` over a pyserial link
-(``serial.serial_for_url``: a serial device such as ``/dev/ttyS0`` or ``COM1``, a
-pseudo-terminal, or a URL such as ``socket://host:port``). A robot plugin gives it its
-configuration (the link and limit settings named below) and its arm's kinematics, and
-may override :meth:`LineRobot.controller_pose` and :meth:`LineRobot.pose_from_joints_only`
-(a calibrated model applied on the PC side does).
+:class:`LineRobot` implements :class:`spherecal.devices.Robot` over one of two links,
+chosen by the port: a serial line, opened with ``serial.serial_for_url`` (a device such as
+``/dev/ttyS0`` or ``COM1``, a pseudo-terminal, or another pyserial URL such as
+``rfc2217://``), or a TCP connection when the port is ``socket://host:port``
+(:class:`TcpLink`: to a controller's socket server, or to a serial device server). A
+robot plugin gives it its configuration (the link and limit settings named below) and
+its arm's kinematics, and may override :meth:`LineRobot.controller_pose` and
+:meth:`LineRobot.pose_from_joints_only` (a calibrated model applied on the PC side does).
 
 The link. Every exchange is one request and one reply carrying the same sequence
 number. Replies whose seq does not match the request (late replies of an earlier
 attempt) are discarded; a corrupted line (checksum or syntax) or a timeout makes the
 robot resend the request with a fresh seq, up to ``retries`` times, then raise
-:class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
-DeviceError at once. Requests are idempotent (a MOVL names its staged target, and the
-controller moves to a target once), so a resend never makes the robot move twice. On
-open the link discards whatever waits on it, and the sequence numbers start at a random
-value, so that a reply of an earlier session still on its way is discarded as stale by
-its seq.
+:class:`~spherecal.errors.DeviceError` saying what went wrong; this is the same code on
+both links. A lost link raises DeviceError at once (over TCP: the controller closed the
+connection, or it broke), and the robot never reconnects by itself: it must be created
+again, which opens a new connection (on a socket server, a new session in which no
+target is staged; docs/line-protocol.md). Requests are idempotent (a MOVL names its
+staged target, and the controller moves to a target once), so a resend never makes the
+robot move twice. On open the link discards whatever waits on it, and the sequence
+numbers start at a random value, so that a reply of an earlier session still on its way
+is discarded as stale by its seq.
 
-Safety. Speed, workspace box and reachability (the target, and ``path_check_samples``
-points along the straight line to it, through the kinematics' inverse, within the joint
-limits) are checked before anything is sent; a move's flange and reorientation speeds
+Safety. Speed, workspace box (the target and the start, where the arm stands: both ends
+in a box, the whole straight path is) and reachability (the target, and
+``path_check_samples`` points along the straight line to it, through the kinematics'
+inverse, within the joint limits, from the joints read now) are checked before anything
+is sent (:meth:`LineRobot.check_move` runs the same checks without moving); a move's flange and reorientation speeds
 keep the tool point (the sensor or the sphere the flange carries) within the move's
 speed.
 
@@ -35,11 +42,13 @@ from __future__ import annotations
 
 import math
 import secrets
+import select
+import socket
 import time
 from typing import Callable, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from . import lineproto as P
 from .errors import DeviceError, InputError
@@ -57,6 +66,110 @@ MIN_SPEED_MM_S = 0.1
 
 
 Vec3 = tuple[float, float, float]
+
+#: The scheme of a TCP port: ``socket://host:port``.
+SOCKET_SCHEME = "socket://"
+
+
+def parse_socket_url(url: str) -> tuple[str, int]:
+    """(host, port) of ``socket://host:port``; ValueError saying what is wrong."""
+    if not url.lower().startswith(SOCKET_SCHEME):
+        raise ValueError(f"{url!r} is not a socket://host:port address")
+    rest = url[len(SOCKET_SCHEME):]
+    host, sep, port = rest.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host  # [::1]
+    if not sep or not host or any(c in rest for c in "/?#@ "):
+        raise ValueError(f"{url!r}: write a TCP port as socket://host:port (for example socket://192.168.0.10:5000)")
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"{url!r}: the TCP port {port!r} must be a number 1..65535")
+    return host, int(port)
+
+
+def link_transport(port: str) -> Literal["serial", "socket"]:
+    """``socket`` when ``port`` is ``socket://host:port`` (TCP, :class:`TcpLink`), else
+    ``serial`` (pyserial)."""
+    return "socket" if port.lower().startswith(SOCKET_SCHEME) else "serial"
+
+
+class ControllerClosedError(ConnectionError):
+    """The controller closed the connection (its server program was stopped or reset, it
+    restarted, or it dropped the connection after an error)."""
+
+
+class TcpLink:
+    """A connected TCP socket to ``url`` (``socket://host:port``): the robot's link to a
+    controller's socket server (or to a serial device server).
+
+    It offers the part of pyserial's ``Serial`` interface :class:`LineRobot` uses
+    (``read``, ``in_waiting``, ``write``, ``flush``, ``reset_input_buffer``, ``close``), so
+    that framing, timeouts, resends and stale replies are one code for both links. Over
+    pyserial's own ``socket://`` handler it adds what a link to a controller needs: the
+    connection attempt waits at most ``connect_timeout``, small lines go out at once
+    (``TCP_NODELAY``), a connection the controller closed reads as an error saying so
+    (never as silence), and closing does not sleep.
+
+    ``timeout`` bounds one :meth:`read` (s); ``write_timeout`` one :meth:`write`;
+    ``connect_timeout`` the connection attempt. Errors are OSError (ConnectionError for a
+    closed or refused connection, TimeoutError for a write that did not go out)."""
+
+    def __init__(self, url: str, *, timeout: float, write_timeout: float, connect_timeout: float):
+        host, port = parse_socket_url(url)
+        self.url = url
+        self.timeout = timeout
+        self._sock: socket.socket | None = socket.create_connection((host, port), timeout=connect_timeout)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+        self._sock.settimeout(write_timeout)
+
+    @property
+    def is_open(self) -> bool:
+        return self._sock is not None
+
+    def _connected(self) -> socket.socket:
+        if self._sock is None:
+            raise ConnectionError(f"{self.url}: the connection is closed")
+        return self._sock
+
+    def _recv(self, n: int) -> bytes:
+        data = self._connected().recv(n)
+        if not data:
+            raise ControllerClosedError(f"{self.url}: the controller closed the connection")
+        return data
+
+    def read(self, size: int = 1) -> bytes:
+        """Up to ``size`` bytes: what has arrived, waiting at most :attr:`timeout` for the
+        first; b"" when nothing came."""
+        ready, _, _ = select.select([self._connected()], [], [], self.timeout)
+        return self._recv(size) if ready else b""
+
+    @property
+    def in_waiting(self) -> int:
+        """A positive number when bytes wait to be read (not their count), else 0."""
+        ready, _, _ = select.select([self._connected()], [], [], 0)
+        return 4096 if ready else 0
+
+    def write(self, data: bytes) -> int:
+        self._connected().sendall(data)
+        return len(data)
+
+    def flush(self) -> None:
+        """Nothing to do: :meth:`write` returns once the data is handed to the network."""
+
+    def reset_input_buffer(self) -> None:
+        """Discard every byte that has arrived and not been read."""
+        while self.in_waiting:
+            self._recv(4096)
+
+    def close(self) -> None:
+        """Close the connection (the controller sees it end). Idempotent."""
+        sock, self._sock = self._sock, None
+        if sock is None:
+            return
+        try:
+            sock.shutdown(socket.SHUT_RDWR)
+        except OSError:  # the controller has gone already
+            pass
+        sock.close()
 
 
 class WorkspaceBox(BaseModel):
@@ -80,7 +193,7 @@ class WorkspaceBox(BaseModel):
 
 
 class LineLinkSettings(BaseModel):
-    """The settings :class:`LineRobot` reads: the serial link, the replies, the pose
+    """The settings :class:`LineRobot` reads: the link (serial or TCP), the replies, the pose
     source and the motion limits. A robot plugin's configuration model derives from it
     (and gives ``workspace`` a default or a way to derive one). Lengths in mm, angles in
     degrees, times in seconds."""
@@ -89,11 +202,13 @@ class LineLinkSettings(BaseModel):
 
     port: str = Field(
         "/dev/ttyS0",
-        description="serial device path (/dev/ttyS0, /dev/ttyUSB0, COM1) or pyserial URL "
-        "(socket://host:port, rfc2217://...); ignored in simulated runs",
+        description="the link to the controller: a serial device (/dev/ttyS0, /dev/ttyUSB0, COM1) or another "
+        "pyserial URL (rfc2217://...), or socket://host:port for a TCP connection (the controller's socket "
+        "server, or a serial device server); ignored in simulated runs",
     )
     baudrate: int = Field(9600, gt=0, le=10_000_000,
-                          description="serial speed, baud; must match the controller's serial port setting")
+                          description="serial speed, baud; must match the controller's serial port setting "
+                          "(not used over TCP)")
     parity: Literal["N", "E", "O"] = Field("N", description="serial parity: none, even, odd")
     stopbits: Literal[1, 2] = Field(1, description="serial stop bits")
     timeout_s: float = Field(2.0, gt=0, le=600, description="time to wait for a reply (besides a move's duration), s")
@@ -117,6 +232,20 @@ class LineLinkSettings(BaseModel):
     )
     workspace: WorkspaceBox | None = Field(None, description="allowed flange positions, base, mm")
 
+    @field_validator("port", mode="after")
+    @classmethod
+    def _check_port(cls, v: str) -> str:
+        if not v.strip():
+            raise ValueError("port is empty: give a serial device (/dev/ttyS0, COM1) or socket://host:port")
+        if link_transport(v) == "socket":
+            parse_socket_url(v)
+        return v
+
+    @property
+    def transport(self) -> Literal["serial", "socket"]:
+        """``socket`` when :attr:`port` is ``socket://host:port`` (TCP), else ``serial``."""
+        return link_transport(self.port)
+
 
 def initial_seq() -> int:
     """A random sequence number to start a session from (the first request carries the
@@ -130,12 +259,15 @@ class LineRobot:
 
     Poses are ``base_from_flange``, mm, quaternion (w, x, y, z). Joints are degrees in
     the controller convention. ``name`` names the robot in every message;
-    ``server_hint`` says what to check when the controller does not answer."""
+    ``server_hint`` says what to check when the controller does not answer, and
+    ``socket_hint`` what to check when a ``socket://`` port cannot be opened."""
 
     #: The robot in messages ("IRB 2400", "urdf robot 'ur5'").
     name = "robot"
     #: What to check when no valid reply comes.
     server_hint = "that the controller's spherecal line server is running"
+    #: What to check when a socket:// port cannot be opened.
+    socket_hint = "that the controller's socket server listens on this address"
 
     def __init__(
         self,
@@ -171,23 +303,28 @@ class LineRobot:
         self.resends = 0  #: requests sent again after a timeout or a corrupted line
         self.last_joints_deg: np.ndarray | None = None
         self._check_seed: np.ndarray | None = None  # joints of the last target checked
+        #: "socket" (TCP, :class:`TcpLink`) or "serial" (pyserial), from the port
+        self.transport = link_transport(self.url)
         try:
-            self._serial = serial.serial_for_url(
-                self.url,
-                baudrate=config.baudrate,
-                bytesize=serial.EIGHTBITS,
-                parity=config.parity,
-                stopbits=config.stopbits,
-                timeout=min(config.timeout_s, _POLL_S),
-                write_timeout=config.timeout_s,
-            )
+            if self.transport == "socket":
+                self._serial = TcpLink(self.url, timeout=min(config.timeout_s, _POLL_S),
+                                       write_timeout=config.timeout_s, connect_timeout=config.timeout_s)
+            else:
+                self._serial = serial.serial_for_url(
+                    self.url,
+                    baudrate=config.baudrate,
+                    bytesize=serial.EIGHTBITS,
+                    parity=config.parity,
+                    stopbits=config.stopbits,
+                    timeout=min(config.timeout_s, _POLL_S),
+                    write_timeout=config.timeout_s,
+                )
         except (serial.SerialException, OSError, ValueError) as exc:
             self._closed = True
             if on_close is not None:
                 on_close()
-            raise DeviceError(
-                f"{self.name}: cannot open {self.url!r} ({exc}); check robot.port and that the device exists"
-            ) from exc
+            what = self.socket_hint if self.transport == "socket" else "that the device exists"
+            raise DeviceError(f"{self.name}: cannot open {self.url!r} ({exc}); check robot.port and {what}") from exc
         # a reply of an earlier session may wait on the link: never take it for ours
         # (pyserial's own backends flush on open too; do not depend on it)
         try:
@@ -225,12 +362,7 @@ class LineRobot:
     def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
         """Move the flange in a straight line to ``base_from_flange`` at ``speed_mm_s`` and
         return once in position. Limits are checked first; nothing is sent if one fails."""
-        self._check_open()
-        self._check_speed(speed_mm_s)
-        self._check_workspace(base_from_flange, "target")
-        start_joints = self.read_joints_deg()
-        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
-        target_joints = self._check_path(start, base_from_flange, start_joints)
+        start, target_joints = self._check_move_from_here(base_from_flange, speed_mm_s)
         command = self.controller_pose(base_from_flange, target_joints)
         target_seq_holder: list[int] = []
 
@@ -275,8 +407,9 @@ class LineRobot:
         if self._closed:
             return
         self._closed = True
-        # pyserial's socket:// close() skips closing its socket when shutdown() fails on a
-        # link the peer already dropped; close it ourselves (closing twice is harmless)
+        # pyserial's network URLs (rfc2217://) skip closing their socket when shutdown()
+        # fails on a link the peer already dropped; close it ourselves (closing twice is
+        # harmless; a TcpLink has no _socket and closes its own)
         sock = getattr(self._serial, "_socket", None)
         try:
             self._serial.close()
@@ -326,6 +459,27 @@ class LineRobot:
         except InputError as exc:
             raise type(exc)(f"target: {exc}") from None
 
+    def check_move(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """Check the straight move from where the arm stands now to ``base_from_flange``
+        without moving, exactly as :meth:`move_linear` checks it before sending it: the
+        speed, both ends in the workspace box (so the whole straight path: a box is
+        convex), and the target and ``path_check_samples`` points along the path
+        reachable within the joint limits, from the joints read now (GETJ, which moves
+        nothing). Raises what :meth:`move_linear` would."""
+        self._check_move_from_here(base_from_flange, speed_mm_s)
+
+    def _check_move_from_here(self, target: Pose, speed_mm_s: float) -> tuple[Pose, np.ndarray]:
+        """The checks of a move from the arm's current joints; returns (start pose,
+        target joints)."""
+        self._check_open()
+        self._check_speed(speed_mm_s)
+        self._check_workspace(target, "target")
+        start_joints = self.read_joints_deg()
+        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
+        self._check_workspace(start, "start", "; the straight path to the target would leave it: jog the arm into "
+                                              "the box first")
+        return start, self._check_path(start, target, start_joints)
+
     def _check_speed(self, speed_mm_s: float) -> None:
         limit = self.config.max_speed_mm_s
         try:
@@ -340,13 +494,13 @@ class LineRobot:
                 f"ask for a slower move or raise robot.max_speed_mm_s"
             )
 
-    def _check_workspace(self, pose: Pose, what: str) -> None:
+    def _check_workspace(self, pose: Pose, what: str, hint: str = "") -> None:
         box = self.workspace
         if not box.contains(pose.translation_mm):
             t = [round(v, 3) for v in pose.translation_mm]
             raise InputError(
                 f"move_linear: {what} flange position {t} mm is outside the configured workspace box "
-                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame)"
+                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame){hint}"
             )
 
     def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> np.ndarray:
@@ -428,10 +582,14 @@ class LineRobot:
                         f"{self.name} on {self.url}: reply {msg.kind} to {kind} (seq {seq}); expected {expect}"
                     )
                 return msg
+        if self.transport == "socket":
+            check = f"Check {self.server_hint} and serves no other connection (it serves one at a time)"
+        else:
+            check = (f"Check the cable, the serial settings (baudrate {self.config.baudrate}, "
+                     f"parity {self.config.parity}) and {self.server_hint}")
         raise DeviceError(
             f"{self.name} on {self.url}: no valid reply to {kind} after {attempts} attempt(s); last problem: "
-            f"{problem}. Check the cable, the serial settings (baudrate {self.config.baudrate}, "
-            f"parity {self.config.parity}) and {self.server_hint}"
+            f"{problem}. {check}"
         )
 
     def _write(self, data: bytes) -> None:
@@ -467,9 +625,10 @@ class LineRobot:
 
     def _lost(self, exc: BaseException):
         self.close()
+        where = "the network" if self.transport == "socket" else "the cable"
         raise DeviceError(
-            f"{self.name} on {self.url}: connection lost ({exc}); check the cable and the controller, "
-            f"then create the robot again"
+            f"{self.name} on {self.url}: connection lost ({exc}); nothing is sent again: check {where} and the "
+            f"controller, then create the robot again"
         ) from exc
 
 

@@ -63,6 +63,8 @@ def _finite(values, what: str):
 MAX_SPHERE_RADIUS_MM = 10_000.0
 #: Longest station label (it is shown in messages, tables and figures).
 MAX_STATION_LABEL = 200
+#: Longest shot id a sensor may give a profile (see :attr:`Profile.shot_id`).
+MAX_SHOT_ID = 64
 
 
 class Pose(BaseModel):
@@ -154,12 +156,21 @@ class Pose(BaseModel):
 
 
 class Profile(BaseModel):
-    """One laser line: points (0, y, z) in the sensor frame's x = 0 plane, mm."""
+    """One laser line: points (0, y, z) in the sensor frame's x = 0 plane, mm.
+
+    ``shot_id`` is the sensor's own name for the shot the line came from (a sensor
+    plugin documents what it holds, e.g. a frame counter); the core never interprets it,
+    only keeps it with the profile in the journal, so that the pairing of a profile
+    with its robot pose can be audited afterwards."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True)
 
     y_mm: FloatVector = Field(description="in-plane coordinate along the line, mm")
     z_mm: FloatVector = Field(description="in-plane range coordinate, mm (positive towards the sensor)")
+    shot_id: str | None = Field(
+        None, min_length=1, max_length=MAX_SHOT_ID, pattern=r"^[\x21-\x7e]+$",
+        description="the sensor's identity of the shot (opaque, printable ASCII without spaces); None: not given",
+    )
 
     @model_validator(mode="after")
     def _check(self):
@@ -170,12 +181,12 @@ class Profile(BaseModel):
         return self
 
     @classmethod
-    def from_points(cls, points_mm) -> "Profile":
-        """From an (N, 2) array of (y, z) in mm."""
+    def from_points(cls, points_mm, shot_id: str | None = None) -> "Profile":
+        """From an (N, 2) array of (y, z) in mm, with the sensor's shot id if it gives one."""
         p = np.asarray(points_mm, dtype=float)
         if p.ndim != 2 or p.shape[1] != 2:
             raise ValueError(f"profile points: expected shape (N, 2) of (y, z) in mm, got {p.shape}")
-        return cls(y_mm=p[:, 0], z_mm=p[:, 1])
+        return cls(y_mm=p[:, 0], z_mm=p[:, 1], shot_id=shot_id)
 
     @property
     def points_mm(self) -> np.ndarray:
@@ -411,6 +422,39 @@ class RobotErrorSummary(BaseModel):
     dominant: str = Field(description="the part that dominates the point error")
 
 
+class ParameterCorrelation(BaseModel):
+    """The correlation matrix of a result's parameters, derived from its covariance:
+    ``matrix[i][j] = cov[i][j] / (sd_i sd_j)``, rows and columns named by ``parameters``
+    in the covariance's order (rotation about the target axes, translation, sphere
+    centre[, radius])."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    parameters: list[str]
+    matrix: list[list[float]]
+
+
+def parameter_labels(transform_name: str, sphere_centre_frame: str, radius_fitted: bool) -> list[str]:
+    """Names of the covariance's rows, e.g. ``rotation about flange x``."""
+    a = transform_name.split("_from_")[0]
+    labels = [f"rotation about {a} {ax}" for ax in "xyz"] + [f"translation along {a} {ax}" for ax in "xyz"]
+    labels += [f"sphere centre {ax} ({sphere_centre_frame})" for ax in "xyz"]
+    return labels + (["sphere radius"] if radius_fitted else [])
+
+
+def correlation_matrix(covariance) -> np.ndarray:
+    """``cov[i][j] / (sd_i sd_j)``; a parameter with zero variance correlates 0 with the
+    others (1 with itself)."""
+    cov = np.asarray(covariance, dtype=float)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    safe = np.where(sd > 0, sd, 1.0)
+    corr = cov / np.outer(safe, safe)
+    corr[sd == 0, :] = 0.0
+    corr[:, sd == 0] = 0.0
+    np.fill_diagonal(corr, 1.0)
+    return np.clip(corr, -1.0, 1.0)
+
+
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.
 
@@ -438,6 +482,14 @@ class CalibrationResult(BaseModel):
         description="covariance of (rotation about target axes rad x3, translation mm x3, "
         "sphere centre mm x3[, radius mm]), including the robot's systematic error (robot_error)"
     )
+    covariance_robot_frame: list[list[float]] | None = Field(
+        None, description="the same covariance relative to the robot's own frame: without the robot's error shared "
+        "by every station (its accuracy), which cancels between calibrations on one robot; None when the robot "
+        "error model adds no such error (covariance is then relative to the robot's frame already)"
+    )
+    correlation: ParameterCorrelation | None = Field(
+        None, description="correlations of the parameters, derived from covariance (filled in when absent)"
+    )
     variance_factor: float = Field(description="chi^2 / dof of the whitened residuals")
     residuals: ResidualStats
     flagged: list[ObservationFlag] = Field(default_factory=list)
@@ -458,4 +510,27 @@ class CalibrationResult(BaseModel):
             raise ValueError(
                 f"sphere_centre_frame {self.sphere_centre_frame!r} does not match mounting {self.mounting!r}"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _derive_correlation(self):
+        """The correlation is derived from the covariance: filled in when absent, checked
+        when given (a hand-edited file whose two disagree is refused)."""
+        n = len(self.covariance)
+        if n == 0 or any(len(row) != n for row in self.covariance):
+            return self
+        labels = parameter_labels(self.transform_name, self.sphere_centre_frame, self.radius_fitted)
+        if len(labels) != n:
+            return self
+        derived = correlation_matrix(self.covariance)
+        if self.correlation is None:
+            self.correlation = ParameterCorrelation(parameters=labels, matrix=np.round(derived, 6).tolist())
+            return self
+        given = np.asarray(self.correlation.matrix, dtype=float)
+        if self.correlation.parameters != labels:
+            raise ValueError(f"correlation.parameters {self.correlation.parameters} do not name the covariance's "
+                             f"rows {labels}")
+        if given.shape != derived.shape or not np.allclose(given, derived, atol=1e-5):
+            raise ValueError("correlation does not match the covariance it is derived from (leave it out to have it "
+                             "derived)")
         return self

@@ -12,14 +12,14 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import dataio
-from .acquisition import Progress, acquire, acquire_manual, check_targets, describe_plan, plan_targets
-from .config import LoadedConfig, RunConfig
-from .devices import DeviceContext
+from .acquisition import Progress, acquire, acquire_manual, check_first_move, check_targets, describe_plan, plan_targets
+from .config import LoadedConfig, ReportConfig, RunConfig
+from .devices import DeviceContext, device_identity
 from .errors import ConfigError, InputError, SpherecalError
 from .kinplan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
-from .models import SPHERE_FRAME
+from .models import SPHERE_FRAME, TRANSFORM_NAME
 from .report.assess import Verdict
 from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
@@ -164,10 +164,14 @@ def plan_digest(targets) -> str:
     return h.hexdigest()[:16]
 
 
-def _check_plan(targets, acq, what: str = "plan", robot=None) -> None:
+def _check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset()) -> None:
     """Raise before any motion when a target breaks the configured limits (or, with
-    ``robot``, the robot plugin's own limits)."""
+    ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
+    stands to the first target not in ``done``, breaks either)."""
     problems = check_targets(targets, acq, robot)
+    todo = [t for t in targets if t.index not in done]
+    if robot is not None and todo:
+        problems += check_first_move(robot, todo[0], acq)
     if problems:
         limits = "the robot's limits" if robot is not None else "the limits"
         raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
@@ -246,10 +250,12 @@ def run_calibrate(
     report: bool = True,
     force: bool = False,
     yes: bool = False,
+    operator: str | None = None,
 ) -> Outcome:
     """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
     recorded dataset), solve, write the result, exports and report. A RED result's
-    ``result.json`` and exports are written only with ``force`` (its report always)."""
+    ``result.json`` and exports are written only with ``force`` (its report always).
+    ``operator`` (``--operator``) overrides the configuration's ``[report] operator``."""
     cfg = loaded.config
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
@@ -347,7 +353,10 @@ def run_calibrate(
             )
         with open_devices(loaded, host, cell, log) as (robot, sensor):
             if not manual:
-                _check_plan(targets, acq, "plan", robot=robot)
+                _check_plan(targets, acq, "plan", robot=robot, done=done)
+            provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
+            if resume and journal.exists():
+                _check_same_devices(previous.provenance, provenance, journal, log)
             with dataio.DatasetWriter(
                 journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                 provenance=provenance, resume=journal.exists(), fsync=True,
@@ -368,8 +377,10 @@ def run_calibrate(
         host.acquisition_finished(dataset=dataset, robot_type=cfg.robot["type"], sensor_type=cfg.sensor["type"])
         outcome.files["journal"] = journal
 
+    trace = traceability(dataset, path if cfg.replay is not None else outcome.files["journal"], loaded, operator)
     solution, outcome.verdict, outcome.exports_written = solve_and_write(
-        dataset, calibration_options(cfg), out, fk, log, report=report, force=force, kinematics=arm, exports=exports)
+        dataset, calibration_options(cfg), out, fk, log, report=report, force=force, kinematics=arm, exports=exports,
+        provenance=trace, report_settings=cfg.report)
     host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out,
                               exports_written=outcome.exports_written, robot_type=cfg.robot["type"],
                               sensor_type=cfg.sensor["type"])
@@ -498,6 +509,8 @@ def solve_and_write(
     force: bool = False,
     kinematics=None,
     exports=None,
+    provenance: dict | None = None,
+    report_settings: ReportConfig | None = None,
 ) -> tuple[Solution, "Verdict", bool]:
     """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
     ``result.json``, the exports and the HTML report in ``out``. A RED result's
@@ -505,10 +518,15 @@ def solve_and_write(
     (it says why). Returns the solution, its verdict and whether the result and exports
     were written. ``kinematics``: the robot's arm model, for the kinematic robot error
     model. ``exports``: the run's :class:`~spherecal.exporters.ExportPlan` (None: every
-    installed exporter for the mounting, with default settings)."""
+    installed exporter for the mounting, with default settings); ``provenance``: the
+    result's (:func:`traceability`); ``report_settings``: the configuration's ``[report]``."""
     from .exporters import write_exports
 
     solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
+    if provenance is not None:
+        import dataclasses
+
+        solution = dataclasses.replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
     graded = assess_solution(solution, dataset, options, fk, log)
     if exports is None:
         exports = make_host().export_plan(None, dataset.mounting, None)
@@ -525,8 +543,73 @@ def solve_and_write(
         except ImportError:  # pragma: no cover
             write_report = None
         if write_report is not None:
-            write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result))
+            write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result),
+                         point_distance_mm=(report_settings or ReportConfig()).point_distance_mm)
     return solution, graded, written
+
+
+def sha256_of(path: Path) -> str:
+    """SHA-256 of a file's bytes, hex."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def traceability(dataset: Dataset, dataset_path: Path | None, loaded: LoadedConfig | None = None,
+                 operator: str | None = None) -> dict:
+    """The result's provenance (docs/results.md, "Identity and traceability"): what was
+    calibrated (cell, robot and sensor types with what the devices said they are, the
+    sphere and its certificate), by whom, when, with which software, and the SHA-256 of
+    the dataset and of the configuration it was calibrated from."""
+    from datetime import datetime, timezone
+
+    from . import __version__
+
+    prov = dataset.provenance
+    cfg = loaded.config if loaded is not None else None
+    settings = cfg.report if cfg is not None else ReportConfig()
+
+    def device(kind: str) -> dict:
+        given = prov.get(kind)
+        kind_type = given.get("type") if isinstance(given, dict) else given
+        if kind_type is None and cfg is not None:
+            kind_type = getattr(cfg, kind).get("type")
+        found = prov.get(f"{kind}_identity")
+        return {"type": kind_type, **(found if isinstance(found, dict) else {})}
+
+    sphere = {"radius_mm": dataset.sphere_radius_mm}
+    if cfg is not None:
+        sphere.update(radius_uncertainty_mm_k2=cfg.sphere.radius_uncertainty_mm, certificate=cfg.sphere.certificate)
+    return {
+        "dataset": prov.get("source", "unknown"),
+        "dataset_file": None if dataset_path is None else str(dataset_path),
+        "dataset_sha256": None if dataset_path is None else sha256_of(dataset_path),
+        "configuration_file": None if loaded is None else str(loaded.path),
+        "configuration_sha256": None if loaded is None else sha256_of(loaded.path),
+        "software": f"spherecal {__version__}",
+        "calibrated_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "operator": operator or settings.operator,
+        "cell": settings.cell,
+        "robot": device("robot"),
+        "sensor": device("sensor"),
+        "sphere": sphere,
+        "simulated": prov.get("simulated"),
+    }
+
+
+def _check_same_devices(before: dict, now: dict, journal: Path, log: Callable[[str], None]) -> None:
+    """On --resume: say so when the robot or sensor now connected is not the one the
+    journal was started with (a swapped unit changes the transform)."""
+    for kind in ("robot", "sensor"):
+        was, is_ = before.get(f"{kind}_identity") or {}, now.get(f"{kind}_identity") or {}
+        if was.get("serial_number") and is_.get("serial_number") and was["serial_number"] != is_["serial_number"]:
+            log(f"warning: {journal} was started with {kind} serial number {was['serial_number']}, now "
+                f"{is_['serial_number']} is connected: the journal's provenance keeps the first; if the unit was "
+                "swapped, start a new run")
 
 
 #: The identified robot model written next to the result (issue: kinematic calibration).
@@ -671,6 +754,8 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
         f"  quaternion_wxyz = [{q}]",
         f"  std: rotation {', '.join(f'{v:.4f}' for v in r.std_rotation_deg)} deg about {a} x, y, z; "
         f"translation {', '.join(f'{v:.4f}' for v in r.std_translation_mm)} mm",
+        f"  expanded U (k = 2): rotation {', '.join(f'{2 * v:.4f}' for v in r.std_rotation_deg)} deg; "
+        f"translation {', '.join(f'{2 * v:.4f}' for v in r.std_translation_mm)} mm",
         f"{b}_from_{a}: translation_mm = [{', '.join(f'{v:.4f}' for v in inv.translation_mm)}], "
         f"quaternion_wxyz = [{', '.join(f'{v:.8f}' for v in inv.quaternion_wxyz)}]",
         f"residuals: RMS {r.residuals.rms_mm:.4f} mm over {r.residuals.n_points_used} points of "
@@ -684,6 +769,8 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
 
         rot = ", ".join(f"{v:.4f}" for v in re.std_rotation_deg_robot_frame)
         trans = ", ".join(f"{v:.4f}" for v in re.std_translation_mm_robot_frame)
+        rot2 = ", ".join(f"{2 * v:.4f}" for v in re.std_rotation_deg_robot_frame)
+        trans2 = ", ".join(f"{2 * v:.4f}" for v in re.std_translation_mm_robot_frame)
         if re.kinematic_parameters is not None:
             n_seen = sum(p.identifiable for p in re.kinematic_parameters)
             n_cal = sum(p.identified for p in re.kinematic_parameters)
@@ -705,6 +792,8 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
                 f"adds the robot's assumed accuracy {re.common_translation_mm:g} mm, {re.common_rotation_deg:g} deg "
                 "per axis)"
             )
+        lines.append(f"  expanded U (k = 2) relative to the robot's own frame: rotation {rot2} deg; translation "
+                     f"{trans2} mm")
         if re.kinematic_parameters is not None and any(p.identified for p in re.kinematic_parameters):
             lines.append(
                 f"a point measured at a new pose through the calibrated model ({CALIBRATED_URDF_NAME}): expected "
@@ -720,8 +809,14 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
     from .report.assess import verdict
 
-    v = graded or verdict(r)
-    lines.append(f"verdict: {v.level.upper()}: {v.headline}")
+    lines.append(format_verdict(graded or verdict(r)))
+    return "\n".join(lines)
+
+
+def format_verdict(v: "Verdict") -> str:
+    """The verdict as the terminal prints it (the report shows the same): its level and
+    headline, and the reasons for a red one."""
+    lines = [f"verdict: {v.level.upper()}: {v.headline}"]
     if v.level == "red":
         lines.extend(f"  red: {text}" for lvl, text in v.reasons if lvl == "red")
     return "\n".join(lines)
@@ -750,32 +845,48 @@ def _result_for(loaded: LoadedConfig, section, out: Path):
     return path, result
 
 
-def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, out_dir: Path | None):
+def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, out_dir: Path | None,
+                      read_result: bool = True):
     """What validate and scan both need first: their section, the acquisition settings,
-    the output folder and the calibration result in it."""
+    the output folder and the calibration result in it (``(out, None, None)`` without
+    ``read_result``)."""
     cfg = loaded.config
     if section is None:
         raise ConfigError(f"{loaded.path}: {missing}")
     if cfg.acquisition is None:
         raise ConfigError(f"{loaded.path}: {moving} moves the robot: it needs [acquisition] (speeds, workspace)")
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
-    return (out, *_result_for(loaded, section, out))
+    return (out, *_result_for(loaded, section, out)) if read_result else (out, None, None)
 
 
 def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
-                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input):
+                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input,
+                 transform=None):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
-    system, compute the acceptance figures, compare with the MPEs."""
+    system, compute the acceptance figures, compare with the MPEs. ``transform`` (a
+    :class:`~spherecal.compare.TransformEstimate`): validate that transform, one spherecal
+    did not compute (the controller's current tool or work object, a pose file), instead
+    of the calibration's ``result.json``; the report is then left alone."""
     from .validation import evaluate, measure, plan_validation
 
     cfg = loaded.config
-    out, result_path, result = _calibrated_setup(
-        loaded, cfg.validation, "no [validation] section: say what to validate against which MPEs", "validation", out_dir
-    )
-    X = result.transform
+    missing = "no [validation] section: say what to validate against which MPEs"
+    if transform is None:
+        out, result_path, result = _calibrated_setup(loaded, cfg.validation, missing, "validation", out_dir)
+        X, source = result.transform, str(result_path)
+    else:
+        out, result_path, result = _calibrated_setup(loaded, cfg.validation, missing, "validation", out_dir,
+                                                     read_result=False)
+        expected = TRANSFORM_NAME[cfg.mounting]
+        if transform.transform_name not in (None, expected):
+            raise ConfigError(f"{transform.source} is {transform.transform_name}, but {loaded.path} calibrates "
+                              f"{expected} ({cfg.mounting}): validate a transform of the configuration's mounting")
+        X, source = transform.pose, transform.source
+        if transform.note:
+            log(f"note: {transform.note}")
     sweeps = plan_validation(cfg, X)
     targets = [t for s in sweeps for t in s.targets]
-    log(f"validating {result_path}: {len(sweeps)} sweeps, {len(targets)} shots")
+    log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
     _check_plan(targets, cfg.acquisition, "validation plan")
     host = make_host()
     exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
@@ -790,7 +901,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     with open_devices(loaded, host, cell, log) as (robot, sensor):
         _check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
         with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
-                                  provenance={"source": "spherecal validate", "result": str(result_path)},
+                                  provenance={"source": "spherecal validate", "result": source,
+                                              "transform": X.model_dump()},
                                   fsync=True) as writer:
             from .models import Observation
 
@@ -801,25 +913,39 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 
             measured = measure(robot, sensor, sweeps, cfg, log, Progress(len(targets), progress_stream), record)
     outcome = evaluate(cfg, X, measured)
+    from .report.assess import Verdict, verdict, with_validation
+    from .validation import position_rows
+
+    own = verdict(result) if result is not None else Verdict(
+        "green", "A transform spherecal did not compute: only its validation is graded.")
+    outcome.verdict = with_validation(own, outcome.table())
     import json
 
-    text = json.dumps({"passed": outcome.passed, "result": str(result_path), "journal": journal.name,
-                       "figures": outcome.table(), "report": outcome.report.model_dump(),
-                       "centres_mm": outcome.centres_mm}, indent=2, default=float)
+    text = json.dumps({"passed": outcome.passed, "result": source, "transform": X.model_dump(),
+                       "transform_given": transform is not None, "journal": journal.name,
+                       "verdict": {"level": outcome.verdict.level, "headline": outcome.verdict.headline},
+                       "figures": outcome.table(), "positions": position_rows(outcome),
+                       "report": outcome.report.model_dump(), "centres_mm": outcome.centres_mm},
+                      indent=2, default=float)
     from . import safeio
 
     safeio.write_text(out / f"validation-{stamp}.json", text)
     safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
     calib_journal = out / JOURNAL_NAME
-    if report and calib_journal.exists():
+    if report and transform is None and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
         solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
                          host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
         if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
+            import dataclasses
+
             from .report.html import write_report
 
-            write_report(solution, out, validation=outcome.table(),
-                         notes=exports.notes(solution.result))
+            # the result as written (its provenance: the calibration's identity and hashes)
+            solution = dataclasses.replace(solution, result=result)
+            write_report(solution, out, validation=outcome.table(), validation_positions=position_rows(outcome),
+                         verdict_override=outcome.verdict, notes=exports.notes(solution.result),
+                         point_distance_mm=cfg.report.point_distance_mm)
         else:
             log(f"report.html not updated: {result_path} is not the calibration of {calib_journal}")
     return outcome

@@ -119,6 +119,8 @@ class ValidationOutcome:
     centre_spread_passed: bool | None
     centres_mm: dict[str, list[float]]
     mpe_centre_spread_mm: float | None = None
+    #: the verdict with this validation (``report.assess.with_validation``), set by the runner
+    verdict: object | None = None
 
     @property
     def passed(self) -> bool:
@@ -136,6 +138,37 @@ class ValidationOutcome:
             rows["centre spread"] = {"max error (mm)": self.centre_spread_mm, "worst position": None,
                                      "positions": len(self.centres_mm), "MPE (mm)": self.mpe_centre_spread_mm, "passed": self.centre_spread_passed}
         return rows
+
+
+def _judge(value: float, mpe: float | None) -> bool | None:
+    return None if mpe is None else abs(value) <= mpe
+
+
+def position_rows(outcome: "ValidationOutcome") -> list[dict]:
+    """One row per position and figure, for the report's per-position table and
+    validation.json: ``position``, ``artefact``, ``figure``, ``error (mm)`` (signed for
+    P_S, SD), ``MPE (mm)`` and ``passed`` (None: no MPE). A sphere position has P_F, P_S
+    and the distance of its fitted centre from the mean of the views' (judged against
+    ``mpe_centre_spread_mm``)."""
+    rep, mpe = outcome.report, outcome.report.mpe
+    rows: list[dict] = []
+
+    def row(position, artefact, figure, value, limit):
+        rows.append({"position": position, "artefact": artefact, "figure": figure, "error (mm)": float(value),
+                     "MPE (mm)": limit, "passed": _judge(value, limit)})
+
+    mean = np.mean(list(outcome.centres_mm.values()), axis=0) if len(outcome.centres_mm) >= 2 else None
+    for pr in rep.probing:
+        row(pr.position, "sphere", "P_F", pr.probing_form_error_mm, mpe.probing_form_mm)
+        row(pr.position, "sphere", "P_S", pr.probing_size_error_mm, mpe.probing_size_mm)
+        if mean is not None and pr.position in outcome.centres_mm:
+            off = float(np.linalg.norm(np.subtract(outcome.centres_mm[pr.position], mean)))
+            row(pr.position, "sphere", "centre from mean", off, outcome.mpe_centre_spread_mm)
+    for sd in rep.sphere_spacing:
+        row(sd.position, "ball bar", "SD", sd.sphere_spacing_error_mm, mpe.sphere_spacing_mm)
+    for f in rep.flatness:
+        row(f.position, "flat", "F", f.flatness_error_mm, mpe.flatness_mm)
+    return rows
 
 
 def evaluate(cfg: RunConfig, X: Pose, measured: list[Measured]) -> ValidationOutcome:

@@ -638,6 +638,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
         radius_fitted=opt.fit_radius,
         std_sphere_radius_mm=float(sd[9]) if opt.fit_radius else None,
         covariance=cov.tolist(),
+        covariance_robot_frame=None if ref.covariance_robot_frame is None else ref.covariance_robot_frame.tolist(),
         variance_factor=ref.variance_factor,
         residuals=ResidualStats(
             rms_mm=float(np.sqrt(np.mean(res**2))),

@@ -14,6 +14,7 @@ about ``sqrt(point_noise^2 + robot_repeatability^2)``. That is the *expected RMS
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from statistics import median
 from typing import Literal
@@ -175,6 +176,32 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         headline = ("Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
                     "own geometric error limits this result (see the advice).")
     return Verdict(level, headline, reasons)
+
+
+def with_validation(ver: Verdict, figures: Mapping[str, Mapping]) -> Verdict:
+    """The verdict of a calibration together with its validation: ``figures`` is the
+    validation's table (``ValidationOutcome.table()``: per figure ``max error (mm)``,
+    ``worst position``, ``MPE (mm)``, ``passed``). A figure beyond its MPE makes the
+    verdict red (the calibration does not measure as accurately as required), whatever
+    the calibration's own grade; passing figures add their reasons and keep the grade."""
+    reasons = list(ver.reasons)
+    failed = []
+    for name, row in figures.items():
+        value, mpe, passed = row.get("max error (mm)"), row.get("MPE (mm)"), row.get("passed")
+        where = f" at {row['worst position']}" if row.get("worst position") else ""
+        if passed is None:
+            reasons.append(("green", f"validation: {name} {value:.4f} mm{where} (no MPE: not judged)"))
+        elif passed:
+            reasons.append(("green", f"validation: {name} {value:.4f} mm{where}, within its MPE {mpe:g} mm"))
+        else:
+            reasons.append(("red", f"validation: {name} {value:.4f} mm{where} exceeds its MPE {mpe:g} mm"))
+            failed.append(f"{name} {value:.4f} mm exceeds its MPE {mpe:g} mm")
+    if failed:
+        return Verdict("red", f"Validation failed: {'; '.join(failed)}. Do not use this calibration: it does not "
+                       "measure as accurately as required (see the validation tables).", reasons)
+    if not figures:
+        return Verdict(ver.level, ver.headline, reasons)
+    return Verdict(ver.level, f"{ver.headline} Validation passed: every judged figure within its MPE.", reasons)
 
 
 #: What makes a solution absurd, most likely first (named in the verdict of one).

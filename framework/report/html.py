@@ -28,6 +28,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from .. import __version__
+from .. import geometry as geo
 from ..errors import InputError
 from ..estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
 from ..exporters import ExportNote
@@ -329,8 +330,10 @@ def _headline(result: CalibrationResult, ver, th: Thresholds, notes: Sequence[Ex
     cards = [
         ("translation (mm)", f"{_n(x)}, {_n(y)}, {_n(z)}"),
         ("quaternion (w, x, y, z)", ", ".join(_n(v, 6) for v in q)),
-        (f"rotation 1-sigma about {a} x, y, z (deg)", ", ".join(_n(v) for v in sr)),
-        (f"translation 1-sigma along {a} x, y, z (mm)", ", ".join(_n(v) for v in st)),
+        (f"rotation 1-sigma about {a} x, y, z (deg)", ", ".join(_n(v) for v in sr)
+         + f"<br><span class='muted'>U (k = 2): {', '.join(_n(K_EXPANDED * v) for v in sr)}</span>"),
+        (f"translation 1-sigma along {a} x, y, z (mm)", ", ".join(_n(v) for v in st)
+         + f"<br><span class='muted'>U (k = 2): {', '.join(_n(K_EXPANDED * v) for v in st)}</span>"),
         ("residual RMS (mm)", f"{_n(result.residuals.rms_mm)} <span class='muted'>expected {_n(exp)}</span>"),
         ("sensor point noise (mm)", f"{_n(point)}" + (
             f" <span class='muted'>RMS / noise {result.residuals.rms_mm / point:.1f}</span>" if point else "")),
@@ -368,22 +371,110 @@ def _advice_html(items) -> str:
                     f"<p>{_e(a.text)}</p></div>" for a in items)
 
 
+#: Coverage factor of the expanded uncertainty shown next to the 1-sigma (about 95 %).
+K_EXPANDED = 2.0
+
+
 def _uncertainty_table(result: CalibrationResult) -> str:
     a, b = export.frames_of(result.transform_name)
     frame = result.sphere_centre_frame
     rows = []
+
+    def add(name, value, sd, unit):
+        rows.append([name, value, _n(sd), _n(K_EXPANDED * sd) if sd is not None else "&ndash;", unit])
+
     for k, ax in enumerate("xyz"):
-        rows.append([f"rotation about {a} {ax}", "&ndash;", _n(result.std_rotation_deg[k]), "deg"])
+        add(f"rotation about {a} {ax}", "&ndash;", result.std_rotation_deg[k], "deg")
     for k, ax in enumerate("xyz"):
-        rows.append([f"translation along {a} {ax}", _n(result.transform.translation_mm[k]),
-                     _n(result.std_translation_mm[k]), "mm"])
+        add(f"translation along {a} {ax}", _n(result.transform.translation_mm[k]), result.std_translation_mm[k], "mm")
     for k, ax in enumerate("xyz"):
-        rows.append([f"sphere centre {ax} ({frame} frame)", _n(result.sphere_centre_mm[k]),
-                     _n(result.std_sphere_centre_mm[k]), "mm"])
-    rows.append(["sphere radius" + (" (fitted)" if result.radius_fitted else " (certified, fixed)"),
-                 _n(result.sphere_radius_mm), _n(result.std_sphere_radius_mm) if result.radius_fitted else "fixed",
-                 "mm"])
-    return _table(["quantity", "value", "1-sigma", "unit"], rows)
+        add(f"sphere centre {ax} ({frame} frame)", _n(result.sphere_centre_mm[k]), result.std_sphere_centre_mm[k], "mm")
+    if result.radius_fitted:
+        add("sphere radius (fitted)", _n(result.sphere_radius_mm), result.std_sphere_radius_mm, "mm")
+    else:
+        rows.append(["sphere radius (certified, fixed)", _n(result.sphere_radius_mm), "fixed", "fixed", "mm"])
+    re = result.robot_error
+    note = ""
+    if re is not None:
+        note = ("<p class=\"muted\">Relative to the robot's own frame (the robot's accuracy shared by every station "
+                "left out: what two calibrations on this robot can differ by), 1-sigma / k = 2: rotation "
+                + ", ".join(f"{_n(v)} / {_n(K_EXPANDED * v)}" for v in re.std_rotation_deg_robot_frame) + " deg; "
+                "translation " + ", ".join(f"{_n(v)} / {_n(K_EXPANDED * v)}" for v in re.std_translation_mm_robot_frame)
+                + " mm.</p>")
+    return (_table(["quantity", "value", "1-sigma", f"expanded U (k = {K_EXPANDED:g})", "unit"], rows)
+            + "<p class=\"muted\">1-sigma is the standard uncertainty; U = 2 sigma the expanded uncertainty, about "
+              "95 % coverage for a normal distribution. Both include the robot's accuracy (its error shared by every "
+              "station, which no data from one sphere location can see; docs/estimation.md).</p>" + note)
+
+
+def _short_label(label: str) -> str:
+    """``rotation about flange x`` -> ``rot x``; for the correlation matrix's columns."""
+    for long, short in (("rotation about ", "rot "), ("translation along ", "t "), ("sphere centre ", "c "),
+                        ("sphere radius", "r")):
+        if label.startswith(long):
+            rest = label[len(long):].split(" (")[0]
+            return short + rest.split(" ")[-1] if short != "r" else "r"
+    return label
+
+
+def _correlation_html(result: CalibrationResult) -> str:
+    corr = result.correlation
+    if corr is None:
+        return "<p>No correlation matrix: the result has no covariance.</p>"
+    labels = corr.parameters
+    m = np.asarray(corr.matrix, dtype=float)
+    head = "".join(f"<th title=\"{_e(lbl)}\">{_e(_short_label(lbl))}</th>" for lbl in labels)
+    body = []
+    for i, lbl in enumerate(labels):
+        cells = []
+        for j in range(len(labels)):
+            v = m[i, j]
+            cls = "diag" if i == j else "strong" if abs(v) >= 0.9 else "notable" if abs(v) >= 0.7 else ""
+            cells.append(f'<td class="{cls}">{v:+.2f}</td>' if cls else f"<td>{v:+.2f}</td>")
+        body.append(f"<tr><th>{_e(lbl)}</th>{''.join(cells)}</tr>")
+    strongest = max(((abs(m[i, j]), i, j) for i in range(len(labels)) for j in range(i)), default=None)
+    text = ""
+    if strongest is not None:
+        v, i, j = strongest
+        text = (f"<p>Largest correlation: {m[i, j]:+.2f} between {_e(labels[i])} and {_e(labels[j])}. Strongly "
+                "correlated parameters (|r| &ge; 0.9, marked) are determined together: each alone is known worse "
+                "than their combination; more varied tilts between the stations decorrelate them.</p>")
+    return (f'<table class="matrix"><thead><tr><th>correlation</th>{head}</tr></thead><tbody>{"".join(body)}'
+            "</tbody></table>" + text + "<p class=\"muted\">Derived from the covariance (result.json "
+            "<code>correlation</code>): r = cov / (sigma sigma).</p>")
+
+
+def point_uncertainty(result: CalibrationResult, distance_mm: float) -> dict:
+    """The uncertainty, from the transform's, of a point measured ``distance_mm`` from
+    the sensor along its line of sight (the point (0, 0, -d) in the sensor frame, whose
+    z points towards the sensor), mapped into the transform's target frame:
+    ``dp = w x (R p) + dt``. Returns its 1-sigma per target axis, its RMS 3-D error and
+    the expanded 3-D figure (k = 2: twice the RMS), mm."""
+    R = result.transform.rotation_matrix
+    v = R @ np.array([0.0, 0.0, -float(distance_mm)])
+    J = np.hstack([-geo.skew(v), np.eye(3)])
+    cov = J @ np.asarray(result.covariance, dtype=float)[:6, :6] @ J.T
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    rms = float(np.sqrt(max(np.trace(cov), 0.0)))
+    return {"distance_mm": float(distance_mm), "sd_mm": tuple(float(x) for x in sd), "rms_mm": rms,
+            "expanded_k2_mm": K_EXPANDED * rms}
+
+
+def _point_html(result: CalibrationResult, distance_mm: float) -> str:
+    a = export.frames_of(result.transform_name)[0]
+    distances = sorted({0.0, distance_mm / 2, float(distance_mm), 2.0 * distance_mm})
+    rows, classes = [], []
+    for d in distances:
+        u = point_uncertainty(result, d)
+        rows.append([f"{d:g}", *(_n(x) for x in u["sd_mm"]), _n(u["rms_mm"]), f"<b>{_n(u['expanded_k2_mm'])}</b>"])
+        classes.append("chosen" if d == distance_mm else "")
+    chosen = point_uncertainty(result, distance_mm)
+    return (f"<p>A point measured <b>{distance_mm:g} mm</b> from the sensor, along its line of sight, lands within "
+            f"<b>{_n(chosen['expanded_k2_mm'])} mm</b> (3-D, k = 2) of where the calibration puts it, from the "
+            f"transform's uncertainty alone (the chosen distance: <code>[report] point_distance_mm</code>). The robot's "
+            "pose error and the sensor's noise at that pose come on top (the verdict's point error).</p>"
+            + _table(["distance (mm)", f"1-sigma {a} x (mm)", f"1-sigma {a} y (mm)", f"1-sigma {a} z (mm)",
+                      "RMS 3-D (mm)", "U 3-D, k = 2 (mm)"], rows, classes))
 
 
 def _station_table(result: CalibrationResult, th: Thresholds) -> str:
@@ -441,6 +532,72 @@ def _validation_html(validation: Mapping[str, Any]) -> str:
     return _table(["figure"] + [_e(c) for c in columns], rows, classes)
 
 
+def _positions_html(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The validation per position: one row per position and figure."""
+    body, classes = [], []
+    for r in rows:
+        passed = r.get("passed")
+        verdict_cell = {True: '<span class="dot green"></span>pass', False: '<span class="dot red"></span>FAIL',
+                        None: "not judged"}[passed]
+        mpe = r.get("MPE (mm)")
+        body.append([_e(r.get("position", "")), _e(r.get("artefact", "")), _e(r.get("figure", "")),
+                     _n(r.get("error (mm)")), "&ndash;" if mpe is None else _n(mpe), verdict_cell])
+        classes.append("bad" if passed is False else "")
+    return ("<h3>Per position</h3>"
+            + _table(["position", "artefact", "figure", "error (mm)", "MPE (mm)", "verdict"], body, classes))
+
+
+def _identity_html(result: CalibrationResult) -> str:
+    """What was calibrated, by whom, when, from which files (the result's provenance)."""
+    p = result.provenance or {}
+
+    def device(kind: str) -> str:
+        d = p.get(kind)
+        if not isinstance(d, Mapping):
+            return _e(d) if d else "&ndash;"
+        parts = [f"<b>{_e(d.get('type') or '?')}</b>"]
+        for key in ("manufacturer", "model", "serial_number", "firmware", "controller"):
+            if d.get(key):
+                parts.append(f"{key.replace('_', ' ')}: {_e(d[key])}")
+        if not d.get("serial_number"):
+            parts.append('<span class="muted">serial number not reported</span>')
+        return "; ".join(parts)
+
+    sphere = p.get("sphere") if isinstance(p.get("sphere"), Mapping) else {}
+    radius = sphere.get("radius_mm", result.sphere_radius_mm)
+    u = sphere.get("radius_uncertainty_mm_k2")
+    cert = (f"radius {_n(radius)} mm" + (f", U = {_n(u)} mm (k = 2)" if u is not None else
+                                          ' <span class="muted">(uncertainty not given: sphere.radius_uncertainty_mm)'
+                                          "</span>")
+            + (f"; certificate {_e(sphere['certificate'])}" if sphere.get("certificate") else ""))
+
+    def sha(key: str, file_key: str) -> str:
+        if not p.get(key):
+            return "&ndash;"
+        return f'<code class="hash">{_e(p[key])}</code><br><span class="muted">{_e(p.get(file_key) or "")}</span>'
+
+    rows = [
+        ["cell", _e(p.get("cell") or "&ndash;") if p.get("cell") else "&ndash;"],
+        ["robot", device("robot")],
+        ["sensor", device("sensor")],
+        ["reference sphere", cert],
+        ["operator", _e(p["operator"]) if p.get("operator") else "&ndash;"],
+        ["calibrated", _e(p.get("calibrated_at") or "&ndash;")],
+        ["software", _e(p.get("software") or f"spherecal {__version__}")],
+        ["dataset (SHA-256)", sha("dataset_sha256", "dataset_file")],
+        ["configuration (SHA-256)", sha("configuration_sha256", "configuration_file")],
+    ]
+    if p.get("simulated"):
+        rows.append(["devices", "simulated cell"])
+    return "<table>" + "".join(f'<tr><th>{k}</th><td class="text">{v}</td></tr>' for k, v in rows) + "</table>"
+
+
+def _signature_html() -> str:
+    """Lines to sign on paper: who calibrated, who approved, with dates."""
+    return "".join(f'<div class="signature"><div><span>{who} (name)</span></div><div><span>Date</span></div>'
+                   "<div><span>Signature</span></div></div>" for who in ("Calibrated by", "Approved by"))
+
+
 def _details_html(result: CalibrationResult) -> str:
     d = result.diagnostics
     ref = d.get("refinement", {}) or {}
@@ -473,17 +630,22 @@ def write_report(
     filename: str = "report.html",
     verdict_override: Verdict | None = None,
     notes: Sequence[ExportNote] = (),
+    validation_positions: Sequence[Mapping[str, Any]] | None = None,
+    point_distance_mm: float = 100.0,
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
     it as ``<stem>_<figure>.png`` (:data:`FIGURE_NAMES`). ``validation`` is an optional
     mapping ``{figure name: value or {column: value}}`` shown as a table (a row whose
     ``passed`` is False is marked). ``verdict_override``: the verdict to show (e.g. with
-    the likely cause the runner found), else the result's own. ``notes``: what the run's
-    exporters say about using the result on the controller (:class:`ExportNote`, from
-    ``ExportPlan.notes(result)``; the robot's own exporter first), shown under the
-    transform. Returns the path of the HTML file. Overwrites an earlier report of the
-    same name."""
+    the likely cause the runner found, or with the validation: ``assess.with_validation``),
+    else the result's own. ``notes``: what the run's exporters say about using the result
+    on the controller (:class:`ExportNote`, from ``ExportPlan.notes(result)``; the robot's
+    own exporter first), shown under the transform. ``validation_positions``: the
+    validation per position (``validation.position_rows``), shown under its figures.
+    ``point_distance_mm``: the report gives the uncertainty of a point this far from the
+    sensor. Returns the path of the HTML file. Overwrites an earlier report of the same
+    name."""
     result = getattr(solution, "result", None)
     if not isinstance(result, CalibrationResult) or not hasattr(solution, "problem"):
         raise InputError(
@@ -495,6 +657,11 @@ def write_report(
         raise InputError("notes must be a sequence of spherecal.exporters.ExportNote")
     if validation is not None and not isinstance(validation, Mapping):
         raise InputError(f"validation must be a mapping of acceptance figures, got {type(validation).__name__}")
+    if validation_positions is not None and (isinstance(validation_positions, (str, bytes, Mapping)) or not all(
+            isinstance(r, Mapping) for r in validation_positions)):
+        raise InputError("validation_positions must be a sequence of rows (mappings)")
+    if not (isinstance(point_distance_mm, (int, float)) and np.isfinite(point_distance_mm) and point_distance_mm > 0):
+        raise InputError(f"point_distance_mm must be a positive number of mm, got {point_distance_mm!r}")
     th = thresholds or Thresholds()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -541,10 +708,10 @@ def write_report(
     ver = verdict_override or verdict(result, th)
     items = advice(result, th)
     now = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    nav = ["verdict", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
-    if validation is not None:
+    nav = ["verdict", "identity", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
+    if validation is not None or validation_positions is not None:
         nav.append("validation")
-    nav.append("details")
+    nav += ["details", "signature"]
     sections = [
         f"<h1>{_e(title)}</h1>",
         f'<p class="sub">{_e(result.mounting)} &middot; {_e(result.transform_name)} &middot; '
@@ -553,9 +720,11 @@ def write_report(
         + f" &middot; generated {now} by spherecal {_e(__version__)}</p>",
         "<nav>" + "".join(f'<a href="#{s}">{s}</a>' for s in nav) + "</nav>",
         _headline(result, ver, th, notes),
+        '<section class="keep"><h2 id="identity">What was calibrated</h2>',
+        _identity_html(result) + "</section>",
         '<h2 id="advice">What to do when something is off</h2>',
         _advice_html(items),
-        '<h2 id="residuals">Residuals</h2>',
+        '<section class="keep"><h2 id="residuals">Residuals</h2>',
         "<p>"
         + ("A residual is the in-plane distance (mm) of a profile point from the circle where the laser plane cuts "
            "the fitted sphere. " if has_profiles else "")
@@ -563,22 +732,31 @@ def write_report(
            "the fit puts the centre; a circle's centre y and z, and its radius against the circle the laser plane "
            "cuts from the fitted sphere." if has_centres else "")
         + "</p>",
-        fig_html("residuals_per_profile"),
+        fig_html("residuals_per_profile") + "</section>",
         fig_html("residuals_per_centre"),
         fig_html("residuals_per_station"),
         fig_html("residual_histogram"),
-        '<h2 id="sphere">The sphere and the mapped points</h2>',
-        fig_html("sphere_3d"),
-        '<h2 id="uncertainty">Uncertainties</h2>',
-        _uncertainty_table(result),
+        '<section class="keep"><h2 id="sphere">The sphere and the mapped points</h2>',
+        fig_html("sphere_3d") + "</section>",
+        '<section class="keep"><h2 id="uncertainty">Uncertainties</h2>',
+        _uncertainty_table(result) + "</section>",
+        '<section class="keep"><h3 id="correlation">Correlations of the parameters</h3>',
+        _correlation_html(result) + "</section>",
+        '<section class="keep"><h3 id="point">A point at a distance from the sensor</h3>',
+        _point_html(result, float(point_distance_mm)) + "</section>",
         '<h2 id="stations">Stations</h2>',
         _station_table(result, th),
         '<h2 id="flagged">Flagged observations</h2>',
         _flagged_table(result),
     ]
-    if validation is not None:
-        sections += ['<h2 id="validation">Validation</h2>', _validation_html(validation)]
+    if validation is not None or validation_positions is not None:
+        sections += ['<section class="keep"><h2 id="validation">Validation</h2>',
+                     (_validation_html(validation) if validation is not None else "") + "</section>"]
+        if validation_positions is not None:
+            sections.append('<section class="keep">' + _positions_html(validation_positions) + "</section>")
     sections += ['<h2 id="details">Details</h2>', _details_html(result),
+                 '<section class="keep"><h2 id="signature">Sign-off</h2>',
+                 _signature_html() + "</section>",
                  f"<footer>spherecal {_e(__version__)} &middot; conventions: docs/conventions.md &middot; "
                  "this report: docs/results.md</footer>"]
 

@@ -1,21 +1,32 @@
 """A simulated robot controller that serves the spherecal line protocol
-(:mod:`spherecal.lineproto`) over a real serial link, brand-free: a TCP server on
-127.0.0.1 (pyserial ``socket://127.0.0.1:PORT``) or a pseudo-terminal pair (the robot
-opens the slave device path).
+(:mod:`spherecal.lineproto`) over a real link, brand-free, in one of three flavours
+(``SimulatedControllerSettings.transport``):
+
+* ``tcp``: a serial server's line carried over TCP on 127.0.0.1 (``socket://``), as a
+  serial device server would; a serial line has no sessions, so a reconnecting robot
+  finds the controller as it left it;
+* ``pty``: a serial server on a pseudo-terminal pair (the robot opens the slave device
+  path);
+* ``socket``: a controller's socket server on 127.0.0.1 (``socket://``): one connection
+  at a time (others wait in the listen backlog), and every accepted connection is a new
+  session, in which no target is staged.
 
 :class:`SimulatedController` is the controller logic (one request line in, one reply line
 out) on a robot plugin's kinematics (:class:`~spherecal.kinematics.ArmKinematics` plus
 ``check_joint_limits(joints_deg, what)``); :class:`ControllerServer` runs it in a thread
 behind a transport and injects faults at runtime through :class:`Faults` (reply delay,
-dropped requests or replies, truncated replies, corrupted bytes, a disconnect).
+dropped requests or replies, truncated replies, corrupted bytes, the connection closed
+mid-request, a disconnect).
 
 Moves: a ``MOVL`` target becomes joints by the kinematics' inverse (the solution nearest
 the current joints, as a controller's linear move keeps its configuration); the true
 flange pose (the forward kinematics of those joints, through the cell's arm with its
 geometric error when it has one) goes to ``cell.move_flange_to`` when a SimulatedCell is
-given. A staged target is moved to once: a ``MOVL`` naming a target already reached
-answers OK without moving. ``GETJ`` reports controller-convention joints (plus optional
-noise); ``GETP`` the nominal forward kinematics of the joints through the pose noise.
+given. A staged target is moved to once, and only in the link session that staged it
+(over a socket server, a new connection cannot move to a target staged over an earlier
+one: ``ERR 4``): a ``MOVL`` naming a target already reached answers OK without moving.
+``GETJ`` reports controller-convention joints (plus optional noise); ``GETP`` the
+nominal forward kinematics of the joints through the pose noise.
 Safety, as a controller: a speed above ``max_controller_speed_mm_s`` or a target out of
 reach or beyond a joint limit is refused with an ``ERR`` and nothing moves; nothing moves
 but on a ``MOVL``.
@@ -47,12 +58,15 @@ _POLL_S = 0.02
 
 class SimulatedControllerSettings(BaseModel):
     """The simulated controller used when the run is simulated (a SimulatedCell is
-    given): it serves the line protocol over a real pyserial link on localhost."""
+    given): it serves the line protocol over a real link on localhost."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    transport: Literal["tcp", "pty"] = Field(
-        "tcp", description="tcp: a socket:// server on 127.0.0.1; pty: a pseudo-terminal device (POSIX only)"
+    transport: Literal["tcp", "pty", "socket"] = Field(
+        "tcp",
+        description="the link the simulated controller serves: tcp: a serial server's line carried over TCP on "
+        "127.0.0.1 (socket://); pty: a pseudo-terminal device (POSIX only); socket: a controller's socket server "
+        "on 127.0.0.1 (socket://), whose every new connection is a new session that forgets the staged target",
     )
     pose_noise: Literal["cell", "settings"] = Field(
         "cell",
@@ -129,6 +143,15 @@ class SimulatedController:
         return self.kin.flange_pose_from_joints(self.joints_deg, check_limits=False)
 
     _reached: int | None = None  #: seq of the staged target once it has been moved to
+    #: the link session: 1 on a serial line; on a socket server, one more with every
+    #: accepted connection
+    session: int = 1
+    _staged_session: int | None = None  #: the session the staged target was staged in
+
+    def new_session(self) -> None:
+        """The socket server accepted a new connection: a new session, in which a target
+        staged over an earlier connection is not moved to (``ERR 4``)."""
+        self.session += 1
 
     def handle(self, line: bytes) -> bytes:
         """The reply to one request line (both with their LF)."""
@@ -184,6 +207,7 @@ class SimulatedController:
             return P.pose_reply(msg.seq, pose)
         if msg.kind == "TGT":
             self.staged = (msg.seq, P.parse_target_request(msg))
+            self._staged_session = self.session
             self._reached = None
             return P.ok_reply(msg.seq)
         if msg.kind == "MOVL":
@@ -215,6 +239,9 @@ class SimulatedController:
         if self.staged is None or self.staged[0] != target_seq:
             have = "none" if self.staged is None else self.staged[0]
             return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET, f"no target {target_seq} staged (have {have})")
+        if self._staged_session != self.session:
+            return P.error_reply(msg.seq, P.ErrorCode.NO_TARGET,
+                                 f"target {target_seq} was staged over an earlier connection")
         if self._target_reached(target_seq):
             # moved there already (a MOVL resent after a lost reply, or left in the buffer):
             # never move to the same target twice, the arm may have been jogged since
@@ -259,18 +286,21 @@ class Faults:
     #: after N quiet spells, for controllers that model it (``read_timeout()``); not
     #: limited by only_kinds
     read_timeouts: int = 0
+    #: serve the next N requests, then close the connection instead of replying: the
+    #: controller drops the link mid-request (a move is made, its reply never sent)
+    close_before_reply: int = 0
 
 
 class ControllerServer:
-    """Runs a :class:`SimulatedController` in a thread behind a serial transport.
+    """Runs a :class:`SimulatedController` in a thread behind a transport.
 
-    ``url`` is what the driver passes to ``serial.serial_for_url``. Use as a context
-    manager or call :meth:`stop`; stopping closes every socket and file descriptor and
-    joins the thread."""
+    ``url`` is the robot's port (``socket://127.0.0.1:PORT``, or a pty's device path).
+    Use as a context manager or call :meth:`stop`; stopping closes every socket and file
+    descriptor and joins the thread."""
 
-    def __init__(self, controller: SimulatedController, transport: Literal["tcp", "pty"] = "tcp"):
-        if transport not in ("tcp", "pty"):
-            raise ValueError(f"transport must be 'tcp' or 'pty', got {transport!r}")
+    def __init__(self, controller: SimulatedController, transport: Literal["tcp", "pty", "socket"] = "tcp"):
+        if transport not in ("tcp", "pty", "socket"):
+            raise ValueError(f"transport must be 'tcp', 'pty' or 'socket', got {transport!r}")
         self.controller = controller
         self.transport = transport
         self.faults = Faults()
@@ -285,10 +315,11 @@ class ControllerServer:
         self._slave: int | None = None
         self.url = ""
         self.error: BaseException | None = None
+        self.connections = 0  #: connections accepted (tcp and socket)
 
     # lifecycle -----------------------------------------------------------------------
     def start(self) -> "ControllerServer":
-        if self.transport == "tcp":
+        if self.transport in ("tcp", "socket"):
             self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self._listener.bind(("127.0.0.1", 0))
             self._listener.listen(1)
@@ -316,7 +347,8 @@ class ControllerServer:
 
     def disconnect(self, timeout_s: float = 2.0) -> None:
         """Drop the connection now (the driver sees the link go away); returns once the
-        link is closed. A TCP server then accepts a new connection; a pty is gone."""
+        link is closed. A TCP server then accepts a new connection (on the socket server, a
+        new session); a pty is gone."""
         self._disconnected.clear()
         self._disconnect.set()
         if self.running and not self._disconnected.wait(timeout_s):  # pragma: no cover
@@ -361,6 +393,9 @@ class ControllerServer:
                 continue
             conn, _ = self._listener.accept()
             self._conn = conn
+            self.connections += 1
+            if self.transport == "socket":  # a socket server: a new connection, a new session
+                self.controller.new_session()
             self._disconnect.clear()
             self._serve_stream(lambda n: conn.recv(n), conn.sendall, conn.fileno())
             if self._conn is not None:
@@ -402,7 +437,10 @@ class ControllerServer:
                 idx = buffer.index(b"\n")
                 line = bytes(buffer[: idx + 1])
                 del buffer[: idx + 1]
-                self._serve_line(line, send)
+                try:
+                    self._serve_line(line, send)
+                except OSError:  # the robot has gone while the reply was on its way
+                    return
                 if self._disconnect.is_set() or self._stop.is_set():
                     return
             if len(buffer) > 2 * P.MAX_LINE_CHARS:  # garbage without LF: answer and resync
@@ -443,6 +481,9 @@ class ControllerServer:
         if self._take("corrupt_requests", kind):
             line = _flip_byte(line)
         reply = self.controller.handle(line)
+        if self._take("close_before_reply", kind):
+            self._disconnect.set()  # the stream loop returns, and the link is closed
+            return
         delay = self.faults.reply_delay_s
         if self._take("late_replies", kind):
             delay += self.faults.late_reply_delay_s
@@ -472,7 +513,7 @@ def start_controller(
     n_joints: int = 6,
 ) -> ControllerServer:
     """Start a simulated controller on the settings' transport; returns the running
-    server (its ``url`` is for ``serial.serial_for_url``)."""
+    server (its ``url`` is the robot's port)."""
     settings = settings or SimulatedControllerSettings()
     controller = SimulatedController(kinematics, settings, cell, n_joints)
     return ControllerServer(controller, settings.transport).start()

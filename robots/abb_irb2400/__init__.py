@@ -1,5 +1,6 @@
 """ABB IRB 2400 robot plugin: kinematic model (Pinocchio), the spherecal line protocol,
-a pyserial driver, the RAPID server module and a simulated controller.
+a driver over a serial line or TCP, the RAPID server modules (with an offline syntax
+check) and a simulated controller.
 
 See docs/robot-abb-irb2400.md. The plugin entry point is :mod:`.plugin`.
 """

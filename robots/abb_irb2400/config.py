@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from spherecal.errors import InputError
 from spherecal.linelink import LineLinkSettings
 from spherecal.linelink import WorkspaceBox as CoreWorkspaceBox
+from spherecal.models import Pose
 from spherecal.sim.controller import SimulatedControllerSettings as CoreSimulatedControllerSettings
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
@@ -33,23 +34,48 @@ class WorkspaceBox(CoreWorkspaceBox):
 
 class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     """The simulated controller used when the run is simulated (a SimulatedCell is
-    given): it serves the same protocol over a real pyserial link on localhost (the
+    given): it serves the same protocol over a real link on localhost (the
     core's settings, :class:`spherecal.sim.controller.SimulatedControllerSettings`, with
-    the IRB 2400's home joints)."""
+    the IRB 2400's home joints and its RAPID server's links)."""
 
+    transport: Literal["tcp", "pty", "socket"] = Field(
+        "tcp",
+        description="the link the simulated controller serves: tcp: the serial server's line carried over TCP "
+        "on 127.0.0.1 (socket://); pty: a pseudo-terminal device (POSIX only); socket: the RAPID socket server "
+        "of an IRC5 (SpherecalSocket.mod) on 127.0.0.1 (socket://), whose every new connection is a new "
+        "session that forgets the staged target",
+    )
     single_precision: bool = Field(
         True, description="round reported values to 32-bit floats, as RAPID num does"
     )
     home_joints_deg: tuple[float, float, float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 0.0, 90.0, 0.0), description="joints at start-up, controller convention, deg"
     )
+    base_frame: Pose | None = Field(
+        None, description="the controller's base frame, world_from_base (translation_mm, quaternion_wxyz w first), "
+        "as a riser, an inverted mount or a multi-robot cell configures it: GETP reports tool0 in wobj0 (world) and "
+        "TGT targets are taken in world; None: base = world. For tests of the check on connect",
+    )
 
 
 class AbbIrb2400Config(LineLinkSettings):
-    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod``, talking the
-    spherecal line protocol over a serial line (see docs/robot-abb-irb2400.md). The link
-    and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`)."""
+    """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod`` with a link
+    module, talking the spherecal line protocol over a serial line (``SpherecalSerial.mod``)
+    or, on an IRC5, over TCP (``SpherecalSocket.mod``; see docs/robot-abb-irb2400.md). The
+    link and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`,
+    which also checks a ``socket://host:port`` port)."""
 
+    port: str = Field(
+        "/dev/ttyS0",
+        description="the link to the controller: a serial device (/dev/ttyS0, /dev/ttyUSB0, COM1) or another "
+        "pyserial URL (rfc2217://...) for SpherecalSerial.mod, or socket://host:port for the IRC5 socket server "
+        "SpherecalSocket.mod (its SERVER_ADDRESS and SERVER_PORT); ignored in simulated runs",
+    )
+
+    serial_number: str | None = Field(
+        None, max_length=100, description="the robot's serial number (its nameplate), for the report and the "
+        "result's provenance; the controller protocol does not report it"
+    )
     pose_source: Literal["controller", "joints"] = Field(
         "controller",
         description="flange pose from the controller (GETP, CRobT tool0/wobj0) or from the joint "
@@ -60,6 +86,14 @@ class AbbIrb2400Config(LineLinkSettings):
         "each move asks for less when its sensor (the tool point) would otherwise exceed the move's speed"
     )
     workspace: WorkspaceBox = Field(default_factory=WorkspaceBox, description="allowed flange positions, base, mm")
+    base_frame_tolerance_mm: float = Field(
+        5.0, gt=0, le=100, description="on connect, the controller's pose of tool0 in wobj0 (world) may differ from "
+        "this plugin's forward kinematics of the reported joints (base) by this much, mm; more means a base frame "
+        "is configured and the connection is refused (an Absolute Accuracy controller differs by up to about 2 mm)",
+    )
+    base_frame_tolerance_deg: float = Field(
+        0.5, gt=0, le=10, description="the same check's limit on the orientation difference, deg",
+    )
     j23_coupled: bool = Field(
         True,
         description="the controller reports axis 3 relative to the horizontal (parallel linkage; "

@@ -1,16 +1,22 @@
-"""Serial driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
+"""Driver for the IRB 2400 running ``SpherecalServer.mod`` (spherecal line protocol).
 
-Built on ``serial.serial_for_url``, so the same code talks to a serial device
-(``/dev/ttyS0``, ``COM1``, a pseudo-terminal) or to a pyserial URL such as
-``socket://127.0.0.1:PORT`` (the simulated controller).
+Two links, one driver: a serial line (``SpherecalSerial.mod`` on the controller), opened
+with ``serial.serial_for_url`` (a device such as ``/dev/ttyS0``, ``COM1`` or a
+pseudo-terminal, or another pyserial URL), or a TCP connection to the IRC5 socket server
+(``SpherecalSocket.mod``) when the port is ``socket://host:port`` (the core's
+:class:`~spherecal.linelink.TcpLink`). Framing, timeouts, resends and the stale-reply
+rules below are the same code for both.
 
 Every exchange is one request and one reply carrying the same sequence number.
 Replies whose seq does not match the request (late replies of an earlier attempt) are
 discarded; a corrupted line (checksum or syntax) or a timeout makes the driver resend
 the request with a fresh seq, up to ``retries`` times, then raise
 :class:`~spherecal.errors.DeviceError` saying what went wrong. A lost link raises
-DeviceError at once. Requests are idempotent (a MOVL names its staged target, and the
-controller moves to a target once), so a resend never makes the robot move twice.
+DeviceError at once (over TCP: the controller closed the connection, or it broke), and
+the driver never reconnects by itself: the robot must be created again, which starts a
+new connection (and, for the socket server, a new session that has no staged target).
+Requests are idempotent (a MOVL names its staged target, and the controller moves to a
+target once), so a resend never makes the robot move twice.
 
 Replies of an earlier session: on open the driver discards whatever waits on the link,
 and it starts its sequence numbers at a random value, so that a reply of an earlier
@@ -37,7 +43,9 @@ from typing import Callable
 
 import numpy as np
 
-from spherecal import linelink
+from spherecal import lineproto, linelink
+from spherecal.errors import DeviceError
+from spherecal.geometry import rotvec_from_matrix
 from spherecal.linelink import MIN_SPEED_MM_S, LineRobot  # noqa: F401 - MIN_SPEED_MM_S re-exported
 from spherecal.models import Pose
 
@@ -59,6 +67,7 @@ class AbbIrb2400Robot(LineRobot):
 
     name = "IRB 2400"
     server_hint = "that SpherecalServer is running on the controller"
+    socket_hint = "that SpherecalSocket runs on the controller and listens on this address"
     version_hint = "load the SpherecalServer.mod shipped with this package"
 
     def __init__(
@@ -84,6 +93,42 @@ class AbbIrb2400Robot(LineRobot):
         controller's own pose is its nominal model's)."""
         return self.calibrated is not None
 
+    def check_base_frame(self) -> None:
+        """Refuse a controller whose wobj0 (world) is not the robot base.
+
+        The server reads poses as tool0 in wobj0, which is the WORLD frame; this plugin's
+        kinematics, workspace box and path checks work in the robot BASE frame. They are
+        one frame only when the controller's base frame is identity; a riser, an inverted
+        mount or a multi-robot cell configures another. So the controller's pose (GETP)
+        is compared with the controller's own (nominal) model at the joints it reports
+        (GETJ): more than ``base_frame_tolerance_mm`` / ``_deg`` apart raises
+        DeviceError, saying what to do; nothing has moved. The same check catches a
+        ``geometry`` or ``j23_coupled`` that does not match the arm."""
+        joints = self.read_joints_deg()
+        world_pose = lineproto.parse_pose_reply(self._exchange("GETP", lineproto.getp_request, "P"))
+        base_pose = self.nominal_kin.flange_pose_from_joints(joints, check_limits=False)
+        offset_mm = float(np.linalg.norm(world_pose.translation - base_pose.translation))
+        angle_deg = float(np.degrees(np.linalg.norm(
+            rotvec_from_matrix(base_pose.rotation_matrix.T @ world_pose.rotation_matrix))))
+        cfg = self.config
+        if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
+            return
+        world_from_base = world_pose @ base_pose.inverse()
+        t = ", ".join(f"{v:.1f}" for v in world_from_base.translation_mm)
+        q = ", ".join(f"{v:.4f}" for v in world_from_base.quaternion_wxyz)
+        raise DeviceError(
+            f"{self.name} on {self.url}: the controller reports tool0 in wobj0 {offset_mm:.1f} mm and "
+            f"{angle_deg:.2f} deg away from where this plugin's model puts the flange at the joints it reports "
+            f"({', '.join(f'{v:.2f}' for v in joints)} deg), beyond robot.base_frame_tolerance_mm = "
+            f"{cfg.base_frame_tolerance_mm:g} / _deg = {cfg.base_frame_tolerance_deg:g}. wobj0 is the world frame: "
+            f"the controller has a base frame (a riser, an inverted mount, a multi-robot cell), here about "
+            f"world_from_base = translation [{t}] mm, quaternion (w, x, y, z) [{q}], but spherecal plans, checks "
+            "the workspace and the paths, and moves in the robot base frame, so its checks would not hold. Nothing "
+            "was moved. Calibrate with the robot's base frame equal to the world frame (system parameters, topic "
+            "Motion, type Robot, the base frame), or, if the base frame is already identity, check robot.geometry "
+            "and robot.j23_coupled against the arm (an Absolute Accuracy controller may need a larger tolerance)"
+        )
+
     def controller_pose(self, base_from_flange: Pose, target_joints_deg=None) -> Pose:
         """The pose to send the controller for the flange to reach ``base_from_flange``:
         the pose itself with the nominal model; with a calibrated model, the nominal
@@ -97,3 +142,13 @@ class AbbIrb2400Robot(LineRobot):
             seed = self.last_joints_deg if self.last_joints_deg is not None else np.zeros(6)
             target_joints_deg = self.calibrated.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
         return self.nominal_kin.flange_pose_from_joints(target_joints_deg, check_limits=False)
+
+    def identity(self) -> dict[str, str]:
+        """What this robot is (spherecal.devices.device_identity): the model, the serial
+        number from the configuration (the protocol does not report it) and the
+        controller program it talks to."""
+        found = {"manufacturer": "ABB", "model": "IRB 2400",
+                 "controller": f"SpherecalServer.mod, protocol version {lineproto.PROTOCOL_VERSION}, on {self.url}"}
+        if self.config.serial_number:
+            found["serial_number"] = self.config.serial_number
+        return found

@@ -29,13 +29,15 @@ from spherecal.plugins import hookimpl
 from .config import AbbIrb2400Config
 from .driver import AbbIrb2400Robot
 from .export import RAPID_EXPORTER
+from .frames import read_frame
 from .kinematics import Irb2400Kinematics, kinematics_for
 from .simulator import start_simulator
 
 NAME = "abb_irb2400"
 DESCRIPTION = (
-    "ABB IRB 2400 on an IRC5 or S4C+ controller running SpherecalServer.mod over a serial line "
-    "(spherecal line protocol; simulated controller on localhost in simulated runs)"
+    "ABB IRB 2400 on an IRC5 or S4C+ controller running SpherecalServer.mod over a serial line, or on an "
+    "IRC5 over TCP (port = socket://host:port) (spherecal line protocol; simulated controller on localhost "
+    "in simulated runs)"
 )
 
 
@@ -46,8 +48,10 @@ def kinematics_of(config: AbbIrb2400Config) -> Irb2400Kinematics:
 
 
 def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400Robot:
-    """Factory: a connected robot (checked with PING) on ``config.port``, or on a freshly
-    started simulated controller when ``context.cell`` is set."""
+    """Factory: a connected robot (checked with PING, and refused when the controller's
+    wobj0 is not the robot base: :meth:`~.driver.AbbIrb2400Robot.check_base_frame`) on
+    ``config.port``, or on a freshly started simulated controller when ``context.cell``
+    is set."""
     kin = kinematics_of(config)
     tool = context.tool_point_mm
     if context.cell is None:
@@ -60,6 +64,7 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
         robot.simulator = server  # for tests and fault injection
     try:
         robot.ping()
+        robot.check_base_frame()  # wobj0 (world) must be the base the checks use
     except BaseException:
         robot.close()
         raise
@@ -85,6 +90,7 @@ ROBOT_TYPE = RobotType(
     description=DESCRIPTION,
     flange_pose_from_joints=flange_pose_from_joints,
     arm_kinematics=arm_kinematics,
+    read_frame=read_frame,
 )
 
 

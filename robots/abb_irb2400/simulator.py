@@ -1,21 +1,38 @@
 """A simulated IRB 2400 controller that serves the spherecal line protocol over a real
-serial link: a TCP server on 127.0.0.1 (pyserial ``socket://127.0.0.1:PORT``) or a
-pseudo-terminal pair (the driver opens the slave device path).
+link, in one of three flavours (``SimulatedControllerSettings.transport``):
+
+* ``tcp``: the serial server's line (``SpherecalSerial.mod``) carried over TCP on
+  127.0.0.1 (``socket://``), as a serial device server would; a serial line has no
+  sessions, so a reconnecting driver finds the controller as it left it;
+* ``pty``: the serial server on a pseudo-terminal pair (the driver opens the slave
+  device path);
+* ``socket``: the IRC5 socket server (``SpherecalSocket.mod``) on 127.0.0.1
+  (``socket://``): one connection at a time (others wait in the listen backlog), and
+  every accepted connection is a new session, in which no target is staged.
 
 The brand-free controller and its server live in the core
 (:mod:`spherecal.sim.controller`): moves by inverse kinematics from the current joints,
-the cell's true arm, pose and joint noise, fault injection. :class:`SimulatedIrb2400`
+the cell's true arm, pose and joint noise, the sessions of a socket server, fault
+injection (the connection closed mid-request among them). :class:`SimulatedIrb2400`
 adds the IRB 2400's kinematics and its RAPID server's read loop:
 :meth:`~SimulatedIrb2400.handle` is one turn of the loop (clear the line, read one, serve
 it), and :meth:`~SimulatedIrb2400.read_timeout` and :meth:`~SimulatedIrb2400.restart`
 model a read that ends without a line, so that tests can show a line is never served
 twice (the old server served its last line again).
+
+It also models the controller's base frame (``settings.base_frame``, world_from_base),
+as a riser, an inverted mount or a multi-robot cell configures it: the server reads and
+moves tool0 in wobj0, the WORLD frame, so ``GETP`` reports world poses and ``TGT``
+targets are taken in world, while the joints, the kinematics and the cell stay in the
+robot base.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from spherecal import lineproto as P
+from spherecal.models import Pose
 from spherecal.sim.controller import ControllerServer, Faults, SimulatedController
 
 from .config import SimulatedControllerSettings
@@ -40,6 +57,22 @@ class SimulatedIrb2400(SimulatedController):
         cell: "SimulatedCell | None" = None,
     ):
         super().__init__(kinematics or Irb2400Kinematics(), settings or SimulatedControllerSettings(), cell, 6)
+        #: the base frame, world_from_base (None: base = world); wobj0 is world
+        self.world_from_base: Pose | None = getattr(self.settings, "base_frame", None)
+
+    # wobj0 is world ----------------------------------------------------------------------
+    def _reported_pose(self) -> Pose:
+        """tool0 in wobj0 (``CRobT``): the model's pose of the joints, in world."""
+        pose = super()._reported_pose()
+        return pose if self.world_from_base is None else self.world_from_base @ pose
+
+    def _dispatch(self, msg: P.Message) -> bytes:
+        reply = super()._dispatch(msg)
+        if msg.kind == "TGT" and self.world_from_base is not None and self.staged is not None:
+            # the target is tool0 in wobj0 (world): kept in base, where the joints are solved
+            seq, world_target = self.staged
+            self.staged = (seq, self.world_from_base.inverse() @ world_target)
+        return reply
 
     # the RAPID server's read loop -------------------------------------------------------
     # SpherecalServer.mod loops: ``line := "";``, ``line := ReadStr(channel
@@ -93,7 +126,7 @@ def start_simulator(
     cell: "SimulatedCell | None" = None,
 ) -> ControllerServer:
     """Start a simulated IRB 2400 controller on the settings' transport; returns the
-    running server (its ``url`` is for ``serial.serial_for_url``)."""
+    running server (its ``url`` is the driver's port)."""
     settings = settings or SimulatedControllerSettings()
     controller = SimulatedIrb2400(kinematics, settings, cell)
     return ControllerServer(controller, settings.transport).start()

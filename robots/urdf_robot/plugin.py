@@ -2,13 +2,14 @@
 ``spherecal`` entry-point group exactly as a third-party plugin would be.
 
 A real run connects a :class:`UrdfRobot` (the core's :class:`~spherecal.linelink.LineRobot`:
-the spherecal line protocol over pyserial, with the speed, workspace and reachability
-checks before anything moves) to ``config.port``: the controller runs a small server
-that speaks the protocol (docs/line-protocol.md). A simulated run (``context.cell`` is a
-SimulatedCell) starts the core's simulated controller (:mod:`spherecal.sim.controller`)
-on localhost with the URDF's kinematics and that cell, and connects the same robot to
-it, so the simulated path exercises the real protocol; closing the robot stops the
-simulated controller.
+the spherecal line protocol over a serial line or TCP (``socket://host:port``), with the
+speed, workspace and reachability checks before anything moves) to ``config.port``: the
+controller runs a small server that speaks the protocol (docs/line-protocol.md). A
+simulated run (``context.cell`` is a SimulatedCell) starts the core's simulated
+controller (:mod:`spherecal.sim.controller`, on ``simulated.transport``) on localhost
+with the URDF's kinematics and that cell, and connects the same robot to it, so the
+simulated path exercises the real protocol; closing the robot stops the simulated
+controller.
 
 The robot type describes itself: forward kinematics (``flange_pose_from_joints``) and
 the arm (``arm_kinematics``: the URDF's chain, its joint convention, limits and inverse

@@ -15,6 +15,11 @@ vendor:product id, serial number) and the operation. Recovery, up to
 is repeated (with the IN endpoint's halt cleared); a stalled endpoint is cleared; a
 device that vanished (ENODEV, as after a reset or a brief unplug) is looked for again
 by its ids and reopened, with the settings sent again.
+
+Shot identity: a profile is returned only if its frame counter is one that a trigger of
+the same ``read_frame`` call got (:mod:`.shots`); frames of earlier shots, however late,
+are discarded, and a frame no trigger can have measured is an error. The input is
+flushed on open, reopen and after a stream, and the next shot learns the counter.
 """
 
 from __future__ import annotations
@@ -30,14 +35,20 @@ from spherecal.errors import DeviceError
 from spherecal.models import Profile
 
 from .config import NxSensorConfig
+from .shots import CounterMismatch, FrameCounter, Shot
 from .wire import Command, Frame, FrameFormatError, encode_bulk_command, encode_control_command, decode_frame
 
 _LIBUSB_ERROR_NO_DEVICE = -4
 _LIBUSB_ERROR_PIPE = -9
 _LIBUSB_ERROR_ACCESS = -3
 _LIBUSB_ERROR_BUSY = -6
-#: How long to wait for a late frame before a new trigger, ms (after a read timed out).
-LATE_FRAME_WAIT_MS = 50
+#: Wait of each read while flushing the input, ms: the flush ends at the first read
+#: that gets nothing within it.
+FLUSH_WAIT_MS = 20
+#: Most frames a flush discards before it concludes that the sensor is streaming.
+MAX_FLUSH_FRAMES = 64
+#: Most frames of earlier shots one read discards in a row before it gives up.
+MAX_EARLIER_FRAMES = 256
 
 
 def _is_no_device(exc: usb.core.USBError) -> bool:
@@ -89,7 +100,11 @@ class NxSensorDriver:
         self._streaming = False
         self._closed = False
         self.frames_dropped = 0
-        self._frames_owed = 0  # triggered frames not read yet (their read timed out)
+        #: the counter the next measured profile will carry (see :mod:`.shots`)
+        self.counter = FrameCounter(self.wire.frame_counter_modulus)
+        self._flushed = False  # the input was flushed and nothing triggered since
+        #: frames of earlier shots discarded by their counter (late frames), for tests and logs
+        self.frames_discarded = 0
         self._open()
 
     # --- naming ------------------------------------------------------------------------
@@ -97,6 +112,21 @@ class NxSensorDriver:
     def device_name(self) -> str:
         serial = f", serial {self.config.serial_number}" if self.config.serial_number else ""
         return f"nxSensor-I (USB {self.wire.usb_id}{serial})"
+
+    def identity(self) -> dict[str, str]:
+        """What this unit says it is (spherecal.devices.device_identity): its USB
+        manufacturer, product and serial number strings; a string it cannot give is left
+        out."""
+        found: dict[str, str] = {}
+        dev = self._dev
+        for key, index in (("manufacturer", "iManufacturer"), ("model", "iProduct"), ("serial_number", "iSerialNumber")):
+            try:
+                value = usb.util.get_string(dev, getattr(dev, index))
+            except (usb.core.USBError, ValueError, AttributeError, NotImplementedError):
+                continue
+            if value:
+                found[key] = value
+        return found
 
     def _error(self, operation: str, what: str, hint: str) -> DeviceError:
         return DeviceError(f"{self.device_name}: {what} while {operation}. {hint}")
@@ -184,6 +214,7 @@ class NxSensorDriver:
         except ValueError as exc:  # pyusb: no such configuration / interface in the descriptors
             raise self._error(step, f"{exc}", "Check sensor.wire.configuration_value and sensor.wire.interface.") from exc
         self._send_settings()
+        self._flush_input("opening the device")
 
     def _send_settings(self) -> None:
         self._command_raw(Command("set_period", self.config.period_us))
@@ -224,6 +255,31 @@ class NxSensorDriver:
     def _read_frame_raw(self, timeout_ms: int | None = None) -> Frame:
         data = self._dev.read(self.wire.bulk_in_endpoint, self._read_size, timeout_ms or self.config.timeout_ms)
         return decode_frame(data, self.wire)
+
+    def _flush_input(self, operation: str) -> None:
+        """Read and discard whatever waits on the IN endpoint (frames of an earlier
+        session, of a stream, of a device that restarted) until a read gets nothing
+        within FLUSH_WAIT_MS; the frame counter is then unknown until the next shot
+        learns it."""
+        for _ in range(MAX_FLUSH_FRAMES):
+            try:
+                self._dev.read(self.wire.bulk_in_endpoint, self._read_size, FLUSH_WAIT_MS)
+            except usb.core.USBTimeoutError:
+                break
+            except usb.core.USBError as exc:
+                if _is_pipe(exc):
+                    self._clear_halt_quietly()
+                    continue
+                raise
+            self._log(f"{self.device_name}: discarded a waiting frame while {operation}")
+        else:
+            raise self._error(
+                f"flushing the input ({operation})", f"frames kept arriving unasked ({MAX_FLUSH_FRAMES} in a row)",
+                "The sensor is streaming or triggered by something else: close other sensor software, or "
+                "power-cycle the sensor.",
+            )
+        self.counter.forget()
+        self._flushed = True
 
     def _clear_halt_quietly(self) -> None:
         try:
@@ -321,41 +377,67 @@ class NxSensorDriver:
             raise
 
     def read_frame(self) -> Frame:
-        """Trigger one profile and return its decoded frame (counter, timestamp, points)."""
+        """Trigger one profile and return its decoded frame (counter, timestamp, points).
+
+        The frame returned is one that a trigger of this call measured, told by its frame
+        counter (:mod:`.shots`): a frame of an earlier call, however late it comes, is
+        discarded, and a frame numbered beyond every trigger sent is a DeviceError. After
+        a timeout the trigger is sent again; the first frame of any trigger of this call
+        is taken (the sensor has not moved in between: the caller holds it still)."""
         if self._streaming:
             raise DeviceError(f"{self.device_name}: cannot read a single profile while streaming; stop the stream first")
+        if not self.counter.known and not self._flushed:
+            self._attempt("reading a profile", lambda: self._flush_input("synchronising the frame counter"))
+        shot = [self.counter.begin_shot()]
 
         def once():
-            self._drain_late_frames()
+            self._trigger()
+            return self._receive(shot[0])
+
+        def reopened():  # a new device state: its counter is learnt again
+            shot[0] = self.counter.begin_shot()
+
+        return self._attempt("reading a profile", once, after_reopen=reopened)
+
+    def _trigger(self) -> None:
+        self._flushed = False
+        self.counter.sending_trigger()
+        try:
             self._command_raw(Command("trigger"))
-            self._frames_owed += 1
+        except usb.core.USBError as exc:
+            if _is_pipe(exc):  # refused: nothing measured (a timeout leaves it open)
+                self.counter.trigger_refused()
+            raise
+        self.counter.trigger_sent()
+
+    def _receive(self, shot: Shot) -> Frame:
+        """Read until a frame of ``shot`` arrives, discarding earlier shots' frames."""
+        for _ in range(MAX_EARLIER_FRAMES):
             frame = self._read_frame_raw()
-            self._frames_owed -= 1
-            return frame
-
-        return self._attempt("reading a profile", once)
-
-    def _drain_late_frames(self) -> None:
-        """After a read timed out, its frame may still arrive: read and discard such
-        late frames before the next trigger, so that a profile is never paired with a
-        later robot pose."""
-        while self._frames_owed > 0:
+            expected = self.counter.expected(shot)
             try:
-                frame = self._read_frame_raw(timeout_ms=min(self.config.timeout_ms, LATE_FRAME_WAIT_MS))
-            except usb.core.USBTimeoutError:
-                break
-            except (FrameFormatError, usb.core.USBError):
-                pass
-            else:
-                self._log(f"{self.device_name}: discarded late frame {frame.frame_counter}")
-            self._frames_owed -= 1
-        self._frames_owed = 0
+                mine = self.counter.place(shot, frame.frame_counter)
+            except CounterMismatch as exc:
+                self.counter.forget()  # the next read flushes the input and learns the counter again
+                self._flushed = False
+                raise CounterMismatch(f"{self.device_name}: {exc}") from None
+            if mine:
+                return frame
+            self.frames_discarded += 1
+            self._log(f"{self.device_name}: discarded frame {frame.frame_counter}, measured for an earlier shot "
+                      f"(this shot's trigger: frame {expected})")
+        raise self._error(
+            "reading a profile", f"{MAX_EARLIER_FRAMES} frames of earlier shots arrived in a row",
+            "The sensor sends frames nobody asked for: close other sensor software, or power-cycle the sensor.",
+        )
 
     def read_profile(self) -> Profile | None:
         """One profile on request: (y, z) mm in the sensor frame; None when the line saw
-        nothing valid."""
+        nothing valid. The profile's ``shot_id`` is its frame counter, in decimal."""
         frame = self.read_frame()
-        return Profile.from_points(frame.points_mm) if len(frame.points_mm) else None
+        if not len(frame.points_mm):
+            return None
+        return Profile.from_points(frame.points_mm, shot_id=str(frame.frame_counter))
 
     def stream(self, rate_hz: float | None = None, max_frames: int | None = None) -> Iterator[StreamedProfile]:
         """Profiles sent by the sensor at ``rate_hz`` (default: the configured rate),
@@ -369,6 +451,8 @@ class NxSensorDriver:
             self.configure(rate_hz=rate_hz)
         # one read may wait up to a frame period on top of the transfer timeout
         read_timeout = self.config.timeout_ms + int(2 * self.config.period_us / 1000) + 1
+        self._flushed = False
+        self.counter.forget()  # streamed frames use counters: single shots learn it again afterwards
         self._attempt("starting the stream", lambda: self._command_raw(Command("start_stream")))
         self._streaming = True
         return self._stream_items(read_timeout, max_frames)
@@ -407,9 +491,8 @@ class NxSensorDriver:
             return
         try:
             self._command_raw(Command("stop_stream"))
-            for _ in range(4):  # drain frames already in flight
-                self._dev.read(self.wire.bulk_in_endpoint, self._read_size, 20)
-        except usb.core.USBError:
+            self._flush_input("stopping the stream")  # frames already in flight
+        except (usb.core.USBError, DeviceError):
             pass
 
     def reset(self) -> None:

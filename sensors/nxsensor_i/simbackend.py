@@ -114,8 +114,10 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         self._stalls_pending = 0
         self._corruptions: list[CorruptionKind] = []
         self._drops_pending = 0
-        # what was measured, for tests: list of (frame_counter, (N, 2) mm points)
+        # what was measured, for tests: list of (frame_counter, (N, 2) mm points), and
+        # where: the cell's true base_from_flange at each measurement (same order)
         self.measured: list[tuple[int, np.ndarray]] = []
+        self.measured_poses: list = []
         self.commands: list[Command] = []
 
     def _power_on_state(self) -> None:
@@ -191,6 +193,7 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         self.frame_counter = (self.frame_counter + 1) % self.wire.frame_counter_modulus
         pts = np.asarray(self.cell.measure_profile(), dtype=float).reshape(-1, 2)
         self.measured.append((counter, pts))
+        self.measured_poses.append(self.cell.current_base_from_flange)
         pad = self.cell.fov.n_columns if self.pad_to_columns else None
         frame = encode_frame(
             pts[: self.wire.max_points], self.wire, frame_counter=counter,

@@ -29,8 +29,12 @@ def check_against_truth(out, k=5.0):
 
 @pytest.mark.parametrize("name", ["sim-eye-in-hand.toml", "sim-eye-to-hand.toml"])
 def test_calibrate_end_to_end_in_both_modes(sim_config, name, capsys):
-    cfg = sim_config(name)
-    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_OK
+    import hashlib
+
+    cfg = sim_config(name, **{r"^radius_mm = 19.1$": 'radius_mm = 19.1\nradius_uncertainty_mm = 0.002\n'
+                                                     'certificate = "C-17"'})
+    cfg.write_text(cfg.read_text() + '\n[report]\noperator = "from the file"\ncell = "Cell 3"\n')
+    assert main(["calibrate", str(cfg), "--no-report", "--operator", "T. Tester"]) == EXIT_OK
     out = cfg.parent / "out"
     journal, result = check_against_truth(out)
     assert len(journal.observations) == 40
@@ -38,6 +42,16 @@ def test_calibrate_end_to_end_in_both_modes(sim_config, name, capsys):
     assert result.mounting == journal.mounting
     printed = capsys.readouterr().out
     assert result.transform_name in printed and "quaternion_wxyz" in printed
+    assert "expanded U (k = 2): rotation " + ", ".join(f"{2 * v:.4f}" for v in result.std_rotation_deg) in printed
+    # identity and traceability: what the simulated devices said, the files' hashes, who and when
+    p = result.provenance
+    assert p["configuration_sha256"] == hashlib.sha256(cfg.read_bytes()).hexdigest()
+    assert p["dataset_sha256"] == hashlib.sha256((out / "journal.jsonl").read_bytes()).hexdigest()
+    assert p["robot"]["type"] == "abb_irb2400" and p["robot"]["model"] == "IRB 2400"
+    assert p["sensor"] == {"type": "nxsensor_i", "manufacturer": "NextWare (simulated)", "model": "nxSensor-I",
+                           "serial_number": "NXS-SIM-0001"}
+    assert p["operator"] == "T. Tester" and p["cell"] == "Cell 3"  # --operator before the file's
+    assert p["sphere"] == {"radius_mm": 19.1, "radius_uncertainty_mm_k2": 0.002, "certificate": "C-17"}
     for f in ["result.json", "SpherecalSensor.mod", "ros_static_transform.yaml", f"{result.transform_name}_4x4.txt"]:
         assert (out / f).exists(), f
 

@@ -162,9 +162,22 @@ def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
     out = cfg_path.parent / "out"
     assert main(["calibrate", str(cfg_path), "--no-report"]) == EXIT_OK
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
-    assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
+    capsys.readouterr()
+    assert main(["validate", str(cfg_path)]) == EXIT_OK  # this one writes the report
     assert len(list(out.glob("validation-*.jsonl"))) == 2  # a re-run keeps the earlier run's shots
     v = json.loads((out / "validation.json").read_text())
+    # the terminal prints the verdict the report shows: the calibration's with the validation's figures
+    printed = capsys.readouterr().out
+    (line,) = [x for x in printed.splitlines() if x.startswith("verdict: ")]
+    level, headline = line[len("verdict: "):].split(": ", 1)
+    assert headline.endswith("Validation passed: every judged figure within its MPE.")
+    assert v["verdict"] == {"level": level.lower(), "headline": headline}
+    import html
+
+    page = (out / "report.html").read_text()
+    assert f"Verdict: {level} &mdash; {html.escape(headline)}" in page
+    positions = page[page.index('id="validation"'):page.index('id="details"')]
+    assert positions[positions.index("Per position"):].count("<td>P_F</td>") == 4  # one row per view
     assert v["passed"] and len(v["report"]["probing"]) == 4
     assert v["figures"]["centre spread"]["max error (mm)"] < 0.05
     assert main(["scan", str(cfg_path)]) == EXIT_OK

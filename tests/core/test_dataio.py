@@ -72,6 +72,7 @@ def assert_same_observations(got: list[Observation], expected: list[Observation]
         assert a.joints_deg == b.joints_deg
         assert np.array_equal(a.profile.y_mm, b.profile.y_mm)
         assert np.array_equal(a.profile.z_mm, b.profile.z_mm)
+        assert a.profile.shot_id == b.profile.shot_id
 
 
 def json_normalised(value):
@@ -132,6 +133,19 @@ def test_round_trip_of_joints_only_observations_and_time_zones(tmp_path, parser)
     back = read_dataset(tmp_path / "j.jsonl")
     assert_same_observations(back.observations, obs)
     assert back.observations[1].timestamp.isoformat() == "2026-05-01T12:00:00+01:00"
+
+
+def test_round_trip_of_shot_ids_and_files_without_them(tmp_path, parser):
+    obs = [small_obs(0), small_obs(1, profile=Profile(y_mm=[1.0, 2.0], z_mm=[3.0, 4.0], shot_id="4294967295")),
+           small_obs(2, profile=Profile.from_points([[1.0, 2.0]], shot_id="cam-1#0017"))]
+    path = tmp_path / "ids.jsonl"
+    write_dataset(path, Dataset(mounting="eye_in_hand", sphere_radius_mm=19.1, observations=obs))
+    lines = [json.loads(line) for line in path.read_text().splitlines()[1:]]
+    assert "shot_id" not in lines[0]["profile"]  # a file from before shot ids looks the same
+    assert lines[1]["profile"]["shot_id"] == "4294967295"
+    back = read_dataset(path)
+    assert [o.profile.shot_id for o in back.observations] == [None, "4294967295", "cam-1#0017"]
+    assert_same_observations(back.observations, obs)
 
 
 def test_file_is_readable_json_lines(tmp_path):
@@ -432,6 +446,9 @@ def test_a_file_that_is_not_a_dataset(tmp_path):
         ({"index": 1.0}, r"index: Input should be a valid integer"),
         ({"kind": "event"}, r'kind: expected \'observation\', got "event"'),
         ({"exposure_us": 120}, r"exposure_us: unknown field"),
+        ({"profile__shot_id": 17}, r"profile\.shot_id: Input should be a valid string"),
+        ({"profile__shot_id": "frame 17"}, r"profile\.shot_id: String should match pattern"),
+        ({"profile__shot_id": "7" * 65}, r"profile\.shot_id: String should have at most 64 characters"),
     ],
 )
 def test_bad_observation_lines_name_file_line_observation_and_field(tmp_path, changes, message, parser):

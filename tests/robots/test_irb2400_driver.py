@@ -1,5 +1,8 @@
-"""The IRB 2400 serial driver against the simulated controller over real pyserial links,
-with faults injected at runtime."""
+"""The IRB 2400 driver against the simulated controller over real links, with faults
+injected at runtime. Every test that does not name its link runs on both: the serial
+server on a pseudo-terminal (pyserial) and the IRC5 socket server over TCP
+(``socket://``, the driver's TcpLink): the driver behaves the same on both. Faults only
+a socket server has are in test_irb2400_socket.py."""
 
 import socket
 import threading
@@ -21,11 +24,15 @@ DOWN = np.diag([1.0, -1.0, -1.0])  # flange z along -z of base
 KIN = Irb2400Kinematics()
 
 
-@pytest.fixture
-def server():
-    """The simulated controller on a pseudo-terminal: a real serial device node (and
-    quick to close; pyserial's socket:// close waits 0.3 s)."""
-    srv = start_simulator(KIN, SimulatedControllerSettings(single_precision=False, transport="pty"))
+#: The two links: the serial server on a pseudo-terminal (a real serial device node) and
+#: the IRC5 socket server over TCP.
+TRANSPORTS = ["pty", "socket"]
+
+
+@pytest.fixture(params=TRANSPORTS)
+def server(request):
+    """The simulated controller on each link."""
+    srv = start_simulator(KIN, SimulatedControllerSettings(single_precision=False, transport=request.param))
     yield srv
     srv.stop()
 
@@ -67,11 +74,15 @@ def test_linear_move_lands_on_the_target(server):
     np.testing.assert_allclose(KIN.flange_matrix_from_joints(joints), target.as_matrix(), atol=1e-3)
 
 
-def test_tcp_transport_serves_the_same_protocol():
-    srv = start_simulator(KIN, SimulatedControllerSettings(transport="tcp"))
+@pytest.mark.parametrize("transport", ["tcp", "socket"])
+def test_tcp_transports_serve_the_same_protocol(transport):
+    """The serial line carried over TCP and the socket server: both socket://, both served
+    by the driver's TCP link."""
+    srv = start_simulator(KIN, SimulatedControllerSettings(transport=transport))
     try:
         assert srv.url.startswith("socket://127.0.0.1:")
         with connect(srv) as robot:
+            assert robot.transport == "socket"
             robot.move_linear(Pose.from_rt(DOWN, [900.0, -100.0, 900.0]), 50.0)
             np.testing.assert_allclose(robot.read_flange_pose().translation_mm, [900, -100, 900], atol=1e-3)
     finally:
@@ -147,7 +158,7 @@ def test_a_move_survives_a_lost_reply(server, kind):
     np.testing.assert_allclose(server.controller.true_flange_pose().translation_mm, [1010, 0, 900], atol=1e-3)
 
 
-@pytest.mark.parametrize("transport", ["pty", "tcp"])
+@pytest.mark.parametrize("transport", ["pty", "tcp", "socket"])
 def test_disconnect_is_a_clear_device_error(transport):
     server = start_simulator(KIN, SimulatedControllerSettings(transport=transport))
     with server, connect(server) as robot:
@@ -159,8 +170,9 @@ def test_disconnect_is_a_clear_device_error(transport):
             robot.read_joints_deg()
 
 
-def test_controller_refusal_is_reported_not_retried():
-    srv = start_simulator(KIN, SimulatedControllerSettings(max_controller_speed_mm_s=50.0, transport="pty"))
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_controller_refusal_is_reported_not_retried(transport):
+    srv = start_simulator(KIN, SimulatedControllerSettings(max_controller_speed_mm_s=50.0, transport=transport))
     try:
         with connect(srv) as robot:
             with pytest.raises(DeviceError, match=r"controller refused MOVL .*ERR 3 range: speed 100.0 outside"):
@@ -174,7 +186,8 @@ def test_unreachable_port_is_a_device_error():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # closed again: nobody listens there
-    with pytest.raises(DeviceError, match=r"cannot open 'socket://127.0.0.1:\d+'.*robot.port"):
+    with pytest.raises(DeviceError, match=r"cannot open 'socket://127.0.0.1:\d+' \(.*refused.*\); check "
+                                          r"robot.port and that SpherecalSocket runs on the controller"):
         AbbIrb2400Robot(AbbIrb2400Config(timeout_s=TIMEOUT_S), url=f"socket://127.0.0.1:{port}")
 
 

@@ -1,18 +1,22 @@
-"""Offline checks of the RAPID server module, SpherecalServer.mod.
+"""Offline safety checks of the RAPID server modules: SpherecalServer.mod (the protocol)
+and its two link modules, SpherecalSerial.mod and SpherecalSocket.mod.
 
-Nothing here runs RAPID: a small checker reads the module's text and enforces the rules
+Nothing here runs RAPID: a small checker reads each module's text and enforces the rules
 that keep the server from moving the arm unasked or hiding faults (see "How the server
-behaves" in docs/robot-abb-irb2400.md):
+behaves" in docs/robot-abb-irb2400.md). The syntax of the modules is checked in
+tests/robots/test_rapid_syntax.py.
 
 * no ``TRYNEXT`` or ``RETRY`` in the error handler of a routine that moves (one with a
   move instruction, or that calls such a routine of the module): either would run a move
   again without a request, as the old ``main`` did after a ``ReadStr`` timeout;
-* every read from a channel has ``\\Time`` (without it ``ReadStr`` gives up after 60 s);
-* the variable a read assigns is cleared by the statement just before the read;
+* every read from a channel or socket, and every accept, has ``\\Time`` (without it
+  ``ReadStr`` gives up after 60 s);
+* the variable a read assigns (``ReadStr``, or the line the server hands to
+  ``spherecal_link_read``) is cleared by the statement just before the read;
 * no ``SkipWarn`` (errors stay in the event log), and every error handler looks at
   ``ERRNO`` (errors are handled one by one);
 * every top-level data and routine declaration is ``LOCAL`` except the documented entry
-  points, which carry the ``spherecal_`` prefix; no ``PROC main``;
+  points and link routines, which carry the ``spherecal_`` prefix; no ``PROC main``;
 * lines of at most 80 characters, identifiers of at most 32.
 
 Each rule is shown to fire on a copy of the module with one fault put back in, and on
@@ -28,13 +32,26 @@ from importlib import resources
 
 import pytest
 
-MODULE_TEXT = (resources.files("spherecal.robots.abb_irb2400") / "rapid" / "SpherecalServer.mod").read_text()
-#: The only global names the module may declare.
-PUBLIC_ROUTINES = frozenset({"spherecal_server_main", "spherecal_server_on_stop"})
+RAPID_DIR = resources.files("spherecal.robots.abb_irb2400") / "rapid"
+#: The server's modules and the only global names each may declare.
+MODULES = {
+    "SpherecalServer.mod": frozenset({"spherecal_server_main", "spherecal_server_on_stop"}),
+    "SpherecalSerial.mod": frozenset({"spherecal_link_open", "spherecal_link_read", "spherecal_link_write",
+                                      "spherecal_link_session"}),
+    "SpherecalSocket.mod": frozenset({"spherecal_link_open", "spherecal_link_read", "spherecal_link_write",
+                                      "spherecal_link_session"}),
+}
+TEXTS = {name: (RAPID_DIR / name).read_text() for name in MODULES}
+MODULE_TEXT = TEXTS["SpherecalServer.mod"]
+PUBLIC_ROUTINES = MODULES["SpherecalServer.mod"]
 
 _MOVE = re.compile(r"\b(Move(?:L|J|C|AbsJ|ExtJ)\w*|Search(?:L|C|ExtJ)\w*|Trigg(?:L|J|C)(?:IOs)?|Arc[LC]\w*)\b")
-_READ = re.compile(r"\b(ReadStr|ReadStrBin|ReadNum|ReadBin|ReadAnyBin|ReadRawBytes)\b")
-_STRING_READS = {"ReadStr", "ReadStrBin"}
+_READ = re.compile(r"\b(ReadStr|ReadStrBin|ReadNum|ReadBin|ReadAnyBin|ReadRawBytes|SocketReceive|SocketAccept"
+                   r"|spherecal_link_read)\b")
+#: Reads whose first argument (or result) is the line read, which must be cleared first.
+_STRING_READS = {"ReadStr", "ReadStrBin", "spherecal_link_read"}
+#: Reads that wait through the link module (which has its own \Time).
+_LINK_READS = {"spherecal_link_read"}
 _DATA = re.compile(r"^\s*(LOCAL\s+|TASK\s+)?(VAR|CONST|PERS)\s+\w+\s+(\w+)", re.I)
 _ROUTINE = re.compile(r"^\s*(LOCAL\s+)?(PROC|FUNC\s+\w+|TRAP)\s+(\w+)", re.I)
 _ROUTINE_END = re.compile(r"^\s*END(PROC|FUNC|TRAP)\b", re.I)
@@ -136,8 +153,9 @@ def _call_args(code: str, start: int) -> str:
     return rest
 
 
-def check_rapid_server(text: str) -> list[str]:
-    """Every broken rule, as one line each; [] when the module passes."""
+def check_rapid_server(text: str, public: frozenset[str] = PUBLIC_ROUTINES) -> list[str]:
+    """Every broken rule of a module whose global names may be ``public``, as one line
+    each; [] when the module passes."""
     problems: list[str] = []
     for n, raw in enumerate(text.splitlines(), start=1):
         if len(raw) > 80:
@@ -148,7 +166,7 @@ def check_rapid_server(text: str) -> list[str]:
             problems.append(f"{kind} {name}: more than 32 characters")
         if name.lower() == "main":
             problems.append(f"{kind} main: the module must not declare main (it would clash with the user's)")
-        if not local and name not in PUBLIC_ROUTINES:
+        if not local and name not in public:
             problems.append(f"{kind} {name} is not LOCAL")
         if not local and not (kind in {"PROC", "FUNC", "TRAP"} and name.startswith("spherecal_")):
             problems.append(f"{kind} {name}: a global name must be a routine named spherecal_...")
@@ -164,11 +182,18 @@ def check_rapid_server(text: str) -> list[str]:
                 if re.search(rf"\b{word}\b", r.handler, re.I):
                     problems.append(f"{name}: {word} in the error handler of a routine that moves")
         for m in _READ.finditer(code):
+            if m.start() and code[m.start() - 1] == "\\":  # an argument's name (\RawData), not a read
+                continue
+            if name == m[1]:  # the declaration of the link read itself
+                continue
             args = _call_args(code, m.end())
-            if not re.search(r"\\Time\b", args):
+            if m[1] not in _LINK_READS and not re.search(r"\\Time\b", args):
                 problems.append(f"{name}: {m[1]} without \\Time (it gives up after 60 s)")
             if m[1] in _STRING_READS:
                 before = code[: m.start()]
+                if m[1] in _LINK_READS:  # the line is the first argument: read as "line := <read>"
+                    first = re.match(r"\s*([\w{}.]+)", args)
+                    before += (first[1] + " := ") if first else ""
                 target = re.search(r"([\w{}.]+)\s*:=\s*$", before)
                 if target is None:
                     problems.append(f"{name}: the result of {m[1]} must be assigned to a variable")
@@ -179,13 +204,14 @@ def check_rapid_server(text: str) -> list[str]:
     return problems
 
 
-# --- the shipped module -----------------------------------------------------------------------
-def test_the_rapid_server_passes_the_safety_checks():
-    assert check_rapid_server(MODULE_TEXT) == []
+# --- the shipped modules -----------------------------------------------------------------------
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_the_rapid_server_passes_the_safety_checks(module):
+    assert check_rapid_server(TEXTS[module], MODULES[module]) == []
 
 
 def test_the_checker_sees_the_server_structure():
-    """Guards the checker itself: it must find the routines, the moves and the read."""
+    """Guards the checker itself: it must find the routines, the moves and the reads."""
     decls, routines = parse(MODULE_TEXT)
     assert {"spherecal_server_main", "Serve", "MoveToTarget", "ReadRequest", "Reachable"} <= set(routines)
     moving = moving_routines(routines)
@@ -193,49 +219,76 @@ def test_the_checker_sees_the_server_structure():
     assert "ReadRequest" not in moving and "Checksum" not in moving
     assert sum(kind in {"VAR", "CONST"} for kind, _, _ in decls) > 10
     assert [name for _, name, local in decls if not local] == ["spherecal_server_main", "spherecal_server_on_stop"]
-    assert "ReadStr(channel \\Time:=WAIT_MAX)" in MODULE_TEXT
+    assert 'line := "";\n    spherecal_link_read line, haveLine;' in MODULE_TEXT
+    assert "ReadStr(channel \\Time:=WAIT_MAX)" in TEXTS["SpherecalSerial.mod"]
+    socket = TEXTS["SpherecalSocket.mod"]
+    assert "SocketReceive client \\RawData:=rx \\Time:=WAIT_MAX;" in socket
+    assert "\\Time:=WAIT_MAX;" in socket.split("SocketAccept", 1)[1].split("\n", 1)[0]
+    for name in ("SpherecalSerial.mod", "SpherecalSocket.mod"):  # the links move nothing
+        assert moving_routines(parse(TEXTS[name])[1]) == set()
 
 
-def test_no_error_handler_in_the_module_runs_anything_again():
-    """Stronger than the rule: no RETRY or TRYNEXT anywhere in the module's code."""
-    code = "\n".join(_code(MODULE_TEXT))
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_no_error_handler_in_the_modules_runs_anything_again(module):
+    """Stronger than the rule: no RETRY or TRYNEXT anywhere in the modules' code."""
+    code = "\n".join(_code(TEXTS[module]))
     assert not re.search(r"\b(RETRY|TRYNEXT)\b", code)
 
 
-# one fault put back into the shipped module -> the problem the checker must report
+# one fault put back into a shipped module -> the problem the checker must report
 MUTATIONS = {
-    "read without \\Time": (
-        "ReadStr(channel \\Time:=WAIT_MAX)", "ReadStr(channel)", "ReadRequest: ReadStr without \\Time"),
-    "line not cleared before the read": (
-        '    line := "";\n    line := ReadStr', "    line := ReadStr",
-        "ReadRequest: line is not cleared just before ReadStr"),
+    "serial read without \\Time": (
+        "SpherecalSerial.mod", "ReadStr(channel \\Time:=WAIT_MAX)", "ReadStr(channel)",
+        "spherecal_link_read: ReadStr without \\Time"),
+    "socket read without \\Time": (
+        "SpherecalSocket.mod", "SocketReceive client \\RawData:=rx \\Time:=WAIT_MAX;",
+        "SocketReceive client \\RawData:=rx;", "spherecal_link_read: SocketReceive without \\Time"),
+    "socket accept without \\Time": (
+        "SpherecalSocket.mod", " \\ClientAddress:=peer \\Time:=WAIT_MAX;", " \\ClientAddress:=peer;",
+        "Accept: SocketAccept without \\Time"),
+    "serial line not cleared before the read": (
+        "SpherecalSerial.mod", '    text := "";\n    text := ReadStr', "    text := ReadStr",
+        "spherecal_link_read: text is not cleared just before ReadStr"),
+    "server line not cleared before the read": (
+        "SpherecalServer.mod", '    line := "";\n    spherecal_link_read', "    spherecal_link_read",
+        "ReadRequest: line is not cleared just before spherecal_link_read"),
     "RETRY after a failed move": (
-        "      ReplyError seqText, E_MOTION, \"motion error \" + NumToStr(ERRNO, 0);\n      RETURN;",
-        "      RETRY;", "MoveToTarget: RETRY in the error handler of a routine that moves"),
+        "SpherecalServer.mod",
+        "    ReplyError seqText, E_MOTION, \"motion error \" + NumToStr(ERRNO, 0);\n    RETURN;",
+        "    RETRY;", "MoveToTarget: RETRY in the error handler of a routine that moves"),
     "TRYNEXT in a routine that calls a move": (
-        "      ReplyError seqText, E_SYNTAX, \"request failed, error \"\n        + NumToStr(ERRNO, 0);\n      RETURN;",
-        "      TRYNEXT;", "Serve: TRYNEXT in the error handler of a routine that moves"),
+        "SpherecalServer.mod",
+        "    ReplyError seqText, E_SYNTAX, \"request failed, error \"\n      + NumToStr(ERRNO, 0);\n    RETURN;",
+        "    TRYNEXT;", "Serve: TRYNEXT in the error handler of a routine that moves"),
     "SkipWarn": (
-        "    CASE ERR_ROBLIMIT:\n", "    CASE ERR_ROBLIMIT:\n      SkipWarn;\n",
+        "SpherecalServer.mod", "    CASE ERR_ROBLIMIT:\n", "    CASE ERR_ROBLIMIT:\n      SkipWarn;\n",
         "Reachable: SkipWarn hides the error from the event log"),
-    "a global variable": ("  LOCAL VAR iodev channel;", "  VAR iodev channel;", "VAR channel is not LOCAL"),
-    "a global helper routine": ("  LOCAL PROC Reply(", "  PROC Reply(", "PROC Reply is not LOCAL"),
+    "a global variable": (
+        "SpherecalServer.mod", "  LOCAL VAR robtarget target;", "  VAR robtarget target;",
+        "VAR target is not LOCAL"),
+    "a global link variable": (
+        "SpherecalSocket.mod", "  LOCAL VAR socketdev client;", "  VAR socketdev client;",
+        "VAR client is not LOCAL"),
+    "a global helper routine": (
+        "SpherecalServer.mod", "  LOCAL PROC Reply(", "  PROC Reply(", "PROC Reply is not LOCAL"),
     "PROC main": (
-        "  PROC spherecal_server_main()", "  PROC main()",
+        "SpherecalServer.mod", "  PROC spherecal_server_main()", "  PROC main()",
         "PROC main: the module must not declare main (it would clash with the user's)"),
     "a catch-all handler": (
-        "    TEST ERRNO\n    CASE ERR_ROBLIMIT:", "    TEST 0\n    CASE 0:",
+        "SpherecalServer.mod", "    TEST ERRNO\n    CASE ERR_ROBLIMIT:", "    TEST 0\n    CASE 0:",
         "Reachable: the error handler does not look at ERRNO"),
-    "a long line": ("  LOCAL CONST num E_MOTION := 6;", "  LOCAL CONST num E_MOTION := 6;" + " " * 60 + "! x",
-                    "characters (at most 80)"),
+    "a long line": (
+        "SpherecalServer.mod", "  LOCAL CONST num E_MOTION := 6;",
+        "  LOCAL CONST num E_MOTION := 6;" + " " * 60 + "! x", "characters (at most 80)"),
 }
 
 
 @pytest.mark.parametrize("fault", sorted(MUTATIONS))
 def test_each_rule_fires_on_its_fault(fault):
-    old, new, expected = MUTATIONS[fault]
-    assert MODULE_TEXT.count(old) == 1, f"the mutation for {fault!r} no longer matches the module"
-    problems = check_rapid_server(MODULE_TEXT.replace(old, new))
+    module, old, new, expected = MUTATIONS[fault]
+    text = TEXTS[module]
+    assert text.count(old) == 1, f"the mutation for {fault!r} no longer matches {module}"
+    problems = check_rapid_server(text.replace(old, new), MODULES[module])
     assert any(expected in p for p in problems), problems
 
 
@@ -302,24 +355,3 @@ def test_the_docs_load_the_server_with_valid_names():
     assert re.search(r"^  PROC spherecal_server_main\(\)$", MODULE_TEXT, re.M)  # global, no parameters
     for name in PUBLIC_ROUTINES:
         assert f"`{name}`" in doc
-
-
-# --- rapidchecker (optional) --------------------------------------------------------------------
-def _for_rapidchecker(text: str) -> str:
-    """The module rewritten around three gaps of rapidchecker 0.1.5's grammar, each valid
-    RAPID: LOCAL before PROC/FUNC, expressions as array indices (fields{i + 2}), and error
-    handlers in functions. Functions are checked as procedures; index expressions become a
-    plain name. Nothing else is changed."""
-    text = re.sub(r"^(\s*)LOCAL (PROC|FUNC)\b", r"\1\2", text, flags=re.M)
-    text = re.sub(r"^(\s*)FUNC \w+ (\w+\()", r"\1PROC \2", text, flags=re.M)
-    text = re.sub(r"\bENDFUNC\b", "ENDPROC", text)
-    return re.sub(r"\{([^{}]*[^\w{}][^{}]*)\}", "{index}", text)
-
-
-@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker calls old pyparsing names
-def test_rapidchecker_parses_the_module_where_its_grammar_reaches():
-    """Runs only where rapidchecker is installed (it is not a dependency: 0.1.5 cannot
-    parse the module as it is, see _for_rapidchecker)."""
-    check = pytest.importorskip("rapidchecker.check")
-    errors = check.check_format(_for_rapidchecker(MODULE_TEXT))
-    assert [str(e) for e in errors] == []

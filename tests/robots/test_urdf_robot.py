@@ -1,6 +1,7 @@
 """The built-in ``urdf`` robot type: a UR5 from example-robot-data's URDF honours the robot
 protocol on the simulated cell through the line protocol, refuses what it must before
-anything moves, and its configuration errors name the field; an IRB 2400 URDF written
+anything moves, talks to a socket server over socket:// (sessions, a connection closed
+mid-request), and its configuration errors name the field; an IRB 2400 URDF written
 from the published geometry, with the coupled-axis joint map, agrees with the native IRB
 2400 model to 1e-9 mm over 1,000 random joint sets; a kinematic calibration's
 robot_calibrated.urdf reads back through this type and reproduces the calibrated poses."""
@@ -149,6 +150,51 @@ def test_a_dead_link_is_a_device_error_naming_the_port(host, ur5_urdf):
         host.create_robot(_ur5(ur5_urdf, port="/dev/spherecal-no-such-port"), DeviceContext())
 
 
+def test_the_ur5_over_a_socket_server(host, ur5_urdf):
+    """issue 11's socket:// link on the urdf type, from the core alone: the TCP link, a
+    socket server's sessions (a target staged over one connection is refused over the
+    next) and a controller that closes the connection after serving a MOVL and before
+    its reply (the robot says so at once and sends nothing again)."""
+    from spherecal import lineproto as P
+    from spherecal.robots.urdf_robot.plugin import UrdfRobot
+    from spherecal.sim.controller import start_controller
+
+    home_joints = [180.0, -90.0, 90.0, -90.0, -90.0, 0.0]
+    config = host.validate_robot_config("urdf", {k: v for k, v in _ur5(
+        ur5_urdf, port="socket://robot-controller:30010", timeout_s=1.0, retries=2,
+        simulated={"transport": "socket", "home_joints_deg": home_joints}).items() if k != "type"})
+    assert config.transport == "socket"
+    kin = config.kinematics()
+    home = kin.flange_pose_from_joints(home_joints)
+    a = Pose.from_rt(home.rotation_matrix, home.translation + [20.0, 0.0, -20.0])
+    b = Pose.from_rt(home.rotation_matrix, home.translation + [0.0, 30.0, -20.0])
+    with start_controller(kin, config.simulated, None, kin.n_joints) as server:
+        with UrdfRobot(config, kin, url=server.url) as robot:
+            assert robot.transport == "socket"
+            robot._exchange("TGT", lambda seq: P.target_request(seq, a), "OK")
+            staged = robot._seq
+        with UrdfRobot(config, kin, url=server.url) as robot:  # a new connection, a new session
+            with pytest.raises(DeviceError, match=r"refused MOVL .*ERR 4 no_target: target \d+ was staged over an "
+                                                  r"earlier connection"):
+                robot._exchange("MOVL", lambda seq: P.movl_request(seq, 50.0, staged, 10.0), "OK")
+            assert server.controller.moves == 0
+            robot.move_linear(a, 50.0)
+            server.faults.only_kinds = ("MOVL",)
+            server.faults.close_before_reply = 1
+            with pytest.raises(DeviceError, match=r"urdf robot \(ur5_robot.urdf\) on socket://127.0.0.1:\d+: connection "
+                                                  r"lost \(.*the controller closed the connection\); nothing is sent "
+                                                  r"again: check the network"):
+                robot.move_linear(b, 50.0)
+            assert robot.resends == 0
+        assert server.connections == 2 and server.controller.moves == 2
+        assert server.controller.requests[-3:] == ["GETJ", "TGT", "MOVL"]  # nothing after the dropped MOVL
+        np.testing.assert_allclose(server.controller.true_flange_pose().translation_mm, b.translation_mm, atol=1e-3)
+        port = server.url.rsplit(":", 1)[1]
+    with pytest.raises(DeviceError, match=rf"cannot open 'socket://127.0.0.1:{port}' \(.*refused.*\); check "
+                                          r"robot.port and that the controller's socket server listens"):
+        UrdfRobot(config, kin, url=f"socket://127.0.0.1:{port}")  # the server has stopped
+
+
 @pytest.mark.parametrize("extra, match", [
     ({"urdf": "no-such-robot.urdf"}, r"robot: .*no-such-robot.urdf: cannot read the URDF file"),
     ({"flange_link": "hand"}, r"no link named 'hand' \(flange_link\)"),
@@ -160,6 +206,9 @@ def test_a_dead_link_is_a_device_error_naming_the_port(host, ur5_urdf):
     ({"max_speed_mm_s": 0}, r"robot.max_speed_mm_s: Input should be greater than 0"),
     ({"simulated": {"home_joints_deg": [0, 0, 270, 0, 0, 0]}}, r"simulated.home_joints_deg: joint 3 \(elbow_joint\)"),
     ({"workspace": {"min_mm": [0, 0, 0], "max_mm": [0, 1, 1]}}, r"min_mm x = 0.0 must be below max_mm x = 0.0"),
+    ({"port": "socket://robot"}, r"robot.port: .*'socket://robot': write a TCP port as socket://host:port"),
+    ({"port": "socket://robot:70000"}, r"robot.port: .*the TCP port '70000' must be a number 1..65535"),
+    ({"simulated": {"transport": "ethercat"}}, r"robot.simulated.transport: Input should be 'tcp', 'pty' or 'socket'"),
 ])
 def test_configuration_errors_name_the_field(host, ur5_urdf, extra, match):
     with pytest.raises(ConfigError, match=match):

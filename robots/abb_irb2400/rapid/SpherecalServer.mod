@@ -1,14 +1,14 @@
 MODULE SpherecalServer
   !----------------------------------------------------------------------
-  ! spherecal line protocol server, protocol version 1.
+  ! spherecal line protocol server, protocol version 2.
   !
-  ! Serves the PC (spherecal, plugin abb_irb2400) over a serial channel.
-  ! One request line in, one reply line out; see docs/robot-abb-irb2400.md.
+  ! Serves the PC (spherecal, plugin abb_irb2400) one request line at a
+  ! time; see docs/robot-abb-irb2400.md.
   !
   !   line    = body "*" XX LF   (XX: XOR of the body's bytes, 2 hex digits)
   !   request = PING seq | GETJ seq | GETP seq
   !           | TGT seq x y z q1 q2 q3 q4 | MOVL seq speed target_seq v_ori
-  !   reply   = PONG seq 1 | J seq j1..j6 | P seq x y z q1 q2 q3 q4
+  !   reply   = PONG seq 2 | J seq j1..j6 | P seq x y z q1 q2 q3 q4
   !           | OK seq | ERR seq code text      (seq "-" if unreadable)
   !
   ! A line holds at most 80 characters before its LF (a RAPID string).
@@ -17,6 +17,12 @@ MODULE SpherecalServer
   ! RAPID num is a 32-bit float: about 7 significant digits, so
   ! 1234.567 mm is resolved to about 0.0001 mm and a quaternion
   ! component to about 1E-7.
+  !
+  ! The link to the PC is a second module, loaded with this one: exactly
+  ! one of SpherecalSerial.mod (a serial channel; IRC5 and S4C+) or
+  ! SpherecalSocket.mod (a TCP socket server; IRC5 with the PC Interface
+  ! option). It provides spherecal_link_open, spherecal_link_read,
+  ! spherecal_link_write and spherecal_link_session.
   !
   ! Entry routine: spherecal_server_main. Call it from your main, or make
   ! it the entry routine of the task. The optional event routine
@@ -31,15 +37,14 @@ MODULE SpherecalServer
   !   after an error, least of all a move; a failed read serves nothing;
   ! - a target is moved to once: a MOVL naming a target already reached
   !   answers OK without moving;
+  ! - a target is moved to only over the link session that staged it
+  !   (a new socket connection starts with no target);
   ! - no SkipWarn: every error stays in the event log.
   !
-  ! Controllers: IRC5 (RobotWare 5, 6) and S4C+ (RobotWare 4). Only
-  ! CHANNEL_NAME differs. Not yet run on either; see the docs.
+  ! Controllers: IRC5 (RobotWare 5, 6) and S4C+ (RobotWare 4, serial
+  ! link only). Not yet run on either; see the docs.
   !----------------------------------------------------------------------
 
-  ! Serial channel: the transmission protocol named in the system
-  ! parameters (Communication), with a colon. IRC5: "COM1:"; S4C+: "sio1:".
-  LOCAL CONST string CHANNEL_NAME := "COM1:";
   LOCAL CONST num PROTOCOL_VERSION := 2;
   ! Largest TCP speed a MOVL may ask for, mm/s.
   LOCAL CONST num MAX_SPEED := 1000;
@@ -53,16 +58,16 @@ MODULE SpherecalServer
   LOCAL CONST num E_UNREACHABLE := 5;
   LOCAL CONST num E_MOTION := 6;
 
-  LOCAL VAR iodev channel;
-  LOCAL VAR bool channelOpen := FALSE;
   ! The request line being served, and whether the last read gave one.
   LOCAL VAR string line := "";
   LOCAL VAR bool haveLine := FALSE;
   LOCAL VAR string fields{10};
   LOCAL VAR num nFields := 0;
-  ! The staged target, its seq, and whether it has been moved to.
+  ! The staged target, its seq, the link session that staged it, and
+  ! whether it has been moved to.
   LOCAL VAR robtarget target;
   LOCAL VAR num targetSeq := -1;
+  LOCAL VAR num targetSession := -1;
   LOCAL VAR bool targetReached := FALSE;
   ! The seq of the MOVL being executed ("" when no move is under way).
   LOCAL VAR string movingSeq := "";
@@ -72,9 +77,8 @@ MODULE SpherecalServer
   PROC spherecal_server_main()
     ! Serves for ever; leaves only through an error it cannot recover from
     ! (the error is then in the event log and the program stops).
-    OpenChannel;
+    spherecal_link_open;
     ConfL \Off;
-    ClearIOBuff channel;
     movingSeq := "";
     WHILE TRUE DO
       ReadRequest;
@@ -94,66 +98,21 @@ MODULE SpherecalServer
     ENDIF
   ENDPROC
 
-  ! --- channel -----------------------------------------------------------
-  LOCAL PROC OpenChannel()
-    IF channelOpen THEN
-      ! Called again without a program reset: start from a fresh channel.
-      Close channel;
-      channelOpen := FALSE;
-    ENDIF
-    Open CHANNEL_NAME, channel \Bin;
-    channelOpen := TRUE;
-  ERROR
-    TEST ERRNO
-    CASE ERR_FILEOPEN:
-      ! A configuration fault. Say so and end the program: serving
-      ! without a channel would spin without ever waiting.
-      ErrWrite "SpherecalServer: no serial channel",
-        "Open " + CHANNEL_NAME + " failed."
-        \RL2:="Set CHANNEL_NAME in SpherecalServer to the"
-        \RL3:="transmission protocol (Communication topic).";
-      EXIT;
-    DEFAULT:
-      ChannelFailed "Open", ERRNO;
-    ENDTEST
-  ENDPROC
-
-  LOCAL PROC ChannelFailed(string what, num err)
-    ! The channel does not work: say so in the event log and end the
-    ! program (no loop may go on without a channel, and nothing is
-    ! retried). Start again with PP to main once the fault is fixed.
-    ErrWrite "SpherecalServer: serial channel failed",
-      what + " on " + CHANNEL_NAME + ": error " + NumToStr(err, 0);
-    EXIT;
-  ENDPROC
-
+  ! --- reading ---------------------------------------------------------
   LOCAL PROC ReadRequest()
     ! One line, waiting for ever. The line is cleared first, so a read
-    ! that fails can never leave the previous line behind to be served.
+    ! that ends without a line can never leave the previous line behind
+    ! to be served. The link module handles its own errors: a read that
+    ! fails, times out or loses its connection returns haveLine FALSE.
     haveLine := FALSE;
     line := "";
-    line := ReadStr(channel \Time:=WAIT_MAX);
-    haveLine := TRUE;
+    spherecal_link_read line, haveLine;
     ! A CR before the LF is ignored (done here: S4C+ lacks \RemoveCR).
-    IF StrLen(line) > 0 THEN
+    IF haveLine AND StrLen(line) > 0 THEN
       IF StrPart(line, StrLen(line), 1) = "\0D" THEN
         line := StrPart(line, 1, StrLen(line) - 1);
       ENDIF
     ENDIF
-  ERROR
-    TEST ERRNO
-    CASE ERR_DEV_MAXTIME:
-      ! No line for WAIT_MAX seconds: log it and return with haveLine
-      ! FALSE; the loop serves nothing and reads again.
-      haveLine := FALSE;
-      ErrWrite \W, "SpherecalServer: no request",
-        "No line within WAIT_MAX s; reading again.";
-      RETURN;
-    DEFAULT:
-      ! The channel failed: no reply can reach the PC.
-      haveLine := FALSE;
-      ChannelFailed "ReadStr", ERRNO;
-    ENDTEST
   ENDPROC
 
   ! --- framing -----------------------------------------------------------
@@ -169,9 +128,8 @@ MODULE SpherecalServer
   ENDFUNC
 
   LOCAL PROC Reply(string body)
-    ! body + "*XX" is at most 80 characters; the LF goes separately.
-    WriteStrBin channel, body + "*" + Checksum(body);
-    WriteStrBin channel, "\0A";
+    ! body + "*XX" is at most 80 characters; the link adds the LF.
+    spherecal_link_write body + "*" + Checksum(body);
   ENDPROC
 
   LOCAL PROC ReplyError(string seqText, num code, string text)
@@ -260,19 +218,13 @@ MODULE SpherecalServer
       MoveToTarget seqText;
     ENDTEST
   ERROR
-    TEST ERRNO
-    CASE ERR_FILEACC:
-      ! The channel failed while replying: nothing can reach the PC.
-      ChannelFailed "WriteStrBin", ERRNO;
-    DEFAULT:
-      ! Any other error of this request: log it, answer it, and serve
-      ! the next line. The request is not run again.
-      ErrWrite \W, "SpherecalServer: request failed",
-        "Seq " + seqText + ": error " + NumToStr(ERRNO, 0);
-      ReplyError seqText, E_SYNTAX, "request failed, error "
-        + NumToStr(ERRNO, 0);
-      RETURN;
-    ENDTEST
+    ! Any error of this request (the link handles its own): log it,
+    ! answer it, and serve the next line. The request is not run again.
+    ErrWrite \W, "SpherecalServer: request failed",
+      "Seq " + seqText + ": error " + NumToStr(ERRNO, 0);
+    ReplyError seqText, E_SYNTAX, "request failed, error "
+      + NumToStr(ERRNO, 0);
+    RETURN;
   ENDPROC
 
   LOCAL PROC SendJoints(string seqText)
@@ -310,6 +262,7 @@ MODULE SpherecalServer
     target.trans := [v{1}, v{2}, v{3}];
     target.rot := NOrient([v{4}, v{5}, v{6}, v{7}]);
     targetSeq := seq;
+    targetSession := spherecal_link_session();
     targetReached := FALSE;
     Reply "OK " + seqText;
   ENDPROC
@@ -350,7 +303,8 @@ MODULE SpherecalServer
         + NumToStr(MAX_ORI_SPEED, 0);
       RETURN;
     ENDIF
-    IF tseq <> targetSeq THEN
+    IF tseq <> targetSeq OR targetSession <> spherecal_link_session() THEN
+      ! (a target staged over an earlier connection does not count)
       ReplyError seqText, E_NO_TARGET, "no such target staged";
       RETURN;
     ENDIF
@@ -381,18 +335,12 @@ MODULE SpherecalServer
     ! program does not): clear what is left of the move and answer.
     ! Never RETRY or TRYNEXT here: either would move without a request.
     movingSeq := "";
-    TEST ERRNO
-    CASE ERR_FILEACC:
-      ! The channel failed while replying: nothing can reach the PC.
-      ChannelFailed "WriteStrBin", ERRNO;
-    DEFAULT:
-      StopMove;
-      ClearPath;
-      StartMove;
-      ErrWrite \W, "SpherecalServer: move failed",
-        "MOVL " + seqText + ": error " + NumToStr(ERRNO, 0);
-      ReplyError seqText, E_MOTION, "motion error " + NumToStr(ERRNO, 0);
-      RETURN;
-    ENDTEST
+    StopMove;
+    ClearPath;
+    StartMove;
+    ErrWrite \W, "SpherecalServer: move failed",
+      "MOVL " + seqText + ": error " + NumToStr(ERRNO, 0);
+    ReplyError seqText, E_MOTION, "motion error " + NumToStr(ERRNO, 0);
+    RETURN;
   ENDPROC
 ENDMODULE
