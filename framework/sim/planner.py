@@ -73,22 +73,34 @@ def station_flange_poses(
     centre = np.asarray(sphere_centre_mm, dtype=float)
     tilts = np.atleast_2d(np.asarray(tilts_deg, dtype=float))
     offsets = np.atleast_2d(np.asarray(offsets_mm, dtype=float))
-    Rt = geo.matrix_from_rotvec(np.radians(tilts)).reshape(-1, 3, 3)  # (K, 3, 3)
-    Cs = sphere_centres_in_sensor(plan, radius_mm)[None, :, :] + np.column_stack(
-        [np.zeros(len(offsets)), offsets])[:, None, :]  # (K, n, 3) sensor-frame centres
-    RX, tX = nominal_transform.rotation_matrix, nominal_transform.translation
-    n = Cs.shape[1]
-    if mounting == "eye_in_hand":
-        # base_from_sensor = (R_bs, centre - R_bs c_s); base_from_flange = base_from_sensor X^-1
-        R_bs = R_ref @ RX @ Rt  # (K, 3, 3)
-        R = R_bs @ RX.T
-        t_bs = centre - np.einsum("kij,knj->kni", R_bs, Cs)
-        t = t_bs - np.einsum("kij,j->ki", R, tX)[:, None, :]
-    else:
-        # the sphere centre, on the flange, at X c_s in base
-        R = Rt @ R_ref
-        t = Cs @ RX.T + tX - np.einsum("kij,j->ki", R, centre)[:, None, :]
-    return np.repeat(R[:, None], n, axis=1), t
+    poses = _station_poses(mounting, nominal_transform, centre, radius_mm, plan, tilts, offsets, R_ref)
+    R = np.array([[p.rotation_matrix for p in station] for station in poses]).reshape(len(tilts), -1, 3, 3)
+    t = np.array([[p.translation for p in station] for station in poses]).reshape(len(tilts), -1, 3)
+    return R, t
+
+
+def _station_poses(mounting, X: Pose, centre: np.ndarray, radius_mm: float, plan: SweepPlan, tilts: np.ndarray,
+                   offsets: np.ndarray, R_ref: np.ndarray) -> list[list[Pose]]:
+    """The flange poses of :func:`station_flange_poses`, station by station, composed pose
+    by pose as :class:`Pose` does it: the simulated datasets stay bit for bit those of
+    earlier versions (tests/core/test_profiles_unchanged.py)."""
+    X_inv = X.inverse()
+    cs0 = sphere_centres_in_sensor(plan, radius_mm)
+    out = []
+    for tilt, (dy, dz) in zip(tilts, offsets):
+        Rt = geo.matrix_from_rotvec(np.radians(tilt))
+        station = []
+        for c_s in cs0 + [0.0, dy, dz]:
+            if mounting == "eye_in_hand":
+                # base_from_sensor puts the sphere centre at c_s; base_from_flange = base_from_sensor X^-1
+                R_bs = R_ref @ X.rotation_matrix @ Rt
+                station.append(Pose.from_rt(R_bs, centre - R_bs @ c_s) @ X_inv)
+            else:
+                # the sphere centre, on the flange, at X c_s in base
+                R_bf = Rt @ R_ref
+                station.append(Pose.from_rt(R_bf, X.apply(c_s) - R_bf @ centre))
+        out.append(station)
+    return out
 
 
 def plan_stations(
@@ -108,9 +120,11 @@ def plan_stations(
     the base's, eye-to-hand) and shifted by ``plan.station_offsets_mm`` (cycled)."""
     plan = plan or SweepPlan()
     offsets = [plan.station_offsets_mm[k % len(plan.station_offsets_mm)] for k in range(len(plan.tilts_deg))]
-    R, t = station_flange_poses(mounting, nominal_transform, sphere_centre_mm, radius_mm, plan, plan.tilts_deg,
-                                offsets, reference_flange_rotation)
-    return [(f"S{k + 1}", [Pose.from_rt(r, p) for r, p in zip(R[k], t[k])]) for k in range(len(plan.tilts_deg))]
+    R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
+    poses = _station_poses(mounting, nominal_transform, np.asarray(sphere_centre_mm, dtype=float), radius_mm, plan,
+                           np.atleast_2d(np.asarray(plan.tilts_deg, dtype=float)), np.asarray(offsets, dtype=float),
+                           R_ref)
+    return [(f"S{k + 1}", station) for k, station in enumerate(poses)]
 
 
 def _truth(cell: SimulatedCell, plan: SweepPlan, source: str) -> dict:
