@@ -427,7 +427,8 @@ def _passes(info: dict, n_joints: int, max_condition: float) -> bool:
         info["condition_number"] <= max_condition
 
 
-def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: KinematicPlan | None = None) -> str:
+def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: KinematicPlan | None = None,
+                                     start_joints_deg=None) -> str:
     """Before anything moves, with ``identify_kinematics``: the parameters the plan would
     identify (per joint) and the condition number of their identification. Raises
     :class:`InputError` (nothing moved) when the plan identifies fewer than
@@ -435,12 +436,15 @@ def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: Ki
     ``MAX_IDENTIFICATION_CONDITION``, saying what is not seen or seen too weakly, which
     joints the stations do not spread and which stations to add (to
     ``acquisition.sweep.tilts_deg``; with ``planned``, the planner's plan, how many more
-    to ask the planner for); returns a one-line summary otherwise."""
+    to ask the planner for); returns a one-line summary otherwise. The joints of the
+    targets are those the arm takes reaching them in order from ``start_joints_deg``
+    (controller convention; default: zero joints, before the robot is connected; the
+    arm's joints where it stands, once it is)."""
     if arm is None:
         raise ConfigError("calibration.identify_kinematics needs a robot type whose plugin describes its arm "
                           f"(robot.type = {cfg.robot.get('type')!r} does not); nothing was moved")
     ctx = _Context.of(cfg, arm)
-    joints = _sequential_joints(arm, [t.pose for t in targets])
+    joints = _sequential_joints(arm, [t.pose for t in targets], start_joints_deg)
     rows, info = _identification(ctx, np.array([t.pose.rotation_matrix for t in targets]),
                                  np.array([t.pose.translation for t in targets]), joints)
     n_joints = arm.chain.n_joints

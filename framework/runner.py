@@ -177,6 +177,25 @@ def _check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = f
         raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
 
 
+def _check_identification_from_here(robot, targets, cfg, arm, planned, log) -> None:
+    """With ``identify_kinematics``, once the robot is connected: the plan check again,
+    with the joints the arm will take from where it stands (the check before connecting
+    assumed zero joints; an arm that starts in another wrist or elbow configuration keeps
+    it, and sees the arm's geometry from other joints). Raises before anything moves when
+    the plan no longer identifies the arm from here."""
+    if not cfg.calibration.identify_kinematics or arm is None:
+        return
+    start = robot.read_joints_deg()
+    if start is None:
+        return
+    try:
+        log("from the arm's joints now: " + check_plan_identifies_kinematics(targets, cfg, arm, planned,
+                                                                           start_joints_deg=start))
+    except SpherecalError as exc:
+        raise InputError(f"from where the arm stands now (joints {np.round(np.asarray(start, float), 1).tolist()} deg): "
+                         f"{exc}") from exc
+
+
 def check_plan_solvable(targets) -> None:
     """Raise InputError (before anything moves) when the plan's stations can never
     determine the transform: the translation needs changes of orientation about at
@@ -305,6 +324,7 @@ def run_calibrate(
                 cell = make_cell(cfg, arm)
                 with open_devices(loaded, host, cell, log) as (robot, _sensor):
                     _check_plan(targets, acq, "plan", robot=robot)
+                    _check_identification_from_here(robot, targets, cfg, arm, planned, log)
                 log("plan checked against the robot's own limits too")
             return outcome
         if journal.exists() and not resume:
@@ -354,6 +374,7 @@ def run_calibrate(
         with open_devices(loaded, host, cell, log) as (robot, sensor):
             if not manual:
                 _check_plan(targets, acq, "plan", robot=robot, done=done)
+                _check_identification_from_here(robot, targets, cfg, arm, planned, log)
             provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
             if resume and journal.exists():
                 _check_same_devices(previous.provenance, provenance, journal, log)

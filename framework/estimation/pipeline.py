@@ -147,6 +147,31 @@ class Solution:
     extras: dict = field(default_factory=dict)
 
 
+#: A laser plane farther than this share of the radius from the sphere's centre cuts it
+#: near its edge: the circle's radius there changes by more than the plane's offset does.
+EDGE_PLANE_OFFSET_SHARE = 0.7
+
+
+def likely_cause_of_inconsistent_profile(centre_in_sensor_mm, radius_mm: float) -> str:
+    """The likely cause of a profile whose points lie far from the fitted sphere, from where
+    its laser plane cuts the sphere (``centre_in_sensor_mm``: the sphere centre in the
+    sensor frame as fitted, mm; the plane is x = 0). A cut near the edge turns the pose's
+    error along the sweep into an in-plane error x / rho times larger (rho the circle's
+    radius): a few hundredths of a millimetre of robot error look like a bad shot there,
+    and the advice is to keep sweeps off the edge, not to suspect the pairing."""
+    x = abs(float(centre_in_sensor_mm[0]))
+    r = float(radius_mm)
+    if x > EDGE_PLANE_OFFSET_SHARE * r:
+        rho = float(np.sqrt(max(r * r - x * x, 0.0)))
+        gain = x / rho if rho > 0 else float("inf")
+        return (f"it cuts the sphere near its edge (laser plane {x:.1f} mm from the centre, circle radius "
+                f"{rho:.1f} mm of {r:.1f} mm), where the robot's pose error along the sweep shows {gain:.1f} times "
+                "larger in the profile; when several such shots are flagged, keep the sweeps off the edge "
+                f"(acquisition.sweep.sweep_fraction at most {EDGE_PLANE_OFFSET_SHARE:g}); else a pose read at the "
+                "wrong moment or a mis-paired shot")
+    return "a pose read at the wrong moment or a mis-paired shot"
+
+
 def _flag(problem: Problem, i: int, reason: str, station: str | None = None) -> ObservationFlag:
     return ObservationFlag(
         index=int(problem.obs_index[i]), station=station or problem.station_labels[problem.station_of[i]], reason=reason
@@ -343,7 +368,8 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
             keep[j] = False
             flags.append(_flag(clean, j, f"inconsistent with the other profiles: {lost[j]} of {counts[j]} points "
                                          f"({lost[j] / counts[j]:.0%}) lie far from the sphere they agree on (beyond "
-                                         f"{limit:.3f} mm): a pose read at the wrong moment or a mis-paired shot"))
+                                         f"{limit:.3f} mm): "
+                                         + likely_cause_of_inconsistent_profile(ref.predicted[j], ref.radius)))
         rejected += len(drop)
         clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,

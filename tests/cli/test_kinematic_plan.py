@@ -147,3 +147,25 @@ def test_a_planned_plan_too_small_says_how_many_stations_to_ask_for(sim_config, 
     assert asked and int(asked[1]) == 4 + int(asked[2]), err
     more = sim_config(**IDENTIFY, **{r"^\[acquisition\.workspace\]$": small.format(asked[1])})
     assert main(["calibrate", str(more), "--dry-run"]) == EXIT_OK
+
+
+def test_the_identification_is_checked_again_from_where_the_arm_stands(sim_config, arm, capsys):
+    """Before connecting, the check assumes zero joints; an arm that stands with its wrist
+    flipped keeps that configuration through the plan and sees its geometry from other
+    joints. Once connected, the check runs again from the arm's joints (the dry run shows
+    it), and from a flipped wrist it gives another condition number."""
+    from spherecal.kinplan import check_plan_identifies_kinematics
+
+    path = sim_config(**IDENTIFY)
+    assert main(["calibrate", str(path), "--dry-run"]) == EXIT_OK
+    err = capsys.readouterr().err
+    assert "from the arm's joints now: kinematic identification: the plan (20 stations) identifies 18" in err
+
+    cfg = load_config(path).config
+    planned = plan_kinematic_stations(cfg, arm)
+    targets = plan_targets(cfg, planned.sweep)
+    at_zero = check_plan_identifies_kinematics(targets, cfg, arm, planned)
+    assert check_plan_identifies_kinematics(targets, cfg, arm, planned, start_joints_deg=np.zeros(6)) == at_zero
+    flipped = check_plan_identifies_kinematics(targets, cfg, arm, planned, start_joints_deg=[0, 0, 0, -170, -40, 0])
+    cond = lambda s: float(re.search(r"condition number (\d+)", s).group(1))  # noqa: E731
+    assert cond(flipped) != cond(at_zero)

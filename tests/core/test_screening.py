@@ -256,3 +256,19 @@ def test_station_rotation_tolerance_is_settable():
     res = solve(ds, CalibrationOptions(station_rotation_tolerance_deg=0.5)).result
     assert not any("turned" in f.reason for f in res.flagged)
     assert res.diagnostics["station_orientation"]["tolerance_deg"] == 0.5
+
+
+def test_a_profile_flagged_near_the_spheres_edge_is_explained_by_the_edge_not_the_pairing():
+    """A laser plane 0.8 r from the centre (the default sweep's ends) turns the pose's error
+    along the sweep into an in-plane error 1.33 times larger: the flag says so and points to
+    the sweep fraction; a plane through the middle keeps the pairing as the likely cause."""
+    from spherecal.estimation.pipeline import likely_cause_of_inconsistent_profile
+
+    r = 19.05
+    edge = likely_cause_of_inconsistent_profile([0.8 * r, 1.0, -20.0], r)
+    assert "near its edge" in edge and "sweep_fraction" in edge
+    assert "circle radius 11.4 mm" in edge and "1.3 times" in edge
+    middle = likely_cause_of_inconsistent_profile([0.1 * r, 1.0, -20.0], r)
+    assert "edge" not in middle and "mis-paired" in middle
+    # beyond the sphere (no circle at all), no division by zero
+    assert "inf times" in likely_cause_of_inconsistent_profile([1.2 * r, 0.0, 0.0], r)
