@@ -341,6 +341,16 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
     ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      **robot_effects)
+    # data that fit nothing (another mounting's data, poses in other units): the refinement
+    # does not converge and leaves residuals many times the noise. Screening them would
+    # only refit, once per profile left out, each refit as slow and as futile (minutes);
+    # the result is left as it is, its residuals showing the misfit (RED, the runner names
+    # the likely cause)
+    absurd = _fits_nothing(ref, clean, noise)
+    if absurd:
+        say(f"the refinement did not converge and leaves the points {absurd:.3g} mm RMS from the predicted circles, "
+            f"more than {ABSURD_RESIDUAL_RATIO:g} times the noise: the data fit nothing, screening skipped (another "
+            "mounting's data, poses in other units, another sphere?)")
 
     # stray points the circle fits kept: trim on the joint residuals and refit once. A
     # profile that would lose too many points (or keep too few) has no strays: its pose is
@@ -348,7 +358,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     # empty; once the rejection budget is spent, only profiles that would keep too few
     # points are left out, the others are trimmed.
     keep_pts = [np.ones(len(e), dtype=bool) for e in ref.residuals]
-    while (clean.kinds == KIND_PROFILE).any():
+    while not absurd and (clean.kinds == KIND_PROFILE).any():
         is_profile = clean.kinds == KIND_PROFILE
         all_res = np.concatenate(ref.residuals)
         limit = opt.point_outlier_k * max(1.4826 * np.median(np.abs(all_res)), noise.point_noise_mm)
@@ -380,7 +390,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
                      **robot_effects)
 
     # profiles inconsistent with the rest (a pose read at the wrong moment, a bad pairing)
-    while rejected < max_reject:
+    while not absurd and rejected < max_reject:
         chi2 = np.asarray(ref.diagnostics["profile_chi2"])
         worst = int(np.argmax(chi2))
         if chi2[worst] <= opt.profile_outlier_chi2:
@@ -411,6 +421,24 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
     return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+
+
+#: Residual RMS over the noise (point noise and pose noise) beyond which an unconverged
+#: refinement is taken as data that fit nothing (:func:`_fits_nothing`).
+ABSURD_RESIDUAL_RATIO = 20.0
+
+
+def _fits_nothing(ref: RefineResult, clean: Problem, noise: NoiseAssumptions) -> float:
+    """The profiles' residual RMS (mm) when the refinement did not converge and leaves
+    them more than :data:`ABSURD_RESIDUAL_RATIO` times the noise, else 0."""
+    if ref.converged:
+        return 0.0
+    res = [e for e, k in zip(ref.residuals, clean.kinds) if k == KIND_PROFILE and len(e)]
+    if not res:
+        return 0.0
+    rms = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
+    expected = float(np.hypot(noise.point_noise_mm, noise.pose_translation_noise_mm))
+    return rms if rms > ABSURD_RESIDUAL_RATIO * expected else 0.0
 
 
 #: Point noise assumed, for the point-error budget only, when no profile shows it, mm.

@@ -49,6 +49,8 @@ def test_a_red_result_exits_7_names_the_cause_and_writes_no_exports(tmp_path, cl
     assert "NOT written" in cap.out and "--force" in cap.out
     assert "exit 7" in cap.err
     assert not any((out / f).exists() for f in EXPORTS)
+    # data that fit nothing are not screened profile by profile (minutes of futile refits)
+    assert ("the data fit nothing, screening skipped" in cap.err) == (case == "wrong_mounting")
 
 
 def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
