@@ -107,11 +107,25 @@ class RobotType:
     flange_pose_from_joints: Callable[[BaseModel, np.ndarray], Pose] | None = None
     arm_kinematics: Callable[[BaseModel], "ArmKinematics"] | None = None
     #: ``read_frame(text) -> ControllerFrame | None``: reads a frame as this robot's
-    #: controller writes it (a tool or work-object data line), for ``compare --tooldata``
-    #: and ``validate --tooldata``. Returns None when the text is not in its controller's
-    #: syntax; raises :class:`~spherecal.errors.InputError` naming the field at fault when
-    #: it is but is malformed. None: this robot type reads no such text.
+    #: controller writes it (a tool or work-object data line), for ``compare
+    #: --controller-frame`` and ``validate --controller-frame``. Returns None when the text
+    #: is not in its controller's syntax; raises :class:`~spherecal.errors.InputError`
+    #: naming the field at fault when it is but is malformed. None: this robot type reads
+    #: no such text.
     read_frame: Callable[[str], "ControllerFrame | None"] | None = None
+    #: Another name for ``--controller-frame`` in the words of this controller's users
+    #: (without the dashes: lower case letters, digits and ``-``, starting with a letter),
+    #: which ``compare`` and ``validate`` then accept too; it needs :attr:`read_frame`.
+    #: Several robot types may give the same name. None: only ``--controller-frame``.
+    frame_option: str | None = None
+
+
+#: Option names of ``spherecal compare`` and ``validate`` (and the global ones), which a
+#: robot type's :attr:`RobotType.frame_option` must not take.
+RESERVED_OPTION_NAMES = frozenset({
+    "help", "version", "debug", "out", "no-report", "yes", "transform", "controller-frame", "std-mm", "std-deg",
+    "threshold-mm", "threshold-deg", "significance", "uncertainty", "fail-on-drift",
+})
 
 
 @dataclass(frozen=True)
@@ -133,7 +147,7 @@ class ControllerFrame:
     ``transform_name`` is ``flange_from_sensor`` (a robot-held tool) or
     ``base_from_sensor`` (a fixed frame, read in the controller's world frame, taken as
     the robot's base); ``pose`` the transform (mm, quaternion (w, x, y, z)); ``kind`` what
-    the text was (e.g. ``"tooldata"``), ``name`` the declared name if the text declared
+    the text was (the controller's name for its data type), ``name`` the declared name if the text declared
     one, ``note`` an assumption the reader made, for the user."""
 
     transform_name: str
