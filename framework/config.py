@@ -23,7 +23,8 @@ from .estimation import CalibrationOptions
 from .kinplan import KinematicPlanSettings
 from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
-from .sim import NoiseModel, RobotErrorModel, SensorFieldOfView, SweepPlan
+from .planning import SweepPlan
+from .sim import NoiseModel, RobotErrorModel, SensorFieldOfView
 
 #: Largest magnitude of any number in a configuration file: beyond it the value is a
 #: typing or units error (and would overflow the computations).

@@ -16,7 +16,7 @@ from .config import RunConfig
 from .mapping import frame_from_sensor_stack, map_profile_list
 from .models import SPHERE_FRAME, Pose
 from .ply import PlyWriter
-from .sim.planner import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations
 
 
 def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:

@@ -24,7 +24,7 @@ from .metrology import (
     sphere_spacing_error,
 )
 from .models import SPHERE_FRAME, Pose
-from .sim.planner import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations
 
 
 @dataclass(frozen=True)

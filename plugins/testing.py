@@ -26,7 +26,7 @@ Fixtures
     to ``host.create_robot`` / ``host.create_sensor`` to get the simulated devices.
 ``spherecal_stations``
     Planned flange targets for the cell, ``[(label, [base_from_flange, ...]), ...]``, from
-    :func:`spherecal.sim.plan_stations` with the cell's true transform.
+    :func:`spherecal.planning.plan_stations` with the cell's true transform.
 ``spherecal_robot_harness`` / ``spherecal_sensor_harness``
     :class:`RobotHarness` / :class:`SensorHarness` bound to the cell and stations:
     ``spherecal_robot_harness.check(robot)`` checks that a robot honours the
@@ -392,7 +392,7 @@ def spherecal_context(spherecal_cell) -> "DeviceContext":
 @pytest.fixture
 def spherecal_stations(spherecal_cell):
     """Planned flange targets ``[(label, [base_from_flange, ...]), ...]`` for the cell."""
-    from spherecal.sim import plan_stations
+    from spherecal.planning import plan_stations
 
     cell = spherecal_cell
     return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)

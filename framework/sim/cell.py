@@ -335,10 +335,6 @@ def _rot(rotvec_deg) -> np.ndarray:
     return geo.matrix_from_rotvec(np.radians(rotvec_deg))
 
 
-#: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell.
-FLANGE_DOWN = _rot([0.0, 180.0, 0.0])
-
-
 #: Fractions of the reach-scaled layout tried, in order, until the arm reaches the default plan.
 LAYOUT_SHRINK = (1.0, 0.9, 0.8, 0.7, 0.6)
 
@@ -347,7 +343,7 @@ def _reaches_default_plan(arm, cell: "SimulatedCell") -> bool:
     """Whether the arm's inverse kinematics reaches every target of the default plan on
     ``cell``, each from the last one's joints (the first from a few seeds)."""
     from ..errors import InputError
-    from .planner import plan_stations
+    from ..planning import plan_stations
 
     targets = [p for _, poses in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm,
                                               cell.sphere_radius_mm) for p in poses]
