@@ -9,11 +9,17 @@ simulated acquisition (:mod:`spherecal.sim`) plans with the cell's true transfor
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from . import geometry as geo
+from .errors import ConfigError
 from .models import MountingMode, Pose
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .devices import SensorFieldOfView
 
 #: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell: the
 #: reference orientation of a plan's stations.
@@ -33,7 +39,9 @@ class SweepPlan(BaseModel):
 
     profiles_per_station: int = Field(10, ge=4, le=10_000, description="profiles taken per station")
     sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
-    standoff_z_mm: float = Field(-20.0, description="sensor-frame z of the sphere centre, mm")
+    standoff_z_mm: float | None = Field(
+        None, description="sensor-frame z of the sphere centre, mm (default: the sensor's declared "
+        "field of view's standoff, SensorFieldOfView.sweep_standoff_z_mm)")
     lateral_amplitude_mm: float = Field(4.0, ge=0, le=1000, description="y/z wander within a sweep, mm")
     station_offsets_mm: list[tuple[float, float]] = Field(
         default_factory=lambda: [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)],
@@ -47,8 +55,24 @@ class SweepPlan(BaseModel):
     )
 
 
+def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None") -> SweepPlan:
+    """``plan`` with its standoff set: its own ``standoff_z_mm`` when given, else the
+    field of view's (:attr:`~spherecal.devices.SensorFieldOfView.sweep_standoff_z_mm`).
+    :class:`ConfigError` when neither says (a sensor type that declares no field of view)."""
+    if plan.standoff_z_mm is not None:
+        return plan
+    if field_of_view is None:
+        raise ConfigError("acquisition.sweep.standoff_z_mm: not set, and the sensor type declares no field of view "
+                          "to take it from; set it (sensor-frame z of the sphere centre, mm)")
+    return plan.model_copy(update={"standoff_z_mm": float(field_of_view.sweep_standoff_z_mm)})
+
+
 def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:
-    """(n, 3) planned sensor-frame positions of the sphere centre along one sweep, mm."""
+    """(n, 3) planned sensor-frame positions of the sphere centre along one sweep, mm
+    (``plan`` with its standoff set, :func:`with_standoff`)."""
+    if plan.standoff_z_mm is None:
+        raise ConfigError("acquisition.sweep.standoff_z_mm: the plan has no standoff (with_standoff sets it from the "
+                          "sensor's field of view)")
     n = plan.profiles_per_station
     s = np.linspace(-1.0, 1.0, n)
     phase = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
@@ -113,6 +137,7 @@ def plan_stations(
     radius_mm: float,
     plan: SweepPlan | None = None,
     reference_flange_rotation=None,
+    field_of_view: "SensorFieldOfView | None" = None,
 ) -> list[tuple[str, list[Pose]]]:
     """Flange targets ``base_from_flange`` per station: ``[(label, [pose, ...]), ...]``.
 
@@ -120,8 +145,9 @@ def plan_stations(
     (eye-to-hand); ``sphere_centre_mm`` is in base (eye-in-hand) or flange (eye-to-hand).
     ``reference_flange_rotation`` (3x3, base_from_flange) defaults to flange pointing down.
     Station k is tilted by ``plan.tilts_deg[k]`` (about the sensor's axes, eye-in-hand, or
-    the base's, eye-to-hand) and shifted by ``plan.station_offsets_mm`` (cycled)."""
-    plan = plan or SweepPlan()
+    the base's, eye-to-hand) and shifted by ``plan.station_offsets_mm`` (cycled). A plan
+    without ``standoff_z_mm`` takes the sensor's, from ``field_of_view`` (:func:`with_standoff`)."""
+    plan = with_standoff(plan or SweepPlan(), field_of_view)
     offsets = [plan.station_offsets_mm[k % len(plan.station_offsets_mm)] for k in range(len(plan.tilts_deg))]
     R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
     poses = _station_poses(mounting, nominal_transform, np.asarray(sphere_centre_mm, dtype=float), radius_mm, plan,

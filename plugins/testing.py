@@ -395,7 +395,8 @@ def spherecal_stations(spherecal_cell):
     from spherecal.planning import plan_stations
 
     cell = spherecal_cell
-    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
+                         field_of_view=cell.fov)
 
 
 @pytest.fixture

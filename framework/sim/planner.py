@@ -9,7 +9,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..models import Circle, Dataset, Observation, Profile
-from ..planning import SweepPlan, plan_stations
+from ..planning import SweepPlan, plan_stations, with_standoff
 from .cell import SimulatedCell
 
 
@@ -34,7 +34,7 @@ def simulate_dataset(
     """Run a simulated acquisition on ``cell`` and return the dataset (reported poses,
     noisy profiles). The truth goes into ``provenance``. Shots that see fewer than
     ``min_points`` points are skipped, as an acquisition would."""
-    plan = plan or SweepPlan()
+    plan = with_standoff(plan or SweepPlan(), cell.fov)
     stations = plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
     )
@@ -99,7 +99,7 @@ def simulate_centre_dataset(
     skipped. The truth goes into ``provenance``."""
     if kind not in ("sphere_centre", "circle"):
         raise ValueError(f"kind must be 'sphere_centre' or 'circle', got {kind!r}")
-    plan = plan or SweepPlan()
+    plan = with_standoff(plan or SweepPlan(), cell.fov)
     stations = plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
     )

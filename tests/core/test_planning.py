@@ -27,10 +27,13 @@ def test_the_simulated_acquisition_plans_with_the_planner_of_real_motion():
     cell = standard_cell("eye_in_hand", seed=3)
     plan = planning.SweepPlan(profiles_per_station=5)
     ds = simulate_dataset(cell, plan)
-    assert ds.provenance["plan"] == plan.model_dump()
+    # the plan leaves its standoff to the sensor: the cell's field of view's
+    assert plan.standoff_z_mm is None and cell.fov.standoff_z_mm == -20.0
+    assert ds.provenance["plan"] == {**plan.model_dump(), "standoff_z_mm": -20.0}
     # every shot was taken at a target of the plan (reported with the cell's pose noise, 0.02 mm per axis)
     targets = np.array([p.translation for _, poses in planning.plan_stations(
-        cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan) for p in poses])
+        cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, field_of_view=cell.fov)
+        for p in poses])
     for obs in ds.observations:
         assert np.min(np.linalg.norm(targets - np.asarray(obs.base_from_flange.translation), axis=1)) < 0.2
     assert len(ds.observations) > 0.8 * len(targets)
