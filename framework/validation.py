@@ -72,11 +72,14 @@ def plan_validation(cfg: RunConfig, X: Pose, field_of_view: "SensorFieldOfView |
         bb = v.ball_bar
         for k, site in enumerate(bb.positions):
             other = bb.positions[(k + 1) % len(bb.positions)]
-            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site, n, count(), field_of_view))
-            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other, n, count(), field_of_view))
+            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site,
+                                 n, count(), field_of_view))
+            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other,
+                                 n, count(), field_of_view))
     if v.flat is not None:
         for k, site in enumerate(v.flat.positions):
-            sweeps.append(_sweep(cfg, X, f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site, n, count(), field_of_view))
+            sweeps.append(_sweep(cfg, X, f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site,
+                                 n, count(), field_of_view))
     if not sweeps:
         raise DegenerateDataError("nothing to validate: give [acquisition] sphere_centre_mm, [validation.ball_bar] or [validation.flat]")
     return sweeps
