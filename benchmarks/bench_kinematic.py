@@ -72,7 +72,11 @@ def planned(mode: str, kin) -> SweepPlan:
         path = Path(tmp) / "cell.toml"
         path.write_text(text + "\n[acquisition.kinematic_plan]\nstations = 20\n" if "[acquisition.kinematic_plan]"
                         not in text else text)
-        return plan_kinematic_stations(load_config(path).config, kin).sweep
+        from spherecal.plugins.host import PluginHost
+        from spherecal.runner import configured_for_sensor
+
+        loaded, _ = configured_for_sensor(load_config(path), PluginHost())  # the sweep's standoff: the sensor's
+        return plan_kinematic_stations(loaded.config, kin).sweep
 
 
 def plans(mode: str, kin=None) -> tuple[SweepPlan, SweepPlan]:

@@ -22,7 +22,7 @@ from .config import AcquisitionConfig, RunConfig
 from .dataio import DatasetWriter
 from .errors import DeviceError, InputError, SpherecalError
 from .models import Observation, Pose, Profile
-from .sim.planner import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations
 
 
 @dataclass(frozen=True)

@@ -192,17 +192,56 @@ def _significance(text: str) -> float:
     return v
 
 
-def _transform_options(p: argparse.ArgumentParser, role: str, with_std: bool = True) -> None:
-    """--transform and --tooldata (compare and validate), --std-mm and --std-deg (compare)."""
+class _FrameAction(argparse.Action):
+    """``--controller-frame LINE`` and a robot type's own name for it: keeps each (option
+    as typed, text), so that a message names the option the user gave."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = list(getattr(namespace, self.dest, None) or [])
+        given.append((option_string, values))
+        setattr(namespace, self.dest, given)
+
+
+def _installed_frame_options() -> dict[str, list[str]]:
+    """The installed robot types' names for ``--controller-frame``
+    (:attr:`spherecal.devices.RobotType.frame_option`): ``{option: [robot type, ...]}``.
+    Empty when the plugin host cannot be built: the command that needs it reports why."""
+    try:
+        from .runner import make_host
+
+        host = make_host()
+    except Exception:  # noqa: BLE001 - reported by the command itself, with its exit code
+        return {}
+    found: dict[str, list[str]] = {}
+    for t in host.registry.robots.values():
+        if t.frame_option:
+            found.setdefault(t.frame_option, []).append(t.name)
+    return found
+
+
+def _frame_words(frame_options: dict[str, list[str]]) -> str:
+    """``--<option> / --controller-frame``: the options that take a controller frame."""
+    return " / ".join([f"--{o}" for o in sorted(frame_options)] + ["--controller-frame"])
+
+
+def _transform_options(p: argparse.ArgumentParser, role: str, frame_options: dict[str, list[str]],
+                       with_std: bool = True) -> None:
+    """--transform and --controller-frame with the robot types' names for it (compare and
+    validate), --std-mm and --std-deg (compare)."""
     p.add_argument("--transform", metavar="X", help=f"a transform {role}: x,y,z,qw,qx,qy,qz (translation in mm, "
                    "unit quaternion w first, as in result.json), or a file: a result.json or run folder, or a text "
                    "file holding those seven numbers or a controller frame line")
-    p.add_argument("--tooldata", metavar="LINE", help=f"a transform {role} as the robot controller stores it (a tool "
-                   "or work-object data line), read by the robot plugin that knows its syntax (docs/cli.md)")
+    p.add_argument("--controller-frame", dest="controller_frame", action=_FrameAction, metavar="LINE",
+                   help=f"a transform {role} as the robot controller stores it (a tool or work-object data line), "
+                   "read by the robot plugin that knows its syntax (docs/cli.md)")
+    for option, robot_types in sorted(frame_options.items()):
+        p.add_argument(f"--{option}", dest="controller_frame", action=_FrameAction, metavar="LINE",
+                       help=f"--controller-frame, as robot type {', '.join(robot_types)} calls it")
+    p.set_defaults(controller_frame=None, frame_words=_frame_words(frame_options))
     if not with_std:
         return
     p.add_argument("--std-mm", type=_non_negative_float, metavar="MM", help="1-sigma per axis of the translation of "
-                   "--transform/--tooldata given as numbers, mm (default 0: known exactly)")
+                   "--transform/--controller-frame given as numbers, mm (default 0: known exactly)")
     p.add_argument("--std-deg", type=_non_negative_float, metavar="DEG", help="1-sigma per axis of its rotation, deg "
                    "(default 0)")
 
@@ -252,21 +291,24 @@ def cmd_validate(args) -> int:
 
 
 def _given_transform(args, robot_type: str | None = None):
-    """The transform of --transform or --tooldata (None when neither is given), with the
+    """The transform of --transform or --controller-frame (None when neither is given), with the
     covariance of --std-mm/--std-deg."""
     from . import compare as cmp
 
-    if args.transform is not None and args.tooldata is not None:
-        raise ConfigError("give one of --transform and --tooldata")
+    frames = args.controller_frame or []
+    if len(frames) + (args.transform is not None) > 1:
+        used = (["--transform"] if args.transform is not None else []) + [option for option, _ in frames]
+        raise ConfigError(f"give one of --transform and {args.frame_words} (given: {', '.join(used)})")
     if args.transform is not None:
         est = cmp.read_transform_argument(args.transform, "--transform", robot_type=robot_type,
                                           uncertainty=getattr(args, "uncertainty", "robot-frame"))
-    elif args.tooldata is not None:
-        est = cmp.estimate_of_frame(cmp.read_controller_frame(args.tooldata, "--tooldata", robot_type=robot_type),
-                                    "--tooldata")
+    elif frames:
+        option, text = frames[0]
+        est = cmp.estimate_of_frame(cmp.read_controller_frame(text, option, robot_type=robot_type), option)
     else:
         if getattr(args, "std_mm", None) is not None or getattr(args, "std_deg", None) is not None:
-            raise ConfigError("--std-mm and --std-deg are the uncertainty of --transform or --tooldata: give one")
+            raise ConfigError(f"--std-mm and --std-deg are the uncertainty of --transform or {args.frame_words}: "
+                              "give one")
         return None
     if getattr(args, "std_mm", None) is not None or getattr(args, "std_deg", None) is not None:
         if est.covariance.any():
@@ -285,7 +327,7 @@ def cmd_compare(args) -> int:
     a = cmp.TransformEstimate.of_result(result, str(where), args.uncertainty)
     given = _given_transform(args)
     if (args.b is None) == (given is None):
-        raise ConfigError("compare A with one of: a second result (B), --transform or --tooldata")
+        raise ConfigError(f"compare A with one of: a second result (B), --transform or {args.frame_words}")
     if given is None:
         other, where_b = cmp.read_result_operand(args.b)
         given = cmp.TransformEstimate.of_result(other, str(where_b), args.uncertainty)
@@ -315,7 +357,11 @@ def cmd_plugins(args) -> int:
     return EXIT_OK
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.ArgumentParser:
+    """The command line. ``frame_options``: the robot types' names for ``--controller-frame``
+    (``{option: [robot type, ...]}``, default: the installed plugins')."""
+    if frame_options is None:
+        frame_options = _installed_frame_options()
     p = argparse.ArgumentParser(
         prog="spherecal",
         description="Calibrate a laser line sensor against a robot with a reference sphere.",
@@ -391,12 +437,12 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Scan the sphere (and a ball bar and a flat, if configured) with the calibrated "
                        "system at views other than the calibration's; report the figures per position and their "
                        "maximum; exit 5 when one exceeds its MPE. The transform is the calibration's result.json, "
-                       "or one spherecal did not compute (--transform, --tooldata).")
+                       "or one spherecal did not compute (--transform, --controller-frame).")
     v.add_argument("config", help="configuration file (TOML) with a [validation] section")
     v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
     _transform_options(v, "to validate instead of the calibration's result.json (e.g. the controller's current "
-                       "tool)", with_std=False)
+                       "tool)", frame_options, with_std=False)
     v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     v.set_defaults(func=cmd_validate)
 
@@ -418,7 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "(flange_from_sensor, base_from_sensor) are refused.")
     k.add_argument("a", metavar="A", help="the reference calibration: result.json or a run folder holding one")
     k.add_argument("b", metavar="B", nargs="?", help="the calibration to compare with A: result.json or a run folder")
-    _transform_options(k, "instead of B")
+    _transform_options(k, "instead of B", frame_options)
     k.add_argument("--threshold-mm", type=_non_negative_float, default=0.1, metavar="MM",
                    help="drift threshold on the translation difference's length, mm (default 0.1)")
     k.add_argument("--threshold-deg", type=_non_negative_float, default=0.05, metavar="DEG",
@@ -450,7 +496,9 @@ def _after_failure(command: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # the robot plugins' names for --controller-frame: the host is built only for the commands that take one
+    parser = build_parser(_installed_frame_options() if {"compare", "validate"} & set(argv) else {})
     args = parser.parse_args(argv)
     try:
         return args.func(args)

@@ -116,7 +116,7 @@ def looks_like_numbers(text: str) -> bool:
     return True
 
 
-def read_controller_frame(text: str, what: str = "--tooldata", host=None, robot_type: str | None = None
+def read_controller_frame(text: str, what: str = "--controller-frame", host=None, robot_type: str | None = None
                           ) -> ControllerFrame:
     """The frame in ``text`` as a robot controller writes it, read by the installed robot
     plugin that knows the syntax (:attr:`spherecal.devices.RobotType.read_frame`; only

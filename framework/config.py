@@ -23,7 +23,8 @@ from .estimation import CalibrationOptions
 from .kinplan import KinematicPlanSettings
 from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
-from .sim import NoiseModel, RobotErrorModel, SensorFieldOfView, SweepPlan
+from .planning import SweepPlan
+from .sim import NoiseModel, RobotErrorModel
 
 #: Largest magnitude of any number in a configuration file: beyond it the value is a
 #: typing or units error (and would overflow the computations).
@@ -236,7 +237,9 @@ class ScanConfig(_Section):
     step_mm: float = Field(0.5, ge=0.001, le=10_000, description="distance between profiles, mm")
     passes: int = Field(1, ge=1, le=10_000, description="parallel passes")
     pass_spacing_mm: float = Field(20.0, gt=0, description="distance between passes (along the laser line), mm")
-    standoff_z_mm: float = Field(-10.0, description="sensor-frame z of the object's surface at the centre, mm")
+    standoff_z_mm: float | None = Field(
+        None, description="sensor-frame z of the object's surface at the centre, mm (default: the middle of the "
+        "sensor's declared measuring range)")
     speed_mm_s: float = Field(50.0, gt=0, description="speed between profiles, mm/s")
     ply: str = Field("scan.ply", description="output file (relative: in output_dir); a path outside output_dir "
                      "(absolute, or through '..') needs ply_outside_output_dir = true")
@@ -254,6 +257,19 @@ class ScanConfig(_Section):
         return self
 
 
+class FieldOfViewOverride(_Section):
+    """``[simulation.fov]``: fields of the simulated sensor's field of view that replace
+    its sensor type's declared ones (:class:`spherecal.devices.SensorFieldOfView`); a
+    sensor type that declares none needs the four geometric fields here."""
+
+    z_near_mm: float | None = Field(None, description="near end of the measuring range (z, mm)")
+    z_far_mm: float | None = Field(None, description="far end of the measuring range (z, mm)")
+    width_near_mm: float | None = Field(None, gt=0, description="line width at the near end, mm")
+    width_far_mm: float | None = Field(None, gt=0, description="line width at the far end, mm")
+    n_columns: int | None = Field(None, ge=16, le=100_000, description="points across the full line")
+    standoff_z_mm: float | None = Field(None, description="z of the sphere centre in a calibration sweep, mm")
+
+
 class SimulationConfig(_Section):
     """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
 
@@ -269,7 +285,8 @@ class SimulationConfig(_Section):
         None, description="geometric error of the simulated arm (a real arm's systematic error); absent: the arm "
         "is exactly its nominal model"
     )
-    fov: SensorFieldOfView = Field(default_factory=SensorFieldOfView, description="the simulated sensor's field of view")
+    fov: FieldOfViewOverride | None = Field(
+        None, description="the simulated sensor's field of view, over its sensor type's declared one")
     scan_object: Literal["none", "flat_plate", "car_door_panel"] = Field(
         "none", description="object placed at [scan] object_centre_mm (its surface at the centre)"
     )

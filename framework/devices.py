@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from .models import Pose, Profile
 
@@ -107,22 +107,94 @@ class RobotType:
     flange_pose_from_joints: Callable[[BaseModel, np.ndarray], Pose] | None = None
     arm_kinematics: Callable[[BaseModel], "ArmKinematics"] | None = None
     #: ``read_frame(text) -> ControllerFrame | None``: reads a frame as this robot's
-    #: controller writes it (a tool or work-object data line), for ``compare --tooldata``
-    #: and ``validate --tooldata``. Returns None when the text is not in its controller's
-    #: syntax; raises :class:`~spherecal.errors.InputError` naming the field at fault when
-    #: it is but is malformed. None: this robot type reads no such text.
+    #: controller writes it (a tool or work-object data line), for ``compare
+    #: --controller-frame`` and ``validate --controller-frame``. Returns None when the text
+    #: is not in its controller's syntax; raises :class:`~spherecal.errors.InputError`
+    #: naming the field at fault when it is but is malformed. None: this robot type reads
+    #: no such text.
     read_frame: Callable[[str], "ControllerFrame | None"] | None = None
+    #: Another name for ``--controller-frame`` in the words of this controller's users
+    #: (without the dashes: lower case letters, digits and ``-``, starting with a letter),
+    #: which ``compare`` and ``validate`` then accept too; it needs :attr:`read_frame`.
+    #: Several robot types may give the same name. None: only ``--controller-frame``.
+    frame_option: str | None = None
+
+
+#: Option names of ``spherecal compare`` and ``validate`` (and the global ones), which a
+#: robot type's :attr:`RobotType.frame_option` must not take.
+RESERVED_OPTION_NAMES = frozenset({
+    "help", "version", "debug", "out", "no-report", "yes", "transform", "controller-frame", "std-mm", "std-deg",
+    "threshold-mm", "threshold-deg", "significance", "uncertainty", "fail-on-drift",
+})
+
+
+class SensorFieldOfView(BaseModel):
+    """The field of view of a laser line sensor, in its own frame (mm): the laser plane is
+    its x = 0 plane, the line spans y, and it measures along z, looking towards -z (the
+    near end has the larger z). The line's width grows linearly from ``width_near_mm`` at
+    ``z_near_mm`` to ``width_far_mm`` at ``z_far_mm`` (a fan from an apex on the z axis).
+
+    A sensor type declares its own (:attr:`SensorType.field_of_view`); the simulated cell
+    measures with it and the planner puts the sphere at :attr:`sweep_standoff_z_mm`. A
+    configuration's ``[simulation.fov]`` overrides any of its fields."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    z_near_mm: float = Field(description="near end of the measuring range (z, mm)")
+    z_far_mm: float = Field(description="far end of the measuring range (z, mm), below z_near_mm")
+    width_near_mm: float = Field(gt=0, description="line width at the near end, mm")
+    width_far_mm: float = Field(gt=0, description="line width at the far end, mm, more than width_near_mm")
+    n_columns: int = Field(640, ge=16, le=100_000, description="points across the full line (simulation)")
+    standoff_z_mm: float | None = Field(
+        None, description="z of the sphere centre in a calibration sweep, mm (default: the middle of the range)")
+
+    @model_validator(mode="after")
+    def _a_fan(self):
+        if not self.z_far_mm < self.z_near_mm:
+            raise ValueError(f"z_far_mm ({self.z_far_mm}) must be below z_near_mm ({self.z_near_mm}): the sensor "
+                             "looks towards -z")
+        if not self.width_far_mm > self.width_near_mm:
+            raise ValueError(f"width_far_mm ({self.width_far_mm}) must exceed width_near_mm ({self.width_near_mm}): "
+                             "the line widens away from the sensor")
+        if self.standoff_z_mm is not None and not self.z_far_mm <= self.standoff_z_mm <= self.z_near_mm:
+            raise ValueError(f"standoff_z_mm ({self.standoff_z_mm}) must lie in the measuring range "
+                             f"[{self.z_far_mm}, {self.z_near_mm}]")
+        return self
+
+    @property
+    def middle_z_mm(self) -> float:
+        """The middle of the measuring range (z, mm): where a flat surface is swept."""
+        return (self.z_near_mm + self.z_far_mm) / 2
+
+    @property
+    def sweep_standoff_z_mm(self) -> float:
+        """z of the sphere centre in a sweep (mm): ``standoff_z_mm``, else the middle."""
+        return self.middle_z_mm if self.standoff_z_mm is None else self.standoff_z_mm
+
+    @property
+    def apex_z_mm(self) -> float:
+        """z of the fan's apex, where the line width extrapolates to zero."""
+        slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
+        return self.z_near_mm + self.width_near_mm / 2 / slope
+
+    @property
+    def half_angle_rad(self) -> float:
+        slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
+        return float(np.arctan(slope))
 
 
 @dataclass(frozen=True)
 class SensorType:
     """A kind of sensor a plugin provides; ``factory(config, context)`` returns a
-    connected :class:`Sensor`."""
+    connected :class:`Sensor`. ``field_of_view`` is the sensor's
+    :class:`SensorFieldOfView` (None: not declared; a simulated run must then give all of
+    it in ``[simulation.fov]`` and a calibration ``[acquisition.sweep] standoff_z_mm``)."""
 
     name: str
     config_model: type[BaseModel]
     factory: Callable[[BaseModel, DeviceContext], Sensor]
     description: str = ""
+    field_of_view: SensorFieldOfView | None = None
 
 
 @dataclass(frozen=True)
@@ -133,7 +205,7 @@ class ControllerFrame:
     ``transform_name`` is ``flange_from_sensor`` (a robot-held tool) or
     ``base_from_sensor`` (a fixed frame, read in the controller's world frame, taken as
     the robot's base); ``pose`` the transform (mm, quaternion (w, x, y, z)); ``kind`` what
-    the text was (e.g. ``"tooldata"``), ``name`` the declared name if the text declared
+    the text was (the controller's name for its data type), ``name`` the declared name if the text declared
     one, ``note`` an assumption the reader made, for the user."""
 
     transform_name: str

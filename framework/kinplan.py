@@ -6,7 +6,7 @@ Brand-free: the arm is reached only through :class:`~spherecal.kinematics.ArmKin
 reach or beyond a joint limit), the workspace through the configuration's box.
 
 **The planner.** A station is a short pure-translation sweep over the sphere
-(:func:`spherecal.sim.planner.plan_stations`) at one orientation: the sensor (eye-in-hand)
+(:func:`spherecal.planning.plan_stations`) at one orientation: the sensor (eye-in-hand)
 or the flange (eye-to-hand) turned from the reference orientation by a tilt of the view
 axis (up to ``max_tilt_deg``, in every direction) and a turn about it (up to
 ``max_turn_deg``). The candidates are ``candidates`` such orientations, spread evenly
@@ -43,7 +43,7 @@ from .errors import ConfigError, InputError, SpherecalError
 from .estimation.refine import design_identifiability, plan_design
 from .kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
 from .models import MountingMode, Pose
-from .sim.planner import SweepPlan, station_flange_poses
+from .planning import SweepPlan, station_flange_poses
 
 if TYPE_CHECKING:  # pragma: no cover
     from .config import RunConfig

@@ -10,11 +10,12 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
+from pydantic import ValidationError
 
 from . import dataio
 from .acquisition import Progress, acquire, acquire_manual, check_first_move, check_targets, describe_plan, plan_targets
 from .config import LoadedConfig, ReportConfig, RunConfig
-from .devices import DeviceContext, device_identity
+from .devices import DeviceContext, SensorFieldOfView, device_identity
 from .errors import ConfigError, InputError, SpherecalError
 from .kinplan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 from .estimation import CalibrationOptions, Solution, solve
@@ -53,17 +54,70 @@ def check_output_folder(out: Path, what: str, how: str, exports=None) -> None:
                          f"(nothing is overwritten silently); {how}")
 
 
-def make_cell(cfg: RunConfig, arm=None) -> SimulatedCell | None:
+def sensor_field_of_view(cfg: RunConfig, host) -> SensorFieldOfView | None:
+    """The field of view of the run's sensor: its sensor type's declared one
+    (:attr:`spherecal.devices.SensorType.field_of_view`), with the fields the
+    configuration's ``[simulation.fov]`` gives over it in a simulated run. None when the
+    sensor type declares none and the configuration does not give it whole.
+    :class:`ConfigError` naming ``simulation.fov`` when the two together are not a field
+    of view."""
+    declared = host.registry.sensor_type(cfg.sensor["type"]).field_of_view
+    given = cfg.simulation.fov.model_dump(exclude_none=True) if cfg.simulation and cfg.simulation.fov else {}
+    if not given:
+        return declared
+    fields = {**(declared.model_dump() if declared is not None else {}), **given}
+    try:
+        return SensorFieldOfView.model_validate(fields)
+    except ValidationError as exc:
+        whose = (f"sensor type {cfg.sensor['type']!r} declares no field of view" if declared is None
+                 else f"over sensor type {cfg.sensor['type']!r}'s field of view")
+        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'fov'}: {e['msg']}" for e in exc.errors())
+        raise ConfigError(f"simulation.fov ({whose}): {problems}") from None
+
+
+def for_sensor(cfg: RunConfig, field_of_view: SensorFieldOfView | None) -> RunConfig:
+    """``cfg`` with the standoffs it leaves to the sensor set from ``field_of_view``: the
+    calibration sweep's (``[acquisition.sweep] standoff_z_mm``, the sensor's
+    ``sweep_standoff_z_mm``) and the scan's (``[scan] standoff_z_mm``, the middle of the
+    measuring range). Unchanged without a field of view (the planner then asks for them)."""
+    if field_of_view is None:
+        return cfg
+    update = {}
+    acq = cfg.acquisition
+    if acq is not None and acq.sweep.standoff_z_mm is None:
+        sweep = acq.sweep.model_copy(update={"standoff_z_mm": float(field_of_view.sweep_standoff_z_mm)})
+        update["acquisition"] = acq.model_copy(update={"sweep": sweep})
+    if cfg.scan is not None and cfg.scan.standoff_z_mm is None:
+        update["scan"] = cfg.scan.model_copy(update={"standoff_z_mm": float(field_of_view.middle_z_mm)})
+    return cfg.model_copy(update=update) if update else cfg
+
+
+def configured_for_sensor(loaded: LoadedConfig, host) -> tuple[LoadedConfig, SensorFieldOfView | None]:
+    """The configuration with the standoffs it leaves to the sensor set
+    (:func:`for_sensor`), and the sensor's field of view (:func:`sensor_field_of_view`)."""
+    fov = sensor_field_of_view(loaded.config, host)
+    return LoadedConfig(for_sensor(loaded.config, fov), loaded.path), fov
+
+
+def make_cell(cfg: RunConfig, arm=None, field_of_view: SensorFieldOfView | None = None) -> SimulatedCell | None:
     """The simulated cell of a simulated run, or None for hardware. ``arm`` (the robot
     type's :class:`~spherecal.kinematics.ArmKinematics`, when it describes its arm) lays
     the standard cell out for the arm's reach (:func:`spherecal.sim.standard_cell`); the
     configuration's ``[simulation] sphere_centre_mm`` and ``true_transform`` override it.
     An arm with a calibrated model (kinematics that keep their ``nominal`` one) is laid out
-    as its nominal arm: giving the robot its calibrated model must not move the world."""
+    as its nominal arm: giving the robot its calibrated model must not move the world.
+    ``field_of_view`` is the simulated sensor's (default: :func:`sensor_field_of_view` with
+    the installed plugins); :class:`ConfigError` naming ``simulation.fov`` when there is none."""
     sim = cfg.simulation
     if sim is None:
         return None
-    cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=sim.fov, sphere_radius_mm=cfg.sphere.radius_mm,
+    if field_of_view is None:
+        field_of_view = sensor_field_of_view(cfg, make_host())
+    if field_of_view is None:
+        raise ConfigError(f"simulation.fov: sensor type {cfg.sensor['type']!r} declares no field of view; give "
+                          "z_near_mm, z_far_mm, width_near_mm and width_far_mm in [simulation.fov]")
+    cell = standard_cell(cfg.mounting, seed=sim.seed, noise=sim.noise, fov=field_of_view,
+                         sphere_radius_mm=cfg.sphere.radius_mm,
                          arm=getattr(arm, "nominal", arm))
     cell.arm = None  # laid out for the arm; the simulated controller attaches its own (nominal) arm
     cell.noise_per_pose = True  # a resumed run reproduces an uninterrupted one
@@ -275,9 +329,10 @@ def run_calibrate(
     recorded dataset), solve, write the result, exports and report. A RED result's
     ``result.json`` and exports are written only with ``force`` (its report always).
     ``operator`` (``--operator``) overrides the configuration's ``[report] operator``."""
-    cfg = loaded.config
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
+    loaded, fov = configured_for_sensor(loaded, host)
+    cfg = loaded.config
     fk = _in_file(loaded, host.robot_kinematics, cfg.robot, base_dir=loaded.path.parent)
     arm = robot_arm(loaded, host)
     _in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
@@ -321,7 +376,7 @@ def run_calibrate(
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
             if not manual:
-                cell = make_cell(cfg, arm)
+                cell = make_cell(cfg, arm, fov)
                 with open_devices(loaded, host, cell, log) as (robot, _sensor):
                     _check_plan(targets, acq, "plan", robot=robot)
                     _check_identification_from_here(robot, targets, cfg, arm, planned, log)
@@ -334,7 +389,7 @@ def run_calibrate(
             )
         if not journal.exists():
             check_output_folder(out, "calibrate", "give a new folder (--out or output_dir)", exports)
-        cell = make_cell(cfg, arm)
+        cell = make_cell(cfg, arm, fov)
         if not manual and cell is None:
             confirm_motion("calibrate", f"{len(targets)} shots in {len(set(t.station for t in targets))} stations "
                            f"(plan above), at most {acq.max_speed_mm_s:g} mm/s"
@@ -890,6 +945,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     of the calibration's ``result.json``; the report is then left alone."""
     from .validation import evaluate, measure, plan_validation
 
+    host = make_host()
+    loaded, fov = configured_for_sensor(loaded, host)
     cfg = loaded.config
     missing = "no [validation] section: say what to validate against which MPEs"
     if transform is None:
@@ -905,13 +962,12 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
         X, source = transform.pose, transform.source
         if transform.note:
             log(f"note: {transform.note}")
-    sweeps = plan_validation(cfg, X)
+    sweeps = plan_validation(cfg, X, fov)
     targets = [t for s in sweeps for t in s.targets]
     log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
     _check_plan(targets, cfg.acquisition, "validation plan")
-    host = make_host()
     exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
-    cell = make_cell(cfg, robot_arm(loaded, host))
+    cell = make_cell(cfg, robot_arm(loaded, host), fov)
     if cell is None:
         confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
@@ -978,6 +1034,8 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     from .ply import PlyWriter
     from .scanning import plan_scan, scan
 
+    host = make_host()
+    loaded, fov = configured_for_sensor(loaded, host)
     cfg = loaded.config
     if cfg.scan is not None:  # where the PLY goes, before anything else
         out = Path(out_dir) if out_dir is not None else loaded.output_dir
@@ -995,8 +1053,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     _check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
-    host = make_host()
-    cell = make_cell(cfg, robot_arm(loaded, host))
+    cell = make_cell(cfg, robot_arm(loaded, host), fov)
     if cell is None:
         confirm_motion("scan", f"{len(targets)} profiles", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)

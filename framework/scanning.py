@@ -13,10 +13,11 @@ import numpy as np
 from . import geometry as geo
 from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
 from .config import RunConfig
+from .errors import ConfigError
 from .mapping import frame_from_sensor_stack, map_profile_list
 from .models import SPHERE_FRAME, Pose
 from .ply import PlyWriter
-from .sim.planner import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations
 
 
 def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
@@ -24,6 +25,9 @@ def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
     sc = cfg.scan
     acq = cfg.acquisition
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
+    if sc.standoff_z_mm is None:
+        raise ConfigError("scan.standoff_z_mm: not set, and the sensor type declares no field of view to take it "
+                          "from; set it (sensor-frame z of the object's surface at the centre, mm)")
     n = int(round(sc.length_mm / sc.step_mm)) + 1
     targets: list[Target] = []
     for j in range(sc.passes):

@@ -7,14 +7,14 @@ translation error that no single view can show)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from . import geometry as geo
 from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
 from .config import RunConfig, SweepSite
-from .errors import DegenerateDataError
+from .errors import ConfigError, DegenerateDataError
 from .mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
 from .metrology import (
     AcceptanceReport,
@@ -24,7 +24,10 @@ from .metrology import (
     sphere_spacing_error,
 )
 from .models import SPHERE_FRAME, Pose
-from .sim.planner import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .devices import SensorFieldOfView
 
 
 @dataclass(frozen=True)
@@ -37,18 +40,25 @@ class Sweep:
 
 
 def _sweep(cfg: RunConfig, X: Pose, label: str, kind: str, centre, half_length_mm: float, site: SweepSite,
-           n: int, first_index: int) -> Sweep:
+           n: int, first_index: int, field_of_view: "SensorFieldOfView | None") -> Sweep:
     acq = cfg.acquisition
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
+    if field_of_view is None:
+        raise ConfigError(f"sensor type {cfg.sensor['type']!r} declares no field of view: validation plans its "
+                          "sweeps in it (give it in the sensor plugin, or [simulation.fov] for a simulated run)")
+    # a sphere's centre at the sensor's sweep standoff, a flat's surface in the middle of the range
+    standoff = field_of_view.sweep_standoff_z_mm if kind != "flat" else field_of_view.middle_z_mm
     plan = SweepPlan(profiles_per_station=n, sweep_fraction=0.9, lateral_amplitude_mm=0.0,
-                     standoff_z_mm=-20.0 if kind != "flat" else -10.0,
+                     standoff_z_mm=standoff,
                      station_offsets_mm=[site.offset_mm], tilts_deg=[site.tilt_deg])
     (_, poses), = plan_stations(cfg.mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
     return Sweep(label, kind, targets_from_poses(poses, label, first_index, acq.approach_speed_mm_s, acq.speed_mm_s))
 
 
-def plan_validation(cfg: RunConfig, X: Pose) -> list[Sweep]:
-    """The validation sweeps, planned with the calibrated transform ``X``."""
+def plan_validation(cfg: RunConfig, X: Pose, field_of_view: "SensorFieldOfView | None" = None) -> list[Sweep]:
+    """The validation sweeps, planned with the calibrated transform ``X`` in the sensor's
+    ``field_of_view`` (a sphere's centre at its ``sweep_standoff_z_mm``, a flat in the
+    middle of its range)."""
     v = cfg.validation
     n = v.profiles_per_sweep
     r = cfg.sphere.radius_mm
@@ -57,16 +67,19 @@ def plan_validation(cfg: RunConfig, X: Pose) -> list[Sweep]:
     count = lambda: sum(len(s.targets) for s in sweeps)  # noqa: E731
     if centre is not None:
         for k, site in enumerate(v.sphere_positions):
-            sweeps.append(_sweep(cfg, X, f"P{k + 1}", "sphere", centre, 0.9 * r, site, n, count()))
+            sweeps.append(_sweep(cfg, X, f"P{k + 1}", "sphere", centre, 0.9 * r, site, n, count(), field_of_view))
     if v.ball_bar is not None:
         bb = v.ball_bar
         for k, site in enumerate(bb.positions):
             other = bb.positions[(k + 1) % len(bb.positions)]
-            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site, n, count()))
-            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other, n, count()))
+            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site,
+                                 n, count(), field_of_view))
+            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other,
+                                 n, count(), field_of_view))
     if v.flat is not None:
         for k, site in enumerate(v.flat.positions):
-            sweeps.append(_sweep(cfg, X, f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site, n, count()))
+            sweeps.append(_sweep(cfg, X, f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site,
+                                 n, count(), field_of_view))
     if not sweeps:
         raise DegenerateDataError("nothing to validate: give [acquisition] sphere_centre_mm, [validation.ball_bar] or [validation.flat]")
     return sweeps

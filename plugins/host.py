@@ -43,7 +43,7 @@ import pluggy
 from pydantic import BaseModel, ValidationError
 from pydantic_core import PydanticUndefined
 
-from spherecal.devices import DeviceContext, Robot, RobotType, Sensor, SensorType
+from spherecal.devices import RESERVED_OPTION_NAMES, DeviceContext, Robot, RobotType, Sensor, SensorType
 from spherecal.errors import ConfigError, PluginError, SpherecalError
 from spherecal.exporters import MOUNTINGS, TEMPLATE_FIELDS, Exporter, ExportPlan, SelectedExporter
 
@@ -60,6 +60,7 @@ HOOK_PREFIX = PROJECT_NAME + "_"
 TYPE_KEY = "type"
 
 _TYPE_NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
+_FRAME_OPTION_RE = re.compile(r"^[a-z][a-z0-9-]*$")
 _FALSE_WORDS = {"", "0", "false", "no", "off"}
 
 DeviceKind = Literal["robot", "sensor"]
@@ -231,6 +232,19 @@ class DeviceRegistry:
             )
         if not callable(item.factory):
             raise PluginError(f"plugin '{plugin}': the factory of {kind} type '{name}' is not callable")
+        option = getattr(item, "frame_option", None)
+        if option is not None:
+            if not isinstance(option, str) or not _FRAME_OPTION_RE.match(option):
+                raise PluginError(f"plugin '{plugin}': robot type '{name}' has frame_option {option!r}; it must be "
+                                  "lower case letters, digits and '-', starting with a letter, without the dashes "
+                                  "(e.g. 'tool-frame')")
+            if option in RESERVED_OPTION_NAMES:
+                raise PluginError(f"plugin '{plugin}': robot type '{name}' has frame_option {option!r}, an option "
+                                  f"spherecal compare or validate already has (taken: "
+                                  f"{', '.join(sorted(RESERVED_OPTION_NAMES))})")
+            if item.read_frame is None:
+                raise PluginError(f"plugin '{plugin}': robot type '{name}' has frame_option {option!r} but no "
+                                  "read_frame to read what it is given")
         if name in table:
             other = self._provider[(kind, name)]
             raise PluginError(

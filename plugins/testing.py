@@ -18,7 +18,14 @@ Fixtures
     2400-class arm; for another arm give its kinematics (``{"arm": kinematics}``, e.g.
     ``host.arm_kinematics({"type": "urdf", ...})``: the sphere, or the eye-to-hand
     sensor, where that arm reaches the default plan) or its size (``{"reach_mm": 900.0,
-    "shoulder_mm": (0, 0, 90)}``).
+    "shoulder_mm": (0, 0, 90)}``). The dict may also set the cell's truth and sensor:
+    ``sphere_centre_mm`` (mm; base in eye-in-hand, flange in eye-to-hand),
+    ``true_transform`` (a :class:`~spherecal.models.Pose`) and ``fov`` (your sensor's
+    :class:`~spherecal.devices.SensorFieldOfView`, e.g.
+    ``host.registry.sensor_type(name).field_of_view``); or the parameter is a whole
+    :class:`~spherecal.sim.SimulatedCell` (also ``{"cell": cell}``), used as it is.
+    To use one cell in every test of a plugin, override the fixture in the plugin's own
+    ``conftest.py`` (a fixture of the same name there wins; docs/plugins.md).
 ``spherecal_host``
     A fresh :class:`spherecal.plugins.host.PluginHost` (built-ins and installed plugins).
 ``spherecal_context``
@@ -26,7 +33,7 @@ Fixtures
     to ``host.create_robot`` / ``host.create_sensor`` to get the simulated devices.
 ``spherecal_stations``
     Planned flange targets for the cell, ``[(label, [base_from_flange, ...]), ...]``, from
-    :func:`spherecal.sim.plan_stations` with the cell's true transform.
+    :func:`spherecal.planning.plan_stations` with the cell's true transform.
 ``spherecal_robot_harness`` / ``spherecal_sensor_harness``
     :class:`RobotHarness` / :class:`SensorHarness` bound to the cell and stations:
     ``spherecal_robot_harness.check(robot)`` checks that a robot honours the
@@ -141,6 +148,12 @@ class RobotReport:
     max_kinematics_error_mm: float | None = None
 
 
+#: What the robot harness allows, on top of the cell's pose noise, between the forward
+#: kinematics of the joints a robot reports and the commanded pose, mm: joints carried
+#: with 4 decimals in degrees move a flange 1 m out by up to about 2 um per joint.
+JOINT_ROUNDING_MM = 0.01
+
+
 @dataclass
 class RobotHarness:
     """Checks a robot object against the simulated cell it was created on."""
@@ -159,7 +172,7 @@ class RobotHarness:
         robot: "Robot",
         *,
         flange_pose_from_joints: Callable[[Any], "Pose"] | None = None,
-        kinematics_tolerance_mm: float = 0.01,
+        kinematics_tolerance_mm: float | None = None,
         check_close: bool = True,
     ) -> RobotReport:
         """Assert that ``robot`` honours the Robot protocol on ``self.cell``.
@@ -171,7 +184,9 @@ class RobotHarness:
           the cell's pose noise (plus 1 um and 1e-4 deg for rounding);
         - ``read_joints_deg()`` is None or one finite number per joint; with
           ``flange_pose_from_joints`` (joints_deg -> base_from_flange), the pose computed
-          from them agrees with the target within ``kinematics_tolerance_mm``;
+          from them agrees with the target within ``kinematics_tolerance_mm`` (default:
+          the reported-pose bound, six standard deviations of the cell's pose noise, plus
+          :data:`JOINT_ROUNDING_MM` for joints a protocol carries rounded);
         - a non-positive speed is refused with a :class:`~spherecal.errors.SpherecalError`
           before the robot moves;
         - ``close()`` can be called twice (when ``check_close``; the robot is closed after).
@@ -189,6 +204,8 @@ class RobotHarness:
         noise = self.cell.noise
         tol_report_mm = 6 * noise.pose_translation_noise_mm * np.sqrt(3) + 1e-3
         tol_report_deg = 6 * noise.pose_rotation_noise_deg * np.sqrt(3) + 1e-4
+        if kinematics_tolerance_mm is None:
+            kinematics_tolerance_mm = 6 * noise.pose_translation_noise_mm * np.sqrt(3) + JOINT_ROUNDING_MM
         report = RobotReport(0, 0.0, 0.0, 0.0, 0.0)
         kin_errors = []
         for label, target in _first_targets(self.stations, self.per_station):
@@ -218,7 +235,8 @@ class RobotHarness:
                     kin_errors.append(kt)
                     assert kt <= kinematics_tolerance_mm, (
                         f"forward kinematics of read_joints_deg() = {j.tolist()} is {kt:.4f} mm from the "
-                        f"commanded pose ({where})"
+                        f"commanded pose ({where}); allowed {kinematics_tolerance_mm:.4f} mm (the cell's pose "
+                        f"noise and joint rounding)"
                     )
             report.n_moves += 1
             report.max_move_error_mm = max(report.max_move_error_mm, dt)
@@ -359,16 +377,61 @@ class SensorHarness:
 # ---------------------------------------------------------------------------------------
 # Fixtures
 # ---------------------------------------------------------------------------------------
+#: Keys of a ``spherecal_cell`` parameter besides :func:`spherecal.sim.standard_cell`'s.
+CELL_PARAMETERS = ("cell", "sphere_centre_mm", "true_transform", "fov")
+
+
+def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
+    """The cell of a ``spherecal_cell`` parameter (module docstring): a mounting name, a
+    :class:`~spherecal.sim.SimulatedCell` (used as it is), or a dict of
+    :func:`~spherecal.sim.standard_cell` arguments (``seed`` defaults to 0) with any of
+    ``sphere_centre_mm`` (the true sphere centre, base in eye-in-hand, flange in
+    eye-to-hand, mm), ``true_transform`` (a :class:`~spherecal.models.Pose`:
+    ``flange_from_sensor`` in eye-in-hand, ``base_from_sensor`` in eye-to-hand), ``fov``
+    (a :class:`~spherecal.devices.SensorFieldOfView`, your sensor's) or ``cell`` (a whole
+    cell, alone). A key that is none of these is a TypeError naming it."""
+    import inspect
+
+    import numpy as np
+
+    from spherecal.models import Pose
+    from spherecal.sim import SimulatedCell, standard_cell
+
+    if isinstance(param, SimulatedCell):
+        return param
+    if not isinstance(param, dict):
+        return standard_cell(param, seed=0)
+    kwargs = dict(param)
+    if "cell" in kwargs:
+        if len(kwargs) > 1 or not isinstance(kwargs["cell"], SimulatedCell):
+            raise TypeError("spherecal_cell: 'cell' takes a spherecal.sim.SimulatedCell and no other key, got "
+                            f"{sorted(kwargs)}")
+        return kwargs["cell"]
+    known = set(inspect.signature(standard_cell).parameters) | set(CELL_PARAMETERS)
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise TypeError(f"spherecal_cell: unknown parameter(s) {unknown}; known: {sorted(known)}")
+    centre = kwargs.pop("sphere_centre_mm", None)
+    true = kwargs.pop("true_transform", None)
+    if true is not None and not isinstance(true, Pose):
+        raise TypeError(f"spherecal_cell: true_transform must be a spherecal.models.Pose, got {type(true).__name__}")
+    kwargs.setdefault("seed", 0)
+    cell = standard_cell(**kwargs)
+    if true is not None:
+        cell.true_transform = true
+    if centre is not None:
+        cell.sphere_centre_mm = np.asarray(centre, dtype=float).reshape(3)
+    return cell
+
+
 @pytest.fixture
 def spherecal_cell(request) -> "SimulatedCell":
     """A seeded standard cell (default eye-in-hand, seed 0); parametrise indirectly with a
-    mounting name or a dict of ``standard_cell`` arguments."""
-    from spherecal.sim import standard_cell
-
-    param = getattr(request, "param", "eye_in_hand")
-    kwargs = dict(param) if isinstance(param, dict) else {"mounting": param}
-    kwargs.setdefault("seed", 0)
-    return standard_cell(**kwargs)
+    mounting name, a whole :class:`~spherecal.sim.SimulatedCell`, or a dict of
+    ``standard_cell`` arguments plus ``sphere_centre_mm``, ``true_transform`` and ``fov``
+    (:func:`make_cell`). Override it in your own ``conftest.py`` for a cell of your own
+    in every test (docs/plugins.md)."""
+    return make_cell(getattr(request, "param", "eye_in_hand"))
 
 
 @pytest.fixture
@@ -392,10 +455,11 @@ def spherecal_context(spherecal_cell) -> "DeviceContext":
 @pytest.fixture
 def spherecal_stations(spherecal_cell):
     """Planned flange targets ``[(label, [base_from_flange, ...]), ...]`` for the cell."""
-    from spherecal.sim import plan_stations
+    from spherecal.planning import plan_stations
 
     cell = spherecal_cell
-    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
+                         field_of_view=cell.fov)
 
 
 @pytest.fixture

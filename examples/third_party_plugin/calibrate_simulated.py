@@ -75,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     nominal = nominal_guess(cell.true_transform, rng)
     rough_centre_mm = cell.sphere_centre_mm + rng.normal(0.0, 2.0, 3)
-    stations = plan_stations(cell.mounting, nominal, rough_centre_mm, cell.sphere_radius_mm)
+    stations = plan_stations(cell.mounting, nominal, rough_centre_mm, cell.sphere_radius_mm,
+                             field_of_view=cell.fov)
     try:
         dataset = acquire(host, robot, sensor, stations, cell.mounting, cell.sphere_radius_mm)
     finally:

@@ -1,10 +1,11 @@
 """A virtual robot cell with a known true transform.
 
 The laser line sensor is modelled as a fan of rays in its x = 0 plane from an apex on
-its z axis, chosen so that the fan's width matches the field of view (nxSensor-I: 28 mm
-wide at z = +40 mm, 48 mm at z = -60 mm, so the apex is at z = +180 mm and the sensor
-looks towards -z). Each ray returns its first hit on the sphere, so only the side the
-sensor can see is measured; hits outside z in [-60, +40] mm are dropped. Gaussian noise
+its z axis, chosen so that the fan's width matches the sensor's declared field of view
+(:class:`~spherecal.devices.SensorFieldOfView`; the reference sensor's, 28 mm wide at
+z = +40 mm and 48 mm at z = -60 mm, puts the apex at z = +180 mm); the sensor looks
+towards -z. Each ray returns its first hit on the sphere, so only the side the sensor can
+see is measured; hits outside the measuring range are dropped. Gaussian noise
 is added to y and z of every point (isotropic in the laser plane); stray points
 (reflections, edge points) are added to some profiles. Robot pose noise: the reported
 pose is the true one with rotation ``exp(eps_r) R`` and translation ``t + eps_t``, both
@@ -19,32 +20,19 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from .. import geometry as geo
+from ..devices import SensorFieldOfView
 from ..models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
 from .objects import BallBar, SceneObject, Sphere
 from .robot_error import RobotErrorModel, SimulatedArm
 
 
-class SensorFieldOfView(BaseModel):
-    """Field of view of a laser line sensor, sensor frame, mm (defaults: nxSensor-I)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    z_near_mm: float = Field(40.0, description="near end of the measuring range (z, mm)")
-    z_far_mm: float = Field(-60.0, description="far end of the measuring range (z, mm)")
-    width_near_mm: float = Field(28.0, gt=0, description="line width at the near end, mm")
-    width_far_mm: float = Field(48.0, gt=0, description="line width at the far end, mm")
-    n_columns: int = Field(640, ge=16, le=100_000, description="points across the full line")
-
-    @property
-    def apex_z_mm(self) -> float:
-        """z of the fan's apex, where the line width extrapolates to zero."""
-        slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
-        return self.z_near_mm + self.width_near_mm / 2 / slope
-
-    @property
-    def half_angle_rad(self) -> float:
-        slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
-        return float(np.arctan(slope))
+#: The field of view of the standard cell's reference sensor, used when a cell is built
+#: without one (:func:`standard_cell` from Python, ``spherecal simulate`` without a
+#: configuration); configured runs use their sensor type's own
+#: (:attr:`spherecal.devices.SensorType.field_of_view`). The simulated datasets of the
+#: tests and benchmarks are made with it.
+REFERENCE_FIELD_OF_VIEW = SensorFieldOfView(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=28.0, width_far_mm=48.0,
+                                            standoff_z_mm=-20.0)
 
 
 class NoiseModel(BaseModel):
@@ -102,7 +90,7 @@ class SimulatedCell:
         self.objects: list[SceneObject] = [
             Sphere(sphere_centre_mm, sphere_radius_mm, frame=SPHERE_FRAME[mounting], name="reference_sphere")
         ]
-        self.fov = fov or SensorFieldOfView()
+        self.fov = fov or REFERENCE_FIELD_OF_VIEW
         self.noise = noise or NoiseModel()
         self.seed = seed
         self.rng = np.random.default_rng(seed)
@@ -335,10 +323,6 @@ def _rot(rotvec_deg) -> np.ndarray:
     return geo.matrix_from_rotvec(np.radians(rotvec_deg))
 
 
-#: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell.
-FLANGE_DOWN = _rot([0.0, 180.0, 0.0])
-
-
 #: Fractions of the reach-scaled layout tried, in order, until the arm reaches the default plan.
 LAYOUT_SHRINK = (1.0, 0.9, 0.8, 0.7, 0.6)
 
@@ -347,10 +331,10 @@ def _reaches_default_plan(arm, cell: "SimulatedCell") -> bool:
     """Whether the arm's inverse kinematics reaches every target of the default plan on
     ``cell``, each from the last one's joints (the first from a few seeds)."""
     from ..errors import InputError
-    from .planner import plan_stations
+    from ..planning import plan_stations
 
     targets = [p for _, poses in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm,
-                                              cell.sphere_radius_mm) for p in poses]
+                                              cell.sphere_radius_mm, field_of_view=cell.fov) for p in poses]
     n = arm.chain.n_joints
     for seed in [None, *np.random.default_rng(0).uniform(-120.0, 120.0, (4, n))]:
         try:

@@ -1,9 +1,5 @@
-"""Station planning (pure-translation sweeps across the sphere at several orientations)
-and simulated acquisition.
-
-The same planner serves the real acquisition: it needs only a nominal transform (from
-the configuration) and a rough sphere position. The simulator uses its true transform.
-"""
+"""Simulated acquisition: the planned stations (:mod:`spherecal.planning`, with the cell's
+true transform) measured on a :class:`~spherecal.sim.cell.SimulatedCell`."""
 
 from __future__ import annotations
 
@@ -12,119 +8,9 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .. import geometry as geo
-from ..models import Circle, Dataset, MountingMode, Observation, Pose, Profile
-from .cell import FLANGE_DOWN, SimulatedCell
-
-
-class SweepPlan(BaseModel):
-    """How to sweep the sphere: sensor-frame positions of the sphere centre per station.
-
-    Within a station the flange only translates. The sphere centre crosses the laser
-    plane along the sensor's x from ``-sweep_fraction * r`` to ``+sweep_fraction * r``
-    while wandering by ``lateral_amplitude_mm`` in y and z, so that the moves of one
-    station span three dimensions (this is what lets each station decide, on its own,
-    on which side of the laser plane the centre lies)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    profiles_per_station: int = Field(10, ge=4, le=10_000, description="profiles taken per station")
-    sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
-    standoff_z_mm: float = Field(-20.0, description="sensor-frame z of the sphere centre, mm")
-    lateral_amplitude_mm: float = Field(4.0, ge=0, le=1000, description="y/z wander within a sweep, mm")
-    station_offsets_mm: list[tuple[float, float]] = Field(
-        default_factory=lambda: [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)],
-        description="(y, z) shift of the sweep in the sensor frame, mm, per station (cycled): "
-        "sweeps at different places of the field of view tie the rotation to the translation",
-    )
-    tilts_deg: list[tuple[float, float, float]] = Field(
-        default_factory=lambda: [(0.0, 0.0, 0.0), (30.0, 0.0, 0.0), (0.0, 30.0, 0.0), (0.0, 0.0, 45.0)],
-        description="one rotation vector (deg) per station: about sensor axes (eye-in-hand) "
-        "or base axes (eye-to-hand), applied to the reference orientation",
-    )
-
-
-def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:
-    """(n, 3) planned sensor-frame positions of the sphere centre along one sweep, mm."""
-    n = plan.profiles_per_station
-    s = np.linspace(-1.0, 1.0, n)
-    phase = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-    a = plan.lateral_amplitude_mm
-    return np.column_stack(
-        [s * plan.sweep_fraction * radius_mm, a * np.sin(phase), plan.standoff_z_mm + a * np.cos(phase)]
-    )
-
-
-def station_flange_poses(
-    mounting: MountingMode,
-    nominal_transform: Pose,
-    sphere_centre_mm,
-    radius_mm: float,
-    plan: SweepPlan,
-    tilts_deg,
-    offsets_mm,
-    reference_flange_rotation=None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Flange targets ``base_from_flange`` of stations with the rotation vectors
-    ``tilts_deg`` (K, 3) and field-of-view shifts ``offsets_mm`` (K, 2), the sweep's other
-    settings from ``plan``: rotations (K, n, 3, 3) and translations (K, n, 3), mm, n =
-    ``plan.profiles_per_station``. Arguments as :func:`plan_stations`."""
-    R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
-    centre = np.asarray(sphere_centre_mm, dtype=float)
-    tilts = np.atleast_2d(np.asarray(tilts_deg, dtype=float))
-    offsets = np.atleast_2d(np.asarray(offsets_mm, dtype=float))
-    poses = _station_poses(mounting, nominal_transform, centre, radius_mm, plan, tilts, offsets, R_ref)
-    R = np.array([[p.rotation_matrix for p in station] for station in poses]).reshape(len(tilts), -1, 3, 3)
-    t = np.array([[p.translation for p in station] for station in poses]).reshape(len(tilts), -1, 3)
-    return R, t
-
-
-def _station_poses(mounting, X: Pose, centre: np.ndarray, radius_mm: float, plan: SweepPlan, tilts: np.ndarray,
-                   offsets: np.ndarray, R_ref: np.ndarray) -> list[list[Pose]]:
-    """The flange poses of :func:`station_flange_poses`, station by station, composed pose
-    by pose as :class:`Pose` does it: the simulated datasets stay bit for bit those of
-    earlier versions (tests/core/test_profiles_unchanged.py)."""
-    X_inv = X.inverse()
-    cs0 = sphere_centres_in_sensor(plan, radius_mm)
-    out = []
-    for tilt, (dy, dz) in zip(tilts, offsets):
-        Rt = geo.matrix_from_rotvec(np.radians(tilt))
-        station = []
-        for c_s in cs0 + [0.0, dy, dz]:
-            if mounting == "eye_in_hand":
-                # base_from_sensor puts the sphere centre at c_s; base_from_flange = base_from_sensor X^-1
-                R_bs = R_ref @ X.rotation_matrix @ Rt
-                station.append(Pose.from_rt(R_bs, centre - R_bs @ c_s) @ X_inv)
-            else:
-                # the sphere centre, on the flange, at X c_s in base
-                R_bf = Rt @ R_ref
-                station.append(Pose.from_rt(R_bf, X.apply(c_s) - R_bf @ centre))
-        out.append(station)
-    return out
-
-
-def plan_stations(
-    mounting: MountingMode,
-    nominal_transform: Pose,
-    sphere_centre_mm,
-    radius_mm: float,
-    plan: SweepPlan | None = None,
-    reference_flange_rotation=None,
-) -> list[tuple[str, list[Pose]]]:
-    """Flange targets ``base_from_flange`` per station: ``[(label, [pose, ...]), ...]``.
-
-    ``nominal_transform`` is flange_from_sensor (eye-in-hand) or base_from_sensor
-    (eye-to-hand); ``sphere_centre_mm`` is in base (eye-in-hand) or flange (eye-to-hand).
-    ``reference_flange_rotation`` (3x3, base_from_flange) defaults to flange pointing down.
-    Station k is tilted by ``plan.tilts_deg[k]`` (about the sensor's axes, eye-in-hand, or
-    the base's, eye-to-hand) and shifted by ``plan.station_offsets_mm`` (cycled)."""
-    plan = plan or SweepPlan()
-    offsets = [plan.station_offsets_mm[k % len(plan.station_offsets_mm)] for k in range(len(plan.tilts_deg))]
-    R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
-    poses = _station_poses(mounting, nominal_transform, np.asarray(sphere_centre_mm, dtype=float), radius_mm, plan,
-                           np.atleast_2d(np.asarray(plan.tilts_deg, dtype=float)), np.asarray(offsets, dtype=float),
-                           R_ref)
-    return [(f"S{k + 1}", station) for k, station in enumerate(poses)]
+from ..models import Circle, Dataset, Observation, Profile
+from ..planning import SweepPlan, plan_stations, with_standoff
+from .cell import SimulatedCell
 
 
 def _truth(cell: SimulatedCell, plan: SweepPlan, source: str) -> dict:
@@ -148,7 +34,7 @@ def simulate_dataset(
     """Run a simulated acquisition on ``cell`` and return the dataset (reported poses,
     noisy profiles). The truth goes into ``provenance``. Shots that see fewer than
     ``min_points`` points are skipped, as an acquisition would."""
-    plan = plan or SweepPlan()
+    plan = with_standoff(plan or SweepPlan(), cell.fov)
     stations = plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
     )
@@ -213,7 +99,7 @@ def simulate_centre_dataset(
     skipped. The truth goes into ``provenance``."""
     if kind not in ("sphere_centre", "circle"):
         raise ValueError(f"kind must be 'sphere_centre' or 'circle', got {kind!r}")
-    plan = plan or SweepPlan()
+    plan = with_standoff(plan or SweepPlan(), cell.fov)
     stations = plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
     )

@@ -91,6 +91,7 @@ ROBOT_TYPE = RobotType(
     flange_pose_from_joints=flange_pose_from_joints,
     arm_kinematics=arm_kinematics,
     read_frame=read_frame,
+    frame_option="tooldata",  # spherecal compare/validate --tooldata LINE: the word RAPID users know
 )
 
 

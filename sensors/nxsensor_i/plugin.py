@@ -8,7 +8,7 @@ hardware; otherwise pyusb's default backend (libusb-1.0) is used.
 
 from __future__ import annotations
 
-from spherecal.devices import DeviceContext, SensorType
+from spherecal.devices import DeviceContext, SensorFieldOfView, SensorType
 from spherecal.plugins import hookimpl
 
 from .config import NxSensorConfig
@@ -16,6 +16,13 @@ from .driver import NxSensorDriver
 from .simbackend import SimulatedNxSensorBackend
 
 NAME = "nxsensor_i"
+
+#: The nxSensor-I's measuring range (NextWare's data, docs/sensor-nxsensor-i.md): z from
+#: -60 mm (far end, line 48 mm wide) to +40 mm (near end, 28 mm), sensor frame; a
+#: calibration sweep keeps the sphere's centre at z = -20 mm, so that its visible cap
+#: (radius 19.1 mm) and the sweep's wander stay inside the range at every station offset.
+FIELD_OF_VIEW = SensorFieldOfView(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=28.0, width_far_mm=48.0,
+                                  standoff_z_mm=-20.0)
 
 
 def create_sensor(config: NxSensorConfig, context: DeviceContext) -> NxSensorDriver:
@@ -39,5 +46,6 @@ def spherecal_register_devices(registry):
             factory=create_sensor,
             description="NextWare nxSensor-I laser line sensor over USB (pyusb); z -60 .. +40 mm, 5 um "
             "resolution. The USB wire format is an assumption held in sensor.wire.",
+            field_of_view=FIELD_OF_VIEW,
         )
     )

@@ -13,7 +13,7 @@ from spherecal.config import load_config
 from spherecal.kinplan import plan_kinematic_stations
 from spherecal.plugins.host import PluginHost
 from spherecal.ply import read_ply
-from spherecal.runner import calibration_options, make_cell, open_devices, solve_and_write
+from spherecal.runner import calibration_options, configured_for_sensor, make_cell, open_devices, solve_and_write
 from spherecal.sim import simulate_dataset
 from spherecal.urdf import read_urdf_chain
 
@@ -34,7 +34,7 @@ def calibrated(sim_config, tmp_path):
     """A kinematic calibration of the simulated cell written into <tmp>/out (acquired
     without the devices: the same cell, arm and plan), and the configuration."""
     path = sim_config(**CALIBRATE)
-    loaded = load_config(path)
+    loaded, _ = configured_for_sensor(load_config(path), PluginHost())  # as a run: the sensor's standoff
     cfg = loaded.config
     nominal = PluginHost().arm_kinematics(cfg.robot)
     cell = make_cell(cfg, nominal)  # as the runner makes it

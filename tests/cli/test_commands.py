@@ -80,7 +80,7 @@ def test_manual_mode_captures_on_enter_and_refuses_rotation_within_a_station(tmp
     ctx = DeviceContext(cell=cell, log=lambda m: None)
     robot = host.create_robot({"type": "abb_irb2400"}, ctx)
     sensor = host.create_sensor({"type": "nxsensor_i"}, ctx)
-    stations = plan_stations("eye_in_hand", cell.true_transform, cell.sphere_centre_mm, 19.1)
+    stations = plan_stations("eye_in_hand", cell.true_transform, cell.sphere_centre_mm, 19.1, field_of_view=cell.fov)
     s1, s2 = stations[0][1][:5], stations[1][1][:5]
     script = [(p, "") for p in s1] + [(s2[0], "")] + [(None, "s")] + [(p, "") for p in s2] + [(None, "q")]
     it = iter(script)
@@ -109,10 +109,12 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
     """The real-hardware configuration validates, its plan stays in the workspace and
     every target is reachable by the IRB 2400 within its joint limits (checked with the
     plugin's kinematics, no controller needed)."""
-    loaded = load_config(EXAMPLES / "irb2400-nxsensor-eye-in-hand.toml")
+    host = PluginHost()
+    from spherecal.runner import configured_for_sensor
+
+    loaded, _ = configured_for_sensor(load_config(EXAMPLES / "irb2400-nxsensor-eye-in-hand.toml"), host)
     cfg = loaded.config
     assert cfg.simulation is None and cfg.robot["port"] == "/dev/ttyUSB0"
-    host = PluginHost()
     robot_cfg = host.validate_robot_config("abb_irb2400", cfg.robot)
     host.validate_sensor_config("nxsensor_i", cfg.sensor)
     exports = host.export_plan(cfg.export, cfg.mounting, cfg.robot["type"])

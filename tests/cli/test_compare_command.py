@@ -94,6 +94,9 @@ def test_different_transforms_are_refused(results, capsys):
     (["--tooldata", "[TRUE,[[1,2,3],[1,0,0]]]"], "--tooldata: tooldata tframe.rot: expected 4 numbers, got 3"),
     (["--tooldata", "tool0"], "is not a frame any installed robot plugin reads"),
     (["--transform", "1,2,3,1,0,0,0", "--tooldata", "[TRUE,[[1,2,3],[1,0,0,0]]]"], "give one of --transform"),
+    (["--controller-frame", "[TRUE,[[1,2,3],[1,0,0,0]]]", "--tooldata", "[TRUE,[[1,2,3],[1,0,0,0]]]"],
+     "(given: --controller-frame, --tooldata)"),
+    (["--controller-frame", "[TRUE,[[1,2,3],[1,0,0]]]"], "--controller-frame: tooldata tframe.rot: expected 4"),
     (["--std-mm", "0.1"], "--std-mm and --std-deg are the uncertainty of --transform or --tooldata"),
 ])
 def test_usage_errors_exit_2(results, capsys, extra, message):
@@ -106,3 +109,58 @@ def test_a_folder_without_a_result(results, tmp_path, capsys):
     root, _, _ = results
     assert main(["compare", str(root / "a.json"), str(tmp_path)]) == EXIT_DATA
     assert "is a folder without a result.json" in capsys.readouterr().err
+
+
+def test_the_generic_controller_frame_option_reads_as_the_robot_types_own_name(results, capsys):
+    """--controller-frame is the core's option; --tooldata the ABB plugin's name for it
+    (RobotType.frame_option): both go to the same reader and give the same comparison."""
+    root, _, moved = results
+    t, q = moved.translation_mm, moved.quaternion_wxyz
+    line = (f"[TRUE,[[{t[0]:.6f},{t[1]:.6f},{t[2]:.6f}],[{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f}]],"
+            "[1,[0,0,80],[1,0,0,0],0,0,0]]")
+    outs = []
+    for option in ("--controller-frame", "--tooldata"):
+        assert main(["compare", str(root / "a.json"), option, line]) == EXIT_OK
+        outs.append(capsys.readouterr().out)
+    assert "translation: 0.4000 mm" in outs[0]
+    assert outs[0].replace("--controller-frame", "--tooldata") == outs[1]
+
+
+def test_a_robot_types_frame_option_is_offered_and_named_in_messages(capsys):
+    from spherecal.cli import build_parser
+
+    parser = build_parser({"tool-frame": ["acme_arm"], "tooldata": ["abb_irb2400"]})
+    args = parser.parse_args(["compare", "a.json", "--tool-frame", "LINE"])
+    assert args.controller_frame == [("--tool-frame", "LINE")]
+    assert args.frame_words == "--tool-frame / --tooldata / --controller-frame"
+    assert build_parser({}).parse_args(["compare", "a.json"]).frame_words == "--controller-frame"
+    with pytest.raises(SystemExit):  # without the robot type, its name is not an option
+        build_parser({}).parse_args(["compare", "a.json", "--tool-frame", "LINE"])
+    assert "unrecognized arguments: --tool-frame" in capsys.readouterr().err
+
+
+def test_the_reserved_option_names_hold_every_option_of_compare_and_validate():
+    """A robot type's frame_option is refused when it is one of RESERVED_OPTION_NAMES: that
+    list must hold every option the two commands have."""
+    from spherecal.cli import build_parser
+    from spherecal.devices import RESERVED_OPTION_NAMES
+
+    parser = build_parser({})
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    for command in ("compare", "validate"):
+        names = {o[2:] for a in sub.choices[command]._actions for o in a.option_strings if o.startswith("--")}
+        assert names <= RESERVED_OPTION_NAMES, names - RESERVED_OPTION_NAMES
+    assert {o[2:] for a in parser._actions for o in a.option_strings if o.startswith("--")} <= RESERVED_OPTION_NAMES
+
+
+def test_the_core_names_no_controller_brand_data_type():
+    """The core knows no robot brand: the ABB data types are the ABB plugin's words."""
+    from pathlib import Path
+
+    import spherecal
+
+    core = Path(spherecal.__file__).parent
+    hits = [str(p.relative_to(core)) for p in core.rglob("*.py")
+            if p.is_file() and not {"robots", "sensors", "plugins"} & set(p.relative_to(core).parts)
+            and any(w in p.read_text(encoding="utf-8").lower() for w in ("tooldata", "wobjdata"))]
+    assert hits == []

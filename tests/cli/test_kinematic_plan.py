@@ -42,7 +42,7 @@ def test_the_planner_is_used_when_no_stations_are_given(sim_config, capsys):
     assert not uses_planner(load_config(sim_config(**IDENTIFY, **with_tilts([(0, 0, 0), (30, 0, 0), (0, 30, 0)]))).config)
     assert not uses_planner(load_config(sim_config()).config)
     # asked for explicitly: planned without identify_kinematics too, with its own settings
-    cfg = load_config(sim_config(**{r"^\[acquisition\.workspace\]$": "[acquisition.kinematic_plan]\nstations = 6\n\n"
+    cfg = for_run(sim_config(**{r"^\[acquisition\.workspace\]$": "[acquisition.kinematic_plan]\nstations = 6\n\n"
                                                                        "[acquisition.workspace]"})).config
     assert uses_planner(cfg) and cfg.acquisition.kinematic_plan.stations == 6
 
@@ -64,7 +64,7 @@ def test_the_plan_is_deterministic(sim_config, arm):
     settings = "[acquisition.kinematic_plan]\nstations = 6\ncandidates = 40\nseed = {}\n\n[acquisition.workspace]"
 
     def tilts(seed):
-        cfg = load_config(sim_config(**{r"^\[acquisition\.workspace\]$": settings.format(seed)})).config
+        cfg = for_run(sim_config(**{r"^\[acquisition\.workspace\]$": settings.format(seed)})).config
         plan = plan_kinematic_stations(cfg, arm)
         assert plan.tried == 40 and len(plan.sweep.tilts_deg) == 6
         assert plan.sweep.tilts_deg[0] == (0.0, 0.0, 0.0)  # the reference orientation first
@@ -74,7 +74,7 @@ def test_the_plan_is_deterministic(sim_config, arm):
 
 
 def test_a_workspace_too_small_for_the_stations_is_refused(sim_config, arm):
-    cfg = load_config(sim_config(**IDENTIFY, **{r"^min_mm = .*$": "min_mm = [1100.0, 130.0, 560.0]",
+    cfg = for_run(sim_config(**IDENTIFY, **{r"^min_mm = .*$": "min_mm = [1100.0, 130.0, 560.0]",
                                                  r"^max_mm = .*$": "max_mm = [1180.0, 210.0, 630.0]"})).config
     with pytest.raises(InputError, match=r"only \d+ of 240 candidate orientations .* are reachable with every flange "
                                          r"position in acquisition.workspace, and 20 stations were asked for: widen "
@@ -87,6 +87,14 @@ def test_a_workspace_too_small_for_the_stations_is_refused(sim_config, arm):
 ONE_CONFIGURATION = [(0, 0, 0), (10, 0, 0), (0, 10, 0), (0, 0, 45), (0, 0, -45), (0, 0, 90), (0, 0, -90),
                      (5, 5, 20), (-5, 5, -20), (5, -5, 60)]
 TOO_FEW = [(0, 0, 0), (30, 0, 0), (0, 30, 0)]
+
+
+def for_run(path):
+    """The configuration at ``path`` as a run sees it (standoffs from the sensor's field of view)."""
+    from spherecal.plugins.host import PluginHost
+    from spherecal.runner import configured_for_sensor
+
+    return configured_for_sensor(load_config(path), PluginHost())[0]
 
 
 def joint_spans(cfg, arm):
@@ -124,7 +132,7 @@ def test_a_degenerate_plan_is_refused_saying_what_to_add(sim_config, capsys, arm
     assert "nothing was moved" in err and not (path.parent / "out").exists()
     added = [tuple(float(v) for v in t.split(", ")) for t in re.findall(r"\[([-\d., ]+)\]", advice[4])]
     assert len(added) == int(advice[1]) and 0 < len(added) <= 24
-    spans_before = joint_spans(load_config(path).config, arm)
+    spans_before = joint_spans(for_run(path).config, arm)
     # follow the advice (the same file name: sim_config writes over the plan refused)
     fixed = sim_config(**IDENTIFY, **with_tilts(list(tilts) + added))
     assert main(["calibrate", str(fixed), "--dry-run"]) == EXIT_OK
@@ -133,7 +141,7 @@ def test_a_degenerate_plan_is_refused_saying_what_to_add(sim_config, capsys, arm
     assert passed and int(passed[1]) == len(tilts) + len(added)
     assert abs(int(passed[2]) - int(advice[3])) <= 0.02 * int(advice[3])  # the tilts it printed are rounded
     # the figures are those of the robot's joints, to the rounding
-    for spans, said in ((spans_before, before), (joint_spans(load_config(fixed).config, arm), after)):
+    for spans, said in ((spans_before, before), (joint_spans(for_run(fixed).config, arm), after)):
         assert all(abs(spans[j - 1] - d) <= 0.5 for j, d in said.items()), (spans, said)
 
 

@@ -11,7 +11,14 @@ from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, EXIT_VALIDATION, main
 from spherecal.config import load_config
 from spherecal.models import Pose
 from spherecal.ply import read_ply, read_ply_header
-from spherecal.runner import make_cell
+from spherecal.runner import make_cell, sensor_field_of_view
+
+
+def fov_of(cfg):
+    """The field of view the run plans in: the configured sensor's."""
+    from spherecal.plugins.host import PluginHost
+
+    return sensor_field_of_view(cfg, PluginHost())
 
 
 def write_result_with(out, cfg_path, transform: Pose):
@@ -63,7 +70,7 @@ def noise_spread(cfg, X, seeds=10):
         cell = make_cell(cfg.model_copy(update={"simulation": cfg.simulation.model_copy(update={"seed": seed})}))
         cell.noise_per_pose = False
         measured = []
-        for sweep in plan_validation(cfg, X):
+        for sweep in plan_validation(cfg, X, fov_of(cfg)):
             poses, profiles = cell.scan([t.pose for t in sweep.targets])
             keep = [k for k, p in enumerate(profiles) if len(p)]
             measured.append(Measured(sweep, [poses[k] for k in keep], [profiles[k] for k in keep]))
@@ -88,7 +95,7 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
 
     from spherecal.validation import plan_validation
 
-    sweeps = plan_validation(cfg, true)
+    sweeps = plan_validation(cfg, true, fov_of(cfg))
     R0 = {s.label + s.kind: s.targets[0].pose.rotation_matrix for s in sweeps}
     shifts = np.array([R0[f"P{k}sphere"] @ dt for k in range(1, 5)])
     predicted_spread = np.linalg.norm(shifts - shifts.mean(axis=0), axis=1).max()
@@ -121,7 +128,7 @@ def test_a_rotated_calibration_is_caught(cfg_path):
     from spherecal.validation import plan_validation
 
     shifts = []
-    for sweep in [s for s in plan_validation(cfg, true) if s.kind == "sphere"]:
+    for sweep in [s for s in plan_validation(cfg, true, fov_of(cfg)) if s.kind == "sphere"]:
         mean_z = np.concatenate([cell.ideal_profile(t.pose)[:, 1] for t in sweep.targets]).mean()
         shifts.append(sweep.targets[0].pose.rotation_matrix @ true.rotation_matrix @ [delta * mean_z, 0.0, 0.0])
     shifts = np.array(shifts)

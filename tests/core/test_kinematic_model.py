@@ -171,7 +171,10 @@ def planned_config(tmp_path, mounting, profiles_per_station=5):
         text += "\n[calibration]\nidentify_kinematics = true\n"
     path = tmp_path / f"{mounting}.toml"
     path.write_text(text)
-    return load_config(path).config
+    from spherecal.plugins.host import PluginHost
+    from spherecal.runner import configured_for_sensor
+
+    return configured_for_sensor(load_config(path), PluginHost())[0].config  # as a run: the sensor's standoff
 
 
 def _joint_spans(kin, targets):

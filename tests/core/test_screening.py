@@ -12,10 +12,10 @@ from spherecal.errors import DegenerateDataError
 from spherecal.estimation import CalibrationOptions, pipeline, solve
 from spherecal.estimation.problem import derived_station_rotation_tolerance_deg
 from spherecal.models import Dataset, Observation, Pose, Profile
-from spherecal.sim import NoiseModel, SensorFieldOfView, SweepPlan, plan_stations, simulate_dataset, standard_cell
+from spherecal.sim import REFERENCE_FIELD_OF_VIEW, NoiseModel, SweepPlan, plan_stations, simulate_dataset, standard_cell
 
 #: fewer points per profile: the loops over seeds stay fast
-FOV = SensorFieldOfView(n_columns=200)
+FOV = REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 200})
 MOUNTINGS = ["eye_in_hand", "eye_to_hand"]
 
 
@@ -55,7 +55,8 @@ def turned_dataset(cell, turns: dict[tuple[str, int], tuple[float, float, float]
     """A simulated acquisition in which shot k of station s really turned by the rotation
     vector ``turns[(s, k)]`` (deg, base frame, about the flange origin): the sensor sees
     the turned view and the controller reports the turned pose (with its noise)."""
-    stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan)
+    stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
+                             field_of_view=cell.fov)
     obs = []
     for label, poses in stations:
         for k, pose in enumerate(poses):

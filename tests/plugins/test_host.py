@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import importlib.util
+import re
 
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
@@ -414,3 +415,32 @@ def test_describe_lists_types_and_fields(nested_host, toy_host):
     text = toy_host.format_description()
     assert "robot type 'toy_robot' (plugin 'toys'): toy robot toy_robot" in text
     assert "speed_mm_s (float, default 100.0, > 0): speed, mm/s" in text
+
+
+@pytest.mark.parametrize("option, read_frame, message", [
+    ("Tool_Frame", True, "has frame_option 'Tool_Frame'; it must be lower case letters, digits and '-'"),
+    ("--tool", True, "has frame_option '--tool'; it must be"),
+    ("transform", True, "has frame_option 'transform', an option spherecal compare or validate already has"),
+    ("out", True, "has frame_option 'out', an option"),
+    ("tool-frame", False, "has frame_option 'tool-frame' but no read_frame"),
+])
+def test_a_robot_types_frame_option_is_checked(option, read_frame, message):
+    @hookimpl
+    def spherecal_register_devices(registry):
+        registry.add_robot(RobotType(name="acme_arm", config_model=ToyRobotConfig, factory=lambda c, ctx: None,
+                                     read_frame=(lambda text: None) if read_frame else None, frame_option=option))
+
+    plugin = make_plugin("acme_frames", spherecal_register_devices=spherecal_register_devices)
+    with pytest.raises(PluginError, match=r"plugin 'acme_frames'.*robot type 'acme_arm' " + re.escape(message)):
+        PluginHost(plugins=[("acme_frames", plugin)], load_entry_points=False)
+
+
+def test_a_robot_types_frame_option_is_accepted():
+    @hookimpl
+    def spherecal_register_devices(registry):
+        registry.add_robot(RobotType(name="acme_arm", config_model=ToyRobotConfig, factory=lambda c, ctx: None,
+                                     read_frame=lambda text: None, frame_option="tool-frame"))
+
+    plugin = make_plugin("acme_frames", spherecal_register_devices=spherecal_register_devices)
+    host = PluginHost(plugins=[("acme_frames", plugin)], load_entry_points=False)
+    assert host.registry.robot_type("acme_arm").frame_option == "tool-frame"

@@ -212,3 +212,145 @@ def test_builtin_sensor_passes_the_sensor_harness(spherecal_host, spherecal_cont
     sensor = spherecal_host.create_sensor({"type": "nxsensor_i"}, spherecal_context)
     report = spherecal_sensor_harness.check(sensor)
     assert report.n_profiles == 12
+
+
+# --- the cell as a plugin author sets it up -----------------------------------------------
+OWN_TRUTH = Pose.from_rt(np.eye(3), [10.0, -5.0, 120.0])
+
+
+@pytest.mark.parametrize("spherecal_cell", [
+    {"sphere_centre_mm": (900.0, -100.0, 300.0), "true_transform": OWN_TRUTH, "seed": 4},
+], indirect=True)
+def test_cell_fixture_takes_the_sphere_and_the_true_transform(spherecal_cell, spherecal_stations):
+    assert np.array_equal(spherecal_cell.sphere_centre_mm, [900.0, -100.0, 300.0])
+    assert spherecal_cell.true_transform is OWN_TRUTH and spherecal_cell.seed == 4
+    # the stations are planned around that truth: mid-sweep, the sphere's centre is where the plan
+    # puts it in the sensor frame (the sweep's point plus the station's offset), to rounding
+    from spherecal.planning import SweepPlan, sphere_centres_in_sensor, with_standoff
+
+    plan = with_standoff(SweepPlan(), spherecal_cell.fov)
+    planned = sphere_centres_in_sensor(plan, spherecal_cell.sphere_radius_mm)
+    for k, (_, poses) in enumerate(spherecal_stations):
+        dy, dz = plan.station_offsets_mm[k % len(plan.station_offsets_mm)]
+        mid = len(poses) // 2
+        assert np.allclose(spherecal_cell.sphere_centre_in_sensor(poses[mid]), planned[mid] + [0.0, dy, dz],
+                           atol=1e-9)
+
+
+def _small_fov():
+    from spherecal.devices import SensorFieldOfView
+
+    return SensorFieldOfView(z_near_mm=15.0, z_far_mm=-15.0, width_near_mm=18.0, width_far_mm=26.0, n_columns=200)
+
+
+@pytest.mark.parametrize("spherecal_cell", [{"fov": _small_fov()}], indirect=True)
+def test_cell_fixture_takes_the_sensors_field_of_view(spherecal_cell, spherecal_stations, spherecal_sensor_harness):
+    assert spherecal_cell.fov == _small_fov()
+    # planned in that range: the reference station (no offset) sweeps the sphere's centre at its middle
+    # (0 mm); an honest sensor passes on it
+    report = spherecal_sensor_harness.check(CellSensor(spherecal_cell))
+    assert report.n_profiles > 0
+    _, poses = spherecal_stations[0]
+    pts = spherecal_cell.ideal_profile(poses[len(poses) // 2])
+    assert len(pts) and pts[:, 1].min() >= -15.0 and pts[:, 1].max() <= 15.0
+    assert spherecal_cell.sphere_centre_in_sensor(poses[len(poses) // 2])[2] == pytest.approx(0.0, abs=4.0 + 1e-9)
+
+
+_WHOLE = None
+
+
+def _whole_cell():
+    global _WHOLE
+    if _WHOLE is None:
+        from spherecal.sim import NoiseModel, SimulatedCell
+
+        _WHOLE = SimulatedCell("eye_in_hand", OWN_TRUTH, (1000.0, 0.0, 350.0), 12.7,
+                               noise=NoiseModel(pose_translation_noise_mm=0.0), seed=9)
+    return _WHOLE
+
+
+@pytest.mark.parametrize("spherecal_cell", [_whole_cell(), {"cell": _whole_cell()}], indirect=True)
+def test_cell_fixture_takes_a_whole_cell(spherecal_cell):
+    assert spherecal_cell is _whole_cell()
+
+
+@pytest.mark.parametrize("param, message", [
+    ({"sphere_centre": (1, 2, 3)}, r"unknown parameter\(s\) \['sphere_centre'\]; known: .*'sphere_centre_mm'"),
+    ({"cell": "eye_in_hand"}, "'cell' takes a spherecal.sim.SimulatedCell and no other key"),
+    ({"true_transform": [1, 2, 3]}, "true_transform must be a spherecal.models.Pose, got list"),
+])
+def test_cell_fixture_parameters_are_checked(param, message):
+    from spherecal.plugins.testing import make_cell
+
+    with pytest.raises(TypeError, match=message):
+        make_cell(param)
+
+
+class NoisyJointRobot(CellRobot):
+    """Reports joints whose forward kinematics (below) lands 0.05 mm off the flange: a
+    real controller's joints carry the arm's pose noise."""
+
+    def read_joints_deg(self):
+        return np.zeros(6)
+
+
+def _fk_off_by(cell, mm):
+    return lambda joints: Pose.from_rt(cell.current_base_from_flange.rotation_matrix,
+                                       cell.current_base_from_flange.translation + [mm, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("spherecal_cell", [{"noise": None}], indirect=True)
+def test_robot_harness_kinematics_tolerance_follows_the_pose_noise(spherecal_cell, spherecal_stations):
+    from spherecal.plugins.testing import JOINT_ROUNDING_MM
+    from spherecal.sim import NoiseModel
+
+    # the default cell's pose noise, 0.02 mm per axis: 0.05 mm is within 6 sigma
+    report = RobotHarness(spherecal_cell, spherecal_stations).check(
+        NoisyJointRobot(spherecal_cell), flange_pose_from_joints=_fk_off_by(spherecal_cell, 0.05))
+    assert report.max_kinematics_error_mm == pytest.approx(0.05, abs=1e-9)
+    # a cell without pose noise allows only the joints' rounding
+    quiet = make_quiet(spherecal_cell, NoiseModel(pose_translation_noise_mm=0.0))
+    stations = _stations(quiet)
+    with pytest.raises(AssertionError, match=rf"0\.0500 mm from the commanded pose .*allowed "
+                                             rf"{JOINT_ROUNDING_MM:.4f} mm \(the cell's pose noise"):
+        RobotHarness(quiet, stations).check(NoisyJointRobot(quiet), flange_pose_from_joints=_fk_off_by(quiet, 0.05))
+    RobotHarness(quiet, stations).check(NoisyJointRobot(quiet), flange_pose_from_joints=_fk_off_by(quiet, 0.005))
+
+
+def make_quiet(cell, noise):
+    from spherecal.sim import standard_cell
+
+    return standard_cell(cell.mounting, seed=0, noise=noise)
+
+
+def _stations(cell):
+    from spherecal.planning import plan_stations
+
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
+                         field_of_view=cell.fov)
+
+
+def test_a_plugins_conftest_overrides_the_cell_fixture(tmp_path):
+    """The documented way to give every test of a plugin its own cell: a fixture of the
+    same name in the plugin's conftest.py; the other fixtures then use it."""
+    import subprocess
+    import sys
+
+    (tmp_path / "conftest.py").write_text('''
+import pytest
+from spherecal.plugins.testing import make_cell
+
+
+@pytest.fixture
+def spherecal_cell():
+    return make_cell({"mounting": "eye_to_hand", "seed": 11, "sphere_centre_mm": (1.0, 2.0, 140.0)})
+''')
+    (tmp_path / "test_own_cell.py").write_text('''
+def test_my_cell(spherecal_cell, spherecal_stations, spherecal_context):
+    assert spherecal_cell.mounting == "eye_to_hand" and spherecal_cell.seed == 11
+    assert list(spherecal_cell.sphere_centre_mm) == [1.0, 2.0, 140.0]
+    assert spherecal_context.cell is spherecal_cell and len(spherecal_stations) == 4
+''')
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert run.returncode == 0 and "1 passed" in run.stdout, run.stdout + run.stderr

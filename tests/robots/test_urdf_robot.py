@@ -99,7 +99,8 @@ def test_simulated_ur5_honours_the_robot_protocol(host, ur5_urdf, ur5_kin, mount
 
     cell = standard_cell(mounting, seed=0, arm=ur5_kin)
     cell.arm = None  # the simulated controller attaches its own
-    stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)
+    stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
+                             field_of_view=cell.fov)
     # the controller's pose (GETP, 6-decimal quaternion) meets the harness's rounding
     # allowance; the pose from joints (pose_source = "joints", joints carried at 1e-4
     # deg) is checked as the kinematics: within a few micrometres
@@ -115,7 +116,8 @@ def test_simulated_ur5_honours_the_robot_protocol(host, ur5_urdf, ur5_kin, mount
 def test_nothing_moves_when_a_check_fails(host, ur5_urdf, ur5_kin):
     cell = standard_cell("eye_in_hand", seed=0, arm=ur5_kin)
     cell.arm = None
-    target = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)[0][1][0]
+    target = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
+                             field_of_view=cell.fov)[0][1][0]
     section = _ur5(ur5_urdf, max_speed_mm_s=100.0, workspace={"min_mm": [-900, -900, -100], "max_mm": [900, 900, 900]},
                    simulated={"home_joints_deg": [180.0, -90.0, 90.0, -90.0, -90.0, 0.0]})
     with host.create_robot(section, DeviceContext(cell=cell, log=lambda m: None)) as robot:

@@ -27,7 +27,7 @@ from spherecal import geometry as geo
 from spherecal.acquisition import Progress, acquire, plan_targets
 from spherecal.config import load_config
 from spherecal.estimation import solve
-from spherecal.runner import calibration_options, make_cell, make_host, open_devices
+from spherecal.runner import calibration_options, configured_for_sensor, make_cell, make_host, open_devices
 from spherecal.sensors.nxsensor_i import SimulatedNxSensorBackend
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "sim-eye-in-hand.toml"
@@ -56,9 +56,10 @@ def acquire_with_late_frames(config_path: Path, journal: Path, late_at_triggers:
     ``late_at_triggers`` (0-based, counting every trigger sent, re-triggers included),
     and audit every observation against the device's record. Returns (dataset, the
     configuration, the cell, the sensor driver, log lines)."""
-    loaded = load_config(config_path)
+    host = make_host()
+    loaded, fov = configured_for_sensor(load_config(config_path), host)  # the sweep's standoff: the sensor's
     cfg = loaded.config
-    cell, host = make_cell(cfg), make_host()
+    cell = make_cell(cfg, field_of_view=fov)
     targets = plan_targets(cfg)
     assert len(targets) == SHOTS
     logs, true_poses = [], []

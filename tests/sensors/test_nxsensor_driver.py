@@ -15,7 +15,8 @@ HALF_COUNT_MM = 0.005 / 2 + 1e-9
 
 
 def _in_view_pose(cell):
-    stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm)
+    stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
+                             field_of_view=cell.fov)
     return stations[1][1][4]
 
 

@@ -19,7 +19,8 @@ HALF_COUNT_MM = 0.005 / 2 + 1e-9
 @pytest.fixture
 def cell():
     c = standard_cell("eye_in_hand", seed=5)
-    stations = plan_stations(c.mounting, c.true_transform, c.sphere_centre_mm, c.sphere_radius_mm)
+    stations = plan_stations(c.mounting, c.true_transform, c.sphere_centre_mm, c.sphere_radius_mm,
+                             field_of_view=c.fov)
     c.poses = stations[1][1][2:8]  # six poses along one sweep, 1-2 mm apart: each sees another circle
     c.move_flange_to(c.poses[0])
     return c

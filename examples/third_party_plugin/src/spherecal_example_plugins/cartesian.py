@@ -69,15 +69,19 @@ class ExampleCartesianRobot:
         self.config = config
         self._cell = cell
         self._open = True
+        self._reported = None  # the pose reported at this standstill
 
     def _require_open(self) -> None:
         if not self._open:
             raise DeviceError(f"{TYPE_NAME}: the robot has been closed; create a new one")
 
     def read_flange_pose(self) -> Pose:
-        """The flange pose now, ``base_from_flange``, with the cell's pose noise."""
+        """The flange pose now, ``base_from_flange``, with the cell's pose noise: the same
+        reading while the robot stands still, as a controller gives."""
         self._require_open()
-        return self._cell.report_pose(self._cell.current_base_from_flange)
+        if self._reported is None:
+            self._reported = self._cell.report_pose(self._cell.current_base_from_flange)
+        return self._reported
 
     def read_joints_deg(self):
         """None: a Cartesian robot's linear axes have no angles to report."""
@@ -103,6 +107,7 @@ class ExampleCartesianRobot:
                     f"[{lo}, {hi}] mm (robot.workspace.min_{axis}_mm / max_{axis}_mm); nothing was moved"
                 )
         self._cell.move_flange_to(base_from_flange)
+        self._reported = None  # a new standstill, a new reading
 
     def close(self) -> None:
         """Release the robot. Safe to call twice."""

@@ -13,12 +13,18 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.devices import DeviceContext, SensorType
+from spherecal.devices import DeviceContext, SensorFieldOfView, SensorType
 from spherecal.errors import DeviceError
 from spherecal.models import Profile
 from spherecal.plugins import hookimpl
 
 TYPE_NAME = "example_profiler"
+
+#: The profiler's field of view, sensor frame, mm: measuring range z from -60 (far end,
+#: line 48 mm wide) to +40 (near end, 28 mm wide); a calibration sweep keeps the sphere's
+#: centre at z = -20. The simulated cell measures with it.
+FIELD_OF_VIEW = SensorFieldOfView(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=28.0, width_far_mm=48.0,
+                                  standoff_z_mm=-20.0)
 
 
 class ProfilerConfig(BaseModel):
@@ -83,5 +89,6 @@ def spherecal_register_devices(registry) -> None:
             config_model=ProfilerConfig,
             factory=create_sensor,
             description="simulated laser line sensor (example plugin)",
+            field_of_view=FIELD_OF_VIEW,
         )
     )

@@ -1,0 +1,160 @@
+"""Devices describe their field of view: a sensor type declares it, the simulated cell
+measures with it and the planner puts the sphere at its standoff; [simulation.fov]
+overrides fields of it; the core holds no sensor's numbers as defaults."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from spherecal.config import load_config
+from spherecal.devices import SensorFieldOfView, SensorType
+from spherecal.errors import ConfigError
+from spherecal.planning import SweepPlan, plan_stations, sphere_centres_in_sensor, with_standoff
+from spherecal.plugins import hookimpl
+from spherecal.plugins.host import PluginHost
+from spherecal.runner import configured_for_sensor, make_cell, sensor_field_of_view
+from spherecal.sensors.nxsensor_i.plugin import FIELD_OF_VIEW as NXSENSOR_FOV
+
+#: A third-party profiler's field of view, unlike the nxSensor-I's.
+SMALL = SensorFieldOfView(z_near_mm=15.0, z_far_mm=-15.0, width_near_mm=18.0, width_far_mm=26.0)
+
+
+class _Config(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def host_with_profiler(fov: SensorFieldOfView | None) -> PluginHost:
+    """The installed plugins plus a sensor type 'acme_profiler' declaring ``fov``."""
+
+    class Plugin:
+        @staticmethod
+        @hookimpl
+        def spherecal_register_devices(registry):
+            registry.add_sensor(SensorType(name="acme_profiler", config_model=_Config, factory=lambda c, ctx: None,
+                                           field_of_view=fov))
+
+    return PluginHost(plugins=[("acme", Plugin)])
+
+
+def config_with(sim_config, sensor: str = "acme_profiler", fov_toml: str = ""):
+    path = sim_config(**{r'^type = "nxsensor_i"$': f'type = "{sensor}"',
+                         r"^\[simulation\]$": "[simulation]" + (f"\nfov = {{ {fov_toml} }}" if fov_toml else "")})
+    return load_config(path)
+
+
+def test_the_core_defaults_to_no_sensors_numbers():
+    from spherecal.config import ScanConfig, SimulationConfig
+
+    assert SimulationConfig().fov is None
+    assert SweepPlan().standoff_z_mm is None
+    assert ScanConfig.model_fields["standoff_z_mm"].default is None
+    with pytest.raises(ValidationError):  # no default range: a sensor must say
+        SensorFieldOfView()
+
+
+def test_the_nxsensor_declares_its_own_and_a_configured_cell_uses_it(sim_config):
+    host = PluginHost()
+    assert host.registry.sensor_type("nxsensor_i").field_of_view == NXSENSOR_FOV
+    assert (NXSENSOR_FOV.z_near_mm, NXSENSOR_FOV.z_far_mm, NXSENSOR_FOV.width_near_mm,
+            NXSENSOR_FOV.width_far_mm) == (40.0, -60.0, 28.0, 48.0)  # docs/sensor-nxsensor-i.md
+    loaded = load_config(sim_config())
+    fov = sensor_field_of_view(loaded.config, host)
+    assert fov == NXSENSOR_FOV
+    assert make_cell(loaded.config, field_of_view=fov).fov == NXSENSOR_FOV
+
+
+def test_a_third_party_sensor_is_simulated_and_planned_with_its_declared_field_of_view(sim_config):
+    host = host_with_profiler(SMALL)
+    loaded, fov = configured_for_sensor(config_with(sim_config), host)
+    assert fov == SMALL
+    # the planner puts the sphere centre in the middle of the sensor's range (0 mm), not at the nxSensor's -20 mm
+    assert loaded.config.acquisition.sweep.standoff_z_mm == 0.0
+    cell = make_cell(loaded.config, field_of_view=fov)
+    assert cell.fov == SMALL
+    # every point the simulated sensor measures lies in the declared range and line width
+    from spherecal.acquisition import plan_targets
+
+    seen = 0
+    for target in plan_targets(loaded.config)[:40]:
+        cell.move_flange_to(target.pose)
+        pts = cell.ideal_profile(target.pose)
+        seen += len(pts)
+        if len(pts):
+            assert pts[:, 1].max() <= SMALL.z_near_mm + 1e-9 and pts[:, 1].min() >= SMALL.z_far_mm - 1e-9
+            half = SMALL.width_near_mm / 2 + (SMALL.z_near_mm - pts[:, 1]) * np.tan(SMALL.half_angle_rad)
+            assert np.all(np.abs(pts[:, 0]) <= half + 1e-9)
+    assert seen > 0
+
+
+def test_simulation_fov_overrides_fields_of_the_declared_one(sim_config):
+    loaded = config_with(sim_config, "nxsensor_i", "n_columns = 160, standoff_z_mm = -30.0")
+    fov = sensor_field_of_view(loaded.config, PluginHost())
+    assert fov == NXSENSOR_FOV.model_copy(update={"n_columns": 160, "standoff_z_mm": -30.0})
+    loaded, _ = configured_for_sensor(loaded, PluginHost())
+    assert loaded.config.acquisition.sweep.standoff_z_mm == -30.0
+
+
+def test_a_sensor_without_a_field_of_view_must_be_given_one_in_the_toml(sim_config, monkeypatch):
+    import spherecal.runner
+
+    host = host_with_profiler(None)
+    monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: host)  # the run's plugins
+    loaded = config_with(sim_config)
+    assert sensor_field_of_view(loaded.config, host) is None
+    with pytest.raises(ConfigError, match=r"simulation.fov: sensor type 'acme_profiler' declares no field of view; "
+                                          r"give z_near_mm, z_far_mm, width_near_mm and width_far_mm"):
+        make_cell(loaded.config)
+    with pytest.raises(ConfigError, match=r"simulation.fov \(sensor type 'acme_profiler' declares no field of "
+                                          r"view\): z_far_mm: Field required"):
+        sensor_field_of_view(config_with(sim_config, fov_toml="z_near_mm = 15.0, width_near_mm = 18.0, "
+                                         "width_far_mm = 26.0").config, host)
+    given = config_with(sim_config, fov_toml="z_near_mm = 15.0, z_far_mm = -15.0, width_near_mm = 18.0, "
+                        "width_far_mm = 26.0")
+    assert sensor_field_of_view(given.config, host) == SMALL
+    # and the planner, told nothing, says which setting it needs
+    with pytest.raises(ConfigError, match=r"acquisition.sweep.standoff_z_mm: not set, and the sensor type declares "
+                                          "no field of view"):
+        with_standoff(SweepPlan(), None)
+
+
+def test_a_bad_override_names_simulation_fov(sim_config):
+    loaded = config_with(sim_config, "nxsensor_i", "z_far_mm = 50.0")
+    with pytest.raises(ConfigError, match=r"simulation.fov \(over sensor type 'nxsensor_i'.s field of view\): "
+                                          r".*z_far_mm \(50.0\) must be below z_near_mm \(40.0\)"):
+        sensor_field_of_view(loaded.config, PluginHost())
+
+
+@pytest.mark.parametrize("fields, message", [
+    (dict(z_near_mm=-60.0, z_far_mm=40.0, width_near_mm=28.0, width_far_mm=48.0), "must be below z_near_mm"),
+    (dict(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=48.0, width_far_mm=28.0), "must exceed width_near_mm"),
+    (dict(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=28.0, width_far_mm=48.0, standoff_z_mm=50.0),
+     r"standoff_z_mm \(50.0\) must lie in the measuring range \[-60.0, 40.0\]"),
+])
+def test_a_field_of_view_that_is_not_a_fan_is_refused(fields, message):
+    with pytest.raises(ValidationError, match=message):
+        SensorFieldOfView(**fields)
+
+
+def test_the_fan_matches_the_declared_widths_and_the_standoff_moves_the_sweep():
+    # the fan's apex and angle reproduce the line width at both ends
+    for fov in (NXSENSOR_FOV, SMALL):
+        for z, width in ((fov.z_near_mm, fov.width_near_mm), (fov.z_far_mm, fov.width_far_mm)):
+            assert 2 * (fov.apex_z_mm - z) * np.tan(fov.half_angle_rad) == pytest.approx(width, rel=1e-12)
+    assert NXSENSOR_FOV.apex_z_mm == pytest.approx(180.0)
+    plan = SweepPlan(profiles_per_station=8)
+    for fov, standoff in ((NXSENSOR_FOV, -20.0), (SMALL, 0.0)):
+        centres = sphere_centres_in_sensor(with_standoff(plan, fov), 19.1)
+        assert np.mean(centres[:, 2]) == pytest.approx(standoff, abs=1e-9)  # the wander's cosine sums to zero
+    # a standoff given in the plan wins over the sensor's
+    assert with_standoff(SweepPlan(standoff_z_mm=-7.0), SMALL).standoff_z_mm == -7.0
+    a = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan, field_of_view=NXSENSOR_FOV)
+    b = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan.model_copy(update={"standoff_z_mm": -20.0}))
+    assert all(np.allclose(p.translation, q.translation) for (_, s), (_, t) in zip(a, b) for p, q in zip(s, t))
+
+
+def _identity():
+    from spherecal.models import Pose
+
+    return Pose.identity()
