@@ -99,29 +99,66 @@ def _pose_noise_jacobian(problem: Problem, R, c):
     return R.T @ Ju
 
 
+def _rows_times(G, A, index):
+    """``G[m] @ A[index[m]]`` for every row m, (M, P), for G (M, 3) and A (n, 3, P):
+    summed over k = 0, 1, 2 in that order, one (M, P) gather at a time (the same sums,
+    bit for bit, as ``einsum("mk,mkp->mp", G, A[index])``, without its (M, 3, P) gather)."""
+    out = G[:, 0, None] * A[:, 0, :][index]
+    for k in (1, 2):
+        out += G[:, k, None] * A[:, k, :][index]
+    return out
+
+
 class _Whitener:
-    """Cov_i^-1/2 for each profile, applied to stacked per-point arrays."""
+    """Cov_i^-1/2 for each profile, applied to stacked per-point arrays.
+
+    Profile i's points are the contiguous rows ``starts[i]:starts[i + 1]``. Memory: the
+    per-point (M, 3) basis Q, held by columns; every operation works one column of its
+    operand at a time (no (M, 3, K) temporaries) and sums in the order the (M, 3, K) form
+    did, so the results are the same to the last bit."""
 
     def __init__(self, G, pid, starts, L, sigma):
-        H_rows = np.einsum("mk,mkl->ml", G, L[pid])  # rows of H_i = G_i L_i
-        HtH = np.add.reduceat(H_rows[:, :, None] * H_rows[:, None, :], starts, axis=0)
+        H_rows = _rows_times(G, L, pid)  # rows of H_i = G_i L_i
+        n = len(starts)
+        HtH = np.empty((n, 3, 3))
+        for a in range(3):
+            for b in range(a, 3):
+                HtH[:, a, b] = np.add.reduceat(H_rows[:, a] * H_rows[:, b], starts)
+                HtH[:, b, a] = HtH[:, a, b]
         S2, V = np.linalg.eigh(HtH)
         S2 = np.maximum(S2, 0.0)
         S = np.sqrt(S2)
         ok = S > 1e-12 * max(S.max(), 1e-300)
         inv_S = np.where(ok, 1.0 / np.where(ok, S, 1.0), 0.0)
-        self.Q = np.einsum("ml,mlk->mk", H_rows, (V * inv_S[:, None, :])[pid])
+        self.Qc = np.ascontiguousarray(_rows_times(H_rows, V * inv_S[:, None, :], pid).T)  # (3, M): Q by columns
         self.gain = np.where(ok, 1.0 / np.sqrt(1.0 + S2 / sigma**2) - 1.0, 0.0)  # (n, 3)
-        self.pid, self.starts, self.sigma = pid, starts, sigma
+        self.starts, self.sigma = starts, sigma
+        self.counts = np.diff(np.append(starts, len(pid)))
 
     def project(self, x):
         """Q_i^T x_i per profile: (n, 3, K) for x (M, K)."""
-        return np.add.reduceat(self.Q[:, :, None] * x[:, None, :], self.starts, axis=0)
+        K = x.shape[1]
+        out = np.empty((len(self.starts), 3, K))
+        for k in range(K):
+            col = np.ascontiguousarray(x[:, k])
+            for j in range(3):
+                out[:, j, k] = np.add.reduceat(self.Qc[j] * col, self.starts)
+        return out
 
     def apply(self, x):
         x2 = x if x.ndim == 2 else x[:, None]
         Y = self.project(x2) * self.gain[:, :, None]
-        out = (x2 + np.einsum("mk,mkj->mj", self.Q, Y[self.pid])) / self.sigma
+        out = np.empty(x2.shape)
+        # Q_i Y_i summed in the order the (M, 3, K) contraction took: k = 0, 1, 2 for
+        # several columns, (0 + 2) + 1 for a single one
+        order = (0, 1, 2) if x2.shape[1] > 1 else (0, 2, 1)
+        for k in range(x2.shape[1]):
+            acc = self.Qc[order[0]] * np.repeat(Y[:, order[0], k], self.counts)
+            acc += self.Qc[order[1]] * np.repeat(Y[:, order[1], k], self.counts)
+            acc += self.Qc[order[2]] * np.repeat(Y[:, order[2], k], self.counts)
+            acc += x2[:, k]
+            acc /= self.sigma
+            out[:, k] = acc
         return out if x.ndim == 2 else out[:, 0]
 
     def profile_chi2(self, e):
@@ -212,7 +249,7 @@ def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s
     res = dist - rho[pid]
     G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
     Jc = _centre_jacobian(problem, R, u)
-    J = np.einsum("mk,mkp->mp", G, Jc[pid])
+    J = _rows_times(G, Jc, pid)
     if fit_radius:
         J = np.column_stack([J, -(r / rho)[pid]])
     Jd = _pose_noise_jacobian(problem, R, c)
@@ -464,6 +501,14 @@ def _kinematic_evidence(Jw_t, Jw_k, yw, prior_sd) -> dict:
     return {"likelihood_ratio": float(max(f0 - best.fun, 0.0)), "scale_free": lam}
 
 
+def _as_slice(rows: np.ndarray):
+    """``rows`` (sorted indices) as a slice when they are one contiguous run (a view, not
+    a copy, of the per-point arrays they select), else as they are."""
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
 def _effect_blocks(Jw_t, Jw_s, Jw_k, yw, station_rows):
     """Normal-equation blocks of ``y = J_t b + [J_s | J_k] d + e``: the station offsets'
     columns (``Jw_s`` (M, 6), each point against its own station's six) kept per station,
@@ -526,7 +571,7 @@ def refine(
     se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
     ke = kinematic_effects if kinematic_effects is not None and problem.q_rad is not None else None
     delta = np.zeros((K, 6))
-    station_rows = [np.flatnonzero(problem.station_of[pts.rid] == k) for k in range(K)]
+    station_rows = [_as_slice(np.flatnonzero(problem.station_of[pts.rid] == k)) for k in range(K)]
     # centre observations given without a covariance: one variance per axis, estimated
     # from their residuals (a variance component, like the pose noise's scale)
     n_shots = problem.n_profiles
@@ -581,7 +626,7 @@ def refine(
     def kin_point_columns(lin):
         """Whitened d res / d kappa (M, n_kin)."""
         Kc = lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad)  # (n, 3, n_kin)
-        return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, Kc[pts.rid]))
+        return lin.W.apply(_rows_times(lin.G, Kc, pts.rid))
 
     def sqrt_prior(sv, lam_):
         blocks = []
@@ -687,6 +732,9 @@ def refine(
             # solution the linearisation can overshoot)
             before = state()
             cost0 = penalised_cost(lin, s_hat, lam)
+            # the per-point design is rebuilt at the next point: let it go before the
+            # line search builds linearisations (memory: one per-point set at a time)
+            ew = Jw = Jw_s = Jw_k = yw = None
             d_old = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]]) if any_random else None
             frac = 1.0
             for _ in range(12):
@@ -704,6 +752,7 @@ def refine(
                         delta = d[:6 * K].reshape(K, 6)
                     if len(rand_cols):
                         kappa[rand_cols] = d[6 * K if se is not None else 0:]
+                lin = None  # (the previous point's arrays go before the new ones are built)
                 lin = linearise(scale)
                 if penalised_cost(lin, s_hat, lam) <= cost0 * (1 + 1e-9) + 1e-12:
                     break
@@ -917,7 +966,7 @@ def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):
 
 def _station_jacobian(lin: "_Linearisation", pts: _Points) -> np.ndarray:
     """Whitened d res / d(station offset), (M, 6): each point against its station's offset."""
-    return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.rid]))
+    return lin.W.apply(_rows_times(lin.G, lin.Jd, pts.rid))
 
 
 def _stack_station_effect(Jw_d, delta, station_of_point):
