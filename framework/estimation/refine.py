@@ -100,13 +100,22 @@ def _pose_noise_jacobian(problem: Problem, R, c):
 
 
 def _rows_times(G, A, index):
-    """``G[m] @ A[index[m]]`` for every row m, (M, P), for G (M, 3) and A (n, 3, P):
-    summed over k = 0, 1, 2 in that order, one (M, P) gather at a time (the same sums,
-    bit for bit, as ``einsum("mk,mkp->mp", G, A[index])``, without its (M, 3, P) gather)."""
-    out = G[:, 0, None] * A[:, 0, :][index]
-    for k in (1, 2):
-        out += G[:, k, None] * A[:, k, :][index]
-    return out
+    """``G[m] @ A[index[m]]`` for every row m, (M, P), for G (M, 3) and A (n, 3, P).
+
+    Built one output column at a time from 1-D gathers (no (M, 3, P) gather; the result
+    is column-major, the layout the whitening reads it in), summed over k = 0, 1, 2 in
+    that order: the same sums, bit for bit, as ``einsum("mk,mkp->mp", G, A[index])``."""
+    Gc = np.ascontiguousarray(G.T)
+    index = np.asarray(index)
+    out = np.empty((A.shape[2], len(index)))
+    tmp = np.empty(len(index))
+    for p in range(A.shape[2]):
+        acc = out[p]
+        np.multiply(Gc[0], A[:, 0, p].take(index), out=acc)
+        for k in (1, 2):
+            np.multiply(Gc[k], A[:, k, p].take(index), out=tmp)
+            acc += tmp
+    return out.T
 
 
 class _Whitener:
