@@ -335,8 +335,10 @@ def _rot(rotvec_deg) -> np.ndarray:
     return geo.matrix_from_rotvec(np.radians(rotvec_deg))
 
 
-#: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell.
-FLANGE_DOWN = _rot([0.0, 180.0, 0.0])
+#: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell: 180 deg
+#: about base y, written out as ``_rot([0.0, 180.0, 0.0])`` gives it to the last bit (sin(pi)
+#: in double precision is 1.2246e-16), so that importing the simulator needs no SciPy.
+FLANGE_DOWN = np.array([[-1.0, 0.0, 1.2246467991473532e-16], [0.0, 1.0, 0.0], [-1.2246467991473532e-16, 0.0, -1.0]])
 
 
 #: Fractions of the reach-scaled layout tried, in order, until the arm reaches the default plan.
