@@ -8,9 +8,16 @@ lengths in mm; ABB quaternions are (w, x, y, z), SciPy's are (x, y, z, w).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 ROTATION_TOLERANCE = 1e-6
+
+
+def _Rotation():
+    """SciPy's ``Rotation`` class, imported on first use (``scipy.spatial`` takes about
+    0.3 s to import, which commands that never turn anything should not pay)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 
 def check_rotation_matrix(R, name: str = "rotation") -> np.ndarray:
@@ -52,23 +59,23 @@ def matrix_from_quat_wxyz(q_wxyz) -> np.ndarray:
     norm = np.linalg.norm(q, axis=-1)
     if np.any(np.abs(norm - 1.0) > 1e-3):
         raise ValueError(f"quaternion (w, x, y, z) {q.tolist()}: norm {norm} is not 1")
-    return Rotation.from_quat(quat_xyzw_from_wxyz(q)).as_matrix()
+    return _Rotation().from_quat(quat_xyzw_from_wxyz(q)).as_matrix()
 
 
 def quat_wxyz_from_matrix(R) -> np.ndarray:
     """Unit quaternion (w, x, y, z), w >= 0, from a rotation matrix."""
-    q = quat_wxyz_from_xyzw(Rotation.from_matrix(R).as_quat())
+    q = quat_wxyz_from_xyzw(_Rotation().from_matrix(R).as_quat())
     return np.where(q[..., :1] < 0, -q, q)
 
 
 def matrix_from_rotvec(rotvec) -> np.ndarray:
     """Rotation matrix from a rotation vector (axis times angle, radians)."""
-    return Rotation.from_rotvec(rotvec).as_matrix()
+    return _Rotation().from_rotvec(rotvec).as_matrix()
 
 
 def rotvec_from_matrix(R) -> np.ndarray:
     """Rotation vector (axis times angle, radians) from a rotation matrix."""
-    return Rotation.from_matrix(R).as_rotvec()
+    return _Rotation().from_matrix(R).as_rotvec()
 
 
 def rotation_angle_deg(R_a, R_b) -> float:

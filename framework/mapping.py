@@ -37,8 +37,8 @@ Backend = Literal["auto", "numba", "numpy"]
 #: True when the compiled backend can be used (numba is imported on first use only).
 NUMBA_AVAILABLE = importlib.util.find_spec("numba") is not None
 
-#: Rows per block in the NumPy backend: keeps its scratch buffer in cache.
-_BLOCK_POINTS = 1 << 14
+#: Points per block in the NumPy backend: keeps its scratch buffers in cache.
+_BLOCK_POINTS = 1 << 13
 
 
 # transforms -------------------------------------------------------------------------
@@ -135,18 +135,29 @@ def _numba_kernels():
 
 
 def _map_numpy(R, t, y, z, out) -> None:
+    """Per block of profiles, one batched matrix product writes the interleaved output:
+    ``[y z 1] @ [R[:, 1]; R[:, 2]; t]`` per point, (rows, m, 3) @ (rows, 3, 3), in float64.
+    The (rows, m, 3) operand holds y and z interleaved with a column of ones set once, so
+    the only passes over the data are filling it and the product itself (no per-component
+    strided stores). A float32 output is rounded once, from a float64 block."""
     n, m = y.shape
-    rows = max(1, _BLOCK_POINTS // max(m, 1))
-    scratch = np.empty((min(rows, n), m), dtype=np.float64)
+    rows = max(1, min(n, _BLOCK_POINTS // max(m, 1)))
+    operand = np.ones((rows, m, 3))
+    M = np.empty((n, 3, 3))
+    M[:, 0, :] = R[:, :, 1]
+    M[:, 1, :] = R[:, :, 2]
+    M[:, 2, :] = t
+    block = None if out.dtype == np.float64 else np.empty((rows, m, 3))
     for a in range(0, n, rows):
         b = min(a + rows, n)
-        yb, zb, sb = y[a:b], z[a:b], scratch[: b - a]
-        for k in range(3):
-            # float64 arithmetic, one rounding into the output's dtype
-            np.multiply(yb, R[a:b, k, 1, None], out=sb)
-            sb += zb * R[a:b, k, 2, None]
-            sb += t[a:b, k, None]
-            out[a:b, :, k] = sb
+        op = operand[: b - a]
+        op[:, :, 0] = y[a:b]
+        op[:, :, 1] = z[a:b]
+        if block is None:
+            np.matmul(op, M[a:b], out=out[a:b])
+        else:
+            np.matmul(op, M[a:b], out=block[: b - a])
+            out[a:b] = block[: b - a]
 
 
 def _resolve(backend: str) -> str:

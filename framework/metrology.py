@@ -27,7 +27,6 @@ from typing import Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.optimize import least_squares
 
 from .errors import InputError
 
@@ -200,6 +199,8 @@ def _geometric_sphere(p: np.ndarray, c0: np.ndarray, r0: float) -> tuple[np.ndar
         J[:, :3] = -d / n[:, None]
         J[:, 3] = -1.0
         return J
+
+    from scipy.optimize import least_squares  # (imported here: commands that fit nothing skip it)
 
     sol = least_squares(fun, np.r_[0.0, 0.0, 0.0, r0], jac=jac, method="lm", xtol=1e-14, ftol=1e-14)
     res = sol.fun

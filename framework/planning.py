@@ -22,8 +22,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from .devices import SensorFieldOfView
 
 #: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell: the
-#: reference orientation of a plan's stations.
-FLANGE_DOWN = geo.matrix_from_rotvec(np.radians([0.0, 180.0, 0.0]))
+#: reference orientation of a plan's stations. 180 deg
+#: about base y, written out as ``geo.matrix_from_rotvec(np.radians([0.0, 180.0, 0.0]))``
+#: gives it to the last bit (sin(pi) in double precision is 1.2246e-16), so that importing
+#: the planner needs no SciPy.
+FLANGE_DOWN = np.array([[-1.0, 0.0, 1.2246467991473532e-16], [0.0, 1.0, 0.0], [-1.2246467991473532e-16, 0.0, -1.0]])
 
 
 class SweepPlan(BaseModel):

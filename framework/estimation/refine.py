@@ -99,29 +99,88 @@ def _pose_noise_jacobian(problem: Problem, R, c):
     return R.T @ Ju
 
 
+def _rows_times(G, A, index):
+    """``G[m] @ A[index[m]]`` for every row m, (M, P), for G (M, 3) and A (n, 3, P).
+
+    Built one output column at a time from 1-D gathers (no (M, 3, P) gather; the result
+    is column-major, the layout the whitening reads it in), summed over k = 0, 1, 2 in
+    that order: the same sums, bit for bit, as ``einsum("mk,mkp->mp", G, A[index])``."""
+    Gc = np.ascontiguousarray(G.T)
+    index = np.asarray(index)
+    out = np.empty((A.shape[2], len(index)))
+    tmp = np.empty(len(index))
+    for p in range(A.shape[2]):
+        acc = out[p]
+        np.multiply(Gc[0], A[:, 0, p].take(index), out=acc)
+        for k in (1, 2):
+            np.multiply(Gc[k], A[:, k, p].take(index), out=tmp)
+            acc += tmp
+    return out.T
+
+
 class _Whitener:
-    """Cov_i^-1/2 for each profile, applied to stacked per-point arrays."""
+    """Cov_i^-1/2 for each profile, applied to stacked per-point arrays.
+
+    Profile i's points are the contiguous rows ``starts[i]:starts[i + 1]``. Memory: the
+    per-point (M, 3) basis Q, held by columns; every operation works one column of its
+    operand at a time (no (M, 3, K) temporaries) and sums in the order the (M, 3, K) form
+    did, so the results are the same to the last bit."""
 
     def __init__(self, G, pid, starts, L, sigma):
-        H_rows = np.einsum("mk,mkl->ml", G, L[pid])  # rows of H_i = G_i L_i
-        HtH = np.add.reduceat(H_rows[:, :, None] * H_rows[:, None, :], starts, axis=0)
+        H_rows = _rows_times(G, L, pid)  # rows of H_i = G_i L_i
+        n = len(starts)
+        HtH = np.empty((n, 3, 3))
+        for a in range(3):
+            for b in range(a, 3):
+                HtH[:, a, b] = np.add.reduceat(H_rows[:, a] * H_rows[:, b], starts)
+                HtH[:, b, a] = HtH[:, a, b]
         S2, V = np.linalg.eigh(HtH)
         S2 = np.maximum(S2, 0.0)
         S = np.sqrt(S2)
         ok = S > 1e-12 * max(S.max(), 1e-300)
         inv_S = np.where(ok, 1.0 / np.where(ok, S, 1.0), 0.0)
-        self.Q = np.einsum("ml,mlk->mk", H_rows, (V * inv_S[:, None, :])[pid])
+        self.Qc = np.ascontiguousarray(_rows_times(H_rows, V * inv_S[:, None, :], pid).T)  # (3, M): Q by columns
         self.gain = np.where(ok, 1.0 / np.sqrt(1.0 + S2 / sigma**2) - 1.0, 0.0)  # (n, 3)
-        self.pid, self.starts, self.sigma = pid, starts, sigma
+        self.starts, self.sigma = starts, sigma
+        self.counts = np.diff(np.append(starts, len(pid)))
 
-    def project(self, x):
-        """Q_i^T x_i per profile: (n, 3, K) for x (M, K)."""
-        return np.add.reduceat(self.Q[:, :, None] * x[:, None, :], self.starts, axis=0)
+    def _block(self, lo: int, hi: int | None):
+        """Q by columns, profile starts (relative) and counts of profiles lo..hi-1."""
+        hi = len(self.starts) if hi is None else hi
+        a = int(self.starts[lo])
+        b = int(self.starts[hi]) if hi < len(self.starts) else self.Qc.shape[1]
+        return self.Qc[:, a:b], self.starts[lo:hi] - a, self.counts[lo:hi], self.gain[lo:hi]
 
-    def apply(self, x):
+    def project(self, x, lo: int = 0, hi: int | None = None):
+        """Q_i^T x_i per profile: (n, 3, K) for x (M, K); with ``lo``, ``hi``: for profiles
+        lo..hi-1 only, x holding their rows."""
+        Qc, starts, _, _ = self._block(lo, hi)
+        K = x.shape[1]
+        out = np.empty((len(starts), 3, K))
+        for k in range(K):
+            col = np.ascontiguousarray(x[:, k])
+            for j in range(3):
+                out[:, j, k] = np.add.reduceat(Qc[j] * col, starts)
+        return out
+
+    def apply(self, x, lo: int = 0, hi: int | None = None):
+        """Cov_i^-1/2 x_i for every profile (x: (M,) or (M, K)); with ``lo``, ``hi``: for
+        profiles lo..hi-1 only, x holding their rows (the same numbers as those rows of
+        the whole)."""
+        Qc, _, counts, gain = self._block(lo, hi)
         x2 = x if x.ndim == 2 else x[:, None]
-        Y = self.project(x2) * self.gain[:, :, None]
-        out = (x2 + np.einsum("mk,mkj->mj", self.Q, Y[self.pid])) / self.sigma
+        Y = self.project(x2, lo, hi) * gain[:, :, None]
+        out = np.empty(x2.shape)
+        # Q_i Y_i summed in the order the (M, 3, K) contraction took: k = 0, 1, 2 for
+        # several columns, (0 + 2) + 1 for a single one
+        order = (0, 1, 2) if x2.shape[1] > 1 else (0, 2, 1)
+        for k in range(x2.shape[1]):
+            acc = Qc[order[0]] * np.repeat(Y[:, order[0], k], counts)
+            acc += Qc[order[1]] * np.repeat(Y[:, order[1], k], counts)
+            acc += Qc[order[2]] * np.repeat(Y[:, order[2], k], counts)
+            acc += x2[:, k]
+            acc /= self.sigma
+            out[:, k] = acc
         return out if x.ndim == 2 else out[:, 0]
 
     def profile_chi2(self, e):
@@ -168,7 +227,9 @@ class _Linearisation:
     SC: np.ndarray  # (n, 3, 3) their covariance from pose noise
     G: np.ndarray  # (M, 3) d res / d C per point (and per centre residual row)
     Jd: np.ndarray  # (n, 3, 6) d C / d(pose error) per profile
-    centre_parts: tuple | None = None  # centre residuals (m, 3), their pose-noise covariance (m, 3, 3), given (m, 3, 3)
+    centre_parts: tuple | None = None
+    Jc: np.ndarray | None = None  # (n, 3, P) d C / d params per profile (for the per-chunk Jacobian)
+    radius_column: np.ndarray | None = None  # (n,) d res / d r per profile (fitting the radius), else None  # centre residuals (m, 3), their pose-noise covariance (m, 3, 3), given (m, 3, 3)
 
 
 class _Points:
@@ -200,10 +261,12 @@ def _pose_cov(noise: NoiseAssumptions) -> np.ndarray:
     return np.diag([np.radians(noise.pose_rotation_noise_deg) ** 2] * 3 + [noise.pose_translation_noise_mm**2] * 3)
 
 
-def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s2_centre=None) -> _Linearisation:
+def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s2_centre=None,
+               with_jacobian: bool = True) -> _Linearisation:
     """Residuals, Jacobian and whitening at (R, t, c, r); see the module docstring.
     ``s2_centre`` (mm^2, per axis): the variance of centre observations given without
-    one."""
+    one. ``with_jacobian=False`` (profiles only): the per-point Jacobian is not built
+    (``J`` None); :func:`_chunk_jacobian` builds it a block of profiles at a time."""
     pid = pts.pid
     u, C = _centres(problem, R, t, c)
     rho = np.sqrt(np.maximum(r * r - C[:, 0] ** 2, 1e-6))
@@ -212,14 +275,17 @@ def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s
     res = dist - rho[pid]
     G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
     Jc = _centre_jacobian(problem, R, u)
-    J = np.einsum("mk,mkp->mp", G, Jc[pid])
-    if fit_radius:
-        J = np.column_stack([J, -(r / rho)[pid]])
+    radius_column = -(r / rho) if fit_radius else None
+    J = None
+    if with_jacobian or len(pts.centre_shots):
+        J = _rows_times(G, Jc, pid)
+        if fit_radius:
+            J = np.column_stack([J, radius_column[pid]])
     Jd = _pose_noise_jacobian(problem, R, c)
     SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
     if not len(pts.centre_shots):
         W = _Whitener(G, pid, pts.starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
-        return _Linearisation(res, J, W, C, SC, G, Jd)
+        return _Linearisation(res, J, W, C, SC, G, Jd, None, Jc, radius_column)
     Wp = _Whitener(G, pts.local, pts.starts, np.linalg.cholesky(SC[pts.shots] + 1e-18 * np.eye(3)), sigma) \
         if pts.M else None
     res_c, J_c, G_c, Wc, parts = _centre_rows(problem, pts.centre_shots, C, Jc, rho, r, SC, fit_radius, s2_centre)
@@ -464,6 +530,53 @@ def _kinematic_evidence(Jw_t, Jw_k, yw, prior_sd) -> dict:
     return {"likelihood_ratio": float(max(f0 - best.fun, 0.0)), "scale_free": lam}
 
 
+#: Points per block when the normal equations are summed a block of profiles at a time
+#: (profiles only, pose noise only): above this many points the per-point Jacobian is
+#: never held whole. Smaller problems take the one-block path as before.
+CHUNK_POINTS = 1 << 16
+
+
+def _profile_chunks(counts: np.ndarray, limit: int) -> list[tuple[int, int]]:
+    """Consecutive profiles grouped into blocks of at most ``limit`` points (a profile
+    with more makes a block of its own): (first, end) profile indices."""
+    out, lo, total = [], 0, 0
+    for i, cnt in enumerate(counts):
+        if i > lo and total + cnt > limit:
+            out.append((lo, i))
+            lo, total = i, 0
+        total += int(cnt)
+    out.append((lo, len(counts)))
+    return out
+
+
+def _chunked_normal_equations(lin: "_Linearisation", pts: "_Points", ew: np.ndarray,
+                              chunks: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """``Jw^T Jw`` and ``-Jw^T ew`` of the whitened problem, summed a block of profiles at a
+    time: whitening is per profile, so each block's whitened Jacobian is built, used and
+    dropped (the per-point Jacobian is never held whole)."""
+    A = b_vec = None
+    for lo, hi in chunks:
+        a = int(pts.starts[lo])
+        b = int(pts.starts[hi]) if hi < len(pts.starts) else pts.M
+        pid = pts.pid[a:b]
+        J = _rows_times(lin.G[a:b], lin.Jc, pid)
+        if lin.radius_column is not None:
+            J = np.column_stack([J, lin.radius_column[pid]])
+        Jw = lin.W.apply(J, lo, hi)
+        del J
+        A_part, b_part = Jw.T @ Jw, Jw.T @ -ew[a:b]
+        A, b_vec = (A_part, b_part) if A is None else (A + A_part, b_vec + b_part)
+    return A, b_vec
+
+
+def _as_slice(rows: np.ndarray):
+    """``rows`` (sorted indices) as a slice when they are one contiguous run (a view, not
+    a copy, of the per-point arrays they select), else as they are."""
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
 def _effect_blocks(Jw_t, Jw_s, Jw_k, yw, station_rows):
     """Normal-equation blocks of ``y = J_t b + [J_s | J_k] d + e``: the station offsets'
     columns (``Jw_s`` (M, 6), each point against its own station's six) kept per station,
@@ -526,7 +639,7 @@ def refine(
     se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
     ke = kinematic_effects if kinematic_effects is not None and problem.q_rad is not None else None
     delta = np.zeros((K, 6))
-    station_rows = [np.flatnonzero(problem.station_of[pts.rid] == k) for k in range(K)]
+    station_rows = [_as_slice(np.flatnonzero(problem.station_of[pts.rid] == k)) for k in range(K)]
     # centre observations given without a covariance: one variance per axis, estimated
     # from their residuals (a variance component, like the pose noise's scale)
     n_shots = problem.n_profiles
@@ -561,6 +674,15 @@ def refine(
         return _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations,
                                    tolerance, ke, rand_cols)
     n_kin_fitted = len(id_cols) + len(rand_cols)
+    # many points, profiles only, pose noise only (no station or kinematic effects): the
+    # normal equations are summed a block of profiles at a time and the per-point
+    # Jacobian is never held whole; the step solves them instead of a least-squares
+    # problem over every point (results agree to about 1e-13). Not with station effects:
+    # their scales come from a REML search (L-BFGS-B, numerical gradients) whose stopping
+    # point moves by about 1 % when the normal equations change by rounding (1e-16), which
+    # moves the transform by about 1e-7 (tests/core/test_large_profiles_unchanged.py).
+    chunks = _profile_chunks(pts.counts, CHUNK_POINTS) \
+        if se is None and ke is None and not m_centres and pts.M > CHUNK_POINTS else None
     lam = 1.0
     n_par = n_geo + len(id_cols)
     scale = 1.0
@@ -576,12 +698,13 @@ def refine(
         return _apply_station_offsets(p, delta)
 
     def linearise(scale_):
-        return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma, s2_centre)
+        return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma, s2_centre,
+                          with_jacobian=chunks is None)
 
     def kin_point_columns(lin):
         """Whitened d res / d kappa (M, n_kin)."""
         Kc = lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad)  # (n, 3, n_kin)
-        return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, Kc[pts.rid]))
+        return lin.W.apply(_rows_times(lin.G, Kc, pts.rid))
 
     def sqrt_prior(sv, lam_):
         blocks = []
@@ -635,8 +758,12 @@ def refine(
         for it in range(1, max_iterations + 1):
             lin = lin if lin is not None else linearise(scale)
             ew = lin.W.apply(lin.res)
-            Jw, Jw_s, Jw_k = design(lin)
-            if not any_random:
+            Jw, Jw_s, Jw_k = design(lin) if chunks is None else (None, None, None)
+            if chunks is not None:  # (pose noise only)
+                A_tt, b_t = _chunked_normal_equations(lin, pts, ew, chunks)
+                step = np.linalg.lstsq(A_tt, b_t, rcond=None)[0]
+                d_new = None
+            elif not any_random:
                 step = np.linalg.lstsq(Jw, -ew, rcond=None)[0]
                 d_new = None
             else:
@@ -687,6 +814,9 @@ def refine(
             # solution the linearisation can overshoot)
             before = state()
             cost0 = penalised_cost(lin, s_hat, lam)
+            # the per-point design is rebuilt at the next point: let it go before the
+            # line search builds linearisations (memory: one per-point set at a time)
+            ew = Jw = Jw_s = Jw_k = yw = None
             d_old = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]]) if any_random else None
             frac = 1.0
             for _ in range(12):
@@ -704,6 +834,7 @@ def refine(
                         delta = d[:6 * K].reshape(K, 6)
                     if len(rand_cols):
                         kappa[rand_cols] = d[6 * K if se is not None else 0:]
+                lin = None  # (the previous point's arrays go before the new ones are built)
                 lin = linearise(scale)
                 if penalised_cost(lin, s_hat, lam) <= cost0 * (1 + 1e-9) + 1e-12:
                     break
@@ -746,8 +877,14 @@ def refine(
 
     lin = linearise(scale)
     ew = lin.W.apply(lin.res)
-    Jw, Jw_s, Jw_k = design(lin)
-    info = Jw.T @ Jw
+    if chunks is None:
+        Jw, Jw_s, Jw_k = design(lin)
+        info = Jw.T @ Jw
+        A_tr, A_rr = _effect_blocks(Jw, Jw_s, Jw_k, np.zeros(len(ew)), station_rows)[1:3]
+    else:  # pose noise only: no random effects, no kinematic columns below
+        Jw = Jw_s = Jw_k = None
+        info = _chunked_normal_equations(lin, pts, ew, chunks)[0]
+        A_tr, A_rr = np.zeros((n_par, 0)), np.zeros((0, 0))
     cov_fixed = np.linalg.pinv(info)  # with the random robot errors known (none)
     diagnostics = {
         "information_condition_number": float(np.linalg.cond(info[:n_geo, :n_geo])),
@@ -758,7 +895,6 @@ def refine(
     cov = cov_robot_frame = cov_fixed
     kin_posterior_sd = np.zeros(n_kin)
     kinematic_terms = None
-    A_tr, A_rr = _effect_blocks(Jw, Jw_s, Jw_k, np.zeros(len(ew)), station_rows)[1:3]
     A_tt = info
     n_rand = (6 * K if se is not None else 0) + len(rand_cols)
     Lp = sqrt_prior(s_hat, lam)
@@ -917,7 +1053,7 @@ def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):
 
 def _station_jacobian(lin: "_Linearisation", pts: _Points) -> np.ndarray:
     """Whitened d res / d(station offset), (M, 6): each point against its station's offset."""
-    return lin.W.apply(np.einsum("mk,mkp->mp", lin.G, lin.Jd[pts.rid]))
+    return lin.W.apply(_rows_times(lin.G, lin.Jd, pts.rid))
 
 
 def _stack_station_effect(Jw_d, delta, station_of_point):

@@ -33,7 +33,6 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from spherecal import geometry as geo
@@ -129,7 +128,18 @@ class Irb2400Geometry(BaseModel):
         return self
 
 
-_JOINT_MODELS = {"x": pin.JointModelRX, "y": pin.JointModelRY, "z": pin.JointModelRZ}
+class _Pinocchio:
+    """The ``pinocchio`` module, imported on first use: loading the plugin (``spherecal
+    plugins``, ``--help``) does not pay its import (about 0.1 s)."""
+
+    def __getattr__(self, name: str):
+        import pinocchio
+
+        return getattr(pinocchio, name)
+
+
+pin = _Pinocchio()
+_JOINT_AXES = {"x": "JointModelRX", "y": "JointModelRY", "z": "JointModelRZ"}
 
 
 def _rot(axis: str, angle: float) -> np.ndarray:
@@ -183,7 +193,7 @@ class Irb2400Kinematics:
         parent = 0
         for i, spec in enumerate(self.geometry.joints, start=1):
             placement = pin.SE3(np.eye(3), np.asarray(spec.offset_mm, dtype=float))
-            parent = model.addJoint(parent, _JOINT_MODELS[spec.axis](), placement, f"joint_{i}")
+            parent = model.addJoint(parent, getattr(pin, _JOINT_AXES[spec.axis])(), placement, f"joint_{i}")
             model.appendBodyToJoint(parent, pin.Inertia.Zero(), pin.SE3.Identity())
         R = geo.matrix_from_rotvec(np.radians(self.geometry.tool0_rotvec_deg))
         model.addFrame(pin.Frame("tool0", parent, 0, pin.SE3(R, np.zeros(3)), pin.FrameType.OP_FRAME))

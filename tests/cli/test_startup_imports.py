@@ -1,0 +1,56 @@
+"""Start-up (issue 13): commands do not import the heavy modules they do not use.
+``spherecal --help`` and ``spherecal plugins`` load neither matplotlib, SciPy's spatial
+module nor Pinocchio (the robot plugin's kinematics import it on first use), and a
+``solve`` without a report loads neither matplotlib nor Pinocchio. Each command runs in
+a fresh interpreter, which then lists what it imported."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
+
+
+def _modules_after(argv: list[str]) -> set[str]:
+    code = ("import json, sys\nfrom spherecal import cli\ntry:\n    code = cli.main(json.loads(sys.argv[1]))\n"
+            "except SystemExit as exc:\n    code = exc.code\nsys.stdout.flush()\n"
+            "print('\\nMODULES ' + json.dumps([code, sorted(sys.modules)]))")
+    proc = subprocess.run([sys.executable, "-c", code, json.dumps(argv)], capture_output=True, text=True, timeout=300)
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("MODULES ")]
+    assert line, proc.stderr
+    exit_code, modules = json.loads(line[-1][len("MODULES "):])
+    assert exit_code in (0, None), proc.stderr
+    return set(modules)
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["plugins"]])
+def test_help_and_plugins_do_not_import_plotting_scipy_spatial_or_pinocchio(argv):
+    modules = _modules_after(argv)
+    assert "spherecal.cli" in modules  # the check sees the command's own imports
+    assert not [m for m in HEAVY if m in modules]
+
+
+def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(tmp_path):
+    from spherecal import dataio
+    from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+
+    path = tmp_path / "small.jsonl"
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3), SweepPlan(profiles_per_station=6)))
+    modules = _modules_after(["solve", str(path), "--no-report", "--out", str(tmp_path / "out")])
+    assert (tmp_path / "out" / "result.json").exists()  # it did solve
+    assert "spherecal.estimation.refine" in modules
+    assert "matplotlib" not in modules and "pinocchio" not in modules
+
+
+def test_the_robot_plugin_still_builds_its_kinematics_when_asked():
+    """Loading pinocchio on first use: the plugin's arm model works as before."""
+    from spherecal.plugins.host import PluginHost
+
+    kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
+    pose = kin.flange_pose_from_joints([0.0, 0.0, 0.0, 0.0, 30.0, 0.0])
+    assert "pinocchio" in sys.modules
+    assert 500.0 < pose.translation_mm[0] < 1500.0 and abs(pose.translation_mm[1]) < 1e-9  # ahead, in the x-z plane
