@@ -166,7 +166,8 @@ def test_wrong_sphere_radius_asks_to_check_it():
     assert v.level == "red"
     items = {a.key: a for a in advice(res)}
     assert "residual_rms_high" in items and "check the sphere radius" in items["residual_rms_high"].text.lower()
-    assert "fit_radius=True" in items["residual_rms_high"].text
+    assert "solve --fit-radius" in items["residual_rms_high"].text
+    assert "=True" not in items["residual_rms_high"].text
 
 
 def test_a_station_read_before_settling_is_named():
