@@ -182,10 +182,9 @@ def cmd_calibrate(args) -> int:
     _run_folder(out)
     _log.debug("configuration %s", loaded.path)
     if _session.record is not None:
-        from .runlog import describe_file
+        from .runlog import describe_file, file_text_for_record
 
-        _session.record.note(f"configuration: {describe_file(loaded.path)}\n"
-                             + loaded.path.read_text(encoding="utf-8", errors="replace"))
+        _session.record.note(f"configuration: {describe_file(loaded.path)}\n" + file_text_for_record(loaded.path))
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=_RUN_LOG, progress_stream=_progress_stream(),
@@ -235,11 +234,11 @@ def cmd_solve(args) -> int:
 
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
     _run_folder(out)
+    dataset = dataio.read_dataset(args.dataset)  # checks the file first (a device, a pipe, a size limit)
     if _session.record is not None:
         from .runlog import describe_file
 
         _session.record.note(f"dataset: {describe_file(args.dataset)}")
-    dataset = dataio.read_dataset(args.dataset)
     if not dataset.observations:
         raise InputError(f"{args.dataset}: the dataset holds no observations (only its header): nothing to solve")
     nominal = None
@@ -383,10 +382,9 @@ def cmd_validate(args) -> int:
     loaded = load_config(args.config)
     _run_folder(Path(args.out) if args.out else loaded.output_dir)
     if _session.record is not None:
-        from .runlog import describe_file
+        from .runlog import describe_file, file_text_for_record
 
-        _session.record.note(f"configuration: {describe_file(loaded.path)}\n"
-                             + loaded.path.read_text(encoding="utf-8", errors="replace"))
+        _session.record.note(f"configuration: {describe_file(loaded.path)}\n" + file_text_for_record(loaded.path))
     given = _given_transform(args, robot_type=loaded.config.robot["type"])
     outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None, log=_RUN_LOG,
                            progress_stream=_progress_stream(), report=not args.no_report, yes=args.yes, ask=_ask,
@@ -698,19 +696,29 @@ def _json_text(summary: dict) -> str:
     order = ["schema", "spherecal", "command", "exit_code", "exit_meaning", "error", "verdict", "transform",
              "uncertainty", "files", "out_dir"]
     ordered = {k: summary[k] for k in order if k in summary} | {k: v for k, v in summary.items() if k not in order}
-    return json.dumps(ordered, indent=2, default=_json_default, allow_nan=False)
+    return json.dumps(_plain(ordered), indent=2, allow_nan=False)
 
 
-def _json_default(value):
+def _plain(value):
+    """``value`` as plain JSON types: numpy numbers and arrays as numbers and lists, paths
+    as strings, and a NaN or infinite number as null (JSON has none)."""
+    import math
+
     import numpy as np
 
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
     if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, Path):
         return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
+    return str(value)
 
 
 def _close_record(args, code: int, started: float) -> None:

@@ -30,13 +30,21 @@ def logger(name: str = "run") -> logging.Logger:
     return logging.getLogger(f"{ROOT}.{name}" if name else ROOT)
 
 
+class Notice(str):
+    """A message the operator must see even with ``-q`` (e.g. what is about to move before
+    a typed confirmation): a plain ``str`` to any ``log`` callable, logged at WARNING by
+    :func:`progress_log`."""
+
+
 def progress_log(name: str = "run") -> Callable[[str], None]:
     """A ``log(message)`` callable, as the runner's functions take, that logs to
-    ``spherecal.<name>``: at WARNING for a message starting with ``warning``, else INFO."""
+    ``spherecal.<name>``: at WARNING for a :class:`Notice` or a message starting with
+    ``warning``, else INFO."""
     lg = logger(name)
 
     def log(message: str) -> None:
-        level = logging.WARNING if str(message).lower().startswith("warning") else logging.INFO
+        important = isinstance(message, Notice) or str(message).lower().startswith("warning")
+        level = logging.WARNING if important else logging.INFO
         lg.log(level, "%s", message)
 
     return log
@@ -88,14 +96,36 @@ class RunRecord(logging.Handler):
 
 
 def describe_file(path: Path | str | None) -> str:
-    """``path (sha256 <hex>)`` for the record of a run, or ``path (unreadable: why)``."""
+    """``path (sha256 <hex>)`` for the record of a run; ``path (not a regular file)`` for a
+    device or a pipe (never read: /dev/zero has no end), ``path (unreadable: why)``."""
     if path is None:
         return "none"
-    try:
-        import hashlib
+    import hashlib
+    import stat
 
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return f"{os.fspath(path)} (not a regular file)"
+        h = hashlib.sha256()
         with open(path, "rb") as f:
-            digest = hashlib.sha256(f.read()).hexdigest()
-        return f"{os.fspath(path)} (sha256 {digest})"
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        return f"{os.fspath(path)} (sha256 {h.hexdigest()})"
     except OSError as exc:
         return f"{os.fspath(path)} (unreadable: {exc.strerror or exc})"
+
+
+def file_text_for_record(path: Path | str, max_bytes: int = 1 << 20) -> str:
+    """The text of a regular file (a configuration) for the record of a run, at most
+    ``max_bytes``; empty for a device, a pipe or an unreadable file (never read twice)."""
+    import stat
+
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return ""
+        with open(path, "rb") as f:
+            data = f.read(max_bytes + 1)
+    except OSError:
+        return ""
+    text = data[:max_bytes].decode("utf-8", errors="replace")
+    return text + ("\n[... cut at %d bytes]" % max_bytes if len(data) > max_bytes else "")

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import dataio
-from .runlog import progress_log
+from .runlog import Notice, progress_log
 from .acquisition import Progress, acquire, acquire_manual, check_first_move, check_targets, describe_plan, plan_targets
 from .config import LoadedConfig, ReportConfig, RunConfig
 from .devices import DeviceContext, device_identity
@@ -210,8 +210,8 @@ def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str]
     if yes:
         log(f"{command}: motion confirmed with --yes: {plan}")
         return
-    log(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the enabling "
-        "device or the emergency stop.")
+    log(Notice(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the "
+               "enabling device or the emergency stop."))  # shown with -q too: it is what 'yes' confirms
     try:
         answer = ask("Type 'yes' to start the motion (anything else stops): ")
     except (EOFError, OSError):

@@ -287,3 +287,14 @@ def test_zsh_completion_names_every_command_and_option(capsys):
     if shutil.which("zsh"):
         check = subprocess.run(["zsh", "-n", "/dev/stdin"], input=script, capture_output=True, text=True)
         assert check.returncode == 0, check.stderr
+
+
+def test_the_json_summary_is_strict_json():
+    from pathlib import Path
+
+    from spherecal.cli import _json_text
+
+    text = _json_text({"command": "x", "a": float("nan"), "b": np.float64(1.5), "c": np.array([1, 2]),
+                       "d": {"e": float("inf"), "f": (np.bool_(True), Path("p"))}})
+    assert json.loads(text) == {"command": "x", "a": None, "b": 1.5, "c": [1, 2], "d": {"e": None, "f": [True, "p"]}}
+    assert list(json.loads(text)) == ["command", "a", "b", "c", "d"]
