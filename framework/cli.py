@@ -73,6 +73,7 @@ class _Session:
     out_dir: Path | None = None
     summary: dict = field(default_factory=dict)
     before: dict = field(default_factory=dict)
+    out_existed: bool = False
 
 
 _session = _Session()
@@ -105,6 +106,7 @@ def _run_folder(out: Path) -> None:
     """The command's output folder: run.log goes there, and the files written in it are
     listed in the --json summary."""
     _session.out_dir = out
+    _session.out_existed = out.is_dir()
     _session.before = _snapshot(out)
 
 
@@ -727,9 +729,12 @@ def _close_record(args, code: int, started: float) -> None:
     out = _session.out_dir
     files = _files_written()
     record = _session.record
-    if out is not None and record is not None:
-        from .runlog import RUN_LOG_NAME
+    from .runlog import RUN_LOG_NAME
 
+    # the record goes into a folder this run made, wrote into, or that keeps a record already: a
+    # folder refused as someone else's (it holds their result) is left untouched
+    ours = out is not None and (files or not _session.out_existed or RUN_LOG_NAME in _session.before)
+    if ours and record is not None:
         head = [f"=== spherecal {__version__} {args.command}, started "
                 f"{record._stamp(started)}, exit code {code} ({EXIT_MEANING.get(code, 'unknown')}) after "
                 f"{time.time() - started:.1f} s",
