@@ -112,7 +112,10 @@ def _run_folder(out: Path) -> None:
 
 def _snapshot(out: Path) -> dict:
     try:
-        return {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()} if out.is_dir() else {}
+        if not out.is_dir():
+            return {}
+        stats = {p.name: p.stat() for p in out.iterdir() if p.is_file()}
+        return {name: (st.st_mtime_ns, st.st_size, st.st_ino) for name, st in stats.items()}
     except OSError:
         return {}
 
