@@ -18,11 +18,14 @@ from typing import Callable, TextIO
 import numpy as np
 
 from . import geometry as geo
+from .runlog import progress_log
 from .config import AcquisitionConfig, RunConfig
 from .dataio import DatasetWriter
 from .errors import DeviceError, InputError, SpherecalError
 from .models import Observation, Pose, Profile
 from .planning import SweepPlan, plan_stations
+
+_LOG = progress_log("acquisition")  # the default ``log``: logger spherecal.acquisition
 
 
 @dataclass(frozen=True)
@@ -212,7 +215,7 @@ def acquire(
     acq: AcquisitionConfig,
     done_targets: set[int] = frozenset(),
     on_observation: Callable[[Observation], None] | None = None,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] = _LOG,
     progress: Progress | None = None,
 ) -> AcquisitionReport:
     """Take every target not in ``done_targets``; each observation goes to the journal
@@ -250,7 +253,7 @@ def acquire_manual(
     writer: DatasetWriter,
     acq: AcquisitionConfig,
     ask: Callable[[str], str] = input,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] = _LOG,
     on_observation: Callable[[Observation], None] | None = None,
     rotation_tolerance_deg: float = 0.05,
     first_station: int = 1,

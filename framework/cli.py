@@ -13,16 +13,24 @@ Exit codes (scripts may rely on them; docs/cli.md):
      are written only with --force (the report always)
   8  compare --fail-on-drift: drift found (a difference beyond a threshold and significant)
   130 interrupted (Ctrl-C); what was taken is kept (calibrate: continue with --resume)
+  141 standard output closed early by its reader (`spherecal plugins | head`): the rest is
+      dropped, no error is printed (128 + SIGPIPE, as a shell reports such a program)
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import os
 import sys
+import time
 import traceback
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import __version__
+from .runlog import progress_log
 from .errors import FileWriteError, ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
 
 EXIT_OK = 0
@@ -35,6 +43,127 @@ EXIT_PLUGIN = 6
 EXIT_RED = 7
 EXIT_DRIFT = 8
 EXIT_INTERRUPTED = 130
+EXIT_PIPE = 141
+
+#: What each exit code means, for the --json summary.
+EXIT_MEANING = {
+    EXIT_OK: "success", EXIT_INTERNAL: "internal error", EXIT_USAGE: "usage or configuration error",
+    EXIT_DATA: "data error", EXIT_DEVICE: "device error", EXIT_VALIDATION: "validation failed",
+    EXIT_PLUGIN: "plugin error", EXIT_RED: "the result is RED", EXIT_DRIFT: "drift found",
+    EXIT_INTERRUPTED: "interrupted", EXIT_PIPE: "standard output closed by its reader",
+}
+
+#: Version of the --json summary's layout (docs/cli.md, "Machine-readable output").
+JSON_SCHEMA = "spherecal-cli-summary/1"
+
+_log = logging.getLogger("spherecal.cli")
+#: The runner's ``log``: its progress lines go to logger ``spherecal.run`` (console and run.log).
+_RUN_LOG = progress_log("run")
+
+
+@dataclass
+class _Session:
+    """One command's console state: where human text goes (standard output, or standard
+    error with --json), the run's record (for run.log), the output folder, and the
+    --json summary being built."""
+
+    json: bool = False
+    quiet: bool = False
+    record: object | None = None
+    out_dir: Path | None = None
+    summary: dict = field(default_factory=dict)
+    before: dict = field(default_factory=dict)
+    out_existed: bool = False
+
+
+_session = _Session()
+
+
+def _say(text: str) -> None:
+    """Human output: standard output (standard error with --json), and the run's record."""
+    print(text, file=sys.stderr if _session.json else sys.stdout)
+    if _session.record is not None:
+        _session.record.note(text)
+
+
+def _progress_stream():
+    """Where progress bars go: standard error, or nowhere with -q."""
+    return _Discard() if _session.quiet else None
+
+
+class _Discard:
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+
+def _run_folder(out: Path) -> None:
+    """The command's output folder: run.log goes there, and the files written in it are
+    listed in the --json summary."""
+    _session.out_dir = out
+    _session.out_existed = out.is_dir()
+    _session.before = _snapshot(out)
+
+
+def _snapshot(out: Path) -> dict:
+    try:
+        if not out.is_dir():
+            return {}
+        stats = {p.name: p.stat() for p in out.iterdir() if p.is_file()}
+        return {name: (st.st_mtime_ns, st.st_size, st.st_ino) for name, st in stats.items()}
+    except OSError:
+        return {}
+
+
+def _files_written() -> dict[str, str]:
+    out = _session.out_dir
+    if out is None:
+        return {}
+    now = _snapshot(out)
+    return {name: str(out / name) for name, t in sorted(now.items()) if _session.before.get(name) != t}
+
+
+def _transform_json(name: str, pose) -> dict:
+    a, b = name.split("_from_") if name and "_from_" in name else (None, None)
+    return {"name": name, "maps": f"points in the {b} frame to the {a} frame" if a else None,
+            "translation_mm": list(pose.translation_mm), "quaternion_wxyz": list(pose.quaternion_wxyz),
+            "quaternion_order": "w, x, y, z (scalar first, as ABB and result.json)"}
+
+
+def _verdict_json(v) -> dict | None:
+    if v is None:
+        return None
+    return {"level": v.level, "headline": v.headline,
+            "reasons": [{"level": lvl, "text": text} for lvl, text in v.reasons]}
+
+
+def _result_json(result, verdict, written: bool) -> None:
+    """The --json summary of calibrate and solve."""
+    a = result.transform_name.split("_from_")[0]
+    unc = {"about": f"the {a} frame's x, y, z axes", "std_rotation_deg": list(result.std_rotation_deg),
+           "std_translation_mm": list(result.std_translation_mm), "coverage_factor_k": 2,
+           "expanded_rotation_deg": [2 * v for v in result.std_rotation_deg],
+           "expanded_translation_mm": [2 * v for v in result.std_translation_mm],
+           "std_rotation_deg_robot_frame": None, "std_translation_mm_robot_frame": None,
+           "point_error_k2_mm": None}
+    re_ = result.robot_error
+    if re_ is not None:
+        unc.update(std_rotation_deg_robot_frame=list(re_.std_rotation_deg_robot_frame),
+                   std_translation_mm_robot_frame=list(re_.std_translation_mm_robot_frame),
+                   point_error_k2_mm=re_.point_error_k2_mm)
+    _session.summary.update(
+        verdict=_verdict_json(verdict), transform=_transform_json(result.transform_name, result.transform),
+        uncertainty=unc, result_written=written,
+        sphere={"radius_mm": result.sphere_radius_mm, "radius_fitted": result.radius_fitted,
+                "centre_mm": list(result.sphere_centre_mm), "centre_frame": result.sphere_centre_frame},
+        residuals={"rms_mm": result.residuals.rms_mm, "points_used": result.residuals.n_points_used,
+                   "points_rejected": result.residuals.n_points_rejected},
+    )
 
 
 def _ask(prompt: str) -> str:
@@ -44,6 +173,9 @@ def _ask(prompt: str) -> str:
 
 def _err(msg: str) -> None:
     print(f"spherecal: error: {msg}", file=sys.stderr)
+    if _session.record is not None:
+        _session.record.note(f"error: {msg}", "spherecal.cli")
+    _session.summary.setdefault("error", msg)
 
 
 def cmd_calibrate(args) -> int:
@@ -51,29 +183,35 @@ def cmd_calibrate(args) -> int:
     from .runner import run_calibrate, summary, truth_check
 
     loaded = load_config(args.config)
+    out = Path(args.out) if args.out else loaded.output_dir
+    _run_folder(out)
+    _log.debug("configuration %s", loaded.path)
+    if _session.record is not None:
+        from .runlog import describe_file, file_text_for_record
+
+        _session.record.note(f"configuration: {describe_file(loaded.path)}\n" + file_text_for_record(loaded.path))
     outcome = run_calibrate(
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
-        out_dir=Path(args.out) if args.out else None, log=lambda m: print(m, file=sys.stderr),
+        out_dir=Path(args.out) if args.out else None, log=_RUN_LOG, progress_stream=_progress_stream(),
         report=not args.no_report, force=args.force, yes=args.yes, ask=_ask, operator=args.operator,
     )
     if outcome.finished:
-        print(f"{Path(args.out) if args.out else loaded.output_dir} holds a finished run: nothing to resume; its "
-              "result, exports and report were left as they are")
+        _say(f"{out} holds a finished run: nothing to resume; its result, exports and report were left as they are")
         return EXIT_OK
     if outcome.solution is None:
         return EXIT_OK
-    print(summary(outcome.solution, outcome.verdict))
+    _say(summary(outcome.solution, outcome.verdict))
+    _result_json(outcome.solution.result, outcome.verdict, outcome.exports_written)
     if loaded.config.validation is not None and outcome.verdict.level != "red":
-        print(f"acceptance test: spherecal validate {args.config} (its figures then join this verdict, in the "
-              "terminal and the report)")
+        _say(f"acceptance test: spherecal validate {args.config} (its figures then join this verdict, in the "
+             "terminal and the report)")
     from . import dataio
 
     journal = outcome.files.get("journal")
     if journal is not None:
         check = truth_check(outcome.solution, dataio.read_dataset(journal))
         if check:
-            print(check)
-    out = Path(args.out) if args.out else loaded.output_dir
+            _say(check)
     return _finish(out, outcome.verdict, outcome.exports_written,
                    "--resume --force" if outcome.files.get("journal") else "--force")
 
@@ -81,12 +219,12 @@ def cmd_calibrate(args) -> int:
 def _finish(out: Path, graded, written: bool, force: str = "--force") -> int:
     """The last line of calibrate and solve, and the exit code: a RED result exits 7."""
     if graded.level != "red":
-        print(f"results in {out}")
+        _say(f"results in {out}")
         return EXIT_OK
     if written:
-        print(f"results in {out} (written with --force although the result is RED: do not use it in production)")
+        _say(f"results in {out} (written with --force although the result is RED: do not use it in production)")
     else:
-        print(f"the result is RED: result.json and the exports were NOT written (report in {out}); fix the cause "
+        _say(f"the result is RED: result.json and the exports were NOT written (report in {out}); fix the cause "
               f"and run again, or give {force} to write them anyway")
     _err("the result is RED (exit 7): see the verdict above")
     return EXIT_RED
@@ -99,7 +237,13 @@ def cmd_solve(args) -> int:
     from .runner import (make_host, provenance_type, solve_and_write, solve_kinematics, solve_robot_type, summary,
                          truth_check)
 
-    dataset = dataio.read_dataset(args.dataset)
+    out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
+    _run_folder(out)
+    dataset = dataio.read_dataset(args.dataset)  # checks the file first (a device, a pipe, a size limit)
+    if _session.record is not None:
+        from .runlog import describe_file
+
+        _session.record.note(f"dataset: {describe_file(args.dataset)}")
     if not dataset.observations:
         raise InputError(f"{args.dataset}: the dataset holds no observations (only its header): nothing to solve")
     nominal = None
@@ -123,7 +267,7 @@ def cmd_solve(args) -> int:
         raise ConfigError("--identify-kinematics needs the robot's kinematics: give --robot TYPE (a type whose "
                           "plugin describes its arm; `spherecal plugins` lists them) and joints_deg in every "
                           "observation")
-    out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
+    _log.info("options: %s", options.model_dump_json(exclude={"nominal_transform"}))
     if not args.overwrite:
         from .runner import check_output_folder
 
@@ -131,17 +275,18 @@ def cmd_solve(args) -> int:
                             "exports and report", exports)
     from .runner import traceability
 
-    solution, graded, written = solve_and_write(dataset, options, out, fk, log=lambda m: print(m, file=sys.stderr),
+    solution, graded, written = solve_and_write(dataset, options, out, fk, log=_RUN_LOG,
                                                 report=not args.no_report, force=args.force, kinematics=arm,
                                                 exports=exports,
                                                 provenance=traceability(dataset, Path(args.dataset),
                                                                         operator=args.operator))
     host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out, exports_written=written,
                               robot_type=robot_type, sensor_type=sensor_type)
-    print(summary(solution, graded))
+    _say(summary(solution, graded))
+    _result_json(solution.result, graded, written)
     check = truth_check(solution, dataset)
     if check:
-        print(check)
+        _say(check)
     return _finish(out, graded, written)
 
 
@@ -266,9 +411,11 @@ def cmd_simulate(args) -> int:
         )
         cell = standard_cell(args.mounting, seed=args.seed, noise=noise)
         plan = SweepPlan(profiles_per_station=args.profiles)
+    if not args.force and os.path.lexists(args.out):
+        raise InputError(f"{args.out} already exists; give --force to replace it, or another file name")
     ds = simulate_dataset(cell, plan)
     dataio.write_dataset(args.out, ds, overwrite=args.force)
-    print(f"wrote {len(ds.observations)} observations ({cell.mounting}) to {args.out}")
+    _say(f"wrote {len(ds.observations)} observations ({cell.mounting}) to {args.out}")
     return EXIT_OK
 
 
@@ -277,16 +424,27 @@ def cmd_validate(args) -> int:
     from .runner import run_validate
 
     loaded = load_config(args.config)
+    _run_folder(Path(args.out) if args.out else loaded.output_dir)
+    if _session.record is not None:
+        from .runlog import describe_file, file_text_for_record
+
+        _session.record.note(f"configuration: {describe_file(loaded.path)}\n" + file_text_for_record(loaded.path))
     given = _given_transform(args, robot_type=loaded.config.robot["type"])
-    outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None,
-                           log=lambda m: print(m, file=sys.stderr), report=not args.no_report, yes=args.yes, ask=_ask,
+    outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None, log=_RUN_LOG,
+                           progress_stream=_progress_stream(), report=not args.no_report, yes=args.yes, ask=_ask,
                            transform=given)
     from .runner import format_verdict
-    from .validation import format_outcome
+    from .validation import format_outcome, position_rows
 
-    print(format_outcome(outcome))
-    print("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
-    print(format_verdict(outcome.verdict))
+    _say(format_outcome(outcome))
+    _say("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
+    _say(format_verdict(outcome.verdict))
+    _session.summary.update(
+        verdict=_verdict_json(outcome.verdict),
+        transform=_transform_json(outcome.transform_name, outcome.transform) | {"source": outcome.transform_source},
+        validation={"passed": outcome.passed, "transform_given": given is not None,
+                    "figures": outcome.table(), "positions": position_rows(outcome)},
+    )
     return EXIT_OK if outcome.passed else EXIT_VALIDATION
 
 
@@ -333,7 +491,15 @@ def cmd_compare(args) -> int:
         given = cmp.TransformEstimate.of_result(other, str(where_b), args.uncertainty)
     c = cmp.compare(a, given, threshold_mm=args.threshold_mm, threshold_deg=args.threshold_deg,
                     significance_level=args.significance)
-    print(cmp.format_comparison(c))
+    _say(cmp.format_comparison(c))
+    _session.summary.update(
+        verdict={"level": "red" if c.drift else "green",
+                 "headline": "drift: the difference exceeds a threshold and is significant" if c.drift
+                 else "no drift", "reasons": []},
+        transform=_transform_json(c.transform_name or "", c.b.pose) | {"source": c.b.source},
+        reference=_transform_json(c.transform_name or "", c.a.pose) | {"source": c.a.source},
+        comparison=c.as_dict(),
+    )
     if c.drift and args.fail_on_drift:
         _err("drift found (exit 8): see the comparison above")
         return EXIT_DRIFT
@@ -344,17 +510,40 @@ def cmd_scan(args) -> int:
     from .config import load_config
     from .runner import run_scan
 
-    path, summary = run_scan(load_config(args.config), out_dir=Path(args.out) if args.out else None,
-                             log=lambda m: print(m, file=sys.stderr), yes=args.yes, ask=_ask)
-    print(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
+    loaded = load_config(args.config)
+    _run_folder(Path(args.out) if args.out else loaded.output_dir)
+    path, summary = run_scan(loaded, out_dir=Path(args.out) if args.out else None, log=_RUN_LOG,
+                             progress_stream=_progress_stream(), yes=args.yes, ask=_ask)
+    _say(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
     return EXIT_OK
 
 
 def cmd_plugins(args) -> int:
     from .runner import make_host
 
-    print(make_host().format_description())
+    _say(make_host().format_description())
     return EXIT_OK
+
+
+def cmd_completion(args) -> int:
+    from .completion import completion_script
+
+    _say(completion_script(build_parser(), args.shell))
+    return EXIT_OK
+
+
+OUT_HELP = "the run's output folder: {what} (default: {default})"
+
+
+def _common_options(p: argparse.ArgumentParser, default) -> None:
+    """--debug, -v and -q, before or after the command (``default``: SUPPRESS, so that
+    a subcommand's parser leaves a value given before the command alone)."""
+    p.add_argument("--debug", action="store_true", default=default, help="show tracebacks of internal errors")
+    p.add_argument("-v", "--verbose", action="count", default=default,
+                   help="more messages on standard error (debug messages too)")
+    p.add_argument("-q", "--quiet", action="store_true", default=default,
+                   help="only warnings and errors on standard error (no progress); the result still goes to "
+                   "standard output, and run.log records everything")
 
 
 def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.ArgumentParser:
@@ -369,17 +558,26 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--version", action="version", version=f"spherecal {__version__}")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    _common_options(p, argparse.SUPPRESS)
+    p.set_defaults(debug=False, verbose=0, quiet=False, json=False)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    common = argparse.ArgumentParser(add_help=False)
+    _common_options(common, argparse.SUPPRESS)
+    as_json = argparse.ArgumentParser(add_help=False)
+    as_json.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                         help="print one JSON summary on standard output (verdict, transform, uncertainties, files "
+                         "written, exit code) and nothing else; the human text goes to standard error (docs/cli.md)")
 
-    c = sub.add_parser("calibrate", help="acquire (or replay) and calibrate, as the configuration says",
+    c = sub.add_parser("calibrate", parents=[common, as_json], help="acquire (or replay) and calibrate, as the configuration says",
                        description="Plan, check, acquire into the journal, solve, and write the result, exports "
                        "and report. With [simulation] in the configuration, runs against simulated devices.")
     c.add_argument("config", help="configuration file (TOML)")
     c.add_argument("--dry-run", action="store_true", help="show and check the plan, move nothing")
     c.add_argument("--resume", action="store_true", help="continue an interrupted acquisition from its journal")
     c.add_argument("--manual", action="store_true", help="the operator jogs the robot; Enter captures")
-    c.add_argument("--out", help="output folder (default: output_dir of the configuration)")
+    c.add_argument("-o", "--out", metavar="DIR", help=OUT_HELP.format(
+        what="journal, result, exports, report and run.log are written there",
+        default="output_dir of the configuration"))
     c.add_argument("--no-report", action="store_true", help="skip the HTML report")
     c.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "
                    "RED (the exit code is still 7)")
@@ -388,12 +586,13 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
     c.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     c.set_defaults(func=cmd_calibrate)
 
-    s = sub.add_parser("solve", help="calibrate a recorded dataset (no devices)",
+    s = sub.add_parser("solve", parents=[common, as_json], help="calibrate a recorded dataset (no devices)",
                        description="Calibrate a recorded dataset without devices and write the result, exports "
                        "and report. Flange poses are the reported base_from_flange; observations with joint "
                        "readings only go through the robot plugin's forward kinematics (--robot).")
     s.add_argument("dataset", help="dataset file (.jsonl)")
-    s.add_argument("--out", help="output folder (default: <dataset>.calibration next to it)")
+    s.add_argument("-o", "--out", metavar="DIR", help=OUT_HELP.format(
+        what="result, exports, report and run.log are written there", default="<dataset>.calibration next to it"))
     s.add_argument("--fit-radius", action="store_true", help="estimate the sphere radius too")
     s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data")
     s.add_argument("--robot", metavar="TYPE", help="robot type whose kinematics computes flange poses from joints_deg "
@@ -421,7 +620,7 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
                    "output folder (default: refuse)")
     s.set_defaults(func=cmd_solve)
 
-    m = sub.add_parser("simulate", help="write a dataset from the simulated cell")
+    m = sub.add_parser("simulate", parents=[common], help="write a dataset from the simulated cell")
     m.add_argument("out", help="dataset file to write (.jsonl)")
     m.add_argument("--config", help="take the cell and plan from this configuration's [simulation] and [acquisition]")
     m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], default="eye_in_hand")
@@ -433,28 +632,32 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
     m.set_defaults(func=cmd_simulate)
 
-    v = sub.add_parser("validate", help="acceptance test of a calibration: P_F, P_S, SD, F against the MPEs",
+    v = sub.add_parser("validate", parents=[common, as_json], help="acceptance test of a calibration: P_F, P_S, SD, F against the MPEs",
                        description="Scan the sphere (and a ball bar and a flat, if configured) with the calibrated "
                        "system at views other than the calibration's; report the figures per position and their "
                        "maximum; exit 5 when one exceeds its MPE. The transform is the calibration's result.json, "
                        "or one spherecal did not compute (--transform, --controller-frame).")
     v.add_argument("config", help="configuration file (TOML) with a [validation] section")
-    v.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
+    v.add_argument("-o", "--out", metavar="DIR", help=OUT_HELP.format(
+        what="its result.json is validated, and the validation files, report and run.log are written there",
+        default="output_dir of the configuration"))
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
     _transform_options(v, "to validate instead of the calibration's result.json (e.g. the controller's current "
                        "tool)", frame_options, with_std=False)
     v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     v.set_defaults(func=cmd_validate)
 
-    n = sub.add_parser("scan", help="scan an object with the calibrated system into a PLY point cloud",
+    n = sub.add_parser("scan", parents=[common], help="scan an object with the calibrated system into a PLY point cloud",
                        description="Sweep the object of the [scan] section and stream its points, mapped into the "
                        "frame the object is fixed in (base in eye-in-hand), to a PLY file.")
     n.add_argument("config", help="configuration file (TOML) with a [scan] section")
-    n.add_argument("--out", help="output folder holding result.json (default: output_dir of the configuration)")
+    n.add_argument("-o", "--out", metavar="DIR", help=OUT_HELP.format(
+        what="its result.json maps the points, and the PLY and run.log are written there",
+        default="output_dir of the configuration"))
     n.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
     n.set_defaults(func=cmd_scan)
 
-    k = sub.add_parser("compare", help="the difference between two calibrations (or a calibration and a given "
+    k = sub.add_parser("compare", parents=[common, as_json], help="the difference between two calibrations (or a calibration and a given "
                        "transform) and whether it is drift",
                        description="B relative to A in mm and degrees, about and along the axes of the transform's "
                        "target frame (flange or base), with its significance from both covariances (Mahalanobis "
@@ -479,8 +682,15 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
                    "and say so)")
     k.set_defaults(func=cmd_compare)
 
-    g = sub.add_parser("plugins", help="list installed robots and sensors with their configuration fields")
+    g = sub.add_parser("plugins", parents=[common], help="list installed robots and sensors with their configuration fields")
     g.set_defaults(func=cmd_plugins)
+
+    o = sub.add_parser("completion", parents=[common], help="print a shell completion script (bash or zsh)",
+                       description="Print a completion script for the shell: bash (source it, or put it in "
+                       "~/.local/share/bash-completion/completions/spherecal) or zsh (save it as _spherecal in a "
+                       "folder of $fpath). docs/cli.md, 'Shell completion'.")
+    o.add_argument("shell", choices=["bash", "zsh"])
+    o.set_defaults(func=cmd_completion)
     return p
 
 
@@ -496,12 +706,139 @@ def _after_failure(command: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns its exit code (module docstring). Logging is set up for
+    the command's length only (:func:`_logging`): nothing stays installed afterwards."""
+    global _session
     argv = sys.argv[1:] if argv is None else list(argv)
     # the robot plugins' names for --controller-frame: the host is built only for the commands that take one
     parser = build_parser(_installed_frame_options() if {"compare", "validate"} & set(argv) else {})
     args = parser.parse_args(argv)
+    args._argv = argv
+    from .runlog import RunRecord
+
+    _session = _Session(json=args.json, quiet=args.quiet, record=RunRecord())
+    _session.summary.update(schema=JSON_SCHEMA, spherecal=__version__, command=args.command)
+    started = time.time()
+    real_stdout = sys.stdout
+    code = EXIT_INTERNAL
+    try:
+        with _logging(args), (contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext()):
+            _log.debug("spherecal %s: spherecal %s", __version__, " ".join(args._argv))
+            code = _run(args)
+            if args.json:
+                sys.stderr.flush()
+            else:
+                sys.stdout.flush()  # a reader that closed the pipe shows here, inside the handler below
+            _close_record(args, code, started)
+        if args.json:
+            _session.summary.update(exit_code=code, exit_meaning=EXIT_MEANING.get(code, "unknown"))
+            _session.summary.setdefault("error", None)
+            print(_json_text(_session.summary), file=real_stdout)
+            real_stdout.flush()
+        return code
+    except BrokenPipeError:
+        _quiet_broken_stdout()
+        return EXIT_PIPE
+    finally:
+        _session = _Session()
+
+
+def _json_text(summary: dict) -> str:
+    import json
+
+    order = ["schema", "spherecal", "command", "exit_code", "exit_meaning", "error", "verdict", "transform",
+             "uncertainty", "files", "out_dir"]
+    ordered = {k: summary[k] for k in order if k in summary} | {k: v for k, v in summary.items() if k not in order}
+    return json.dumps(_plain(ordered), indent=2, allow_nan=False)
+
+
+def _plain(value):
+    """``value`` as plain JSON types: numpy numbers and arrays as numbers and lists, paths
+    as strings, and a NaN or infinite number as null (JSON has none)."""
+    import math
+
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, Path):
+        return str(value)
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
+    return str(value)
+
+
+def _close_record(args, code: int, started: float) -> None:
+    """The end of the run: the files written into the summary, and the run's record
+    appended to run.log in its output folder (when the folder exists)."""
+    out = _session.out_dir
+    files = _files_written()
+    record = _session.record
+    from .runlog import RUN_LOG_NAME
+
+    # the record goes into a folder this run made, wrote into, or that keeps a record already: a
+    # folder refused as someone else's (it holds their result) is left untouched
+    ours = out is not None and (files or not _session.out_existed or RUN_LOG_NAME in _session.before)
+    if ours and record is not None:
+        head = [f"=== spherecal {__version__} {args.command}, started "
+                f"{record._stamp(started)}, exit code {code} ({EXIT_MEANING.get(code, 'unknown')}) after "
+                f"{time.time() - started:.1f} s",
+                f"command line: spherecal {' '.join(args._argv)}"]
+        if files:
+            head.append("files written: " + ", ".join(sorted(files)))
+        record.lines[:0] = head
+        try:
+            written = record.append_to(out)
+        except (OSError, FileWriteError, InputError) as exc:  # the record must not hide the run's own outcome
+            print(f"spherecal: warning: {out / RUN_LOG_NAME} not written: {exc}", file=sys.stderr)
+            written = None
+        if written is not None:
+            files.setdefault(RUN_LOG_NAME, str(written))
+    _session.summary.update(files=files, out_dir=str(out) if out is not None else None)
+
+
+@contextlib.contextmanager
+def _logging(args):
+    """For one command: logger ``spherecal`` at DEBUG, a console handler on standard
+    error (INFO; DEBUG with -v; WARNING with -q) and the run's record (everything)."""
+    root = logging.getLogger("spherecal")
+    console = logging.StreamHandler(sys.stderr)
+    console.setFormatter(logging.Formatter("%(message)s"))
+    console.setLevel(logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO)
+    saved = root.level
+    root.setLevel(logging.DEBUG)
+    root.addHandler(console)
+    root.addHandler(_session.record)
+    try:
+        yield
+    finally:
+        root.removeHandler(console)
+        root.removeHandler(_session.record)
+        root.setLevel(saved)
+
+
+def _quiet_broken_stdout() -> None:
+    """Standard output's reader went away (``spherecal plugins | head``): point it at
+    /dev/null so that the interpreter's last flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # not a real file (a test's capture): nothing to protect
+        pass
+
+
+def _run(args) -> int:
     try:
         return args.func(args)
+    except BrokenPipeError:
+        raise
     except KeyboardInterrupt:
         _err("interrupted" + _after_failure(args.command))
         return EXIT_INTERRUPTED
@@ -533,6 +870,8 @@ def _internal(args, exc: BaseException) -> int:
     if args.debug:
         traceback.print_exc()
     _err(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback; please report it)")
+    if _session.record is not None:
+        _session.record.note("".join(traceback.format_exception(exc)), "spherecal.cli")
     return EXIT_INTERNAL
 
 

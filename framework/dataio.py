@@ -451,7 +451,8 @@ def _header_from_json(obj: Any, name: str) -> DatasetHeader:
         )
     fmt = obj["format"]
     if fmt != DATASET_FORMAT:
-        hint = "; it is a calibration result: use read_result()" if fmt == RESULT_FORMAT else ""
+        hint = ("; it is a calibration result, not a dataset: give a dataset (a run's journal.jsonl, or a file "
+                "spherecal simulate wrote)") if fmt == RESULT_FORMAT else ""
         raise DatasetFileError(
             f"{name}: not a spherecal dataset: line 1 has format {json.dumps(fmt)}, "
             f"expected {DATASET_FORMAT!r}{hint}"
@@ -546,7 +547,8 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     except ValueError as exc:
         if _is_result_document(data):
             raise DatasetFileError(
-                f"{name}: not a spherecal dataset: it is a calibration result ({RESULT_FORMAT!r}): use read_result()"
+                f"{name}: not a spherecal dataset: it is a calibration result ({RESULT_FORMAT!r}); give a dataset (a "
+                "run's journal.jsonl, or a file spherecal simulate wrote)"
             ) from None
         raise DatasetFileError(
             f"{name}: not a spherecal dataset: line 1 is not valid JSON ({exc}); "
@@ -982,7 +984,8 @@ def read_result(path: str | os.PathLike) -> CalibrationResult:
             is_dataset = False
         if is_dataset:
             raise DatasetFileError(
-                f"{name}: not a spherecal result: it is a dataset ({DATASET_FORMAT!r}): use read_dataset()"
+                f"{name}: not a spherecal result: it is a dataset ({DATASET_FORMAT!r}); give a result.json or a run "
+                "folder holding one (spherecal solve makes one from a dataset)"
             ) from None
         raise DatasetFileError(f"{name}: not valid JSON ({exc}); a result file is one JSON document") from None
     if not isinstance(doc, dict) or "format" not in doc:
@@ -991,7 +994,8 @@ def read_result(path: str | os.PathLike) -> CalibrationResult:
         )
     fmt = doc["format"]
     if fmt != RESULT_FORMAT:
-        hint = "; it is a dataset: use read_dataset()" if fmt == DATASET_FORMAT else ""
+        hint = ("; it is a dataset, not a result: give a result.json or a run folder holding one (spherecal solve "
+                "makes one from a dataset)") if fmt == DATASET_FORMAT else ""
         raise DatasetFileError(
             f"{name}: not a spherecal result: format is {json.dumps(fmt)}, expected {RESULT_FORMAT!r}{hint}"
         )

@@ -15,10 +15,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from .models import Pose, Profile
+from .runlog import progress_log
 
 if TYPE_CHECKING:  # pragma: no cover
     from .kinematics import ArmKinematics
     from .sim.cell import SimulatedCell
+
+_LOG = progress_log("devices")  # the default ``log``: logger spherecal.devices
 
 
 @runtime_checkable
@@ -79,7 +82,7 @@ class DeviceContext:
     they stay consistent without knowing about each other."""
 
     cell: "SimulatedCell | None" = None
-    log: Callable[[str], None] = print
+    log: Callable[[str], None] = _LOG
     extras: dict[str, Any] = field(default_factory=dict)
     #: The point the flange carries whose speed a move's ``speed_mm_s`` limits, flange
     #: frame, mm: the sensor's origin (eye-in-hand) or the sphere's centre (eye-to-hand),

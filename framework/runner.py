@@ -13,6 +13,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from . import dataio
+from .runlog import Notice, progress_log
 from .acquisition import Progress, acquire, acquire_manual, check_first_move, check_targets, describe_plan, plan_targets
 from .config import LoadedConfig, ReportConfig, RunConfig
 from .devices import DeviceContext, SensorFieldOfView, device_identity
@@ -24,6 +25,7 @@ from .models import SPHERE_FRAME, TRANSFORM_NAME
 from .report.assess import Verdict
 from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 
+_LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 JOURNAL_NAME = "journal.jsonl"
 RESULT_NAME = "result.json"
 #: What a calibration writes into its folder besides its exporters' files (an
@@ -281,8 +283,8 @@ def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str]
     if yes:
         log(f"{command}: motion confirmed with --yes: {plan}")
         return
-    log(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the enabling "
-        "device or the emergency stop.")
+    log(Notice(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the "
+               "enabling device or the emergency stop."))  # shown with -q too: it is what 'yes' confirms
     try:
         answer = ask("Type 'yes' to start the motion (anything else stops): ")
     except (EOFError, OSError):
@@ -317,7 +319,7 @@ def run_calibrate(
     resume: bool = False,
     manual: bool = False,
     out_dir: Path | None = None,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] = _LOG,
     ask: Callable[[str], str] = input,
     progress_stream=None,
     report: bool = True,
@@ -580,7 +582,7 @@ def solve_and_write(
     options: CalibrationOptions,
     out: Path,
     fk=None,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] = _LOG,
     report: bool = True,
     force: bool = False,
     kinematics=None,
@@ -730,7 +732,7 @@ def _other_mounting(mounting: str) -> str:
 
 
 def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
-                    log: Callable[[str], None] = print) -> "Verdict":
+                    log: Callable[[str], None] = _LOG) -> "Verdict":
     """The verdict of ``solution`` (:func:`spherecal.report.assess.verdict`); for a RED
     one, the likely cause named where the data can tell it:
 
@@ -935,7 +937,7 @@ def _calibrated_setup(loaded: LoadedConfig, section, missing: str, moving: str, 
     return (out, *_result_for(loaded, section, out)) if read_result else (out, None, None)
 
 
-def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
+def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = _LOG,
                  progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input,
                  transform=None):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
@@ -996,6 +998,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     own = verdict(result) if result is not None else Verdict(
         "green", "A transform spherecal did not compute: only its validation is graded.")
     outcome.verdict = with_validation(own, outcome.table())
+    outcome.transform, outcome.transform_name, outcome.transform_source = X, TRANSFORM_NAME[cfg.mounting], source
     import json
 
     text = json.dumps({"passed": outcome.passed, "result": source, "transform": X.model_dump(),
@@ -1028,7 +1031,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     return outcome
 
 
-def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = print,
+def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = _LOG,
              progress_stream=None, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal scan``: sweep the object, stream its points to a PLY file."""
     from .ply import PlyWriter
@@ -1048,7 +1051,8 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
                               "give a file name in it, or set scan.ply_outside_output_dir = true to write there "
                               "on purpose")
         check_writable_target(ply_path)
-    out, _, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning", out_dir)
+    out, result_path, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning",
+                                                 out_dir)
     targets = plan_scan(cfg, result.transform)
     _check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
@@ -1062,7 +1066,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     with open_devices(loaded, host, cell, log) as (robot, sensor):
         _check_plan(targets, cfg.acquisition, "scan plan", robot=robot)
         with PlyWriter(ply_path, format=cfg.scan.format, with_profile=True, frame=frame,
-                       comments=(f"spherecal scan, {result.transform_name} from {cfg.output_dir}",)) as writer:
+                       comments=(f"spherecal scan, {result.transform_name} from {result_path}",)) as writer:
             summary = scan(robot, sensor, targets, result.transform, cfg, writer, log,
                               Progress(len(targets), progress_stream))
     log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in {frame} frame")

@@ -68,6 +68,24 @@ def write_text(path: str | os.PathLike, text: str) -> None:
     write_bytes(path, text.encode("utf-8"))
 
 
+def append_text(path: str | os.PathLike, text: str) -> None:
+    """Append ``text`` (UTF-8) to ``path``, creating it when missing; never through a
+    symbolic link (:func:`check_writable_target`); a failed write names the file."""
+    check_writable_target(path)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | _NOFOLLOW, 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            check_writable_target(path)
+        raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "ab") as f:
+        try:
+            f.write(text.encode("utf-8"))
+            f.flush()
+        except OSError as exc:
+            raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
+
+
 def is_inside(path: Path, folder: Path) -> bool:
     """True when ``path`` (resolved) lies within ``folder`` (resolved)."""
     try:

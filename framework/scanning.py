@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from . import geometry as geo
+from .runlog import progress_log
 from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
 from .config import RunConfig
 from .errors import ConfigError
@@ -18,6 +19,8 @@ from .mapping import frame_from_sensor_stack, map_profile_list
 from .models import SPHERE_FRAME, Pose
 from .ply import PlyWriter
 from .planning import SweepPlan, plan_stations
+
+_LOG = progress_log("scan")  # the default ``log``: logger spherecal.scan
 
 
 def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
@@ -48,7 +51,7 @@ class ScanSummary:
 
 
 def scan(robot, sensor, targets: list[Target], X: Pose, cfg: RunConfig, writer: PlyWriter,
-         log: Callable[[str], None] = print, progress: Progress | None = None) -> ScanSummary:
+         log: Callable[[str], None] = _LOG, progress: Progress | None = None) -> ScanSummary:
     """Take every target and append its mapped points to ``writer`` straight away."""
     acq = cfg.acquisition
     frame = SPHERE_FRAME[cfg.mounting]

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from . import geometry as geo
+from .runlog import progress_log
 from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
 from .config import RunConfig, SweepSite
 from .errors import ConfigError, DegenerateDataError
@@ -28,6 +29,8 @@ from .planning import SweepPlan, plan_stations
 
 if TYPE_CHECKING:  # pragma: no cover
     from .devices import SensorFieldOfView
+
+_LOG = progress_log("validation")  # the default ``log``: logger spherecal.validation
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,7 @@ class Measured:
     profiles: list[np.ndarray] = field(default_factory=list)
 
 
-def measure(robot, sensor, sweeps: list[Sweep], cfg: RunConfig, log: Callable[[str], None] = print,
+def measure(robot, sensor, sweeps: list[Sweep], cfg: RunConfig, log: Callable[[str], None] = _LOG,
             progress: Progress | None = None, on_shot: Callable | None = None) -> list[Measured]:
     """Move through every sweep and take its profiles (poses read before and after)."""
     acq = cfg.acquisition
@@ -134,6 +137,11 @@ class ValidationOutcome:
     mpe_centre_spread_mm: float | None = None
     #: the verdict with this validation (``report.assess.with_validation``), set by the runner
     verdict: object | None = None
+    #: the transform validated (``transform_name``, e.g. flange_from_sensor) and where it came from (a
+    #: result.json, --transform, --tooldata), set by the runner
+    transform: Pose | None = None
+    transform_name: str | None = None
+    transform_source: str | None = None
 
     @property
     def passed(self) -> bool:

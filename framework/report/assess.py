@@ -319,7 +319,8 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             f"The residual RMS is {result.residuals.rms_mm:.4f} mm, {ratio:.1f} x the expected {exp:.4f} mm, "
             "and every station is affected alike. Check the sphere radius in the dataset against the "
             f"certificate (now {result.sphere_radius_mm:.4f} mm; in mm, not in metres nor a diameter), "
-            "or calibrate with fit_radius=True to see what radius the data prefer; check the sensor exposure "
+            "or let the calibration estimate the radius ([calibration] fit_radius = true; solve --fit-radius) to see "
+            "what radius the data prefer; check the sensor exposure "
             "(a saturated or too dark line biases the points) and that the sphere is clean and matte.",
         ))
     pose_t = noise.get("pose_translation_noise_mm")

@@ -42,10 +42,16 @@ __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
 #: Figures of the report, by key: saved as ``<stem>_<key>.png``. A dataset without profiles
 #: has no ``residuals_per_profile``; one without centre observations no ``residuals_per_centre``.
 FIGURE_NAMES = ("residuals_per_profile", "residuals_per_centre", "residuals_per_station", "residual_histogram",
-                "sphere_3d")
+                "residuals_along_line", "residuals_on_sphere", "sphere_3d")
 
 _DPI = 100
 _MAX_POINTS_3D_PER_PROFILE = 60
+#: At most this many points are drawn in a scatter figure, and this many in the
+#: interactive view; every statistic printed or drawn as a line uses all the points.
+MAX_POINTS_PLOTTED = 20_000
+MAX_POINTS_INTERACTIVE = 4_000
+#: Bins of the residual statistics against position along the line and against depth.
+RESIDUAL_BINS = 16
 
 
 # --- helpers ----------------------------------------------------------------------------------------
@@ -295,6 +301,163 @@ def _fig_sphere(solution, result, colours) -> Figure:
     fig.suptitle(f"Fitted sphere (r = {r:.3f} mm) and {what} mapped into the {frame} frame "
                  f"through A_i X", fontsize=10)
     return fig
+
+
+def plot_sample(n: int, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` of ``n`` points, evenly spread over them (every k-th,
+    deterministic): what a figure draws of a large dataset. Statistics use all points."""
+    if n <= limit:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, limit).round().astype(int))
+
+
+def profile_points_and_residuals(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every used profile point: its position along the laser line (sensor y, mm), its
+    depth (sensor z, the distance from the sensor along its line of sight, mm), and its
+    residual (mm); as three arrays of equal length (empty without profiles)."""
+    prob, ref = solution.problem, solution.refined
+    rows = [i for i in range(prob.n_profiles) if prob.kinds[i] == KIND_PROFILE]
+    if not rows:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    yz = np.concatenate([np.asarray(prob.profiles[i], dtype=float) for i in rows])
+    res = np.concatenate([np.asarray(ref.residuals[i], dtype=float) for i in rows])
+    return yz[:, 0], yz[:, 1], res
+
+
+def binned_residuals(x: np.ndarray, residuals: np.ndarray, bins: int = RESIDUAL_BINS) -> dict[str, np.ndarray]:
+    """The residuals' statistics in ``bins`` equal-width bins of ``x`` (mm), from every
+    point: ``centre_mm`` (bin centres), ``count``, ``mean_mm`` and ``rms_mm`` (NaN in an
+    empty bin)."""
+    x, residuals = np.asarray(x, dtype=float), np.asarray(residuals, dtype=float)
+    lo, hi = (float(x.min()), float(x.max())) if x.size else (0.0, 1.0)
+    if hi <= lo:
+        hi = lo + 1e-9
+    edges = np.linspace(lo, hi, bins + 1)
+    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
+    count = np.bincount(k, minlength=bins)
+    total = np.bincount(k, weights=residuals, minlength=bins)
+    squares = np.bincount(k, weights=residuals ** 2, minlength=bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / count, np.nan)
+        rms = np.where(count > 0, np.sqrt(squares / count), np.nan)
+    return {"centre_mm": 0.5 * (edges[:-1] + edges[1:]), "count": count, "mean_mm": mean, "rms_mm": rms}
+
+
+def _residual_limit(res: np.ndarray) -> float:
+    """The y range of a residual scatter: its 99.9th percentile of |r|, so that a few
+    large residuals do not squash the 0.01 mm structure (they are counted, not hidden)."""
+    return max(float(np.percentile(np.abs(res), 99.9)) * 1.15, 1e-3) if res.size else 1e-3
+
+
+def _fig_along_line(solution, result) -> Figure:
+    """Residual against the position along the laser line and against depth: every
+    point's residual (a sample of them drawn when there are many) and, from all of them,
+    the mean and RMS per bin."""
+    y, z, res = profile_points_and_residuals(solution)
+    pick = plot_sample(res.size, MAX_POINTS_PLOTTED)
+    lim = _residual_limit(res)
+    outside = int(np.count_nonzero(np.abs(res) > lim))
+    fig = Figure(figsize=(11, 4.0), layout="constrained")
+    for j, (x, name) in enumerate([(y, "position along the laser line, sensor y (mm)"),
+                                   (z, "depth, distance from the sensor, sensor z (mm)")]):
+        ax = fig.add_subplot(1, 2, j + 1)
+        ax.scatter(x[pick], np.clip(res[pick], -lim, lim), s=1.0, color="#8ab4f8", alpha=0.5, lw=0, rasterized=True,
+                   label=f"residuals ({pick.size} of {res.size} drawn)")
+        b = binned_residuals(x, res)
+        ax.plot(b["centre_mm"], b["mean_mm"], color="#1a73e8", lw=1.8, marker="o", ms=3, label="mean per bin")
+        ax.plot(b["centre_mm"], b["rms_mm"], color="#c5221f", lw=1.2, ls="--", label="RMS per bin")
+        ax.plot(b["centre_mm"], -b["rms_mm"], color="#c5221f", lw=1.2, ls="--")
+        ax.axhline(0, color="black", lw=0.6)
+        ax.set_ylim(-lim, lim)
+        ax.set_xlabel(name)
+        ax.set_ylabel("residual (mm)")
+        if j == 0:
+            legend = ax.legend(fontsize=7, loc="upper right")
+            legend.legend_handles[0].set_sizes([12.0])
+    fig.suptitle("Residuals against position along the line and against depth (all "
+                 f"{res.size} points in the lines; residual RMS {result.residuals.rms_mm:.4f} mm"
+                 + (f"; {outside} beyond +/-{lim:.3f} mm drawn at the edge" if outside else "") + ")", fontsize=10)
+    return fig
+
+
+def sphere_directions(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every used profile point's direction from the fitted centre in the sphere frame
+    as azimuth and elevation (deg), with its residual (mm)."""
+    pts = mapped_points(solution)
+    prob, ref = solution.problem, solution.refined
+    rows = [i for i in range(prob.n_profiles) if prob.kinds[i] == KIND_PROFILE]
+    if not rows:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    d = np.concatenate([pts[i] for i in rows]) - np.asarray(ref.centre, dtype=float)
+    res = np.concatenate([np.asarray(ref.residuals[i], dtype=float) for i in rows])
+    az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    el = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1])))
+    return az, el, res
+
+
+def _fig_on_sphere(solution, result) -> Figure:
+    """The residuals mapped on the sphere: each point at its direction from the fitted
+    centre (azimuth, elevation in the sphere frame), coloured by its residual."""
+    az, el, res = sphere_directions(solution)
+    pick = plot_sample(res.size, MAX_POINTS_PLOTTED)
+    lim = _residual_limit(res)
+    frame = SPHERE_FRAME[result.mounting]
+    fig = Figure(figsize=(11, 4.6), layout="constrained")
+    ax = fig.add_subplot()
+    sc = ax.scatter(az[pick], el[pick], c=np.clip(res[pick], -lim, lim), cmap="RdBu_r", vmin=-lim, vmax=lim, s=2.0,
+                    lw=0, rasterized=True)
+    fig.colorbar(sc, ax=ax, label="residual (mm)", shrink=0.9)
+    ax.set_xlim(-180, 180)
+    ax.set_ylim(-90, 90)
+    ax.set_xticks(range(-180, 181, 45))
+    ax.set_yticks(range(-90, 91, 30))
+    ax.grid(color="#dadce0", lw=0.5)
+    ax.set_xlabel(f"azimuth about {frame} z, from {frame} x (deg)")
+    ax.set_ylabel(f"elevation from the {frame} x-y plane (deg)")
+    ax.set_title(f"Residuals mapped on the sphere ({pick.size} of {res.size} points drawn; colour limits "
+                 f"+/-{lim:.3f} mm)", fontsize=10)
+    return fig
+
+
+def interactive_points(solution, limit: int = MAX_POINTS_INTERACTIVE) -> dict:
+    """The data of the interactive 3-D view: a sample of at most ``limit`` used profile
+    points relative to the fitted centre in the sphere frame (mm, 3 decimals) with their
+    residuals (mm, 4 decimals), the sphere's radius, the frame's name and the colour
+    limit (mm)."""
+    pts = mapped_points(solution)
+    prob, ref = solution.problem, solution.refined
+    rows = [i for i in range(prob.n_profiles) if prob.kinds[i] == KIND_PROFILE]
+    if not rows:
+        return {"points": [], "residuals": [], "radius_mm": float(ref.radius), "limit_mm": 1e-3, "frame": ""}
+    d = np.concatenate([pts[i] for i in rows]) - np.asarray(ref.centre, dtype=float)
+    res = np.concatenate([np.asarray(ref.residuals[i], dtype=float) for i in rows])
+    pick = plot_sample(res.size, limit)
+    return {"points": np.round(d[pick], 3).ravel().tolist(), "residuals": np.round(res[pick], 4).tolist(),
+            "radius_mm": round(float(ref.radius), 4), "limit_mm": round(_residual_limit(res), 4),
+            "total": int(res.size)}
+
+
+def _interactive_html(solution, result) -> str:
+    """An interactive 3-D view that works offline: the data inline as JSON and a small
+    self-contained script drawing on a canvas (drag to turn, wheel to zoom). Hidden in
+    print, where the static figures stand."""
+    data = interactive_points(solution)
+    if not data["points"]:
+        return ""
+    data["frame"] = SPHERE_FRAME[result.mounting]
+    js = resources.files(__package__).joinpath("view3d.js").read_text(encoding="utf-8")
+    payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
+    n = len(data["residuals"])
+    return ('<section class="interactive"><h3 id="view3d">Interactive 3-D view</h3>'
+            f'<p>{n} of {data["total"]} points, relative to the fitted centre in the {_e(data["frame"])} frame, '
+            "coloured by their residual (blue: negative, red: positive). Drag to turn, wheel or +/- to zoom, "
+            "double-click to reset; the residuals can be exaggerated radially with the slider. Works offline: "
+            "nothing is loaded from the network.</p>"
+            '<canvas id="view3d-canvas" width="720" height="520" tabindex="0"></canvas>'
+            '<div class="view3d-controls"><label>radial exaggeration <input id="view3d-gain" type="range" '
+            'min="0" max="3" step="0.05" value="0"> <output id="view3d-gain-out">x1</output></label></div>'
+            f'<script type="application/json" id="view3d-data">{payload}</script>'
+            f"<script>{js}</script></section>")
 
 
 # --- HTML pieces ------------------------------------------------------------------------------------
@@ -683,12 +846,21 @@ def write_report(
         "residual_histogram": (lambda: _fig_histogram(solution, result),
                                "All residuals. Solid: a normal curve with the residual RMS; dashed: with the sensor "
                                "point noise alone (the gap is the robot's pose noise). Heavy tails mean strays."),
+        "residuals_along_line": (lambda: _fig_along_line(solution, result),
+                                 "Residuals against the position along the laser line and against depth (distance "
+                                 "from the sensor). The lines (mean and RMS per bin) use every point; the dots are "
+                                 "a sample when there are many. A slope or a curve is a systematic error of the "
+                                 "sensor (scale, tilt of the line) or of the sphere radius, not noise."),
+        "residuals_on_sphere": (lambda: _fig_on_sphere(solution, result),
+                                "Every point at its direction from the fitted centre, coloured by its residual. "
+                                "Noise looks like salt and pepper; a patch or a band of one colour is a bias "
+                                "(a dirty or damaged area of the sphere, a reflection, a wrong radius)."),
         "sphere_3d": (lambda: _fig_sphere(solution, result, colours),
                       "The fitted sphere (wireframe) and the profile points mapped into the sphere frame through "
                       "A_i X, coloured by station: they should lie on the sphere."),
     }
     if not has_profiles:
-        del makers["residuals_per_profile"]
+        del makers["residuals_per_profile"], makers["residuals_along_line"], makers["residuals_on_sphere"]
     if not has_centres:
         del makers["residuals_per_centre"]
     figures = {}
@@ -736,8 +908,11 @@ def write_report(
         fig_html("residuals_per_centre"),
         fig_html("residuals_per_station"),
         fig_html("residual_histogram"),
+        fig_html("residuals_along_line"),
+        fig_html("residuals_on_sphere"),
         '<section class="keep"><h2 id="sphere">The sphere and the mapped points</h2>',
         fig_html("sphere_3d") + "</section>",
+        _interactive_html(solution, result) if has_profiles else "",
         '<section class="keep"><h2 id="uncertainty">Uncertainties</h2>',
         _uncertainty_table(result) + "</section>",
         '<section class="keep"><h3 id="correlation">Correlations of the parameters</h3>',

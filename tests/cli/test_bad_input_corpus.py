@@ -135,7 +135,7 @@ def dataset_cases() -> list[Case]:
                 "line 2"))
     add(ds_case("deep-provenance", lambda: dataset_bytes(header=lambda h: h.__setitem__("provenance", "@@")).replace(
         b'"@@"', ('{"a":' * 5 * DEEP + "1" + "}" * 5 * DEEP).encode()), "data.jsonl"))
-    add(ds_case("a-result-file", lambda: json.dumps(BASE["result"]).encode(), "read_result"))
+    add(ds_case("a-result-file", lambda: json.dumps(BASE["result"]).encode(), "it is a calibration result"))
     add(ds_case("header-only", lambda: dataset_bytes().split(b"\n")[0] + b"\n", "data.jsonl"))
     add(ds_case("cut-header", lambda: dataset_bytes()[:40], "data.jsonl"))
     add(ds_case("damaged-middle-line", lambda: dataset_bytes().replace(b'"kind"', b'"ki', 1), "line 2"))

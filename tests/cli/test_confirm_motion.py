@@ -62,3 +62,11 @@ def test_a_kinematic_calibration_shows_its_identification_before_the_motion(hard
                      r"kinematic identification: the plan \(20 stations\) identifies 18 of 36 geometric parameters "
                      r"\(per joint: 0, 4, 4, 4, 4, 2\), condition number \d+", confirm), confirm
     assert "not confirmed" in err and not (hardware_config.parent / "out").exists()
+
+
+def test_quiet_still_shows_what_yes_would_confirm(hardware_config, capsys, monkeypatch):
+    monkeypatch.setattr(builtins, "input", lambda prompt="": "no")
+    assert main(["calibrate", str(hardware_config), "-q"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert re.search(r"calibrate is about to move the real robot: \d+ shots in \d+ stations", err)
+    assert "plan: " not in err  # the rest of the progress stays quiet

@@ -76,7 +76,8 @@ def test_export_section_chooses_and_sets_up_the_exporters(tmp_path, dataset_file
     assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_OK
     out = tmp_path / "out"
     written = {p.name for p in out.iterdir()}
-    assert written == {"Cell3.mod", *ex.ROS2_FILES, "result.json", "abb_extra.txt"}  # no matrices: not in run
+    # no matrices: not in run; run.log is the record of the run
+    assert written == {"Cell3.mod", *ex.ROS2_FILES, "result.json", "abb_extra.txt", "run.log"}
     result = dataio.read_result(out / "result.json")
     d = read_rapid((out / "Cell3.mod").read_text())
     assert (d["kind"], d["name"], d["mass_kg"]) == ("tooldata", "tLaser", 1.85)

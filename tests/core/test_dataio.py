@@ -392,7 +392,7 @@ def obs_dict(index: int, /, **changes) -> dict:
 @pytest.mark.parametrize(
     "header, message",
     [
-        ({"format": "spherecal-result"}, r'line 1 has format "spherecal-result".*use read_result\(\)'),
+        ({"format": "spherecal-result"}, r'line 1 has format "spherecal-result".*not a dataset: give a dataset'),
         ({"format": "laser-scans"}, r'not a spherecal dataset: line 1 has format "laser-scans", expected \'spherecal-dataset\''),
         ({"version": 3}, r"dataset format version 3 is newer than this spherecal .* \(versions 1 to 2\); upgrade spherecal"),
         ({"version": "1"}, r'line 1 \(header\): version must be a whole number >= 1, found "1"'),
@@ -565,7 +565,7 @@ def test_bad_result_files(tmp_path):
             read_result(path)
 
     check(lambda d: d.update(version=3), r"result format version 3 is newer than this spherecal .* upgrade spherecal")
-    check(lambda d: d.update(format="spherecal-dataset"), r"not a spherecal result: .*use read_dataset\(\)")
+    check(lambda d: d.update(format="spherecal-dataset"), r"not a spherecal result: .*give a result\.json or a run folder")
     check(lambda d: d["transform"].update(quaternion_wxyz=[1.0, 0.0, 0.0]), r"transform\.quaternion_wxyz")
     check(lambda d: d.update(variance_factor="1.07"), r"variance_factor: Input should be a valid number")
     check(lambda d: d["residuals"].pop("rms_mm"), r"residuals\.rms_mm: missing")
@@ -575,10 +575,10 @@ def test_bad_result_files(tmp_path):
         read_result(path)
     dataset = tmp_path / "d.jsonl"
     write_dataset(dataset, small_dataset(1))
-    with pytest.raises(DatasetFileError, match=r"d\.jsonl: not a spherecal result: it is a dataset .*use read_dataset\(\)"):
+    with pytest.raises(DatasetFileError, match=r"d\.jsonl: not a spherecal result: it is a dataset .*give a result\.json"):
         read_result(dataset)
     write_result(path, hand_made_result(), overwrite=True)
-    with pytest.raises(DatasetFileError, match=r"r\.json: not a spherecal dataset: it is a calibration result .*use read_result\(\)"):
+    with pytest.raises(DatasetFileError, match=r"r\.json: not a spherecal dataset: it is a calibration result .*give a dataset"):
         read_dataset(path)
 
 
