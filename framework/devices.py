@@ -127,7 +127,7 @@ class RobotType:
 #: robot type's :attr:`RobotType.frame_option` must not take.
 RESERVED_OPTION_NAMES = frozenset({
     "help", "version", "debug", "out", "no-report", "yes", "transform", "controller-frame", "std-mm", "std-deg",
-    "threshold-mm", "threshold-deg", "significance", "uncertainty", "fail-on-drift",
+    "threshold-mm", "threshold-deg", "significance", "uncertainty", "fail-on-drift", "json", "verbose", "quiet",
 })
 
 

@@ -138,7 +138,7 @@ class ValidationOutcome:
     #: the verdict with this validation (``report.assess.with_validation``), set by the runner
     verdict: object | None = None
     #: the transform validated (``transform_name``, e.g. flange_from_sensor) and where it came from (a
-    #: result.json, --transform, --tooldata), set by the runner
+    #: result.json, --transform, --controller-frame), set by the runner
     transform: Pose | None = None
     transform_name: str | None = None
     transform_source: str | None = None

@@ -204,11 +204,18 @@ def test_scan_records_the_result_it_used_with_out(sim_config, capsys):
 
 
 def test_a_closed_pipe_exits_141_without_an_error(tmp_path):
-    """``spherecal plugins | head``: the reader goes away; no traceback, no 'internal error'."""
-    proc = subprocess.Popen([sys.executable, "-m", "spherecal.cli", "plugins"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
-    proc.stdout.readline()
-    proc.stdout.close()  # as head does after its lines
+    """``spherecal plugins | head``: the reader goes away; no traceback, no 'internal error'.
+    The reader is gone before the first write (a pipe whose read end is closed): with
+    ``head`` it depends on timing whether the ~18 KB of output still fit in the pipe."""
+    import os
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "spherecal.cli", "plugins"], stdout=write_end,
+                                stderr=subprocess.PIPE)
+    finally:
+        os.close(write_end)
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == EXIT_PIPE == 141
     assert "internal error" not in err and "BrokenPipe" not in err and "Traceback" not in err
