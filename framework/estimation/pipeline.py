@@ -200,6 +200,13 @@ def solve(
             "identify_kinematics needs joint readings (joints_deg) on every observation and the robot's kinematics "
             "(spherecal solve --robot TYPE)"
         )
+    if opt.robot_error_model in ("kinematic", "kinematic+station") and (problem.q_rad is None or kinematics is None):
+        # never a silent fallback: without the arm's error the robot's accuracy would drop out of the uncertainty
+        missing = ("joint readings (joints_deg) on every observation" if problem.q_rad is None
+                   else "the robot's kinematics (spherecal solve --robot TYPE)")
+        raise InputError(
+            f"robot_error_model = {opt.robot_error_model!r} (--robot-error-model) needs the arm's joints: this dataset "
+            f"lacks {missing}; use 'station' (the robot's error shared within each station) or 'auto'")
     joints_known = problem.q_rad is not None
     # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
     table_keep, table_flags, pairs = screen_table(problem)

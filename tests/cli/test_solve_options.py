@@ -172,3 +172,17 @@ def test_kinematic_calibration_plan_is_checked_before_anything_moves(sim_config,
     assert main(["calibrate", str(sim_config("sim-kinematic-eye-in-hand.toml")), "--dry-run"]) == EXIT_OK
     err = capsys.readouterr().err
     assert "kinematic plan: 20 stations chosen" in err and "identifies 18 of 36 geometric parameters" in err
+
+
+@pytest.mark.parametrize("model", ["kinematic", "kinematic+station"])
+def test_a_kinematic_model_asked_for_without_joints_is_refused_not_dropped(tmp_path, capsys, model):
+    """Asked for by name, the kinematic model never falls back silently to none (which would
+    drop the robot's accuracy from the uncertainty): a dataset without joint readings is
+    refused, naming what is missing and what to use instead."""
+    path = tmp_path / "poses_only.jsonl"
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=4), SweepPlan(profiles_per_station=4)))
+    assert main(["solve", str(path), "--robot-error-model", model, "--out", str(tmp_path / "o"), "--no-report"]) \
+        == EXIT_DATA
+    err = capsys.readouterr().err
+    assert f"robot_error_model = '{model}'" in err and "joints_deg" in err and "'station'" in err
+    assert not (tmp_path / "o" / "result.json").exists()
