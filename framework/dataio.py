@@ -798,17 +798,37 @@ class DatasetWriter:
         self._indices[observation.index] = self._lines
 
     def close(self) -> None:
-        if not self._file.closed:
+        """Flush (and fsync if asked) and close; a failure names the file
+        (:class:`FileWriteError`), and the file is closed either way."""
+        if self._file.closed:
+            return
+        try:
             self._file.flush()
             if self.fsync:
                 os.fsync(self._file.fileno())
+        except OSError as exc:
+            raise FileWriteError(
+                f"{os.fspath(self.path)}: cannot write ({exc.strerror or exc}); the lines written before are kept"
+            ) from None
+        finally:
+            self._close_quietly()
+
+    def _close_quietly(self) -> None:
+        try:
             self._file.close()
+        except OSError:  # what failed to write is still buffered (a full disk): the lines before are on disk
+            pass
 
     def __enter__(self) -> "DatasetWriter":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *_) -> None:
+        if exc_type is not None:
+            # the run already failed (a full disk, a device): its error is the one to report, not a
+            # second one from flushing what is left
+            self._close_quietly()
+        else:
+            self.close()
 
     def __repr__(self) -> str:
         state = "closed" if self.closed else "open"
