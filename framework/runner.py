@@ -610,6 +610,12 @@ def solve_and_write(
         exports = make_host().export_plan(None, dataset.mounting, None)
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
+    import dataclasses
+
+    # the verdict travels with the result: a RED one written with --force says so in result.json
+    solution = dataclasses.replace(solution, result=solution.result.model_copy(update={"diagnostics": {
+        **solution.result.diagnostics,
+        "verdict": {"level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}}}))
     if written:
         write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
         urdf = write_calibrated_urdf(solution, kinematics, out)

@@ -62,6 +62,9 @@ def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
     assert (out / "report.html").exists()
     assert "likely cause" in (out / "report.html").read_text()  # the report shows the runner's verdict
     assert "written with --force" in capsys.readouterr().out
+    # result.json itself says it is RED, written with --force
+    verdict = dataio.read_result(out / "result.json").diagnostics["verdict"]
+    assert verdict["level"] == "red" and verdict["written_with_force"] and "likely cause" in verdict["headline"].lower()
 
 
 def test_a_good_result_exits_0_with_its_verdict(tmp_path, clean, capsys):
