@@ -899,10 +899,11 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
 
 def format_verdict(v: "Verdict") -> str:
     """The verdict as the terminal prints it (the report shows the same): its level and
-    headline, and the reasons for a red one."""
+    headline, and the reasons for a red or amber one (what is red first)."""
     lines = [f"verdict: {v.level.upper()}: {v.headline}"]
-    if v.level == "red":
-        lines.extend(f"  red: {text}" for lvl, text in v.reasons if lvl == "red")
+    if v.level in ("red", "amber"):
+        for level in ("red", "amber"):
+            lines.extend(f"  {level}: {text}" for lvl, text in v.reasons if lvl == level)
     return "\n".join(lines)
 
 

@@ -100,3 +100,18 @@ def test_calibrate_replaying_red_data_exits_7_and_force_writes(tmp_path, clean, 
     assert not (tmp_path / "out" / "result.json").exists()
     assert main(["calibrate", str(cfg), "--no-report", "--force", "--out", str(tmp_path / "forced")]) == EXIT_RED
     assert (tmp_path / "forced" / "result.json").exists()
+
+
+def test_the_terminal_verdict_lists_the_reasons_of_an_amber_one_too():
+    """'see the checks below' is followed by them in the terminal, not only in the report:
+    amber and red reasons (red first), never the green ones."""
+    from spherecal.report.assess import Verdict
+    from spherecal.runner import format_verdict
+
+    amber = Verdict("amber", "Usable with care: see the checks and the advice below.",
+                    [("green", "residuals fine"), ("amber", "rotation 1-sigma 0.06 deg")])
+    assert format_verdict(amber).splitlines() == ["verdict: AMBER: Usable with care: see the checks and the advice below.",
+                                                  "  amber: rotation 1-sigma 0.06 deg"]
+    red = Verdict("red", "Do not use yet.", [("amber", "a"), ("red", "b"), ("green", "c")])
+    assert format_verdict(red).splitlines()[1:] == ["  red: b", "  amber: a"]
+    assert format_verdict(Verdict("green", "Good.", [("green", "c")])) == "verdict: GREEN: Good."
