@@ -169,7 +169,7 @@ def test_the_identification_is_checked_again_from_where_the_arm_stands(sim_confi
     err = capsys.readouterr().err
     assert "from the arm's joints now: kinematic identification: the plan (20 stations) identifies 18" in err
 
-    cfg = load_config(path).config
+    cfg = for_run(path).config
     planned = plan_kinematic_stations(cfg, arm)
     targets = plan_targets(cfg, planned.sweep)
     at_zero = check_plan_identifies_kinematics(targets, cfg, arm, planned)

@@ -21,11 +21,11 @@ REFERENCE = Path(__file__).parent / "data" / "large_profile_results_before_scale
 
 def solve_cases() -> dict:
     from spherecal.estimation import CalibrationOptions, solve
-    from spherecal.sim import NoiseModel, SensorFieldOfView, SweepPlan, simulate_dataset, standard_cell
+    from spherecal.sim import REFERENCE_FIELD_OF_VIEW, NoiseModel, SweepPlan, simulate_dataset, standard_cell
 
     noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002,
                        stray_profile_fraction=0.2, strays_per_profile=20)
-    fov = SensorFieldOfView(n_columns=3200)
+    fov = REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 3200})
     out = {}
     for name, mounting, model in (("eye_in_hand-station", "eye_in_hand", "station"),
                                   ("eye_to_hand-none", "eye_to_hand", "none")):
