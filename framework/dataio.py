@@ -765,9 +765,12 @@ class DatasetWriter:
             if self.fsync:
                 os.fsync(self._file.fileno())
         except OSError as exc:  # a full disk, a removed medium: name the file
-            raise FileWriteError(
-                f"{os.fspath(self.path)}: cannot write ({exc.strerror or exc}); the lines written before are kept"
-            ) from None
+            raise self._write_error(exc) from None
+
+    def _write_error(self, exc: OSError) -> FileWriteError:
+        """A failed write (a full disk, a removed medium), naming the file."""
+        return FileWriteError(
+            f"{os.fspath(self.path)}: cannot write ({exc.strerror or exc}); the lines written before are kept")
 
     @property
     def n_observations(self) -> int:
@@ -807,9 +810,7 @@ class DatasetWriter:
             if self.fsync:
                 os.fsync(self._file.fileno())
         except OSError as exc:
-            raise FileWriteError(
-                f"{os.fspath(self.path)}: cannot write ({exc.strerror or exc}); the lines written before are kept"
-            ) from None
+            raise self._write_error(exc) from None
         finally:
             self._close_quietly()
 

@@ -5,7 +5,7 @@ stream they use as arguments (no hidden I/O)."""
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -602,18 +602,14 @@ def solve_and_write(
 
     solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
     if provenance is not None:
-        import dataclasses
-
-        solution = dataclasses.replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
+        solution = replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
     graded = assess_solution(solution, dataset, options, fk, log)
     if exports is None:
         exports = make_host().export_plan(None, dataset.mounting, None)
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
-    import dataclasses
-
     # the verdict travels with the result: a RED one written with --force says so in result.json
-    solution = dataclasses.replace(solution, result=solution.result.model_copy(update={"diagnostics": {
+    solution = replace(solution, result=solution.result.model_copy(update={"diagnostics": {
         **solution.result.diagnostics,
         "verdict": {"level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}}}))
     if written:
@@ -1024,12 +1020,10 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
         solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
                          host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
         if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
-            import dataclasses
-
             from .report.html import write_report
 
             # the result as written (its provenance: the calibration's identity and hashes)
-            solution = dataclasses.replace(solution, result=result)
+            solution = replace(solution, result=result)
             write_report(solution, out, validation=outcome.table(), validation_positions=position_rows(outcome),
                          verdict_override=outcome.verdict, notes=exports.notes(solution.result),
                          point_distance_mm=cfg.report.point_distance_mm)
