@@ -19,9 +19,13 @@ connection, or it broke), and the robot never reconnects by itself: it must be c
 again, which opens a new connection (on a socket server, a new session in which no
 target is staged; docs/line-protocol.md). Requests are idempotent (a MOVL names its
 staged target, and the controller moves to a target once), so a resend never makes the
-robot move twice. On open the link discards whatever waits on it, and the sequence
-numbers start at a random value, so that a reply of an earlier session still on its way
-is discarded as stale by its seq.
+robot move twice. On open the link discards whatever waits on it, and the first exchange
+opens the session: ``PING`` carries a token drawn at random for this connection, and
+until a ``PONG`` echoes it under the PING's seq every line that comes is discarded as
+stale. The server answers one line after another, so a reply of an earlier session still
+on its way (a late reply after the PC program was killed, on a serial line) comes before
+that PONG and is never taken for a reply of this session, whatever seq it carries. No
+request but PING is sent before the session is open.
 
 Safety. Speed, workspace box (the target and the start, where the arm stands: both ends
 in a box, the whole straight path is) and reachability (the target, and
@@ -297,6 +301,9 @@ class LineRobot:
         self.url = url or config.port
         self._on_close = on_close
         self._seq = initial_seq() if seq_start is None else int(seq_start)
+        #: this connection's session token (PING carries it, PONG echoes it)
+        self.session_token = P.new_session_token()
+        self._session_open = False  # no PONG with our token seen yet: every reply is stale
         self._buffer = bytearray()
         self._closed = False
         self.stale_replies = 0  #: replies discarded because their seq did not match
@@ -426,12 +433,13 @@ class LineRobot:
         self.close()
 
     def ping(self) -> int:
-        """Check the controller's server answers; returns its protocol version."""
-        msg = self._exchange("PING", P.ping_request, "PONG")
-        try:
-            version = int(msg.args[0])
-        except ValueError:
-            raise P.ProtocolError(f"{self.url}: PONG carries a non-integer version {msg.args[0]!r}") from None
+        """Open the session (or check it): ``PING`` with this connection's token; returns
+        the server's protocol version. Every reply before the PONG that echoes the token
+        under the PING's seq is discarded as stale (:attr:`stale_replies`)."""
+        token = self.session_token
+        msg = self._exchange("PING", lambda seq: P.ping_request(seq, token), "PONG", session=token)
+        version, _ = P.parse_pong_reply(msg)
+        self._session_open = True
         if version != P.PROTOCOL_VERSION:
             raise DeviceError(
                 f"{self.url}: the controller's server speaks protocol version {version}, this driver "
@@ -534,11 +542,17 @@ class LineRobot:
         return self._seq
 
     def _exchange(
-        self, kind: str, build: Callable[[int], bytes], expect: str, timeout_s: float | None = None
+        self, kind: str, build: Callable[[int], bytes], expect: str, timeout_s: float | None = None,
+        session: str | None = None,
     ) -> P.Message:
         """Send a request built for a fresh seq and return its reply, resending after a
-        timeout or a corrupted line; raises DeviceError when every attempt fails."""
+        timeout or a corrupted line; raises DeviceError when every attempt fails.
+
+        ``session``: the token a PING carries; only a PONG echoing it under the seq is
+        taken, any other reply is stale. Any other request opens the session first."""
         self._check_open()
+        if session is None and not self._session_open:
+            self.ping()
         timeout_s = self.config.timeout_s if timeout_s is None else timeout_s
         attempts = self.config.retries + 1
         problem = ""
@@ -563,19 +577,23 @@ class LineRobot:
                     break
                 if msg.kind == "ERR":
                     code, text = P.parse_error_reply(msg)
+                    hint = ""
+                    if session is not None and code == P.ErrorCode.SYNTAX:
+                        hint = (f" (a server of protocol version 2 or older refuses the session token; this "
+                                f"driver speaks version {P.PROTOCOL_VERSION}: {self.version_hint})")
                     if msg.seq is None or code == P.ErrorCode.CHECKSUM:
                         if msg.seq in (None, seq):  # the controller got a garbled request
-                            problem = f"controller could not read the request: ERR {code} {text}"
+                            problem = f"controller could not read the request: ERR {code} {text}{hint}"
                             break
                     if msg.seq != seq:
                         self.stale_replies += 1
                         continue
                     raise DeviceError(
                         f"{self.name} on {self.url}: controller refused {kind} (seq {seq}): "
-                        f"ERR {code} {_error_name(code)}: {text}"
+                        f"ERR {code} {_error_name(code)}: {text}{hint}"
                     )
-                if msg.seq != seq:
-                    self.stale_replies += 1
+                if msg.seq != seq or (session is not None and (msg.kind != "PONG" or msg.args[1] != session)):
+                    self.stale_replies += 1  # another request's reply, or another session's
                     continue
                 if msg.kind != expect:
                     raise P.ProtocolError(

@@ -10,9 +10,9 @@ plugin may use it for its own robot). The full description, with examples, is in
 * A line is ``<body>*<XX>`` where ``XX`` is the XOR of every byte of ``body``, as two
   upper-case hex digits (as in NMEA 0183). The body is space-separated fields: a kind,
   a sequence number (0..999, chosen by the PC, echoed in the reply) and arguments.
-* Requests: ``PING``, ``GETJ``, ``GETP``, ``TGT`` (stage a target pose), ``MOVL`` (move
+* Requests: ``PING`` (carries the PC's session token), ``GETJ``, ``GETP``, ``TGT`` (stage a target pose), ``MOVL`` (move
   linearly to the staged target at a speed; the reply comes once in position).
-* Replies: ``PONG``, ``J`` (joints, deg, 4 decimals, one per joint: six for a six-axis
+* Replies: ``PONG`` (the protocol version and the token echoed), ``J`` (joints, deg, 4 decimals, one per joint: six for a six-axis
   arm, at most :data:`MAX_JOINTS` so that the line fits), ``P`` (flange pose x y z in mm
   with 3 decimals and quaternion q1..q4 = (w, x, y, z) with 6 decimals), ``OK``,
   ``ERR <seq> <code> <text>`` (seq ``-`` when the request's own seq was unreadable).
@@ -21,6 +21,13 @@ A move takes two requests because a pose and a speed do not fit one 80-character
 ``TGT <seq> x y z q1 q2 q3 q4`` stages the target under its seq, and
 ``MOVL <seq> <speed_mm_s> <target_seq> <v_ori_deg_s>`` moves to the target staged under ``target_seq``
 (the controller refuses any other), which makes a repeated MOVL harmless.
+
+A session opens with ``PING <seq> <token>``: the token (:func:`new_session_token`, 12
+lower-case hex digits drawn at random per connection) comes back in ``PONG <seq> 3
+<token>``. The server answers one line after another, so every reply that comes before
+that PONG belongs to an earlier session (it is discarded), and every reply after it
+belongs to this one: a reply of an earlier session is never taken for one of this
+session's, whatever seq it carries.
 """
 
 from __future__ import annotations
@@ -39,8 +46,12 @@ from .models import Pose
 MAX_LINE_CHARS = 80
 #: Sequence numbers run 0 .. SEQ_MODULUS - 1 and wrap.
 SEQ_MODULUS = 1000
-#: Protocol version the PONG reply carries (2: MOVL carries the reorientation speed).
-PROTOCOL_VERSION = 2
+#: Protocol version the PONG reply carries (2: MOVL carries the reorientation speed;
+#: 3: PING carries a session token that PONG echoes).
+PROTOCOL_VERSION = 3
+#: Characters of a session token (lower-case hex digits).
+TOKEN_CHARS = 12
+_TOKEN_ALPHABET = frozenset("0123456789abcdef")
 #: Largest reorientation speed a MOVL may ask for, deg/s (the server refuses more).
 MAX_ORIENTATION_SPEED_DEG_S = 500.0
 
@@ -54,10 +65,10 @@ SPEED_DECIMALS = 1
 MAX_JOINTS = 7
 
 #: Request kind -> number of arguments.
-REQUEST_ARGS: dict[str, int] = {"PING": 0, "GETJ": 0, "GETP": 0, "TGT": 7, "MOVL": 3}
+REQUEST_ARGS: dict[str, int] = {"PING": 1, "GETJ": 0, "GETP": 0, "TGT": 7, "MOVL": 3}
 #: Reply kind -> number of arguments (ERR: code and at least one word of text; J: the
 #: arm's joint count, given to :func:`decode_reply`).
-REPLY_ARGS: dict[str, int] = {"PONG": 1, "J": 6, "P": 7, "OK": 0, "ERR": 2}
+REPLY_ARGS: dict[str, int] = {"PONG": 2, "J": 6, "P": 7, "OK": 0, "ERR": 2}
 
 
 class ErrorCode(IntEnum):
@@ -221,8 +232,29 @@ def parse_number(text: str, what: str) -> float:
 
 
 # requests ----------------------------------------------------------------------------
-def ping_request(seq: int) -> bytes:
-    return encode("PING", seq)
+def new_session_token() -> str:
+    """A fresh session token: :data:`TOKEN_CHARS` random lower-case hex digits (48 bits)."""
+    import secrets
+
+    return secrets.token_hex(TOKEN_CHARS // 2)
+
+
+def check_token(token: str, what: str = "session token") -> str:
+    """``token`` if it is 1..:data:`TOKEN_CHARS` lower-case hex digits, else ProtocolError."""
+    if not isinstance(token, str) or not 1 <= len(token) <= TOKEN_CHARS or not set(token) <= _TOKEN_ALPHABET:
+        raise ProtocolError(f"{what} must be 1..{TOKEN_CHARS} lower-case hex digits, got {token!r}")
+    return token
+
+
+def ping_request(seq: int, token: str) -> bytes:
+    """``PING seq token``: open (or check) a session; the server echoes the token."""
+    return encode("PING", seq, [check_token(token)])
+
+
+def ping_token(msg: Message) -> str:
+    """The session token of a ``PING`` request."""
+    _expect(msg, "PING")
+    return check_token(msg.args[0], "PING token")
 
 
 def getj_request(seq: int) -> bytes:
@@ -284,8 +316,18 @@ def movl_orientation_speed(msg: Message) -> float:
 
 
 # replies -----------------------------------------------------------------------------
-def pong_reply(seq: int) -> bytes:
-    return encode("PONG", seq, [str(PROTOCOL_VERSION)])
+def pong_reply(seq: int, token: str) -> bytes:
+    """``PONG seq version token``: the reply to ``PING seq token``."""
+    return encode("PONG", seq, [str(PROTOCOL_VERSION), check_token(token)])
+
+
+def parse_pong_reply(msg: Message) -> tuple[int, str]:
+    """(protocol version, token) of a ``PONG`` reply."""
+    _expect(msg, "PONG")
+    version = msg.args[0]
+    if not version.isdigit():
+        raise ProtocolError(f"PONG carries a non-integer version {version!r}")
+    return int(version), msg.args[1]
 
 
 def ok_reply(seq: int) -> bytes:

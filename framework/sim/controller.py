@@ -190,7 +190,7 @@ class SimulatedController:
     def _dispatch(self, msg: P.Message) -> bytes:
         s = self.settings
         if msg.kind == "PING":
-            return P.pong_reply(msg.seq)
+            return P.pong_reply(msg.seq, P.ping_token(msg))
         if msg.kind == "GETJ":
             if self._reported_joints is None:
                 noise = self.rng.normal(0, s.joint_noise_deg, self.n_joints) if s.joint_noise_deg > 0 else 0.0

@@ -19,9 +19,10 @@ Requests are idempotent (a MOVL names its staged target, and the controller move
 target once), so a resend never makes the robot move twice.
 
 Replies of an earlier session: on open the driver discards whatever waits on the link,
-and it starts its sequence numbers at a random value, so that a reply of an earlier
-session still on its way is discarded as stale by its seq (unless it carries, by a
-1-in-1000 chance, the very seq this session waits for, with the expected kind).
+and the first exchange is a PING carrying a token drawn at random for this connection.
+The server answers in order, so every reply of an earlier session still on its way comes
+before the PONG that echoes the token: until that PONG every line is discarded, and no
+other request is sent before it (protocol version 3).
 
 Speed, workspace and joint limits (the latter through inverse kinematics) are checked
 before anything is sent. The protocol, the link and the checks are brand-free and live in

@@ -38,9 +38,19 @@ def server(request):
 
 
 def connect(srv, **overrides) -> AbbIrb2400Robot:
+    """A robot on ``srv`` with its session open (PING answered, as the plugin's connect
+    does), and the controller's request log cleared: faults set after this apply to the
+    test's own requests."""
     settings = dict(timeout_s=TIMEOUT_S, retries=1, move_timeout_extra_s=0.0)
     settings.update(overrides)
-    return AbbIrb2400Robot(AbbIrb2400Config(**settings), url=srv.url, kinematics=KIN)
+    robot = AbbIrb2400Robot(AbbIrb2400Config(**settings), url=srv.url, kinematics=KIN)
+    try:
+        robot.ping()
+    except BaseException:
+        robot.close()
+        raise
+    srv.controller.requests.clear()
+    return robot
 
 
 # --- normal operation --------------------------------------------------------------------
@@ -92,25 +102,25 @@ def test_tcp_transports_serve_the_same_protocol(transport):
 
 # --- injected faults ----------------------------------------------------------------------
 def test_reply_delay_within_the_timeout_is_fine(server):
-    server.faults.reply_delay_s = 0.1
     with connect(server) as robot:
+        server.faults.reply_delay_s = 0.1
         robot.read_joints_deg()
         assert robot.resends == 0
 
 
 def test_reply_delay_over_the_timeout_is_a_device_error(server):
-    server.faults.reply_delay_s = 0.3
     with connect(server) as robot:
+        server.faults.reply_delay_s = 0.3
         with pytest.raises(DeviceError, match=r"no valid reply to GETJ after 2 attempt\(s\); last problem: "
                                               r"no reply within 0.2 s.*SpherecalServer is running"):
             robot.read_joints_deg()
 
 
 def test_a_late_reply_is_discarded_as_stale(server):
-    server.faults.late_replies = 1
-    server.faults.late_reply_delay_s = 0.3
     server.controller.joints_deg = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
     with connect(server) as robot:
+        server.faults.late_replies = 1
+        server.faults.late_reply_delay_s = 0.3
         np.testing.assert_allclose(robot.read_joints_deg(), [1, 2, 3, 4, 5, 6])
         assert (robot.resends, robot.stale_replies) == (1, 1)
         robot.read_joints_deg()  # nothing left over: the next exchange is clean
@@ -120,8 +130,8 @@ def test_a_late_reply_is_discarded_as_stale(server):
 @pytest.mark.parametrize("fault", ["drop_replies", "drop_requests", "truncate_replies", "corrupt_replies",
                                    "corrupt_requests"])
 def test_a_lost_or_damaged_line_is_resent(server, fault):
-    setattr(server.faults, fault, 1)
     with connect(server) as robot:
+        setattr(server.faults, fault, 1)
         np.testing.assert_allclose(robot.read_joints_deg(), [0, 0, 0, 0, 90, 0], atol=1e-4)
         assert robot.resends == 1
     assert getattr(server.faults, fault) == 0
@@ -136,8 +146,8 @@ def test_a_lost_or_damaged_line_is_resent(server, fault):
     ],
 )
 def test_without_retries_the_error_says_what_happened(server, fault, message):
-    setattr(server.faults, fault, 1)
     with connect(server, retries=0) as robot:
+        setattr(server.faults, fault, 1)
         with pytest.raises(DeviceError, match=message):
             robot.read_joints_deg()
 
@@ -147,9 +157,9 @@ def test_a_move_survives_a_lost_reply(server, kind):
     start = Pose.from_rt(DOWN, [1000.0, 0.0, 900.0])
     server.controller.joints_deg = KIN.joints_from_flange_pose(start)
     target = Pose.from_rt(DOWN, [1010.0, 0.0, 900.0])
-    server.faults.only_kinds = (kind,)
-    server.faults.drop_replies = 1
     with connect(server) as robot:
+        server.faults.only_kinds = (kind,)
+        server.faults.drop_replies = 1
         robot.move_linear(target, 200.0)
         assert robot.resends == 1
     expected = {"TGT": ["GETJ", "TGT", "TGT", "MOVL"], "MOVL": ["GETJ", "TGT", "MOVL", "MOVL"]}[kind]
@@ -285,7 +295,8 @@ def test_a_stream_of_garbage_is_a_clear_device_error():
         robot = AbbIrb2400Robot(AbbIrb2400Config(timeout_s=TIMEOUT_S, retries=0), url=os.ttyname(slave))
         with robot:
             os.write(master, b"\x00\xffnoise" * 60)  # no LF anywhere
-            with pytest.raises(DeviceError, match=r"no valid reply to GETJ after 1 attempt\(s\); "
+            # the first exchange opens the session
+            with pytest.raises(DeviceError, match=r"no valid reply to PING after 1 attempt\(s\); "
                                                   r"last problem: received non-ASCII bytes"):
                 robot.read_joints_deg()
     finally:

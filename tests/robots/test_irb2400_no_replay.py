@@ -77,7 +77,7 @@ def test_a_served_move_is_never_run_again_without_a_request(event):
     assert ctl.moves == moves
     np.testing.assert_array_equal(ctl.joints_deg, jogged)  # the arm stays where it was jogged to
     # and the server still serves new requests
-    assert _reply(ctl, P.ping_request(12)).kind == "PONG"
+    assert _reply(ctl, P.ping_request(12, "5e55")).args == (str(P.PROTOCOL_VERSION), "5e55")
 
 
 @pytest.mark.parametrize("event", ["read timeout", "stop and start"])
@@ -140,10 +140,10 @@ def test_read_timeouts_between_requests_over_the_wire(model):
         stale = robot.stale_replies
     assert ctl.reads_without_line == 2 and srv.faults.read_timeouts == 0
     if model is SimulatedIrb2400:
-        assert ctl.requests == ["GETJ", "TGT", "MOVL", "PING"]
+        assert ctl.requests == ["PING", "GETJ", "TGT", "MOVL", "PING"]
         assert ctl.moves == 1 and stale == 0
         np.testing.assert_array_equal(ctl.joints_deg, jogged)
     else:
-        assert ctl.requests == ["GETJ", "TGT", "MOVL", "MOVL", "MOVL", "PING"]
+        assert ctl.requests == ["PING", "GETJ", "TGT", "MOVL", "MOVL", "MOVL", "PING"]
         assert ctl.moves == 3 and stale == 2
         np.testing.assert_allclose(ctl.true_flange_pose().translation_mm, TARGET.translation_mm, atol=1e-6)

@@ -19,7 +19,21 @@ def test_checksum_is_the_xor_of_the_body():
 def test_request_round_trips():
     msg = P.decode_request(P.getp_request(42))
     assert (msg.kind, msg.seq, msg.args) == ("GETP", 42, ())
-    assert P.decode_request(P.ping_request(0)).kind == "PING"
+    msg = P.decode_request(P.ping_request(0, "0a1b2c3d4e5f"))
+    assert (msg.kind, P.ping_token(msg)) == ("PING", "0a1b2c3d4e5f")
+    version, token = P.parse_pong_reply(P.decode_reply(P.pong_reply(7, "0a1b2c3d4e5f")))
+    assert (version, token) == (P.PROTOCOL_VERSION, "0a1b2c3d4e5f")
+
+
+@pytest.mark.parametrize("token", ["", "0a1b2c3d4e5f0", "ABC", "12 4", "xyz", None, 12])
+def test_a_bad_session_token_is_refused(token):
+    with pytest.raises(P.ProtocolError, match="session token must be 1..12 lower-case hex digits"):
+        P.ping_request(1, token)
+
+
+def test_session_tokens_are_fresh_hex():
+    tokens = {P.new_session_token() for _ in range(100)}
+    assert len(tokens) == 100 and all(P.check_token(t) == t and len(t) == P.TOKEN_CHARS for t in tokens)
 
 
 def test_target_and_move_requests_round_trip():

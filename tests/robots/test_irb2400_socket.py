@@ -59,7 +59,7 @@ def test_the_controller_closes_the_connection_during_a_move(server):
                                           r"nothing is sent again: check the network"):
         robot.move_linear(TARGET, 200.0)
     assert robot.resends == 0
-    assert server.controller.requests == ["GETJ", "TGT", "MOVL"]  # the MOVL once, nothing after it
+    assert server.controller.requests == ["PING", "GETJ", "TGT", "MOVL"]  # the MOVL once, nothing after it
     np.testing.assert_allclose(server.controller.true_flange_pose().translation_mm, TARGET.translation_mm,
                                atol=1e-3)
     with pytest.raises(DeviceError, match="the connection is closed; create the robot again"):
@@ -118,7 +118,7 @@ def test_a_late_reply_never_reaches_the_next_connection(server, monkeypatch):
     server.faults.late_reply_delay_s = 0.4
     server.controller.jog([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
     with connect(server, retries=0) as robot_a:
-        with pytest.raises(DeviceError, match="no valid reply to GETJ"):
+        with pytest.raises(DeviceError, match="no valid reply to PING"):  # the session's first exchange
             robot_a.read_joints_deg()
     server.controller.jog([6.0, 5.0, 4.0, 3.0, 2.0, 1.0])
     with connect(server, timeout_s=1.5, retries=0) as robot_b:
@@ -165,7 +165,7 @@ def test_garbage_from_a_socket_is_a_clear_device_error():
     try:
         config = AbbIrb2400Config(port=f"socket://127.0.0.1:{port}", timeout_s=0.2, retries=0)
         with AbbIrb2400Robot(config) as robot:
-            with pytest.raises(DeviceError, match=r"no valid reply to GETJ after 1 attempt\(s\); "
+            with pytest.raises(DeviceError, match=r"no valid reply to PING after 1 attempt\(s\); "
                                                   r"last problem: received non-ASCII bytes"):
                 robot.read_joints_deg()
     finally:

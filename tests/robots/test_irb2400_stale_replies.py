@@ -1,8 +1,11 @@
 """Replies of an earlier session never pass for replies of this one: the driver flushes
-its input on open and starts its sequence numbers at a random value.
+its input on open, and opens each session with a PING carrying a token of its own; until
+the PONG that echoes it, every line is discarded. The server answers in order, so a late
+reply of an earlier session comes before that PONG, whatever seq it carries.
 
-The cases with the protection taken away (no flush, the old fixed start) show what these
-tests guard against: there the stale reply is taken and the driver returns old joints.
+The cases with the protection taken away (no flush and no session handshake) show what
+these tests guard against: there the stale reply is taken and the driver returns old
+joints.
 """
 
 import numpy as np
@@ -75,30 +78,88 @@ def test_a_stale_reply_waiting_before_open_is_flushed(server, monkeypatch):
         assert robot.stale_replies == 0
 
 
+def without_the_session_handshake(monkeypatch):
+    """The driver of protocol version 2: no PING opens the session, so the first reply
+    that carries the request's seq is taken."""
+    from spherecal import linelink
+
+    real = linelink.LineRobot.__init__
+
+    def init(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        self._session_open = True
+
+    monkeypatch.setattr(linelink.LineRobot, "__init__", init)
+
+
 def test_without_any_flush_that_stale_reply_would_be_taken(server, monkeypatch):
     pyserial_does_not_flush_on_open(monkeypatch)
     monkeypatch.setattr(serial.serialposix.Serial, "reset_input_buffer", lambda self: None)
+    without_the_session_handshake(monkeypatch)
     start_sessions_at(monkeypatch, 41)
     server.send_unsolicited(P.joints_reply(42, OLD))
     with connect(server) as robot:
         np.testing.assert_allclose(robot.read_joints_deg(), OLD)  # the hazard: old joints
 
 
+def test_without_a_flush_the_handshake_alone_discards_it(server, monkeypatch):
+    pyserial_does_not_flush_on_open(monkeypatch)
+    monkeypatch.setattr(serial.serialposix.Serial, "reset_input_buffer", lambda self: None)
+    start_sessions_at(monkeypatch, 41)
+    server.send_unsolicited(P.joints_reply(42, OLD))  # the seq the PING will carry
+    with connect(server) as robot:
+        np.testing.assert_allclose(robot.read_joints_deg(), HOME, atol=1e-4)
+        assert robot.stale_replies == 1
+
+
+def test_every_seq_of_every_kind_from_an_earlier_session_is_discarded(server, monkeypatch):
+    """The worst an earlier session can leave on a serial line, arriving after the flush:
+    a reply of every kind under every seq, PONGs included (with that session's token).
+    None is taken: the session opens at the PONG with this session's token, and every
+    reply after it is this session's."""
+    start_sessions_at(monkeypatch, 500)
+    old_pose = P.pose_reply(0, KIN.flange_pose_from_joints(OLD)).decode()
+    stale = bytearray()
+    for seq in range(P.SEQ_MODULUS):
+        stale += P.joints_reply(seq, OLD) + P.pong_reply(seq, "0dd5e5510000")
+        stale += P.ok_reply(seq) + P.pose_reply(seq, KIN.flange_pose_from_joints(OLD))
+    assert old_pose  # (the poses are the old arm's)
+    server.faults.reply_delay_s = 0.3  # the stale lines arrive while the PING waits
+    server.controller.jog(NOW)
+    with connect(server, timeout_s=5.0) as robot:
+        import threading
+
+        threading.Timer(0.05, server.send_unsolicited, [bytes(stale)]).start()
+        robot.ping()
+        assert robot.stale_replies == 4 * P.SEQ_MODULUS
+        server.faults.reply_delay_s = 0.0
+        np.testing.assert_allclose(robot.read_joints_deg(), NOW, atol=1e-4)
+        np.testing.assert_allclose(robot.read_flange_pose().as_matrix(),
+                                   KIN.flange_matrix_from_joints(NOW), atol=1e-3)
+        assert robot.stale_replies == 4 * P.SEQ_MODULUS
+
+
 @pytest.mark.parametrize(
-    "starts, stale_taken",
-    [((100, 600), False), ((0, 0), True)],
-    ids=["different-starts", "same-fixed-start-as-before"],
+    "starts, handshake, stale_taken",
+    [((100, 600), True, False), ((0, 0), True, False), ((0, 0), False, True)],
+    ids=["different-starts", "same-start", "same-start-without-handshake"],
 )
-def test_a_late_reply_of_an_earlier_session(server, monkeypatch, starts, stale_taken):
+def test_a_late_reply_of_an_earlier_session(server, monkeypatch, starts, handshake, stale_taken):
     """Session A asks for the joints and gives up before the (late) reply comes; session
-    B opens at once and asks too. The late reply reaches B: with different starts (what
-    the random start gives, but for a 1-in-1000 chance) it is discarded as stale; with
-    the fixed start of the old driver both sessions used seq 1 and B took A's reply."""
+    B opens at once and asks too. The late reply reaches B and is discarded, even when
+    both sessions use the same seqs (the seq alone would let it through 1 time in 1000):
+    it comes before the PONG that opens B's session. Without the handshake (the driver of
+    protocol version 2) and with the same seqs, B took A's reply."""
     start_sessions_at(monkeypatch, *starts)
-    server.faults.late_replies = 1
-    server.faults.late_reply_delay_s = 0.4
+    if not handshake:
+        without_the_session_handshake(monkeypatch)
     server.controller.jog(OLD)
     with connect(server) as robot_a:
+        if handshake:
+            robot_a.ping()  # A's session is open; its GETJ carries seq start + 2
+            start_sessions_at(monkeypatch, starts[1] + 1)  # B's PING carries that seq too
+        server.faults.late_replies = 1
+        server.faults.late_reply_delay_s = 0.4
         with pytest.raises(DeviceError, match="no valid reply to GETJ"):
             robot_a.read_joints_deg()
     server.controller.jog(NOW)  # the reply to A, already made, says OLD
@@ -119,7 +180,23 @@ def test_sessions_start_at_random_seqs():
 
 
 def test_the_seq_wraps_from_the_last_value(server, monkeypatch):
-    start_sessions_at(monkeypatch, P.SEQ_MODULUS - 1)
+    start_sessions_at(monkeypatch, P.SEQ_MODULUS - 2)
     with connect(server) as robot:
-        np.testing.assert_allclose(robot.read_joints_deg(), HOME, atol=1e-4)
+        np.testing.assert_allclose(robot.read_joints_deg(), HOME, atol=1e-4)  # PING 999, GETJ 0
         assert robot._seq == 0
+
+
+def test_no_request_goes_before_the_session_is_open(server):
+    with connect(server) as robot:
+        robot.read_joints_deg()
+        robot.read_flange_pose()
+    assert server.controller.requests == ["PING", "GETJ", "GETP"]
+
+
+def test_a_server_of_protocol_2_is_told_to_update(server, monkeypatch):
+    """A server that knows no session token refuses the PING's extra field."""
+    monkeypatch.setitem(P.REQUEST_ARGS, "PING", 0)  # the old server's table
+    with connect(server) as robot:
+        with pytest.raises(DeviceError, match=r"PING.*takes 0 arguments.*protocol version 2 or older refuses "
+                                              r"the session token; this driver speaks version 3"):
+            robot.read_joints_deg()

@@ -1,17 +1,20 @@
 MODULE SpherecalServer
   !----------------------------------------------------------------------
-  ! spherecal line protocol server, protocol version 2.
+  ! spherecal line protocol server, protocol version 3.
   !
   ! Serves the PC (spherecal, plugin abb_irb2400) one request line at a
   ! time; see docs/robot-abb-irb2400.md.
   !
   !   line    = body "*" XX LF   (XX: XOR of the body's bytes, 2 hex digits)
-  !   request = PING seq | GETJ seq | GETP seq
+  !   request = PING seq token | GETJ seq | GETP seq
   !           | TGT seq x y z q1 q2 q3 q4 | MOVL seq speed target_seq v_ori
-  !   reply   = PONG seq 2 | J seq j1..j6 | P seq x y z q1 q2 q3 q4
+  !   reply   = PONG seq 3 token | J seq j1..j6 | P seq x y z q1 q2 q3 q4
   !           | OK seq | ERR seq code text      (seq "-" if unreadable)
   !
   ! A line holds at most 80 characters before its LF (a RAPID string).
+  ! The PC opens each session with PING and a token of its own (1 to 12
+  ! lower-case hex digits); PONG echoes it. Lines are served one after
+  ! another, so the PC takes no reply before that PONG for its own.
   ! Poses are tool0 in wobj0 (base_from_flange), mm; the quaternion is
   ! [q1, q2, q3, q4] = (w, x, y, z). Joints are CJointT() values, deg.
   ! RAPID num is a 32-bit float: about 7 significant digits, so
@@ -45,7 +48,10 @@ MODULE SpherecalServer
   ! link only). Not yet run on either; see the docs.
   !----------------------------------------------------------------------
 
-  LOCAL CONST num PROTOCOL_VERSION := 2;
+  LOCAL CONST num PROTOCOL_VERSION := 3;
+  ! The characters of a session token, and the most it may have.
+  LOCAL CONST string TOKEN_CHARS := "0123456789abcdef";
+  LOCAL CONST num TOKEN_MAX := 12;
   ! Largest TCP speed a MOVL may ask for, mm/s.
   LOCAL CONST num MAX_SPEED := 1000;
   ! Largest reorientation speed a MOVL may ask for, deg/s.
@@ -188,7 +194,7 @@ MODULE SpherecalServer
     ENDIF
     TEST kind
     CASE "PING":
-      want := 2;
+      want := 3;
     CASE "GETJ":
       want := 2;
     CASE "GETP":
@@ -207,7 +213,15 @@ MODULE SpherecalServer
     ENDIF
     TEST kind
     CASE "PING":
-      Reply "PONG " + seqText + " " + NumToStr(PROTOCOL_VERSION, 0);
+      ! The token is echoed as it came, once it is known to be short hex.
+      IF StrLen(fields{3}) > TOKEN_MAX
+          OR StrFind(fields{3}, 1, TOKEN_CHARS \NotInSet)
+          <= StrLen(fields{3}) THEN
+        ReplyError seqText, E_SYNTAX, "bad session token";
+        RETURN;
+      ENDIF
+      Reply "PONG " + seqText + " " + NumToStr(PROTOCOL_VERSION, 0)
+        + " " + fields{3};
     CASE "GETJ":
       SendJoints seqText;
     CASE "GETP":
