@@ -213,18 +213,21 @@ def cmd_calibrate(args) -> int:
         if check:
             _say(check)
     return _finish(out, outcome.verdict, outcome.exports_written,
-                   "--resume --force" if outcome.files.get("journal") else "--force")
+                   "--resume --force" if outcome.files.get("journal") else "--force",
+                   report=not getattr(args, "no_report", False))
 
 
-def _finish(out: Path, graded, written: bool, force: str = "--force") -> int:
-    """The last line of calibrate and solve, and the exit code: a RED result exits 7."""
+def _finish(out: Path, graded, written: bool, force: str = "--force", report: bool = True) -> int:
+    """The last line of calibrate and solve, and the exit code: a RED result exits 7.
+    ``report``: whether report.html was written (solve --no-report writes none)."""
     if graded.level != "red":
         _say(f"results in {out}")
         return EXIT_OK
     if written:
         _say(f"results in {out} (written with --force although the result is RED: do not use it in production)")
     else:
-        _say(f"the result is RED: result.json and the exports were NOT written (report in {out}); fix the cause "
+        where = f"report in {out}" if report else "no report either: --no-report"
+        _say(f"the result is RED: result.json and the exports were NOT written ({where}); fix the cause "
               f"and run again, or give {force} to write them anyway")
     _err("the result is RED (exit 7): see the verdict above")
     return EXIT_RED
@@ -287,7 +290,7 @@ def cmd_solve(args) -> int:
     check = truth_check(solution, dataset)
     if check:
         _say(check)
-    return _finish(out, graded, written)
+    return _finish(out, graded, written, report=not args.no_report)
 
 
 def _number(text: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float:
@@ -694,9 +697,25 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
     return p
 
 
+def _journal_holds_shots(folder: Path | None) -> bool:
+    """Does the calibration journal in ``folder`` hold at least one shot? (Read a line at
+    a time, at most until the first observation.)"""
+    from .runner import JOURNAL_NAME
+
+    if folder is None or not (folder / JOURNAL_NAME).is_file():
+        return False
+    try:
+        with open(folder / JOURNAL_NAME, "rb") as fh:
+            return any(b"observation" in line[:32] for line in fh)
+    except OSError:
+        return False
+
+
 def _after_failure(command: str) -> str:
     """What to do after a run stopped half-way, per command."""
     if command == "calibrate":
+        if not _journal_holds_shots(_session.out_dir):
+            return "; no shot was taken yet: nothing to resume, run the same command again"
         return "; what was taken is in the journal: continue with --resume"
     if command == "validate":
         return "; the shots taken are in the validation journal; run the validation again"

@@ -73,6 +73,21 @@ class ExportNote:
     code: str = ""
 
 
+#: The first comment line of every exported file of a result rated RED (written only
+#: because --force was given). Plain words, no '--' (not allowed in an XML comment), no
+#: line break: it fits any file's comment syntax.
+RED_WARNING = ("WARNING: spherecal rated this result RED and wrote it only because it was forced; "
+               "do not use it in production (see result.json diagnostics.verdict and the report)")
+
+
+def red_warning(result: CalibrationResult) -> str:
+    """:data:`RED_WARNING` when ``result`` was rated RED (its ``diagnostics.verdict``),
+    else "". An exporter puts it, when not empty, in a comment at the top of each file it
+    writes, so that a RED result written with ``--force`` says so wherever it is copied."""
+    verdict = (result.diagnostics or {}).get("verdict") if isinstance(result.diagnostics, dict) else None
+    return RED_WARNING if isinstance(verdict, dict) and verdict.get("level") == "red" else ""
+
+
 @dataclass(frozen=True)
 class Exporter:
     """One export, registered by a plugin with ``registry.add_exporter(Exporter(...))``.
@@ -97,6 +112,9 @@ class Exporter:
     :param robot_types: the robot type names it applies to, or None for any robot (a
         brand-free export). When the robot type is not known (``spherecal solve`` of a
         dataset that does not name its robot), every exporter applies.
+    A result rated RED is exported only when the user forces it; each file's first
+    comment should then be :func:`red_warning` (the core's exporters and the ABB one do).
+
     :param note: ``note(result, settings) -> ExportNote | None``: how to use the files on
         the controller, for the report (:class:`ExportNote`); None: the exporter says
         nothing there. The note of the robot's own exporter comes first in the report.

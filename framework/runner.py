@@ -56,6 +56,17 @@ def check_output_folder(out: Path, what: str, how: str, exports=None) -> None:
                          f"(nothing is overwritten silently); {how}")
 
 
+def check_output_targets(out: Path, exports=None) -> None:
+    """Refuse (InputError naming it) before anything is written into ``out`` when a file
+    a calibration would write there exists as a symbolic link or as anything but a
+    regular file: the run then writes nothing at all, instead of stopping half-way at the
+    first link (:func:`spherecal.safeio.check_writable_target`)."""
+    from .safeio import check_writable_target
+
+    for path in existing_outputs(out, exports.file_patterns() if exports is not None else ()):
+        check_writable_target(path)
+
+
 def sensor_field_of_view(cfg: RunConfig, host) -> SensorFieldOfView | None:
     """The field of view of the run's sensor: its sensor type's declared one
     (:attr:`spherecal.devices.SensorType.field_of_view`), with the fields the
@@ -600,12 +611,13 @@ def solve_and_write(
     result's (:func:`traceability`); ``report_settings``: the configuration's ``[report]``."""
     from .exporters import write_exports
 
+    if exports is None:
+        exports = make_host().export_plan(None, dataset.mounting, None)
+    check_output_targets(out, exports)  # a planted link: refuse before solving, write nothing
     solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
     if provenance is not None:
         solution = replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
     graded = assess_solution(solution, dataset, options, fk, log)
-    if exports is None:
-        exports = make_host().export_plan(None, dataset.mounting, None)
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
     # the verdict travels with the result: a RED one written with --force says so in result.json
@@ -1047,6 +1059,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         ply_path = given if given.is_absolute() else out / given
         from .safeio import check_writable_target, is_inside
 
+        check_writable_target(ply_path)  # a link is named as a link, wherever it points
         if not cfg.scan.ply_outside_output_dir and (given.is_absolute() or not is_inside(ply_path, out)):
             raise ConfigError(f"{loaded.path}: scan.ply = {cfg.scan.ply!r} lies outside the output folder {out}: "
                               "give a file name in it, or set scan.ply_outside_output_dir = true to write there "

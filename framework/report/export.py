@@ -41,7 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ..errors import InputError
-from ..exporters import ExportNote, Exporter, write_exports
+from ..exporters import ExportNote, Exporter, red_warning, write_exports
 from ..models import CalibrationResult, Pose
 from ..plugins import hookimpl
 
@@ -126,6 +126,13 @@ def uncertainty_sentence(result: CalibrationResult) -> str:
             f"translation {tr} mm along {target} x y z")
 
 
+def warning_lines(result: CalibrationResult, prefix: str) -> str:
+    """The RED warning (:func:`~spherecal.exporters.red_warning`) as one comment line
+    starting with ``prefix`` and ending in a line break, or "" for a result not rated RED."""
+    warning = red_warning(result)
+    return f"{prefix}{warning}\n" if warning else ""
+
+
 def rounded_quaternion_wxyz(pose: Pose) -> list[str]:
     """Quaternion (w, x, y, z), w >= 0 as the Pose stores it, as text with
     :data:`QUAT_DECIMALS` decimals (rounding leaves the norm within 2e-8 of 1)."""
@@ -155,7 +162,7 @@ def matrix_text(result: CalibrationResult) -> str:
         lines.append(f"[{label}]")
         for row in T:
             lines.append(" ".join(f"{fixed(v, MATRIX_DECIMALS):>20}" for v in row))
-    return "\n".join(lines) + "\n"
+    return warning_lines(result, "# ") + "\n".join(lines) + "\n"
 
 
 def read_matrix_text(text: str) -> dict[str, np.ndarray]:
@@ -206,7 +213,7 @@ def xyz_quaternion_text(result: CalibrationResult) -> str:
     a, b = frames_of(name)
     xyz = " ".join(fixed(v, MM_DECIMALS) for v in result.transform.translation_mm)
     q = " ".join(rounded_quaternion_wxyz(result.transform))
-    return (
+    return warning_lines(result, "# ") + (
         f"# {name} ({result.mounting}): p_{a} = R p_{b} + t\n"
         "# columns: name, x y z (mm, origin of the "
         f"{b} frame in the {a} frame), q1 q2 q3 q4 = quaternion (w, x, y, z), scalar FIRST\n"
@@ -269,7 +276,7 @@ def ros_static_transform_command(
     ``child_frame_id`` the sensor; translation in METRES, quaternion (x, y, z, w)."""
     result = check_result(result)
     parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
-    return (
+    return warning_lines(result, "# ") + (
         f"# {result.transform_name} from spherecal: pose of '{child}' in '{parent}'; "
         "translation in METRES, quaternion in ROS order (x, y, z, w)\n"
         "ros2 run tf2_ros static_transform_publisher"
@@ -287,7 +294,7 @@ def ros_static_transform_yaml(
     result = check_result(result)
     parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
     a, b = frames_of(result.transform_name)
-    return (
+    return warning_lines(result, "# ") + (
         f"# {result.transform_name} ({result.mounting}) from spherecal, as geometry_msgs/TransformStamped\n"
         f"# parent '{parent}' = spherecal '{a}', child '{child}' = spherecal '{b}'\n"
         "# translation in METRES; rotation quaternion in ROS order (x, y, z, w), scalar LAST\n"
@@ -380,7 +387,7 @@ def ros_launch_py(result: CalibrationResult, frame_id: str | None = None, child_
             ("--qx", q[0]), ("--qy", q[1]), ("--qz", q[2]), ("--qw", q[3]),
             ("--frame-id", parent), ("--child-frame-id", child)]
     arg_lines = "".join(f'                "{k}", "{v}",\n' for k, v in args)
-    return (
+    return warning_lines(result, "# ") + (
         f"# {result.transform_name} ({result.mounting}) from spherecal: pose of '{child}' in '{parent}'.\n"
         "# Translation in METRES; quaternion in ROS order (x, y, z, w), scalar LAST.\n"
         f"# {uncertainty_sentence(result)}\n"
@@ -465,7 +472,8 @@ def ros_urdf_joint(result: CalibrationResult, frame_id: str | None = None, child
     return (
         '<?xml version="1.0"?>\n'
         "<!--\n"
-        f"  spherecal {result.transform_name} ({result.mounting}): the sensor frame '{child}' {where} '{parent}'\n"
+        + warning_lines(result, "  ")
+        + f"  spherecal {result.transform_name} ({result.mounting}): the sensor frame '{child}' {where} '{parent}'\n"
         f"  (spherecal '{a}' = '{parent}', '{b}' = '{child}').\n"
         "  origin: xyz in METRES, rpy in RADIANS about the fixed parent axes x, y, z in that order\n"
         "  (R = Rz(yaw) Ry(pitch) Rx(roll), as URDF defines it); full precision, do not round.\n"

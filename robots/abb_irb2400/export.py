@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from spherecal.errors import InputError
-from spherecal.exporters import ExportNote, Exporter
+from spherecal.exporters import ExportNote, Exporter, red_warning
 from spherecal.models import CalibrationResult
 from spherecal.report.export import MM_DECIMALS, QUAT_DECIMALS, check_result, fixed, frames_of, rounded_quaternion_wxyz
 
@@ -78,7 +78,16 @@ def _rapid_comment_lines(result: CalibrationResult, extra: list[str]) -> list[st
         f"! 1-sigma translation mm along {a} x y z: "
         + " ".join(fixed(v, 4) for v in result.std_translation_mm),
     ]
-    return lines + extra
+    warning = red_warning(result)
+    return ([f"! {line}" for line in _wrap(warning)] if warning else []) + lines + extra
+
+
+def _wrap(text: str, width: int = 76) -> list[str]:
+    """``text`` in lines of at most ``width`` characters, broken at spaces (a RAPID
+    module's comment lines are kept within 80 characters)."""
+    import textwrap
+
+    return textwrap.wrap(text, width)
 
 
 def rapid_declaration(

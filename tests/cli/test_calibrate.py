@@ -12,7 +12,7 @@ import pytest
 
 from spherecal import dataio
 from spherecal import geometry as geo
-from spherecal.cli import EXIT_DATA, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, main
+from spherecal.cli import EXIT_DATA, EXIT_DEVICE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, main
 from spherecal.models import Pose
 
 
@@ -191,3 +191,29 @@ def test_bad_configurations_name_the_path(sim_config, capsys, replace, message):
 def test_missing_configuration_file(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "nope.toml")]) == EXIT_USAGE
     assert "nope.toml: cannot read the configuration" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fail_at, resume_advised", [(1, False), (4, True)], ids=["first-shot", "fourth-shot"])
+def test_a_device_failure_advises_resume_only_when_shots_were_taken(sim_config, monkeypatch, capsys,
+                                                                    fail_at, resume_advised):
+    import spherecal.acquisition as acq
+    from spherecal.errors import DeviceError
+
+    calls = {"n": 0}
+    real = acq.take_shot
+
+    def failing(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == fail_at:
+            raise DeviceError("simulated sensor: no frame within 1 s")
+        return real(*a, **k)
+
+    monkeypatch.setattr(acq, "take_shot", failing)
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_DEVICE
+    err = capsys.readouterr().err
+    assert "no frame within 1 s" in err
+    assert ("continue with --resume" in err) == resume_advised
+    assert ("no shot was taken yet: nothing to resume, run the same command again" in err) == (not resume_advised)
+    if resume_advised:
+        assert len(dataio.read_dataset(cfg.parent / "out" / "journal.jsonl").observations) == fail_at - 1

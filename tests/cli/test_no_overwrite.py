@@ -176,7 +176,8 @@ def test_a_full_disk_in_calibrate_says_resume(tmp_path, monkeypatch, dataset_fil
     cfg.write_text(REPLAY.format(data=dataset_file))
     assert main(["calibrate", str(cfg)]) == EXIT_DATA
     err = capsys.readouterr().err
-    assert "journal.jsonl: cannot write" in err and "--resume" in err
+    # a replay keeps no journal of shots in its output folder: nothing to resume there
+    assert "journal.jsonl: cannot write" in err and "nothing to resume, run the same command again" in err
 
 
 def test_a_full_disk_while_scanning_names_the_ply(tmp_path, monkeypatch):
@@ -188,3 +189,38 @@ def test_a_full_disk_while_scanning_names_the_ply(tmp_path, monkeypatch):
     monkeypatch.setattr(w._file, "write", full)
     with pytest.raises(FileWriteError, match=r"scan.ply: cannot write .No space left on device"):
         w.write(np.zeros((3, 3)), profile=np.zeros(3, dtype=int))
+
+
+@pytest.mark.parametrize("planted", ["report.html", "report_sphere_3d.png", "flange_from_sensor_4x4.txt"])
+def test_overwrite_with_a_planted_link_writes_nothing_at_all(tmp_path, dataset_file, capsys, planted):
+    """--overwrite replaces a result's files, never through a link: the run is refused
+    before anything is written (it used to write the files before the link, then stop)."""
+    out = tmp_path / "res"
+    assert main(["solve", str(dataset_file), "--out", str(out)]) == EXIT_OK
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    (out / planted).unlink()
+    (out / planted).symlink_to(victim)
+    before = snapshot(out)
+    capsys.readouterr()
+    assert main(["solve", str(dataset_file), "--out", str(out), "--overwrite"]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert f"{out / planted} is a symbolic link" in err
+    after = snapshot(out)
+    assert after.pop("run.log")[0].startswith(before.pop("run.log")[0])  # run.log: this run's record added
+    assert after == before  # not one file rewritten
+    assert victim.read_text() == "precious\n"
+
+
+def test_a_ply_planted_as_a_link_is_named_as_a_link(sim_config, capsys, tmp_path):
+    from tests.cli.test_validate_scan import write_result_with
+
+    cfg = sim_config(exact_arm=True)
+    write_result_with(cfg.parent / "out", cfg, Pose.identity())
+    victim = tmp_path / "victim.ply"
+    victim.write_text("precious\n")
+    (cfg.parent / "out" / "scan.ply").symlink_to(victim)
+    assert main(["scan", str(cfg)]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "scan.ply is a symbolic link" in err and "outside the output folder" not in err
+    assert victim.read_text() == "precious\n"

@@ -47,8 +47,10 @@ def test_a_red_result_exits_7_names_the_cause_and_writes_no_exports(tmp_path, cl
     for text in expected:
         assert text in cap.out, (text, cap.out)
     assert "NOT written" in cap.out and "--force" in cap.out
+    assert "no report either: --no-report" in cap.out and "report in" not in cap.out
     assert "exit 7" in cap.err
     assert not any((out / f).exists() for f in EXPORTS)
+    assert not (out / "report.html").exists()
     # data that fit nothing are not screened profile by profile (minutes of futile refits)
     assert ("the data fit nothing, screening skipped" in cap.err) == (case == "wrong_mounting")
 
@@ -65,6 +67,29 @@ def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
     # result.json itself says it is RED, written with --force
     verdict = dataio.read_result(out / "result.json").diagnostics["verdict"]
     assert verdict["level"] == "red" and verdict["written_with_force"] and "likely cause" in verdict["headline"].lower()
+    # and so does every exported file, at the top, in its own comment syntax; each still reads back
+    assert_every_export_warns(out, True)
+
+
+def exported_text_files(out):
+    return [p for p in sorted(out.iterdir()) if p.suffix in {".txt", ".mod", ".yaml", ".py", ".sh", ".xacro"}]
+
+
+def assert_every_export_warns(out, red):
+    from spherecal.exporters import RED_WARNING
+    from spherecal.report import export as X
+
+    files = exported_text_files(out)
+    assert len(files) == 7, files  # .mod, 4x4, xyz+quaternion, ROS .sh, .yaml, .launch.py, .xacro
+    for path in files:
+        head = " ".join(line.lstrip("#!< -").strip() for line in path.read_text().splitlines()[:4])
+        assert (RED_WARNING in head) == red, (path.name, head)
+    X.read_matrix_text((out / "flange_from_sensor_4x4.txt").read_text())
+    X.read_xyz_quaternion((out / "flange_from_sensor_xyz_quat_wxyz.txt").read_text())
+    X.read_ros_yaml((out / "ros_static_transform.yaml").read_text())
+    X.read_ros_launch((out / "ros_static_transform.launch.py").read_text())
+    X.read_ros_command((out / "ros_static_transform.sh").read_text())
+    X.read_ros_urdf_joint((out / "ros_sensor_joint.urdf.xacro").read_text())
 
 
 def test_a_good_result_exits_0_with_its_verdict(tmp_path, clean, capsys):
@@ -74,6 +99,7 @@ def test_a_good_result_exits_0_with_its_verdict(tmp_path, clean, capsys):
     assert main(["solve", str(path), "--out", str(out), "--no-report"]) == EXIT_OK
     assert "verdict: GREEN" in capsys.readouterr().out
     assert all((out / f).exists() for f in EXPORTS)
+    assert_every_export_warns(out, False)
 
 
 REPLAY = """mounting = "eye_in_hand"
