@@ -28,9 +28,11 @@ from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 JOURNAL_NAME = "journal.jsonl"
 RESULT_NAME = "result.json"
+#: The identified robot model written next to the result (:func:`write_calibrated_urdf`).
+CALIBRATED_URDF_NAME = "robot_calibrated.urdf"
 #: What a calibration writes into its folder besides its exporters' files (an
 #: :class:`~spherecal.exporters.ExportPlan` gives theirs).
-OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png")
+OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png", CALIBRATED_URDF_NAME)
 
 
 def existing_outputs(out: Path, patterns: tuple[str, ...] = ()) -> list[Path]:
@@ -704,8 +706,6 @@ def _check_same_devices(before: dict, now: dict, journal: Path, log: Callable[[s
                 "swapped, start a new run")
 
 
-#: The identified robot model written next to the result (issue: kinematic calibration).
-CALIBRATED_URDF_NAME = "robot_calibrated.urdf"
 
 
 def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | None:
@@ -720,6 +720,7 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
     if kinematics is None or not ke or not any(ke["identified"]):
         return None
     from . import safeio
+    from .exporters import red_warning
     from .kinematics import chain_with_errors
     from .urdf import chain_to_urdf
 
@@ -732,7 +733,8 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
         base_link=getattr(kinematics, "base_link", "base_link"),
         flange_link=getattr(kinematics, "flange_link", "tool0"),
         joint_limits_rad=limits() if callable(limits) else None,
-        comment=f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
+        comment=(f"{red_warning(solution.result)}. " if red_warning(solution.result) else "")
+        + f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
                 f"{len(ke['identified'])} geometric parameters (result.json, robot_error.kinematic_parameters); "
                 "joint zero offsets are folded into the joint origins.",
     )

@@ -44,7 +44,26 @@ def calibrated(sim_config, tmp_path):
     solution, _, written = solve_and_write(dataset, calibration_options(cfg), out, log=lambda m: None, report=False,
                                            kinematics=nominal)
     assert written and (out / "robot_calibrated.urdf").exists()
+    _check_the_red_mark(solution, nominal, out, tmp_path / "red")
     return path, out, dataio.read_result(out / "result.json"), nominal
+
+
+def _check_the_red_mark(solution, kinematics, out, red_out):
+    """The model of a result rated RED (written only with --force) says so in its header
+    comment; a result not rated RED carries no such mark."""
+    from dataclasses import replace
+
+    from spherecal.exporters import RED_WARNING
+    from spherecal.runner import write_calibrated_urdf
+
+    assert RED_WARNING not in (out / "robot_calibrated.urdf").read_text()
+    verdict = {"level": "red", "headline": "forced", "written_with_force": True}
+    red = replace(solution, result=solution.result.model_copy(
+        update={"diagnostics": {**solution.result.diagnostics, "verdict": verdict}}))
+    red_out.mkdir()
+    text = write_calibrated_urdf(red, kinematics, red_out).read_text()
+    assert RED_WARNING in text.split("<robot")[0]
+    read_urdf_chain(red_out / "robot_calibrated.urdf", "base_link", "tool0")  # still a valid URDF
 
 
 def with_model(path, model: str | None):
