@@ -62,6 +62,11 @@ from .models import Pose
 
 #: Longest single blocking read, s (the overall deadline is checked between reads).
 _POLL_S = 0.05
+#: Shortest bound on one write, s. A write that did go out is reported as timed out when
+#: the process was not scheduled within the bound (pyserial checks the clock after the
+#: write), and the link is then closed as lost: under load, a reply timeout of a fraction
+#: of a second must not make that happen to a line that was sent.
+_MIN_WRITE_TIMEOUT_S = 2.0
 #: Bytes kept while waiting for an LF before the buffer is treated as garbage.
 _MAX_PENDING = 4 * P.MAX_LINE_CHARS
 #: Slowest speed sent (mm/s for the flange, deg/s for the reorientation): the line
@@ -315,7 +320,8 @@ class LineRobot:
         try:
             if self.transport == "socket":
                 self._serial = TcpLink(self.url, timeout=min(config.timeout_s, _POLL_S),
-                                       write_timeout=config.timeout_s, connect_timeout=config.timeout_s)
+                                       write_timeout=max(config.timeout_s, _MIN_WRITE_TIMEOUT_S),
+                                       connect_timeout=config.timeout_s)
             else:
                 self._serial = serial.serial_for_url(
                     self.url,
@@ -324,7 +330,7 @@ class LineRobot:
                     parity=config.parity,
                     stopbits=config.stopbits,
                     timeout=min(config.timeout_s, _POLL_S),
-                    write_timeout=config.timeout_s,
+                    write_timeout=max(config.timeout_s, _MIN_WRITE_TIMEOUT_S),
                 )
         except (serial.SerialException, OSError, ValueError) as exc:
             self._closed = True
