@@ -34,7 +34,7 @@ from ..models import ObservationFlag
 from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
 __all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out_sizes", "with_leave_one_out_size",
-           "circles_from_profiles"]
+           "within_station_noise", "circles_from_profiles"]
 
 #: A row whose magnitude is below the median of the others' divided by this looks like
 #: metres among millimetres (a factor of 1000; 200 leaves room for real spread).
@@ -130,6 +130,35 @@ def _centre_distances(problem: Problem, i: int, j: int) -> tuple[float, ...]:
     yz_b, xb = split(kb, b)
     in_plane = float(np.sum((yz_a - yz_b) ** 2))
     return tuple(float(np.sqrt(in_plane + (p - q) ** 2)) for p in xa for q in xb)
+
+
+#: Fewest pairs of centre observations within stations for :func:`within_station_noise`.
+WITHIN_STATION_MIN_PAIRS = 3
+
+
+def within_station_noise(problem: Problem) -> float | None:
+    """The per-axis noise (mm) the centre observations show within their stations, where
+    the robot only translated: a robust standard deviation (1.4826 times the median
+    absolute value) of the difference between the distance a pair's sphere centres moved
+    in the sensor frame and the distance the flange moved, over every pair of a station,
+    divided by sqrt(2) (two noisy centres). It needs neither the transform nor the
+    mounting, so it measures the noise of the centres and the robot's repeatability even
+    when the model is wrong (another mounting's data, an absurd fit), where the noise
+    estimated from the joint fit's residuals would take in the misfit. A circle's side of
+    the laser plane is the one that agrees best (a lower bound). None with fewer than
+    :data:`WITHIN_STATION_MIN_PAIRS` pairs."""
+    gaps = []
+    rows_of = [np.flatnonzero((problem.station_of == k) & (problem.kinds != KIND_PROFILE))
+               for k in range(len(problem.station_labels))]
+    for rows in rows_of:
+        for a in range(len(rows)):
+            for b in range(a + 1, len(rows)):
+                i, j = int(rows[a]), int(rows[b])
+                moved = float(np.linalg.norm(problem.t0[i] - problem.t0[j]))
+                gaps.append(min(abs(d - moved) for d in _centre_distances(problem, i, j)))
+    if len(gaps) < WITHIN_STATION_MIN_PAIRS:
+        return None
+    return float(1.4826 * np.median(gaps) / np.sqrt(2.0))
 
 
 def _given_sd(problem: Problem, i: int) -> float:

@@ -23,7 +23,9 @@ from .problem import (
     derived_station_rotation_tolerance_deg, screen_station_orientations,
 )
 from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
-from .centres import leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size
+from .centres import (
+    leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
+)
 from .twostep import CentreShot, TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
@@ -751,7 +753,8 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
                 "pose_translation_noise_mm": noise.pose_translation_noise_mm * np.sqrt(ref.pose_noise_scale),
                 "pose_rotation_noise_deg": noise.pose_rotation_noise_deg * np.sqrt(ref.pose_noise_scale),
                 "pose_noise_estimated": opt.estimate_pose_noise,
-                **({"centre_noise_mm": ref.centre_noise_mm} if centre_res is not None else {}),
+                **({"centre_noise_mm": ref.centre_noise_mm,
+                    "centre_noise_within_stations_mm": within_station_noise(clean)} if centre_res is not None else {}),
             },
         },
         provenance={"dataset": dataset.provenance.get("source", "unknown")},
