@@ -242,6 +242,7 @@ def solve(
     keep, flags = table_keep.copy(), list(table_flags)
     for good, bad, chi_good, chi_bad in settled:
         keep[good] = True
+        moved = [i for i in moved if i != good]  # used after all: its flag, if any, is another check's
         g, b = int(problem.obs_index[good]), int(problem.obs_index[bad])
         flags = [f for f in flags if f.index != g]
         flags = [f.model_copy(update={"reason": f.reason.replace(
