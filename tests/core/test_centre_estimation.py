@@ -228,6 +228,23 @@ def test_a_translation_in_metres_among_millimetres_is_named():
     c = ds.observations[13].sphere_centre_mm
     flags, _ = flagged_reasons(with_row(ds, 13, sphere_centre_mm=tuple(np.divide(c, 1000))))
     assert list(flags) == [13] and "sphere_centre_mm" in flags[13] and "metres among millimetres" in flags[13]
+    # a circle typed in metres
+    circles, cell = table(kind="circle")
+    c = circles.observations[13].circle
+    flags, res = flagged_reasons(with_row(circles, 13, circle=Circle(centre_yz_mm=tuple(np.divide(c.centre_yz_mm, 1000)),
+                                                                     radius_mm=c.radius_mm / 1000)))
+    assert list(flags) == [13] and "circle" in flags[13] and "metres among millimetres" in flags[13]
+    assert_known_answer(res, cell)
+
+
+def test_a_sign_flip_in_one_component_of_a_circle_is_named_with_its_size():
+    ds, cell = table(kind="circle")
+    c = ds.observations[9].circle
+    bad = with_row(ds, 9, circle=Circle(centre_yz_mm=(c.centre_yz_mm[0], -c.centre_yz_mm[1]), radius_mm=c.radius_mm))
+    flags, res = flagged_reasons(bad)
+    assert list(flags) == [9], flags
+    assert error_size_mm(flags[9]) == pytest.approx(2 * abs(c.centre_yz_mm[1]), rel=0.2)
+    assert_known_answer(res, cell)
 
 
 @pytest.mark.parametrize("where", ["pose", "centre"])
