@@ -13,9 +13,11 @@ solves the same shots three ways:
 
 Printed per mounting and way: RMS rotation (deg) and translation (mm) errors against the
 simulated truth, the NEES of the six transform parameters under the reported covariance
-(6 when honest) and the median solve time (CPU s).
+(6 when honest), the median solve time (CPU s) and how many solves did not converge.
+``--robot-error-model station`` (the default of ``spherecal solve`` without joints) solves
+with the station random effect instead.
 
-    python benchmarks/bench_centres.py --seeds 10
+    python benchmarks/bench_centres.py --seeds 10 [--robot-error-model station]
 """
 
 from __future__ import annotations
@@ -55,9 +57,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--profiles", type=int, default=8, help="profiles per station")
+    ap.add_argument("--robot-error-model", default="none", choices=["none", "station"])
     args = ap.parse_args()
-    opts = CalibrationOptions(robot_error_model="none")
-    print(f"{'mounting':12} {'way':9} {'rot RMS deg':>12} {'trans RMS mm':>13} {'NEES':>6} {'CPU s':>6}")
+    opts = CalibrationOptions(robot_error_model=args.robot_error_model)
+    print(f"robot error model: {args.robot_error_model}; {args.seeds} seeds")
+    print(f"{'mounting':12} {'way':9} {'rot RMS deg':>12} {'trans RMS mm':>13} {'NEES':>6} {'CPU s':>6} {'not conv.':>9}")
     for mounting in ("eye_in_hand", "eye_to_hand"):
         rows: dict[str, list] = {"profiles": [], "circles": [], "spheres": []}
         for seed in range(args.seeds):
@@ -66,12 +70,12 @@ def main() -> None:
             circles = circles_from_profiles(profiles)
             for way, ds in (("profiles", profiles), ("circles", circles), ("spheres", resolved(circles, profiles, cell))):
                 t = time.process_time()
-                res = solve(ds, opts).result
-                rows[way].append((*errors(res, cell), time.process_time() - t))
+                sol = solve(ds, opts)
+                rows[way].append((*errors(sol.result, cell), time.process_time() - t, not sol.refined.converged))
         for way, v in rows.items():
             a = np.array(v)
             print(f"{mounting:12} {way:9} {np.sqrt(np.mean(a[:, 0] ** 2)):12.4f} {np.sqrt(np.mean(a[:, 1] ** 2)):13.4f} "
-                  f"{np.mean(a[:, 2]):6.2f} {np.median(a[:, 3]):6.2f}")
+                  f"{np.mean(a[:, 2]):6.2f} {np.median(a[:, 3]):6.2f} {int(a[:, 4].sum()):9d}")
 
 
 if __name__ == "__main__":

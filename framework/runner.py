@@ -758,7 +758,7 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
       radius fitted; when the data prefer another radius, it is named.
 
     Each check costs one more solve, and only for a RED result."""
-    from .report.assess import Thresholds, expected_rms_mm, is_absurd, verdict
+    from .report.assess import Thresholds, absurd_ratio, expected_rms_mm, is_absurd, verdict
 
     th = Thresholds()
     v = verdict(solution.result, th)
@@ -776,11 +776,11 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
         except SpherecalError:
             alt = None
         if alt is not None and not is_absurd(alt, th):
-            alt_ratio = alt.residuals.rms_mm / expected_rms_mm(alt, th)
+            alt_ratio, here = absurd_ratio(alt, th), absurd_ratio(result, th)
             causes.append(
                 f"the dataset's mounting is probably wrong: it says {dataset.mounting}, but solved as {other} the "
                 f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({alt_ratio:.2f} x the expected; "
-                f"here {ratio:.3g} x). Check the sensor's mounting and the 'mounting' of the configuration or dataset"
+                f"here {here:.3g} x). Check the sensor's mounting and the 'mounting' of the configuration or dataset"
             )
     if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
         log("residuals above the expected: checking which sphere radius the data prefer")

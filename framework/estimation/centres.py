@@ -12,8 +12,11 @@ typo does and what catches it, naming the row (the observation index):
   within a station: a pure translation moves the sphere centre in the sensor frame by
   exactly what the robot moved, so the distance between two shots' centres equals the
   distance between their flange positions, whatever the unknown rotation. The row that
-  breaks this with the other rows of its station is flagged with the size of the
-  inconsistency in mm (:func:`pairwise_move_check`). A flipped quaternion component
+  breaks this with the other rows of its station is left out (:func:`pairwise_move_check`)
+  and, once the others are solved, flagged with the size of its error in mm: how far its
+  centre is from where that solution puts it, relative to the rest of its station
+  (:func:`leave_one_out_sizes`; a difference of distances understates an error across
+  the move). A flipped quaternion component
   turns the pose: the station orientation screening
   (:func:`.problem.screen_station_orientations`) flags it with its angle.
 
@@ -30,7 +33,8 @@ import numpy as np
 from ..models import ObservationFlag
 from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
-__all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "circles_from_profiles"]
+__all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out_sizes", "with_leave_one_out_size",
+           "within_station_noise", "circles_from_profiles"]
 
 #: A row whose magnitude is below the median of the others' divided by this looks like
 #: metres among millimetres (a factor of 1000; 200 leaves room for real spread).
@@ -66,12 +70,14 @@ def _metres_rows(values: np.ndarray, rows: np.ndarray) -> list[tuple[int, float,
     return out
 
 
-def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
+def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]], list[int]]:
     """Rows that are typos in units or size, and gross breaks of the pure-translation
     rule within a station (see the module docstring). Returns the rows to keep, the
     flags of those left out, and the pairs of rows (positions) left out together because
     nothing within their station told which of the two is wrong
-    (:func:`settle_pairs` may tell it from the solution of the others)."""
+    (:func:`settle_pairs` may tell it from the solution of the others), and the rows
+    (positions) the pure-translation check left out (to be given their size once the
+    others are solved, :func:`leave_one_out_sizes`)."""
     n = problem.n_profiles
     keep = np.ones(n, dtype=bool)
     flags: list[ObservationFlag] = []
@@ -81,7 +87,7 @@ def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], l
                                        f"the other rows' are about {med:.4g}: metres among millimetres? "
                                        "Give every translation in mm"))
     if not problem.has_centres:
-        return keep, flags, []
+        return keep, flags, [], []
     kinds, meas, r = problem.kind, problem.centre_meas, problem.radius_mm
     sph = np.flatnonzero((kinds == KIND_SPHERE_CENTRE) & keep)
     for i, mag, med in _metres_rows(meas, sph):
@@ -100,7 +106,8 @@ def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], l
         flags.append(_flag(problem, i, f"circle (centre_yz_mm, radius_mm) is {mag:.4g} in size while the other rows' "
                                        f"are about {med:.4g}: metres among millimetres? Give the circle in mm"))
     more_keep, more_flags, pairs = pairwise_move_check(problem, keep)
-    return more_keep, flags + more_flags, pairs
+    moved = np.flatnonzero(keep & ~more_keep).tolist()
+    return more_keep, flags + more_flags, pairs, moved
 
 
 def _centre_distances(problem: Problem, i: int, j: int) -> tuple[float, ...]:
@@ -123,6 +130,35 @@ def _centre_distances(problem: Problem, i: int, j: int) -> tuple[float, ...]:
     yz_b, xb = split(kb, b)
     in_plane = float(np.sum((yz_a - yz_b) ** 2))
     return tuple(float(np.sqrt(in_plane + (p - q) ** 2)) for p in xa for q in xb)
+
+
+#: Fewest pairs of centre observations within stations for :func:`within_station_noise`.
+WITHIN_STATION_MIN_PAIRS = 3
+
+
+def within_station_noise(problem: Problem) -> float | None:
+    """The per-axis noise (mm) the centre observations show within their stations, where
+    the robot only translated: a robust standard deviation (1.4826 times the median
+    absolute value) of the difference between the distance a pair's sphere centres moved
+    in the sensor frame and the distance the flange moved, over every pair of a station,
+    divided by sqrt(2) (two noisy centres). It needs neither the transform nor the
+    mounting, so it measures the noise of the centres and the robot's repeatability even
+    when the model is wrong (another mounting's data, an absurd fit), where the noise
+    estimated from the joint fit's residuals would take in the misfit. A circle's side of
+    the laser plane is the one that agrees best (a lower bound). None with fewer than
+    :data:`WITHIN_STATION_MIN_PAIRS` pairs."""
+    gaps = []
+    rows_of = [np.flatnonzero((problem.station_of == k) & (problem.kinds != KIND_PROFILE))
+               for k in range(len(problem.station_labels))]
+    for rows in rows_of:
+        for a in range(len(rows)):
+            for b in range(a + 1, len(rows)):
+                i, j = int(rows[a]), int(rows[b])
+                moved = float(np.linalg.norm(problem.t0[i] - problem.t0[j]))
+                gaps.append(min(abs(d - moved) for d in _centre_distances(problem, i, j)))
+    if len(gaps) < WITHIN_STATION_MIN_PAIRS:
+        return None
+    return float(1.4826 * np.median(gaps) / np.sqrt(2.0))
 
 
 def _given_sd(problem: Problem, i: int) -> float:
@@ -173,9 +209,9 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
                     i = rows[x]
                     keep[i] = False
                     flags.append(_flag(problem, i, (
-                        f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station by "
-                        f"{gap[x, y]:.3f} mm: the robot moved {moved[x, y]:.3f} mm between them, the sphere centre "
-                        "moved otherwise in the sensor frame (a pure translation moves both alike); one of the two "
+                        f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station: the robot "
+                        f"moved {moved[x, y]:.3f} mm between them, the sphere centre moved otherwise in the sensor frame "
+                        f"(the distances differ by {gap[x, y]:.3f} mm) (a pure translation moves both alike); one of the two "
                         "rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out")))
                 pairs.append((rows[a], rows[b]))
                 alive = []
@@ -187,9 +223,9 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
             size = float(np.median(gap[x, others]))
             keep[i] = False
             flags.append(_flag(problem, i, (
-                f"inconsistent with {bad[worst]} of the {len(others)} other rows of its station by {size:.3f} mm "
-                "(median): its sphere centre did not move in the sensor frame by the distance the robot moved (a pure "
-                "translation moves both alike): a typo in the pose or the centre (a sign, metres for millimetres)?")))
+                f"inconsistent with {bad[worst]} of the {len(others)} other rows of its station: its sphere centre "
+                f"did not move in the sensor frame by the distance the robot moved (the distances differ by {size:.3f} "
+                "mm, median; a pure translation moves both alike): a typo in the pose or the centre (a sign, metres for millimetres)?")))
             alive = others
     return keep, flags, pairs
 
@@ -219,6 +255,33 @@ def settle_pairs(problem: Problem, pairs: list[tuple[int, int]], R, t, centre, n
         elif cb <= limit < ca:
             out.append((b, a, cb, ca))
     return out
+
+
+def leave_one_out_sizes(problem: Problem, rows, R, t, centre, used: np.ndarray) -> dict[int, float]:
+    """The size (mm) of the error in each of ``rows`` (positions in ``problem``, rows left
+    out of a solution ``R``, ``t``, ``centre`` of the others): the length of its centre
+    residual (:func:`.twostep.centre_residuals`: x, y, z of a sphere centre; y, z and the
+    cut radius of a circle) minus the median residual of its station's rows in ``used``
+    (a boolean mask), so the robot's error common to the station does not count. A 2 mm
+    typo in one coordinate reads about 2 mm, a sign flipped in a pose's 150 mm component
+    about 300 mm."""
+    from .twostep import centre_residuals
+
+    e = centre_residuals(problem, R, t, centre)
+    out = {}
+    for i in rows:
+        same = np.flatnonzero(used & (problem.station_of == problem.station_of[i]) & (problem.kinds != KIND_PROFILE))
+        same = same[same != i]
+        ref = np.median(e[same], axis=0) if len(same) else np.zeros(3)
+        out[int(i)] = float(np.linalg.norm(e[i] - ref))
+    return out
+
+
+def with_leave_one_out_size(flag: ObservationFlag, size_mm: float, kind_name: str) -> ObservationFlag:
+    """``flag`` (of :func:`pairwise_move_check`) with the size of the row's error first."""
+    return flag.model_copy(update={"reason": (
+        f"its {kind_name} is {size_mm:.3f} mm from where the solution of the other observations puts it (relative "
+        f"to the rest of its station); {flag.reason}")})
 
 
 def circles_from_profiles(dataset, min_points: int = 20, max_rms_mm: float = 0.5):

@@ -23,7 +23,9 @@ from .problem import (
     derived_station_rotation_tolerance_deg, screen_station_orientations,
 )
 from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
-from .centres import screen_table, settle_pairs
+from .centres import (
+    leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
+)
 from .twostep import CentreShot, TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
@@ -209,7 +211,7 @@ def solve(
             f"lacks {missing}; use 'station' (the robot's error shared within each station) or 'auto'")
     joints_known = problem.q_rad is not None
     # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
-    table_keep, table_flags, pairs = screen_table(problem)
+    table_keep, table_flags, pairs, moved = screen_table(problem)
     for f in table_flags:
         say(f"observation {f.index}: {f.reason}")
     if not table_keep.any():
@@ -228,7 +230,7 @@ def solve(
 
     solution = attempt(table_keep, table_flags)
     if not pairs:
-        return solution
+        return _size_moved_rows(solution, problem, moved)
     # two rows of a station that disagree, nothing within it telling which is wrong: the
     # solution of the other observations may tell; the row that agrees with it is used
     ref = solution.refined
@@ -236,10 +238,11 @@ def solve(
     settled = settle_pairs(problem, pairs, ref.R, ref.t, ref.centre, np.hypot(noise_mm, opt.pose_translation_noise_mm),
                            opt.profile_outlier_chi2)
     if not settled:
-        return solution
+        return _size_moved_rows(solution, problem, moved)
     keep, flags = table_keep.copy(), list(table_flags)
     for good, bad, chi_good, chi_bad in settled:
         keep[good] = True
+        moved = [i for i in moved if i != good]  # used after all: its flag, if any, is another check's
         g, b = int(problem.obs_index[good]), int(problem.obs_index[bad])
         flags = [f for f in flags if f.index != g]
         flags = [f.model_copy(update={"reason": f.reason.replace(
@@ -248,7 +251,23 @@ def solve(
             f"observation {g} where it was seen (chi2 {chi_good:.1f}, 3 dof) and this one not (chi2 {chi_bad:.3g})")})
                  if f.index == b else f for f in flags]
         say(f"observation {g} agrees with the solution of the others and is used; observation {b} is left out")
-    return attempt(keep, flags)
+    return _size_moved_rows(attempt(keep, flags), problem, moved)
+
+
+def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> Solution:
+    """The flags of the rows the pure-translation check left out (``moved``, positions in
+    ``problem``), each given the size of its error in mm from the solution of the others
+    (:func:`.centres.leave_one_out_sizes`)."""
+    used = np.isin(problem.obs_index, solution.problem.obs_index)
+    rows = [i for i in moved if not used[i]]
+    if not rows:
+        return solution
+    ref = solution.refined
+    sizes = leave_one_out_sizes(problem, rows, ref.R, ref.t, ref.centre, used)
+    by_index = {int(problem.obs_index[i]): (size, KIND_NAMES[problem.kinds[i]]) for i, size in sizes.items()}
+    flagged = [with_leave_one_out_size(f, *by_index[f.index]) if f.index in by_index else f
+               for f in solution.result.flagged]
+    return replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
 
 
 def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) -> Solution:
@@ -735,7 +754,8 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
                 "pose_translation_noise_mm": noise.pose_translation_noise_mm * np.sqrt(ref.pose_noise_scale),
                 "pose_rotation_noise_deg": noise.pose_rotation_noise_deg * np.sqrt(ref.pose_noise_scale),
                 "pose_noise_estimated": opt.estimate_pose_noise,
-                **({"centre_noise_mm": ref.centre_noise_mm} if centre_res is not None else {}),
+                **({"centre_noise_mm": ref.centre_noise_mm,
+                    "centre_noise_within_stations_mm": within_station_noise(clean)} if centre_res is not None else {}),
             },
         },
         provenance={"dataset": dataset.provenance.get("source", "unknown")},

@@ -262,10 +262,11 @@ def _pose_cov(noise: NoiseAssumptions) -> np.ndarray:
 
 
 def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s2_centre=None,
-               with_jacobian: bool = True) -> _Linearisation:
+               with_jacobian: bool = True, centre_cov_frozen: np.ndarray | None = None) -> _Linearisation:
     """Residuals, Jacobian and whitening at (R, t, c, r); see the module docstring.
     ``s2_centre`` (mm^2, per axis): the variance of centre observations given without
-    one. ``with_jacobian=False`` (profiles only): the per-point Jacobian is not built
+    one. ``centre_cov_frozen`` (m, 3, 3): the centre observations' covariance to whiten
+    with instead of the one at (R, t, c, r) (see :func:`refine`). ``with_jacobian=False`` (profiles only): the per-point Jacobian is not built
     (``J`` None); :func:`_chunk_jacobian` builds it a block of profiles at a time."""
     pid = pts.pid
     u, C = _centres(problem, R, t, c)
@@ -288,19 +289,21 @@ def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s
         return _Linearisation(res, J, W, C, SC, G, Jd, None, Jc, radius_column)
     Wp = _Whitener(G, pts.local, pts.starts, np.linalg.cholesky(SC[pts.shots] + 1e-18 * np.eye(3)), sigma) \
         if pts.M else None
-    res_c, J_c, G_c, Wc, parts = _centre_rows(problem, pts.centre_shots, C, Jc, rho, r, SC, fit_radius, s2_centre)
+    res_c, J_c, G_c, Wc, parts = _centre_rows(problem, pts.centre_shots, C, Jc, rho, r, SC, fit_radius, s2_centre,
+                                              centre_cov_frozen)
     W = _MixedWhitener(Wp, Wc, pts.M, problem.n_profiles, pts.shots, pts.centre_shots)
     return _Linearisation(np.concatenate([res, res_c]), np.vstack([J, J_c]), W, C, SC, np.vstack([G, G_c]), Jd,
                           parts)
 
 
-def _centre_rows(problem, cs, C, Jc, rho, r, SC, fit_radius, s2_centre):
+def _centre_rows(problem, cs, C, Jc, rho, r, SC, fit_radius, s2_centre, cov_frozen=None):
     """Residuals (3 m,), Jacobian rows (3 m, P), d res / d C rows (3 m, 3) and whitening
     matrices (m, 3, 3) of the centre observations ``cs``. A sphere centre: C_i minus the
     measured centre. A circle: (C_y, C_z) minus the measured centre and the radius of the
     circle the laser plane cuts from the predicted sphere, ``sqrt(r^2 - C_x^2)``, minus the
     measured radius (no side of the plane needed). Covariance: the given one (else
-    ``s2_centre`` I) plus the pose noise's ``G S_C G^T``."""
+    ``s2_centre`` I) plus the pose noise's ``G S_C G^T``, or ``cov_frozen`` (m, 3, 3)
+    when given. The returned parts carry the covariance used, (m, 3, 3), last."""
     kinds, meas, given = problem.kind[cs], problem.centre_meas[cs], problem.centre_cov[cs]
     m = len(cs)
     Gc = np.zeros((m, 3, 3))
@@ -321,9 +324,9 @@ def _centre_rows(problem, cs, C, Jc, rho, r, SC, fit_radius, s2_centre):
     pose_part = Gc @ SC[cs] @ np.swapaxes(Gc, 1, 2)
     unknown = np.isnan(given[:, 0, 0])
     S = np.where(unknown[:, None, None], (s2_centre if s2_centre is not None else 1.0) * np.eye(3), given)
-    L = np.linalg.cholesky(S + pose_part)
-    Wc = np.linalg.inv(L)
-    return res.ravel(), J.reshape(3 * m, -1), Gc.reshape(3 * m, 3), Wc, (res, pose_part, given)
+    cov = S + pose_part if cov_frozen is None else cov_frozen
+    Wc = np.linalg.inv(np.linalg.cholesky(cov))
+    return res.ravel(), J.reshape(3 * m, -1), Gc.reshape(3 * m, 3), Wc, (res, pose_part, given, cov)
 
 
 #: Bounds of the estimated variance of centre observations given without one, mm^2.
@@ -335,7 +338,7 @@ def _centre_variance(parts, dof: float, s2_start: float) -> float:
     covariance that makes the centres' whitened chi^2 equal its degrees of freedom
     (a variance component; the given covariances and the pose noise stay as they are).
     Bisection on log s2: chi^2 falls as s2 grows."""
-    e, P, given = parts
+    e, P, given = parts[:3]
     unknown = np.isnan(given[:, 0, 0])
     if not unknown.any() or dof <= 0:
         return s2_start
@@ -697,9 +700,20 @@ def refine(
             p = _apply_kinematic_errors(p, ke.chain, kappa)
         return _apply_station_offsets(p, delta)
 
+    # the centre observations' covariance depends on the parameters (the pose noise seen
+    # through the transform and, for a circle, through where the plane cuts the sphere).
+    # Within a pass of Gauss-Newton it is held at its value at the pass's start (iteratively
+    # reweighted least squares), so that the cost the line search compares is the one the
+    # step minimises; each pass re-evaluates it until a pass no longer moves the solution.
+    # (Re-evaluated at every step, the step aims at the reweighted solution while the
+    # line search judges by a cost with moving weights: where that covariance dominates,
+    # as for exact centres with the centre noise at its floor, the two disagree by about
+    # 1e-4 standard deviations and the steps crawl there, halved, for ever.)
+    centre_cov_frozen = None
+
     def linearise(scale_):
         return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma, s2_centre,
-                          with_jacobian=chunks is None)
+                          with_jacobian=chunks is None, centre_cov_frozen=centre_cov_frozen)
 
     def kin_point_columns(lin):
         """Whitened d res / d kappa (M, n_kin)."""
@@ -752,9 +766,14 @@ def refine(
             cost += float(np.sum(np.where(sd > 0, d / np.where(sd > 0, sd, 1.0), 0.0) ** 2))
         return cost
 
-    for outer in range(max(4 if estimate_pose_noise else 1, 8 if estimate_centre else 1)):
+    for outer in range(max(4 if estimate_pose_noise else 1, 8 if m_centres else 1)):
         lin = None
         near = False  # scales are re-estimated only near a solution, where the linearisation holds
+        first_small = False  # the pass's first step was already below the tolerance
+        converged = False  # (of this pass: an earlier pass's convergence says nothing of this one)
+        if m_centres:
+            centre_cov_frozen = None
+            centre_cov_frozen = linearise(scale).centre_parts[3]
         for it in range(1, max_iterations + 1):
             lin = lin if lin is not None else linearise(scale)
             ew = lin.W.apply(lin.res)
@@ -843,12 +862,15 @@ def refine(
             small = np.abs(frac * step[:3]).max() < tolerance and np.abs(frac * step[3:]).max() < tolerance * 1e3
             if any_random:
                 small = small and step_delta < tolerance * 1e3
+            if it == 1:
+                first_small = bool(small)
             was_near = near
             near = near or (np.abs(frac * step[:3]).max() < 1e-5 and np.abs(frac * step[3:6]).max() < 1e-2)
             if small and (was_near or not estimate_lam):
                 converged = True
                 break
         # variance component of the pose noise: whitened chi^2 in the profiles' 3-D subspaces
+        centre_cov_frozen = None
         lin = linearise(scale)
         n_effects = (6 * K if se else 0) + (int(np.count_nonzero(kin_identifiable)) if n_kin_fitted else 0)
         if not m_centres:
@@ -867,7 +889,9 @@ def refine(
                 update_centre = abs(s2_new / s2_centre - 1.0) >= 0.02
         update_pose = not (not estimate_pose_noise or dof_profiles < 20 or pose_cov.max() == 0
                            or abs(s2_profiles - 1) < 0.05)
-        if not update_pose and not update_centre:
+        # the centres' covariance re-evaluated: one more pass unless this one started at its solution
+        reweight = bool(m_centres) and not (converged and first_small)
+        if not update_pose and not update_centre and not reweight:
             break
         if update_centre:
             s2_centre = s2_new

@@ -123,6 +123,13 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     reasons.append((lvl, f"residual RMS {rms:.4f} mm is {ratio:.2f} x the expected {exp:.4f} mm "
                          f"(point noise and robot repeatability {th.robot_repeatability_mm} mm)"))
     absurd = is_absurd(result, th)
+    ref = centre_noise_reference_mm(result, th)
+    if absurd and ref is not None and ref < exp:
+        within = float(result.diagnostics["noise"]["centre_noise_within_stations_mm"])
+        reasons.append(("red", f"the centre observations lie {rms:.4f} mm RMS from the fit, {absurd_ratio(result, th):.3g} x "
+                               f"the {ref:.4f} mm they should (their noise within stations, where the robot only "
+                               f"translated, {within:.4f} mm, and robot repeatability {th.robot_repeatability_mm} mm): "
+                               "the noise estimated from the fit took in a misfit"))
     if absurd:
         reasons.append(("red", ABSURD_CAUSES))
 
@@ -171,7 +178,7 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     }[level]
     if absurd:
         headline = ("Wrong: the data do not fit the model at all (residuals "
-                    f"{ratio:.3g} x the expected); a setting or the data are wrong, not the noise.")
+                    f"{absurd_ratio(result, th):.3g} x the expected); a setting or the data are wrong, not the noise.")
     if robot_dominates and level != "red":
         headline = ("Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
                     "own geometric error limits this result (see the advice).")
@@ -212,12 +219,41 @@ ABSURD_CAUSES = (
 )
 
 
-def is_absurd(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
-    """True when the residual RMS is so many times the expected (``residual_ratio_absurd``)
-    that no noise explains it, or is not a finite number: a wrong setting or wrong data."""
+def centre_noise_reference_mm(result: CalibrationResult, thresholds: Thresholds | None = None) -> float | None:
+    """For a result of centre observations only whose noise was estimated (from the joint
+    fit's residuals, so the residual check compares the residuals with themselves): the
+    noise they should show, independent of the fit, ``sqrt(within^2 + robot_repeatability^2)``
+    with ``within`` the noise the centres show within their stations
+    (``diagnostics.noise.centre_noise_within_stations_mm``, from the pure-translation
+    rule). None otherwise (the point noise of the profiles, or the given covariances,
+    anchor the expected RMS)."""
+    th = thresholds or Thresholds()
+    noise = result.diagnostics.get("noise", {}) or {}
+    within = noise.get("centre_noise_within_stations_mm")
+    if result.residuals.n_profiles_used or noise.get("centre_noise_mm") is None or within is None:
+        return None
+    return math.hypot(float(within), th.robot_repeatability_mm)
+
+
+def absurd_ratio(result: CalibrationResult, thresholds: Thresholds | None = None) -> float:
+    """The residual RMS over the noise that should explain it: the expected RMS
+    (:func:`expected_rms_mm`) or, for centres with estimated noise, the noise they show
+    within their stations (:func:`centre_noise_reference_mm`), whichever is smaller
+    (the larger ratio)."""
     th = thresholds or Thresholds()
     rms = result.residuals.rms_mm
-    return not math.isfinite(rms) or rms / expected_rms_mm(result, th) > th.residual_ratio_absurd
+    ref = centre_noise_reference_mm(result, th)
+    exp = expected_rms_mm(result, th)
+    return rms / (exp if ref is None else min(exp, ref))
+
+
+def is_absurd(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
+    """True when the residual RMS is so many times the noise that should explain it
+    (:func:`absurd_ratio`, above ``residual_ratio_absurd``) that no noise explains it, or
+    is not a finite number: a wrong setting or wrong data."""
+    th = thresholds or Thresholds()
+    rms = result.residuals.rms_mm
+    return not math.isfinite(rms) or absurd_ratio(result, th) > th.residual_ratio_absurd
 
 
 def calibration_std(result: CalibrationResult) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -53,3 +53,30 @@ def test_solve_a_file_mixing_profiles_and_circles(tmp_path, capsys):
     assert result.residuals.n_profiles_used == 12 and result.residuals.n_centres_used == 12
     for fig in ("residuals_per_profile", "residuals_per_centre", "residuals_per_station", "sphere_3d"):
         assert (out / f"report_{fig}.png").exists(), fig
+
+
+@pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
+def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(tmp_path, capsys, kind):
+    """Issue 10's rule on centre-only data: the noise estimated from the fit's residuals
+    takes in any misfit, so the residuals are judged against the noise the centres show
+    within their stations (pure translations, whatever the mounting) instead. A RED exit,
+    the mounting named, and no result or exports without --force."""
+    from spherecal.cli import EXIT_RED
+
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE)
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind, centre_noise_mm=0.01)
+    path = tmp_path / "centres.dataset.jsonl"
+    dataio.write_dataset(path, ds.model_copy(update={"mounting": "eye_to_hand"}))
+    out = tmp_path / "res"
+    assert main(["solve", str(path), "--out", str(out), "--no-report"]) == EXIT_RED
+    cap = capsys.readouterr()
+    assert "verdict: RED: Wrong: the data do not fit the model at all" in cap.out, cap.out
+    assert "their noise within stations, where the robot only translated" in cap.out
+    for text in ("mounting is probably wrong", "it says eye_to_hand", "solved as eye_in_hand"):
+        assert text in cap.out, (text, cap.out)
+    assert "NOT written" in cap.out and "exit 7" in cap.err
+    assert not (out / "result.json").exists() and not list(out.glob("*4x4*")) and not list(out.glob("*.mod"))
+    # --force writes it, still RED, and the file says so
+    assert main(["solve", str(path), "--out", str(tmp_path / "forced"), "--no-report", "--force"]) == EXIT_RED
+    verdict = dataio.read_result(tmp_path / "forced" / "result.json").diagnostics["verdict"]
+    assert verdict["level"] == "red" and verdict["written_with_force"]
