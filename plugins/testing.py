@@ -22,7 +22,8 @@ Fixtures
     ``sphere_centre_mm`` (mm; base in eye-in-hand, flange in eye-to-hand),
     ``true_transform`` (a :class:`~spherecal.models.Pose`) and ``fov`` (your sensor's
     :class:`~spherecal.devices.SensorFieldOfView`, e.g.
-    ``host.registry.sensor_type(name).field_of_view``); or the parameter is a whole
+    ``host.registry.sensor_type(name).field_of_view``; without it, that of the only
+    installed sensor type that declares one, :func:`default_field_of_view`); or the parameter is a whole
     :class:`~spherecal.sim.SimulatedCell` (also ``{"cell": cell}``), used as it is.
     To use one cell in every test of a plugin, override the fixture in the plugin's own
     ``conftest.py`` (a fixture of the same name there wins; docs/plugins.md).
@@ -55,7 +56,7 @@ import pytest
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
 
-    from spherecal.devices import DeviceContext, Robot, Sensor
+    from spherecal.devices import DeviceContext, Robot, Sensor, SensorFieldOfView
     from spherecal.models import Dataset, Pose
     from spherecal.plugins.host import PluginHost
     from spherecal.sim import SimulatedCell
@@ -381,6 +382,24 @@ class SensorHarness:
 CELL_PARAMETERS = ("cell", "sphere_centre_mm", "true_transform", "fov")
 
 
+def default_field_of_view() -> "SensorFieldOfView":
+    """The field of view a ``spherecal_cell`` measures with when its parameter gives no
+    ``fov``: the one the only installed sensor type that declares a field of view
+    declares (read through a :class:`~spherecal.plugins.host.PluginHost`, as a run reads
+    it). With several such sensor types installed (yours beside the built-in one, say)
+    the choice is yours: a TypeError naming them asks for ``fov``."""
+    from spherecal.plugins.host import PluginHost
+
+    sensors = PluginHost().registry.sensors
+    declared = sorted(name for name, t in sensors.items() if t.field_of_view is not None)
+    if len(declared) == 1:
+        return sensors[declared[0]].field_of_view
+    raise TypeError(
+        "spherecal_cell: give the cell's field of view ({'fov': host.registry.sensor_type(name).field_of_view}): "
+        f"installed sensor types that declare one: {', '.join(declared) or 'none'}"
+    )
+
+
 def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     """The cell of a ``spherecal_cell`` parameter (module docstring): a mounting name, a
     :class:`~spherecal.sim.SimulatedCell` (used as it is), or a dict of
@@ -400,7 +419,7 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     if isinstance(param, SimulatedCell):
         return param
     if not isinstance(param, dict):
-        return standard_cell(param, seed=0)
+        return standard_cell(param, seed=0, fov=default_field_of_view())
     kwargs = dict(param)
     if "cell" in kwargs:
         if len(kwargs) > 1 or not isinstance(kwargs["cell"], SimulatedCell):
@@ -416,6 +435,8 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     if true is not None and not isinstance(true, Pose):
         raise TypeError(f"spherecal_cell: true_transform must be a spherecal.models.Pose, got {type(true).__name__}")
     kwargs.setdefault("seed", 0)
+    if kwargs.get("fov") is None:
+        kwargs["fov"] = default_field_of_view()
     cell = standard_cell(**kwargs)
     if true is not None:
         cell.true_transform = true

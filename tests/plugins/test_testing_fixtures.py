@@ -11,6 +11,7 @@ import pytest
 from spherecal.errors import DeviceError
 from spherecal.models import Pose, Profile
 from spherecal.plugins.testing import RobotHarness, SensorHarness, acquire_dataset, pose_error
+from reference_sensor import reference_fov
 
 
 class CellRobot:
@@ -73,7 +74,7 @@ def test_cell_fixture_defaults_to_eye_in_hand_and_is_seeded(spherecal_cell):
     from spherecal.sim import standard_cell
 
     assert spherecal_cell.mounting == "eye_in_hand"
-    again = standard_cell("eye_in_hand", seed=0)
+    again = standard_cell("eye_in_hand", seed=0, fov=reference_fov())
     assert np.array_equal(spherecal_cell.rng.normal(size=3), again.rng.normal(size=3))
 
 
@@ -265,7 +266,7 @@ def _whole_cell():
         from spherecal.sim import NoiseModel, SimulatedCell
 
         _WHOLE = SimulatedCell("eye_in_hand", OWN_TRUTH, (1000.0, 0.0, 350.0), 12.7,
-                               noise=NoiseModel(pose_translation_noise_mm=0.0), seed=9)
+                               noise=NoiseModel(pose_translation_noise_mm=0.0), seed=9, fov=reference_fov())
     return _WHOLE
 
 
@@ -320,7 +321,7 @@ def test_robot_harness_kinematics_tolerance_follows_the_pose_noise(spherecal_cel
 def make_quiet(cell, noise):
     from spherecal.sim import standard_cell
 
-    return standard_cell(cell.mounting, seed=0, noise=noise)
+    return standard_cell(cell.mounting, seed=0, noise=noise, fov=reference_fov())
 
 
 def _stations(cell):
