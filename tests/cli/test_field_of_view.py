@@ -150,7 +150,9 @@ def test_the_fan_matches_the_declared_widths_and_the_standoff_moves_the_sweep():
     # a standoff given in the plan wins over the sensor's
     assert with_standoff(SweepPlan(standoff_z_mm=-7.0), SMALL).standoff_z_mm == -7.0
     a = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan, field_of_view=NXSENSOR_FOV)
-    b = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan.model_copy(update={"standoff_z_mm": -20.0}))
+    b = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan.model_copy(update={
+        "standoff_z_mm": -20.0, "lateral_amplitude_mm": 4.0,
+        "station_offsets_mm": [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)]}))
     assert all(np.allclose(p.translation, q.translation) for (_, s), (_, t) in zip(a, b) for p, q in zip(s, t))
 
 
