@@ -64,7 +64,7 @@ class SweepPlan(BaseModel):
 
 #: The default stations' places in the field of view, (y, z) in percent: y of the line's
 #: width at the sweep's standoff, z of the measuring range, from the standoff. For a 100
-#: mm range with a line 40 mm wide at the standoff (the nxSensor-I's -60..+40 mm,
+#: mm range with a line 40 mm wide at the standoff (a sensor measuring -60..+40 mm,
 #: standoff -20 mm) they are (0, 0), (10, -25), (-10, 18) and (0, -30) mm; a sensor with a
 #: 25 mm or a 400 mm range gets a quarter or four times that. Percent of a length, so
 #: that ``length * p / 100`` is exact for such round lengths.
