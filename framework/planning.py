@@ -97,14 +97,37 @@ def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None") ->
         raise ConfigError(f"acquisition.sweep.{name}: not set, and the sensor type declares no field of view "
                           f"to take it from; set it ({_NEEDS[name]})")
     standoff = plan.standoff_z_mm if plan.standoff_z_mm is not None else float(field_of_view.sweep_standoff_z_mm)
-    range_mm = field_of_view.z_near_mm - field_of_view.z_far_mm
-    width_mm = field_of_view.width_at_mm(standoff)
     update = {"standoff_z_mm": standoff}
     if plan.station_offsets_mm is None:
-        update["station_offsets_mm"] = [(width_mm * y / 100, range_mm * z / 100) for y, z in STATION_OFFSETS_PERCENT]
+        update["station_offsets_mm"] = [offset_in_field_of_view_mm(field_of_view, standoff, p)
+                                        for p in STATION_OFFSETS_PERCENT]
     if plan.lateral_amplitude_mm is None:
-        update["lateral_amplitude_mm"] = range_mm * LATERAL_AMPLITUDE_PERCENT / 100
+        update["lateral_amplitude_mm"] = (field_of_view.z_near_mm - field_of_view.z_far_mm) * LATERAL_AMPLITUDE_PERCENT / 100
     return plan.model_copy(update=update)
+
+
+def offset_in_field_of_view_mm(field_of_view: "SensorFieldOfView", standoff_z_mm: float,
+                               percent) -> tuple[float, float]:
+    """A (y, z) shift in the sensor frame, mm, given as shares of ``field_of_view`` in
+    ``percent``: y of the line's width at ``standoff_z_mm``, z of the measuring range."""
+    y, z = percent
+    width_mm = field_of_view.width_at_mm(standoff_z_mm)
+    return width_mm * y / 100, (field_of_view.z_near_mm - field_of_view.z_far_mm) * z / 100
+
+
+def site_offset_mm(offset_mm, offset_percent, field_of_view: "SensorFieldOfView | None", standoff_z_mm: float,
+                   where: str) -> tuple[float, float]:
+    """The (y, z) shift of a validation or scan sweep, mm: ``offset_mm`` when given, else
+    ``offset_percent`` of the field of view (:func:`offset_in_field_of_view_mm`).
+    :class:`ConfigError` naming ``where`` when a share is given and there is no field of view."""
+    if offset_mm is not None:
+        return tuple(float(v) for v in offset_mm)
+    if not any(offset_percent):
+        return 0.0, 0.0
+    if field_of_view is None:
+        raise ConfigError(f"{where}.offset_mm: not set, and the sensor type declares no field of view to size "
+                          f"offset_percent {tuple(offset_percent)} in; set it ((y, z) shift of the sweep, mm)")
+    return offset_in_field_of_view_mm(field_of_view, standoff_z_mm, offset_percent)
 
 
 def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:

@@ -1059,7 +1059,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         check_writable_target(ply_path)
     out, result_path, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning",
                                                  out_dir)
-    targets = plan_scan(cfg, result.transform)
+    targets = plan_scan(cfg, result.transform, fov)
     _check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")

@@ -294,3 +294,30 @@ def test_simulate_without_a_name_uses_the_only_sensor_type_with_a_field_of_view(
     monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: only)
     assert main(["simulate", str(tmp_path / "d.jsonl"), "--profiles", "4"]) == EXIT_OK
     assert dataio.read_dataset(tmp_path / "d.jsonl").provenance["fov"] == NXSENSOR_FOV.model_dump()
+
+
+def test_the_default_validation_views_are_sized_to_the_field_of_view():
+    from spherecal.config import FlatConfig, ValidationConfig
+    from spherecal.planning import site_offset_mm
+
+    spheres = ValidationConfig().sphere_positions
+    flat = FlatConfig(centre_mm=(0.0, 0.0, 0.0)).positions
+
+    def offsets(sites, fov, standoff):
+        return [site_offset_mm(s.offset_mm, s.offset_percent, fov, standoff, "validation") for s in sites]
+
+    # the nxSensor-I's views are those sized for it before, to the bit
+    assert offsets(spheres, NXSENSOR_FOV, -20.0) == [(5.0, -10.0), (-8.0, 10.0), (0.0, -20.0), (8.0, 0.0)]
+    assert offsets(flat, NXSENSOR_FOV, NXSENSOR_FOV.middle_z_mm) == [(0.0, 0.0), (0.0, -15.0)]
+    # a 25 mm range: a quarter of the z shifts, y shares of its narrower line
+    small = offsets(spheres, RANGE_25, 0.0)
+    assert [z for _, z in small] == pytest.approx([-2.5, 2.5, -5.0, 0.0])
+    assert [y for y, _ in small] == pytest.approx([1.5, -2.4, 0.0, 2.4])  # the line is 12 mm wide at z = 0
+    # an offset in mm is the user's, field of view or not
+    from spherecal.config import SweepSite
+
+    assert offsets([SweepSite(offset_mm=(1.0, -2.0))], None, 0.0) == [(1.0, -2.0)]
+    assert offsets([SweepSite()], None, 0.0) == [(0.0, 0.0)]
+    with pytest.raises(ConfigError, match=r"validation.offset_mm: not set, and the sensor type declares no field of "
+                                          r"view to size offset_percent \(12.5, -10.0\) in"):
+        offsets(spheres[:1], None, 0.0)
