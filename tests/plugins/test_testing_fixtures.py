@@ -10,6 +10,7 @@ import pytest
 
 from spherecal.errors import DeviceError
 from spherecal.models import Pose, Profile
+from spherecal.planning import SweepPlan
 from spherecal.plugins.testing import RobotHarness, SensorHarness, acquire_dataset, pose_error
 from reference_sensor import reference_fov
 
@@ -244,7 +245,8 @@ def _small_fov():
     return SensorFieldOfView(z_near_mm=15.0, z_far_mm=-15.0, width_near_mm=18.0, width_far_mm=26.0, n_columns=200)
 
 
-@pytest.mark.parametrize("spherecal_cell", [{"fov": _small_fov()}], indirect=True)
+#: a sphere whose visible half fits the 30 mm range with the plan's wander and offsets sized to it
+@pytest.mark.parametrize("spherecal_cell", [{"fov": _small_fov(), "sphere_radius_mm": 6.35}], indirect=True)
 def test_cell_fixture_takes_the_sensors_field_of_view(spherecal_cell, spherecal_stations, spherecal_sensor_harness):
     assert spherecal_cell.fov == _small_fov()
     # planned in that range: the reference station (no offset) sweeps the sphere's centre at its middle
@@ -355,3 +357,72 @@ def test_my_cell(spherecal_cell, spherecal_stations, spherecal_context):
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
                          capture_output=True, text=True, cwd=tmp_path)
     assert run.returncode == 0 and "1 passed" in run.stdout, run.stdout + run.stderr
+
+
+#: A plan of a cell's own, unlike the default one: two stations of five shots, the second tilted 20 deg about x.
+OWN_PLAN_KW = {"profiles_per_station": 5, "tilts_deg": [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0)],
+               "station_offsets_mm": [(0.0, 0.0), (4.0, -6.0)]}
+OWN_PLAN = SweepPlan(**OWN_PLAN_KW)
+
+
+class RecordingRobot(CellRobot):
+    """An honest robot that remembers where it was sent."""
+
+    def __init__(self, cell):
+        super().__init__(cell)
+        self.targets = []
+
+    def move_linear(self, base_from_flange, speed_mm_s):
+        super().move_linear(base_from_flange, speed_mm_s)
+        self.targets.append(base_from_flange)
+
+
+def _expected_stations(cell, plan):
+    from spherecal.planning import plan_stations
+
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
+                         field_of_view=cell.fov)
+
+
+def _same(a, b) -> bool:
+    return [label for label, _ in a] == [label for label, _ in b] and all(
+        np.allclose(p.as_matrix(), q.as_matrix(), atol=1e-12) for (_, s), (_, t) in zip(a, b) for p, q in zip(s, t))
+
+
+def test_robot_harness_takes_the_cells_plan():
+    from spherecal.planning import SweepPlan
+    from spherecal.sim import standard_cell
+
+    cell = standard_cell("eye_to_hand", seed=4, fov=reference_fov())
+    plan = SweepPlan(**OWN_PLAN_KW)
+    harness = RobotHarness(cell, plan=plan)
+    assert _same(harness.stations, _expected_stations(cell, plan))
+    assert not _same(harness.stations, _expected_stations(cell, SweepPlan()))  # not the default plan
+    robot = RecordingRobot(cell)
+    report = harness.check(robot)
+    assert report.n_moves == 2 * 3  # three shots of each of the plan's two stations
+    planned = [p for _, poses in harness.stations for p in poses]
+    for target in robot.targets[:-1]:  # the last one is the refused zero-speed move's
+        assert any(np.array_equal(target.as_matrix(), p.as_matrix()) for p in planned)
+    # the sensor harness takes one too; stations and a plan together are refused
+    assert _same(SensorHarness(cell, plan=plan).stations, harness.stations)
+    with pytest.raises(TypeError, match=r"RobotHarness: give stations or plan .*not both"):
+        RobotHarness(cell, harness.stations, plan=plan)
+    with pytest.raises(TypeError, match=r"plan must be a spherecal.planning.SweepPlan, got dict"):
+        RobotHarness(cell, plan=OWN_PLAN_KW)
+
+
+@pytest.mark.parametrize("spherecal_cell", [{"mounting": "eye_in_hand", "plan": OWN_PLAN}], indirect=True)
+def test_cell_fixture_takes_the_cells_plan(spherecal_cell, spherecal_stations, spherecal_robot_harness,
+                                          spherecal_sensor_harness):
+    from spherecal.plugins.testing import make_cell
+
+    assert _same(spherecal_stations, _expected_stations(spherecal_cell, OWN_PLAN))
+    assert spherecal_robot_harness.stations is spherecal_stations
+    assert spherecal_robot_harness.check(CellRobot(spherecal_cell)).n_moves == 6
+    assert spherecal_sensor_harness.check(CellSensor(spherecal_cell)).n_profiles > 0
+    # a whole cell takes one too, and a plan that is not a SweepPlan is refused
+    whole = make_cell({"cell": _whole_cell(), "plan": OWN_PLAN})
+    assert whole is _whole_cell() and _same(RobotHarness(whole).stations, _expected_stations(whole, OWN_PLAN))
+    with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.planning.SweepPlan, got dict"):
+        make_cell({"plan": OWN_PLAN_KW})
