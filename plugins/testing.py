@@ -23,7 +23,8 @@ Fixtures
     ``true_transform`` (a :class:`~spherecal.models.Pose`) and ``fov`` (your sensor's
     :class:`~spherecal.devices.SensorFieldOfView`, e.g.
     ``host.registry.sensor_type(name).field_of_view``; without it, that of the only
-    installed sensor type that declares one, :func:`default_field_of_view`); or the parameter is a whole
+    installed, else the only built-in, sensor type that declares one,
+    :func:`default_field_of_view`); or the parameter is a whole
     :class:`~spherecal.sim.SimulatedCell` (also ``{"cell": cell}``), used as it is. Either
     dict may carry ``plan``, the cell's own :class:`~spherecal.planning.SweepPlan` (e.g. a
     configuration's ``[acquisition.sweep]``, or one your arm reaches):
@@ -433,19 +434,26 @@ _CELL_PLANS: "weakref.WeakKeyDictionary[SimulatedCell, SweepPlan]" = weakref.Wea
 
 def default_field_of_view() -> "SensorFieldOfView":
     """The field of view a ``spherecal_cell`` measures with when its parameter gives no
-    ``fov``: the one the only installed sensor type that declares a field of view
-    declares (read through a :class:`~spherecal.plugins.host.PluginHost`, as a run reads
-    it). With several such sensor types installed (yours beside the built-in one, say)
-    the choice is yours: a TypeError naming them asks for ``fov``."""
+    ``fov``, read through a :class:`~spherecal.plugins.host.PluginHost` as a run reads
+    it: that of the only installed sensor type that declares one; with several (yours
+    beside a built-in one, say), that of the only built-in sensor type that declares one,
+    so that installing a sensor plugin does not change the cells of other tests. A
+    TypeError naming them asks for ``fov`` when neither settles it. A sensor plugin's
+    tests give their own (``{"fov": ...}``, or a ``spherecal_cell`` of their own)."""
     from spherecal.plugins.host import PluginHost
 
-    sensors = PluginHost().registry.sensors
-    declared = sorted(name for name, t in sensors.items() if t.field_of_view is not None)
-    if len(declared) == 1:
-        return sensors[declared[0]].field_of_view
+    def declared(host) -> dict:
+        return {n: t.field_of_view for n, t in host.registry.sensors.items() if t.field_of_view is not None}
+
+    installed = declared(PluginHost())
+    if len(installed) == 1:
+        return next(iter(installed.values()))
+    builtin = declared(PluginHost(autoload=False))
+    if len(builtin) == 1:
+        return next(iter(builtin.values()))
     raise TypeError(
         "spherecal_cell: give the cell's field of view ({'fov': host.registry.sensor_type(name).field_of_view}): "
-        f"installed sensor types that declare one: {', '.join(declared) or 'none'}"
+        f"installed sensor types that declare one: {', '.join(sorted(installed)) or 'none'}"
     )
 
 

@@ -426,3 +426,39 @@ def test_cell_fixture_takes_the_cells_plan(spherecal_cell, spherecal_stations, s
     assert whole is _whole_cell() and _same(RobotHarness(whole).stations, _expected_stations(whole, OWN_PLAN))
     with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.planning.SweepPlan, got dict"):
         make_cell({"plan": OWN_PLAN_KW})
+
+
+def test_the_default_field_of_view_is_the_only_declared_or_the_built_in_one(monkeypatch):
+    from pydantic import BaseModel, ConfigDict
+
+    import spherecal.plugins.host as host_module
+    from spherecal.devices import SensorFieldOfView, SensorType
+    from spherecal.plugins import hookimpl
+    from spherecal.plugins.testing import default_field_of_view, make_cell
+
+    assert default_field_of_view() == reference_fov()  # here: the built-in nxSensor-I, the only one
+    acme_fov = SensorFieldOfView(z_near_mm=10.0, z_far_mm=-10.0, width_near_mm=8.0, width_far_mm=12.0)
+
+    class AcmeConfig(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+    class Acme:
+        @staticmethod
+        @hookimpl
+        def spherecal_register_devices(registry):
+            registry.add_sensor(SensorType(name="acme", config_model=AcmeConfig, factory=lambda c, ctx: None,
+                                           field_of_view=acme_fov))
+
+    real = host_module.PluginHost
+    # a sensor plugin installed beside the built-in one: the built-in one still
+    monkeypatch.setattr(host_module, "PluginHost", lambda autoload=None: real(
+        plugins=[("acme", Acme)] if autoload is not False else [], autoload=autoload))
+    assert default_field_of_view() == reference_fov()
+    assert make_cell("eye_to_hand").fov == reference_fov()
+    # two that nothing tells apart: the test must say
+    monkeypatch.setattr(host_module, "PluginHost", lambda autoload=None: real(plugins=[("acme", Acme)],
+                                                                               autoload=autoload))
+    with pytest.raises(TypeError, match=r"spherecal_cell: give the cell's field of view .*installed sensor types "
+                                        r"that declare one: acme, nxsensor_i"):
+        make_cell("eye_in_hand")
+    assert make_cell({"fov": acme_fov}).fov == acme_fov
