@@ -47,7 +47,8 @@ def test_solve_a_broken_dataset_says_where(tmp_path, capsys):
 def test_solve_degenerate_data_says_what_to_add(tmp_path, capsys):
     from spherecal.sim import SweepPlan, simulate_dataset
 
-    ds = simulate_dataset(standard_cell("eye_in_hand", fov=reference_fov()), SweepPlan(tilts_deg=[(0, 0, 0), (20, 0, 0)]))
+    ds = simulate_dataset(standard_cell("eye_in_hand", fov=reference_fov()),
+                          SweepPlan(tilts_deg=[(0, 0, 0), (20, 0, 0)]))
     path = tmp_path / "two.jsonl"
     dataio.write_dataset(path, ds)
     assert main(["solve", str(path), "--no-report"]) == EXIT_DATA

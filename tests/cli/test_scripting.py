@@ -20,7 +20,8 @@ from reference_sensor import reference_fov
 @pytest.fixture(scope="module")
 def dataset_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("scripting") / "d.jsonl"
-    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()), SweepPlan(profiles_per_station=6)))
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()),
+                                                SweepPlan(profiles_per_station=6)))
     return path
 
 

@@ -181,7 +181,8 @@ def test_a_kinematic_model_asked_for_without_joints_is_refused_not_dropped(tmp_p
     drop the robot's accuracy from the uncertainty): a dataset without joint readings is
     refused, naming what is missing and what to use instead."""
     path = tmp_path / "poses_only.jsonl"
-    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()), SweepPlan(profiles_per_station=4)))
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()),
+                                                SweepPlan(profiles_per_station=4)))
     assert main(["solve", str(path), "--robot-error-model", model, "--out", str(tmp_path / "o"), "--no-report"]) \
         == EXIT_DATA
     err = capsys.readouterr().err

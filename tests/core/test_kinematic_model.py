@@ -232,7 +232,8 @@ def test_marginalised_arm_error_is_honest(kin, mounting):
     kinematic model is used and the transform is within 4 reported standard deviations of
     the truth on every seed (accuracy against the two-step: benchmarks/bench_accuracy.py)."""
     for seed in range(3):
-        cell = standard_cell(mounting, seed=seed, noise=NOISE, robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
+        cell = standard_cell(mounting, seed=seed, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                             fov=reference_fov())
         sol = solve(simulate_dataset(cell), OPTIONS, kinematics=kin)
         assert sol.result.robot_error.model == "kinematic"
         assert sol.result.robot_error.model_choice.startswith("auto: the data show the arm's geometric error")
@@ -269,7 +270,8 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
 def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
     from spherecal.runner import write_calibrated_urdf
 
-    cell = standard_cell("eye_in_hand", seed=5, noise=NOISE, robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
+    cell = standard_cell("eye_in_hand", seed=5, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                         fov=reference_fov())
     sol = solve(simulate_dataset(cell, KIN_PLAN), OPTIONS.model_copy(update={"identify_kinematics": True}),
                 kinematics=kin)
     path = write_calibrated_urdf(sol, kin, tmp_path)

@@ -30,7 +30,8 @@ def _shift_pose(ds, index, offset_mm):
 @pytest.fixture(scope="module")
 def bad_solution():
     """Eye-in-hand, stray points on a third of the profiles, one pose shifted by 1 mm."""
-    cell = standard_cell("eye_in_hand", seed=3, noise=NoiseModel(stray_profile_fraction=0.3, strays_per_profile=8), fov=reference_fov())
+    cell = standard_cell("eye_in_hand", seed=3, noise=NoiseModel(stray_profile_fraction=0.3,
+                                                                 strays_per_profile=8), fov=reference_fov())
     ds = _shift_pose(simulate_dataset(cell, PLAN), SHIFTED, [0.0, 1.0, 0.0])
     return solve(ds)
 

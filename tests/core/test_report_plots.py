@@ -18,7 +18,8 @@ from reference_sensor import reference_fov
 
 @pytest.fixture(scope="module")
 def solution():
-    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=5, fov=reference_fov()), SweepPlan(profiles_per_station=6)))
+    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=5, fov=reference_fov()),
+                                  SweepPlan(profiles_per_station=6)))
 
 
 @pytest.fixture(scope="module")

@@ -57,7 +57,8 @@ def result() -> CalibrationResult:
     from spherecal.estimation import solve
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
-    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()), SweepPlan(profiles_per_station=4))).result
+    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()),
+                                  SweepPlan(profiles_per_station=4))).result
 
 
 # --- registration ------------------------------------------------------------------------------------------

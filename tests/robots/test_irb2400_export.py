@@ -24,7 +24,8 @@ Q_TOL = 0.5 * 10 ** -ex.QUAT_DECIMALS + 1e-15
 @pytest.fixture(scope="module")
 def solutions():
     plan = SweepPlan(profiles_per_station=6)
-    return {m: solve(simulate_dataset(standard_cell(m, seed=4, fov=reference_fov()), plan)) for m in ("eye_in_hand", "eye_to_hand")}
+    return {m: solve(simulate_dataset(standard_cell(m, seed=4, fov=reference_fov()),
+                                      plan)) for m in ("eye_in_hand", "eye_to_hand")}
 
 
 @pytest.fixture(scope="module")

@@ -50,7 +50,8 @@ def test_what_the_exporter_writes_reads_back():
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     for mounting in ("eye_in_hand", "eye_to_hand"):
-        result = calibrate(simulate_dataset(standard_cell(mounting, seed=2, fov=reference_fov()), SweepPlan(profiles_per_station=5)))
+        result = calibrate(simulate_dataset(standard_cell(mounting, seed=2, fov=reference_fov()),
+                                            SweepPlan(profiles_per_station=5)))
         frame = read_frame(rapid_declaration(result))
         assert frame.transform_name == result.transform_name
         # the export rounds to 4 decimals (mm) and 8 (quaternion)

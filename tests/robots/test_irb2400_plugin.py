@@ -90,7 +90,8 @@ def test_simulated_factory_runs_the_real_driver_over_pyserial():
 
 def test_passes_the_robot_harness(spherecal_host, spherecal_stations):
     # pose noise in rotation, so the harness allows for the protocol's 6-decimal quaternions
-    cell = standard_cell(seed=0, noise=NoiseModel(pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002), fov=reference_fov())
+    cell = standard_cell(seed=0, noise=NoiseModel(pose_translation_noise_mm=0.02,
+                                                  pose_rotation_noise_deg=0.002), fov=reference_fov())
     robot = spherecal_host.create_robot({"type": "abb_irb2400", "timeout_s": 0.5}, DeviceContext(cell=cell))
     harness = RobotHarness(cell, spherecal_stations, move_tolerance_mm=1e-3, move_tolerance_deg=2e-4)
     cfg = AbbIrb2400Config()

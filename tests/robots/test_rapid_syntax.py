@@ -40,7 +40,8 @@ def exported_modules(tmp_path_factory):
     host = PluginHost()
     found = {}
     for mounting in ("eye_in_hand", "eye_to_hand"):
-        result = solve(simulate_dataset(standard_cell(mounting, seed=4, fov=reference_fov()), SweepPlan(profiles_per_station=6))).result
+        result = solve(simulate_dataset(standard_cell(mounting, seed=4, fov=reference_fov()),
+                                        SweepPlan(profiles_per_station=6))).result
         plan = host.export_plan(None, mounting, "abb_irb2400")
         paths = write_exports(result, tmp_path_factory.mktemp(mounting), plan)
         rapid = [p for p in paths.values() if p.suffix.lower() in (".mod", ".sys")]

@@ -71,7 +71,8 @@ def test_read_profile_equals_what_the_cell_measured(driver, backend, cell):
 
 
 def test_noise_free_profile_equals_the_ideal_one():
-    cell = standard_cell("eye_in_hand", seed=2, noise=NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0), fov=reference_fov())
+    cell = standard_cell("eye_in_hand", seed=2, noise=NoiseModel(point_noise_mm=0.0,
+                                                                 pose_translation_noise_mm=0.0), fov=reference_fov())
     pose = _in_view_pose(cell)
     cell.move_flange_to(pose)
     with NxSensorDriver(NxSensorConfig(), backend=SimulatedNxSensorBackend(cell)) as d:
