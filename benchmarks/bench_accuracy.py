@@ -48,7 +48,9 @@ but for BLAS) are per solve, on the README's install.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -62,6 +64,9 @@ from spherecal.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell
 from spherecal.validation import points_in_object_frame
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/reference_sensor.py
+from reference_sensor import reference_fov  # noqa: E402 (after the path) the reference sensor's field of view
 
 PLANS = {
     "A": (SweepPlan(), 19.1),
@@ -136,7 +141,8 @@ def run(mounting: str, scenario: str, plan_name: str, seeds: int, kin, model: st
     nees, z, times, pred, meas, chose_kin = [], [], [], [], [], []
     for seed in range(seeds):
         noise, error, opts = scenario_world(scenario, seed, model)
-        cell = standard_cell(mounting, seed=seed, noise=noise, sphere_radius_mm=radius, robot_error=error, arm=kin)
+        cell = standard_cell(mounting, seed=seed, noise=noise, sphere_radius_mm=radius, robot_error=error, arm=kin,
+                             fov=reference_fov())
         ds = simulate_dataset(cell, plan)
         t0 = time.process_time()
         sol = solve(ds, opts, kinematics=kin)
@@ -168,7 +174,7 @@ def run(mounting: str, scenario: str, plan_name: str, seeds: int, kin, model: st
     if scenario == "random":
         noise, _, _ = scenario_world("random", 0)
         truth = standard_cell(mounting, seed=0, noise=NoiseModel(point_noise_mm=0, pose_translation_noise_mm=0),
-                              sphere_radius_mm=radius)
+                              sphere_radius_mm=radius, fov=reference_fov())
         problem = build_problem(simulate_dataset(truth, plan))
         Xt = truth.true_transform
         crb = cramer_rao_bound(problem, Xt.rotation_matrix, Xt.translation, truth.sphere_centre_mm,

@@ -23,7 +23,9 @@ with the station random effect instead.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -31,6 +33,9 @@ from spherecal import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.centres import circles_from_profiles
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/reference_sensor.py
+from reference_sensor import reference_fov  # noqa: E402 (after the path) the reference sensor's field of view
 
 NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
 
@@ -65,7 +70,7 @@ def main() -> None:
     for mounting in ("eye_in_hand", "eye_to_hand"):
         rows: dict[str, list] = {"profiles": [], "circles": [], "spheres": []}
         for seed in range(args.seeds):
-            cell = standard_cell(mounting, seed=seed, noise=NOISE)
+            cell = standard_cell(mounting, seed=seed, noise=NOISE, fov=reference_fov())
             profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=args.profiles))
             circles = circles_from_profiles(profiles)
             for way, ds in (("profiles", profiles), ("circles", circles), ("spheres", resolved(circles, profiles, cell))):

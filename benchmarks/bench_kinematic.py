@@ -26,7 +26,9 @@ Run:  python benchmarks/bench_kinematic.py [--seeds 30] [--mounting both] [--sag
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -38,6 +40,9 @@ from spherecal.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
 from spherecal.validation import points_in_object_frame
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/reference_sensor.py
+from reference_sensor import reference_fov  # noqa: E402 (after the path) the reference sensor's field of view
 
 
 def spread_tilts(n: int, rng: np.random.Generator, max_deg: float, max_turn_deg: float = 90.0):
@@ -145,7 +150,8 @@ def run(mode: str, seeds: int, kin, sag: bool, planner: bool = False) -> dict:
     noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02)
     plan, fresh = plans(mode, kin if planner else None)
     for seed in range(seeds):
-        cell = standard_cell(mode, seed=seed, noise=noise, sphere_radius_mm=19.1, robot_error=error, arm=kin)
+        cell = standard_cell(mode, seed=seed, noise=noise, sphere_radius_mm=19.1, robot_error=error, arm=kin,
+                             fov=reference_fov())
         ds = simulate_dataset(cell, plan)
         opts = CalibrationOptions(pose_translation_noise_mm=0.02)
         t0 = time.perf_counter()

@@ -74,9 +74,12 @@ def dataset_file(cache: Path, per_station: int, columns: int) -> Path:
     if path.exists():
         return path
     from spherecal import dataio
-    from spherecal.sim import SensorFieldOfView, SweepPlan, simulate_dataset, standard_cell
+    from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
-    cell = standard_cell("eye_in_hand", seed=SEED, fov=SensorFieldOfView(n_columns=columns))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from reference_sensor import reference_fov  # the reference sensor's field of view
+
+    cell = standard_cell("eye_in_hand", seed=SEED, fov=reference_fov(n_columns=columns))
     ds = simulate_dataset(cell, SweepPlan(profiles_per_station=per_station))
     tmp = path.with_suffix(".part")
     dataio.write_dataset(tmp, ds, overwrite=True)

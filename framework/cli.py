@@ -394,17 +394,51 @@ def _transform_options(p: argparse.ArgumentParser, role: str, frame_options: dic
                    "(default 0)")
 
 
+def _simulated_sensor_fov(name: str | None):
+    """The field of view ``spherecal simulate`` measures with: that of the sensor type
+    registered as ``name`` (``--sensor``), or, without one, of the only installed sensor
+    type that declares one. :class:`ConfigError` naming ``--sensor`` (with the known
+    types) for an unknown name, a type that declares none, or a choice to make."""
+    from .runner import make_host
+
+    sensors = make_host().registry.sensors
+    with_fov = sorted(n for n, t in sensors.items() if t.field_of_view is not None)
+    if name is None:
+        if len(with_fov) == 1:
+            return sensors[with_fov[0]].field_of_view
+        raise ConfigError("--sensor: give the sensor type to simulate (installed sensor types with a field of view: "
+                          f"{', '.join(with_fov) or 'none'})")
+    if name not in sensors:
+        raise ConfigError(f"--sensor {name}: unknown sensor type; installed sensor types: "
+                          f"{', '.join(sorted(sensors)) or 'none'} (list them with `spherecal plugins`)")
+    fov = sensors[name].field_of_view
+    if fov is None:
+        raise ConfigError(f"--sensor {name}: sensor type {name!r} declares no field of view to simulate; simulate it "
+                          "from a configuration that gives one in [simulation.fov] (--config)")
+    return fov
+
+
 def cmd_simulate(args) -> int:
     from . import dataio
     from .sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 
     if args.config:
         from .config import load_config
-        from .runner import make_cell, make_host, robot_arm
+        from .runner import make_cell, make_host, robot_arm, sensor_field_of_view
 
+        if args.sensor is not None:
+            raise ConfigError(f"--sensor {args.sensor}: the configuration names its sensor ([sensor] type); give "
+                              "--sensor or --config, not both")
         loaded = load_config(args.config)
         cfg = loaded.config
-        cell = make_cell(cfg, robot_arm(loaded, make_host())) or standard_cell(cfg.mounting, seed=args.seed)
+        host = make_host()
+        fov = sensor_field_of_view(cfg, host)
+        cell = make_cell(cfg, robot_arm(loaded, host), field_of_view=fov)
+        if cell is None:  # no [simulation]: the standard cell, measuring with the configured sensor's field of view
+            if fov is None:
+                raise ConfigError(f"{loaded.path}: sensor.type {cfg.sensor['type']!r} declares no field of view to "
+                                  "simulate; give it whole in [simulation.fov]")
+            cell = standard_cell(cfg.mounting, seed=args.seed, fov=fov)
         plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
     else:
         noise = NoiseModel(
@@ -412,7 +446,7 @@ def cmd_simulate(args) -> int:
             pose_translation_noise_mm=args.pose_noise_mm,
             stray_profile_fraction=args.stray_fraction,
         )
-        cell = standard_cell(args.mounting, seed=args.seed, noise=noise)
+        cell = standard_cell(args.mounting, seed=args.seed, noise=noise, fov=_simulated_sensor_fov(args.sensor))
         plan = SweepPlan(profiles_per_station=args.profiles)
     if not args.force and os.path.lexists(args.out):
         raise InputError(f"{args.out} already exists; give --force to replace it, or another file name")
@@ -626,6 +660,10 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
     m = sub.add_parser("simulate", parents=[common], help="write a dataset from the simulated cell")
     m.add_argument("out", help="dataset file to write (.jsonl)")
     m.add_argument("--config", help="take the cell and plan from this configuration's [simulation] and [acquisition]")
+    m.add_argument("--sensor", metavar="TYPE", help="the sensor type to simulate (its registered name, as in "
+                   "`spherecal plugins`): the cell measures with its declared field of view and the plan fits it "
+                   "(default: the only installed sensor type that declares one); not with --config, whose [sensor] "
+                   "names it")
     m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], default="eye_in_hand")
     m.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0)
     m.add_argument("--profiles", type=_int_in(4, 10_000), default=10, help="profiles per station (4 to 10000)")

@@ -158,16 +158,22 @@ class SweepSite(_Section):
     in the sensor's field of view."""
 
     tilt_deg: Vec3 = Field((0.0, 0.0, 0.0), description="rotation vector from the reference orientation, deg")
-    offset_mm: tuple[float, float] = Field((0.0, 0.0), description="(y, z) shift of the sweep in the sensor frame, mm")
+    offset_mm: tuple[float, float] | None = Field(
+        None, description="(y, z) shift of the sweep in the sensor frame, mm (default: offset_percent of the sensor's "
+        "field of view)")
+    offset_percent: tuple[float, float] = Field(
+        (0.0, 0.0), description="(y, z) shift as shares of the sensor's field of view, percent: y of the line's width "
+        "at the sweep's standoff, z of the measuring range; used when offset_mm is not given")
 
 
 def _default_sphere_sites() -> list[SweepSite]:
-    # orientations other than the calibration's (0/30/30/45 deg about x, y, z)
+    # orientations other than the calibration's (0/30/30/45 deg about x, y, z), places in the field of view
+    # sized to it: for a 100 mm range and a line 40 mm wide at the standoff (5, -10), (-8, 10), (0, -20), (8, 0) mm
     return [
-        SweepSite(tilt_deg=(15.0, 15.0, 0.0), offset_mm=(5.0, -10.0)),
-        SweepSite(tilt_deg=(-20.0, 10.0, 25.0), offset_mm=(-8.0, 10.0)),
-        SweepSite(tilt_deg=(10.0, -25.0, -30.0), offset_mm=(0.0, -20.0)),
-        SweepSite(tilt_deg=(-15.0, -15.0, 60.0), offset_mm=(8.0, 0.0)),
+        SweepSite(tilt_deg=(15.0, 15.0, 0.0), offset_percent=(12.5, -10.0)),
+        SweepSite(tilt_deg=(-20.0, 10.0, 25.0), offset_percent=(-20.0, 10.0)),
+        SweepSite(tilt_deg=(10.0, -25.0, -30.0), offset_percent=(0.0, -20.0)),
+        SweepSite(tilt_deg=(-15.0, -15.0, 60.0), offset_percent=(20.0, 0.0)),
     ]
 
 
@@ -194,7 +200,7 @@ class FlatConfig(_Section):
     width_mm: float = Field(100.0, gt=0, description="size along the plate's y (simulation), mm")
     sweep_length_mm: float = Field(30.0, gt=0, description="length of each sweep across the flat, mm")
     positions: list[SweepSite] = Field(
-        default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(10.0, 0.0, 45.0), offset_mm=(0.0, -15.0))],
+        default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(10.0, 0.0, 45.0), offset_percent=(0.0, -15.0))],
         description="views of the flat",
     )
 

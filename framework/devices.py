@@ -174,6 +174,12 @@ class SensorFieldOfView(BaseModel):
         """z of the sphere centre in a sweep (mm): ``standoff_z_mm``, else the middle."""
         return self.middle_z_mm if self.standoff_z_mm is None else self.standoff_z_mm
 
+    def width_at_mm(self, z_mm: float) -> float:
+        """The line's width at sensor-frame z ``z_mm`` (mm), on the straight line through
+        the two declared widths."""
+        return self.width_near_mm + (self.width_far_mm - self.width_near_mm) * (self.z_near_mm - z_mm) / (
+            self.z_near_mm - self.z_far_mm)
+
     @property
     def apex_z_mm(self) -> float:
         """z of the fan's apex, where the line width extrapolates to zero."""

@@ -43,7 +43,7 @@ from .errors import ConfigError, InputError, SpherecalError
 from .estimation.refine import design_identifiability, plan_design
 from .kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
 from .models import MountingMode, Pose
-from .planning import SweepPlan, station_flange_poses
+from .planning import SweepPlan, station_flange_poses, with_standoff
 
 if TYPE_CHECKING:  # pragma: no cover
     from .config import RunConfig
@@ -183,8 +183,9 @@ class _Context:
     @classmethod
     def of(cls, cfg: "RunConfig", arm) -> "_Context":
         acq = cfg.acquisition
+        sweep = with_standoff(acq.sweep, None)  # as runner.for_sensor fitted it to the sensor (else: which setting)
         return cls(cfg.mounting, cfg.nominal_transform.pose(), np.asarray(acq.sphere_centre_mm, float),
-                   cfg.sphere.radius_mm, acq.sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
+                   cfg.sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
                    acq.workspace, arm, cfg.calibration.kinematic_effects(arm.chain).prior_sd,
                    acq.kinematic_plan or KinematicPlanSettings())
 

@@ -45,11 +45,15 @@ class SweepPlan(BaseModel):
     standoff_z_mm: float | None = Field(
         None, description="sensor-frame z of the sphere centre, mm (default: the sensor's declared "
         "field of view's standoff, SensorFieldOfView.sweep_standoff_z_mm)")
-    lateral_amplitude_mm: float = Field(4.0, ge=0, le=1000, description="y/z wander within a sweep, mm")
-    station_offsets_mm: list[tuple[float, float]] = Field(
-        default_factory=lambda: [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)],
+    lateral_amplitude_mm: float | None = Field(
+        None, ge=0, le=1000, description="y/z wander within a sweep, mm (default: LATERAL_AMPLITUDE_PERCENT of the "
+        "sensor's measuring range, 4 mm in a 100 mm range)")
+    station_offsets_mm: list[tuple[float, float]] | None = Field(
+        None,
         description="(y, z) shift of the sweep in the sensor frame, mm, per station (cycled): "
-        "sweeps at different places of the field of view tie the rotation to the translation",
+        "sweeps at different places of the field of view tie the rotation to the translation (default: "
+        "STATION_OFFSETS_PERCENT of the sensor's field of view, [(0, 0), (10, -25), (-10, 18), (0, -30)] for a "
+        "100 mm range and a line 40 mm wide at the standoff)",
     )
     tilts_deg: list[tuple[float, float, float]] = Field(
         default_factory=lambda: [(0.0, 0.0, 0.0), (30.0, 0.0, 0.0), (0.0, 30.0, 0.0), (0.0, 0.0, 45.0)],
@@ -58,24 +62,80 @@ class SweepPlan(BaseModel):
     )
 
 
+#: The default stations' places in the field of view, (y, z) in percent: y of the line's
+#: width at the sweep's standoff, z of the measuring range, from the standoff. For a 100
+#: mm range with a line 40 mm wide at the standoff (a sensor measuring -60..+40 mm,
+#: standoff -20 mm) they are (0, 0), (10, -25), (-10, 18) and (0, -30) mm; a sensor with a
+#: 25 mm or a 400 mm range gets a quarter or four times that. Percent of a length, so
+#: that ``length * p / 100`` is exact for such round lengths.
+STATION_OFFSETS_PERCENT = ((0, 0), (25, -25), (-25, 18), (0, -30))
+
+#: The default y/z wander within a sweep, percent of the measuring range (4 mm in 100 mm).
+LATERAL_AMPLITUDE_PERCENT = 4
+
+_NEEDS = {
+    "standoff_z_mm": "sensor-frame z of the sphere centre, mm",
+    "station_offsets_mm": "(y, z) shift of each station's sweep in the sensor frame, mm",
+    "lateral_amplitude_mm": "y/z wander within a sweep, mm",
+}
+
+
 def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None") -> SweepPlan:
-    """``plan`` with its standoff set: its own ``standoff_z_mm`` when given, else the
-    field of view's (:attr:`~spherecal.devices.SensorFieldOfView.sweep_standoff_z_mm`).
-    :class:`ConfigError` when neither says (a sensor type that declares no field of view)."""
-    if plan.standoff_z_mm is not None:
+    """``plan`` fitted to the sensor: the settings it leaves to the sensor set from
+    ``field_of_view``, each only where the plan does not give its own: the standoff
+    (:attr:`~spherecal.devices.SensorFieldOfView.sweep_standoff_z_mm`), the stations'
+    offsets (:data:`STATION_OFFSETS_PERCENT` of the line's width at the standoff and of
+    the measuring range) and the wander (:data:`LATERAL_AMPLITUDE_PERCENT` of the range).
+    :class:`ConfigError` naming the first setting missing when there is no field of view
+    to take it from (a sensor type that declares none); a plan that gives all three is
+    returned as it is."""
+    missing = [name for name in _NEEDS if getattr(plan, name) is None]
+    if not missing:
         return plan
     if field_of_view is None:
-        raise ConfigError("acquisition.sweep.standoff_z_mm: not set, and the sensor type declares no field of view "
-                          "to take it from; set it (sensor-frame z of the sphere centre, mm)")
-    return plan.model_copy(update={"standoff_z_mm": float(field_of_view.sweep_standoff_z_mm)})
+        name = missing[0]
+        raise ConfigError(f"acquisition.sweep.{name}: not set, and the sensor type declares no field of view "
+                          f"to take it from; set it ({_NEEDS[name]})")
+    standoff = plan.standoff_z_mm if plan.standoff_z_mm is not None else float(field_of_view.sweep_standoff_z_mm)
+    update = {"standoff_z_mm": standoff}
+    if plan.station_offsets_mm is None:
+        update["station_offsets_mm"] = [offset_in_field_of_view_mm(field_of_view, standoff, p)
+                                        for p in STATION_OFFSETS_PERCENT]
+    if plan.lateral_amplitude_mm is None:
+        update["lateral_amplitude_mm"] = (field_of_view.z_near_mm - field_of_view.z_far_mm) * LATERAL_AMPLITUDE_PERCENT / 100
+    return plan.model_copy(update=update)
+
+
+def offset_in_field_of_view_mm(field_of_view: "SensorFieldOfView", standoff_z_mm: float,
+                               percent) -> tuple[float, float]:
+    """A (y, z) shift in the sensor frame, mm, given as shares of ``field_of_view`` in
+    ``percent``: y of the line's width at ``standoff_z_mm``, z of the measuring range."""
+    y, z = percent
+    width_mm = field_of_view.width_at_mm(standoff_z_mm)
+    return width_mm * y / 100, (field_of_view.z_near_mm - field_of_view.z_far_mm) * z / 100
+
+
+def site_offset_mm(offset_mm, offset_percent, field_of_view: "SensorFieldOfView | None", standoff_z_mm: float,
+                   where: str) -> tuple[float, float]:
+    """The (y, z) shift of a validation or scan sweep, mm: ``offset_mm`` when given, else
+    ``offset_percent`` of the field of view (:func:`offset_in_field_of_view_mm`).
+    :class:`ConfigError` naming ``where`` when a share is given and there is no field of view."""
+    if offset_mm is not None:
+        return tuple(float(v) for v in offset_mm)
+    if not any(offset_percent):
+        return 0.0, 0.0
+    if field_of_view is None:
+        raise ConfigError(f"{where}.offset_mm: not set, and the sensor type declares no field of view to size "
+                          f"offset_percent {tuple(offset_percent)} in; set it ((y, z) shift of the sweep, mm)")
+    return offset_in_field_of_view_mm(field_of_view, standoff_z_mm, offset_percent)
 
 
 def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:
     """(n, 3) planned sensor-frame positions of the sphere centre along one sweep, mm
     (``plan`` with its standoff set, :func:`with_standoff`)."""
-    if plan.standoff_z_mm is None:
-        raise ConfigError("acquisition.sweep.standoff_z_mm: the plan has no standoff (with_standoff sets it from the "
-                          "sensor's field of view)")
+    if plan.standoff_z_mm is None or plan.lateral_amplitude_mm is None:
+        raise ConfigError("acquisition.sweep: the plan is not fitted to the sensor (no standoff or wander; "
+                          "with_standoff sets them from the sensor's field of view)")
     n = plan.profiles_per_station
     s = np.linspace(-1.0, 1.0, n)
     phase = np.linspace(0.0, 2 * np.pi, n, endpoint=False)

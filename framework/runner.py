@@ -91,17 +91,22 @@ def sensor_field_of_view(cfg: RunConfig, host) -> SensorFieldOfView | None:
 
 
 def for_sensor(cfg: RunConfig, field_of_view: SensorFieldOfView | None) -> RunConfig:
-    """``cfg`` with the standoffs it leaves to the sensor set from ``field_of_view``: the
-    calibration sweep's (``[acquisition.sweep] standoff_z_mm``, the sensor's
-    ``sweep_standoff_z_mm``) and the scan's (``[scan] standoff_z_mm``, the middle of the
-    measuring range). Unchanged without a field of view (the planner then asks for them)."""
+    """``cfg`` with the settings it leaves to the sensor set from ``field_of_view``: the
+    calibration sweep's (``[acquisition.sweep]`` ``standoff_z_mm``, the sensor's
+    ``sweep_standoff_z_mm``; ``station_offsets_mm`` and ``lateral_amplitude_mm``, sized
+    to the field of view: :func:`spherecal.planning.with_standoff`) and the scan's
+    (``[scan] standoff_z_mm``, the middle of the measuring range). Unchanged without a
+    field of view (the planner then asks for them)."""
     if field_of_view is None:
         return cfg
+    from .planning import with_standoff
+
     update = {}
     acq = cfg.acquisition
-    if acq is not None and acq.sweep.standoff_z_mm is None:
-        sweep = acq.sweep.model_copy(update={"standoff_z_mm": float(field_of_view.sweep_standoff_z_mm)})
-        update["acquisition"] = acq.model_copy(update={"sweep": sweep})
+    if acq is not None:
+        sweep = with_standoff(acq.sweep, field_of_view)
+        if sweep is not acq.sweep:
+            update["acquisition"] = acq.model_copy(update={"sweep": sweep})
     if cfg.scan is not None and cfg.scan.standoff_z_mm is None:
         update["scan"] = cfg.scan.model_copy(update={"standoff_z_mm": float(field_of_view.middle_z_mm)})
     return cfg.model_copy(update=update) if update else cfg
@@ -1069,7 +1074,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         check_writable_target(ply_path)
     out, result_path, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning",
                                                  out_dir)
-    targets = plan_scan(cfg, result.transform)
+    targets = plan_scan(cfg, result.transform, fov)
     _check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")

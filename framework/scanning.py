@@ -18,13 +18,14 @@ from .errors import ConfigError
 from .mapping import frame_from_sensor_stack, map_profile_list
 from .models import SPHERE_FRAME, Pose
 from .ply import PlyWriter
-from .planning import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations, site_offset_mm
 
 _LOG = progress_log("scan")  # the default ``log``: logger spherecal.scan
 
 
-def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
-    """Parallel pure-translation passes over ``[scan] object_centre_mm``."""
+def plan_scan(cfg: RunConfig, X: Pose, field_of_view=None) -> list[Target]:
+    """Parallel pure-translation passes over ``[scan] object_centre_mm``; a site's
+    ``offset_percent`` is sized to ``field_of_view`` (the sensor's)."""
     sc = cfg.scan
     acq = cfg.acquisition
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
@@ -33,10 +34,11 @@ def plan_scan(cfg: RunConfig, X: Pose) -> list[Target]:
                           "from; set it (sensor-frame z of the object's surface at the centre, mm)")
     n = int(round(sc.length_mm / sc.step_mm)) + 1
     targets: list[Target] = []
+    offset = site_offset_mm(sc.site.offset_mm, sc.site.offset_percent, field_of_view, sc.standoff_z_mm, "scan.site")
     for j in range(sc.passes):
-        dy = sc.site.offset_mm[0] + (j - (sc.passes - 1) / 2) * sc.pass_spacing_mm
+        dy = offset[0] + (j - (sc.passes - 1) / 2) * sc.pass_spacing_mm
         plan = SweepPlan(profiles_per_station=max(n, 4), sweep_fraction=0.5, lateral_amplitude_mm=0.0,
-                         standoff_z_mm=sc.standoff_z_mm, station_offsets_mm=[(dy, sc.site.offset_mm[1])],
+                         standoff_z_mm=sc.standoff_z_mm, station_offsets_mm=[(dy, offset[1])],
                          tilts_deg=[sc.site.tilt_deg])
         (_, poses), = plan_stations(cfg.mounting, X, sc.object_centre_mm, sc.length_mm, plan, R_ref)
         targets += targets_from_poses(poses, f"pass{j + 1}", len(targets), acq.approach_speed_mm_s, sc.speed_mm_s)

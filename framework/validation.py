@@ -25,7 +25,7 @@ from .metrology import (
     sphere_spacing_error,
 )
 from .models import SPHERE_FRAME, Pose
-from .planning import SweepPlan, plan_stations
+from .planning import SweepPlan, plan_stations, site_offset_mm
 
 if TYPE_CHECKING:  # pragma: no cover
     from .devices import SensorFieldOfView
@@ -51,9 +51,10 @@ def _sweep(cfg: RunConfig, X: Pose, label: str, kind: str, centre, half_length_m
                           "sweeps in it (give it in the sensor plugin, or [simulation.fov] for a simulated run)")
     # a sphere's centre at the sensor's sweep standoff, a flat's surface in the middle of the range
     standoff = field_of_view.sweep_standoff_z_mm if kind != "flat" else field_of_view.middle_z_mm
+    offset = site_offset_mm(site.offset_mm, site.offset_percent, field_of_view, standoff, f"validation ({label})")
     plan = SweepPlan(profiles_per_station=n, sweep_fraction=0.9, lateral_amplitude_mm=0.0,
                      standoff_z_mm=standoff,
-                     station_offsets_mm=[site.offset_mm], tilts_deg=[site.tilt_deg])
+                     station_offsets_mm=[offset], tilts_deg=[site.tilt_deg])
     (_, poses), = plan_stations(cfg.mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
     return Sweep(label, kind, targets_from_poses(poses, label, first_index, acq.approach_speed_mm_s, acq.speed_mm_s))
 

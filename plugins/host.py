@@ -271,6 +271,8 @@ class ExporterRegistry:
         self._exporters: dict[str, Exporter] = {}
         self._provider: dict[str, str] = {}
         self._current_plugin: str | None = None
+        #: Third-party entry points installed but not loaded (autoload off), for messages.
+        self.not_loaded: tuple[str, ...] = ()
 
     def add_exporter(self, exporter: Exporter) -> None:
         """Register a :class:`~spherecal.exporters.Exporter`. Its name must be new."""
@@ -332,8 +334,13 @@ class ExporterRegistry:
             return self._exporters[name]
         close = difflib.get_close_matches(name, list(self._exporters), n=1) if isinstance(name, str) else []
         hint = f" Did you mean '{close[0]}'?" if close else ""
+        advice = ""
+        if self.not_loaded:
+            advice = (f" Third-party plugins are not loaded because {DISABLE_AUTOLOAD_ENV} is set (installed but not "
+                      f"loaded: {', '.join(self.not_loaded)}): if one of them provides it, unset "
+                      f"{DISABLE_AUTOLOAD_ENV} or enable that plugin by name (PluginHost(enable=[...])).")
         raise ConfigError(f"{path}: unknown exporter {name!r}; installed exporters: "
-                          f"{', '.join(sorted(self._exporters)) or 'none'}.{hint}")
+                          f"{', '.join(sorted(self._exporters)) or 'none'}.{hint}{advice}")
 
 
 # ---------------------------------------------------------------------------------------
@@ -578,7 +585,7 @@ class PluginHost:
                     f"{info.label()} failed to import: {type(exc).__name__}: {exc}.{hint}"
                 ) from exc
             self._register(plugin, info)
-        self.registry.not_loaded = tuple(sorted(set(not_loaded)))
+        self.registry.not_loaded = self.exporters.not_loaded = tuple(sorted(set(not_loaded)))
 
     def _register(self, plugin: object, info: PluginInfo) -> None:
         if info.name in self._infos:

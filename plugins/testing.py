@@ -22,8 +22,13 @@ Fixtures
     ``sphere_centre_mm`` (mm; base in eye-in-hand, flange in eye-to-hand),
     ``true_transform`` (a :class:`~spherecal.models.Pose`) and ``fov`` (your sensor's
     :class:`~spherecal.devices.SensorFieldOfView`, e.g.
-    ``host.registry.sensor_type(name).field_of_view``); or the parameter is a whole
-    :class:`~spherecal.sim.SimulatedCell` (also ``{"cell": cell}``), used as it is.
+    ``host.registry.sensor_type(name).field_of_view``; without it, that of the only
+    installed, else the only built-in, sensor type that declares one,
+    :func:`default_field_of_view`); or the parameter is a whole
+    :class:`~spherecal.sim.SimulatedCell` (also ``{"cell": cell}``), used as it is. Either
+    dict may carry ``plan``, the cell's own :class:`~spherecal.planning.SweepPlan` (e.g. a
+    configuration's ``[acquisition.sweep]``, or one your arm reaches):
+    ``spherecal_stations`` and the harnesses use its stations.
     To use one cell in every test of a plugin, override the fixture in the plugin's own
     ``conftest.py`` (a fixture of the same name there wins; docs/plugins.md).
 ``spherecal_host``
@@ -33,7 +38,8 @@ Fixtures
     to ``host.create_robot`` / ``host.create_sensor`` to get the simulated devices.
 ``spherecal_stations``
     Planned flange targets for the cell, ``[(label, [base_from_flange, ...]), ...]``, from
-    :func:`spherecal.planning.plan_stations` with the cell's true transform.
+    :func:`spherecal.planning.plan_stations` with the cell's true transform, of the cell's
+    plan (``plan`` above) or the default one (:func:`planned_stations`).
 ``spherecal_robot_harness`` / ``spherecal_sensor_harness``
     :class:`RobotHarness` / :class:`SensorHarness` bound to the cell and stations:
     ``spherecal_robot_harness.check(robot)`` checks that a robot honours the
@@ -41,12 +47,16 @@ Fixtures
     commanded, reported poses agree within the cell's noise, limits are enforced,
     ``close()`` twice is fine); ``spherecal_sensor_harness.check(sensor)`` that profiles
     match the cell's ideal profile within the noise and that an empty view gives None.
+    Built by hand, a harness takes ``stations`` or ``plan`` (a
+    :class:`~spherecal.planning.SweepPlan`, planned on the cell):
+    ``RobotHarness(cell, plan=loaded.config.acquisition.sweep)``.
 
 :func:`acquire_dataset` runs a complete acquisition with a robot and a sensor.
 """
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -55,8 +65,9 @@ import pytest
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
 
-    from spherecal.devices import DeviceContext, Robot, Sensor
+    from spherecal.devices import DeviceContext, Robot, Sensor, SensorFieldOfView
     from spherecal.models import Dataset, Pose
+    from spherecal.planning import SweepPlan
     from spherecal.plugins.host import PluginHost
     from spherecal.sim import SimulatedCell
 
@@ -125,6 +136,27 @@ def acquire_dataset(
     return dataset
 
 
+def planned_stations(cell: "SimulatedCell", plan: "SweepPlan | None" = None):
+    """Flange targets ``[(label, [base_from_flange, ...]), ...]`` of ``plan`` on ``cell``
+    (:func:`spherecal.planning.plan_stations` with the cell's truth, fitted to its field
+    of view); without ``plan``, the one given to ``spherecal_cell`` with the cell
+    (:func:`make_cell`), else the default :class:`~spherecal.planning.SweepPlan`."""
+    from spherecal.planning import SweepPlan, plan_stations
+
+    if plan is None:
+        plan = _CELL_PLANS.get(cell)
+    if plan is not None and not isinstance(plan, SweepPlan):
+        raise TypeError(f"plan must be a spherecal.planning.SweepPlan, got {type(plan).__name__}")
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
+                         field_of_view=cell.fov)
+
+
+def _stations_or_plan(cell, stations, plan, who: str):
+    if stations is not None and plan is not None:
+        raise TypeError(f"{who}: give stations or plan (its stations are planned on the cell), not both")
+    return stations if stations is not None else planned_stations(cell, plan)
+
+
 def _first_targets(stations, per_station: int) -> list[tuple[str, "Pose"]]:
     out = []
     for label, poses in stations:
@@ -156,16 +188,27 @@ JOINT_ROUNDING_MM = 0.01
 
 @dataclass
 class RobotHarness:
-    """Checks a robot object against the simulated cell it was created on."""
+    """Checks a robot object against the simulated cell it was created on.
+
+    It moves through ``stations`` (``[(label, [base_from_flange, ...]), ...]``), or, when
+    they are not given, through the stations of ``plan`` (a
+    :class:`~spherecal.planning.SweepPlan`: the cell's own plan, e.g. a configuration's
+    ``[acquisition.sweep]`` or one your arm reaches) planned on the cell
+    (:func:`planned_stations`; without either, the plan given to ``spherecal_cell``, else
+    the default plan). A TypeError for both."""
 
     cell: "SimulatedCell"
-    stations: Any
+    stations: Any = None
     per_station: int = 3
     speed_mm_s: float = 50.0
     #: How close a move must land: 1 um and 0.001 deg allow for a controller protocol that
     #: carries positions with 3 decimals in mm and quaternions with 6 decimals.
     move_tolerance_mm: float = 1e-3
     move_tolerance_deg: float = 1e-3
+    plan: "SweepPlan | None" = None
+
+    def __post_init__(self) -> None:
+        self.stations = _stations_or_plan(self.cell, self.stations, self.plan, type(self).__name__)
 
     def check(
         self,
@@ -283,11 +326,16 @@ class SensorHarness:
     sensor can be tested without a robot."""
 
     cell: "SimulatedCell"
-    stations: Any
+    stations: Any = None
     per_station: int = 3
     min_coverage: float = 0.8
     max_outlier_fraction: float = 0.0
     extra_tolerance_mm: float = 0.005
+    #: As :class:`RobotHarness`: the plan whose stations to use when ``stations`` is not given.
+    plan: "SweepPlan | None" = None
+
+    def __post_init__(self) -> None:
+        self.stations = _stations_or_plan(self.cell, self.stations, self.plan, type(self).__name__)
 
     def check(self, sensor: "Sensor", *, check_close: bool = True) -> SensorReport:
         """Assert that ``sensor`` honours the Sensor protocol on ``self.cell``.
@@ -378,7 +426,35 @@ class SensorHarness:
 # Fixtures
 # ---------------------------------------------------------------------------------------
 #: Keys of a ``spherecal_cell`` parameter besides :func:`spherecal.sim.standard_cell`'s.
-CELL_PARAMETERS = ("cell", "sphere_centre_mm", "true_transform", "fov")
+CELL_PARAMETERS = ("cell", "sphere_centre_mm", "true_transform", "fov", "plan")
+
+#: The plan given with a cell (``make_cell``'s ``plan`` key), for :func:`planned_stations`.
+_CELL_PLANS: "weakref.WeakKeyDictionary[SimulatedCell, SweepPlan]" = weakref.WeakKeyDictionary()
+
+
+def default_field_of_view() -> "SensorFieldOfView":
+    """The field of view a ``spherecal_cell`` measures with when its parameter gives no
+    ``fov``, read through a :class:`~spherecal.plugins.host.PluginHost` as a run reads
+    it: that of the only installed sensor type that declares one; with several (yours
+    beside a built-in one, say), that of the only built-in sensor type that declares one,
+    so that installing a sensor plugin does not change the cells of other tests. A
+    TypeError naming them asks for ``fov`` when neither settles it. A sensor plugin's
+    tests give their own (``{"fov": ...}``, or a ``spherecal_cell`` of their own)."""
+    from spherecal.plugins.host import PluginHost
+
+    def declared(host) -> dict:
+        return {n: t.field_of_view for n, t in host.registry.sensors.items() if t.field_of_view is not None}
+
+    installed = declared(PluginHost())
+    if len(installed) == 1:
+        return next(iter(installed.values()))
+    builtin = declared(PluginHost(autoload=False))
+    if len(builtin) == 1:
+        return next(iter(builtin.values()))
+    raise TypeError(
+        "spherecal_cell: give the cell's field of view ({'fov': host.registry.sensor_type(name).field_of_view}): "
+        f"installed sensor types that declare one: {', '.join(sorted(installed)) or 'none'}"
+    )
 
 
 def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
@@ -388,25 +464,32 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     ``sphere_centre_mm`` (the true sphere centre, base in eye-in-hand, flange in
     eye-to-hand, mm), ``true_transform`` (a :class:`~spherecal.models.Pose`:
     ``flange_from_sensor`` in eye-in-hand, ``base_from_sensor`` in eye-to-hand), ``fov``
-    (a :class:`~spherecal.devices.SensorFieldOfView`, your sensor's) or ``cell`` (a whole
-    cell, alone). A key that is none of these is a TypeError naming it."""
+    (a :class:`~spherecal.devices.SensorFieldOfView`, your sensor's; default
+    :func:`default_field_of_view`) or ``cell`` (a whole cell, alone), and ``plan`` (a
+    :class:`~spherecal.planning.SweepPlan`, the cell's own plan: ``spherecal_stations``
+    and the harnesses plan with it, :func:`planned_stations`). A key that is none of these
+    is a TypeError naming it."""
     import inspect
 
     import numpy as np
 
     from spherecal.models import Pose
+    from spherecal.planning import SweepPlan
     from spherecal.sim import SimulatedCell, standard_cell
 
     if isinstance(param, SimulatedCell):
         return param
     if not isinstance(param, dict):
-        return standard_cell(param, seed=0)
+        return standard_cell(param, seed=0, fov=default_field_of_view())
     kwargs = dict(param)
+    plan = kwargs.pop("plan", None)
+    if plan is not None and not isinstance(plan, SweepPlan):
+        raise TypeError(f"spherecal_cell: plan must be a spherecal.planning.SweepPlan, got {type(plan).__name__}")
     if "cell" in kwargs:
         if len(kwargs) > 1 or not isinstance(kwargs["cell"], SimulatedCell):
-            raise TypeError("spherecal_cell: 'cell' takes a spherecal.sim.SimulatedCell and no other key, got "
-                            f"{sorted(kwargs)}")
-        return kwargs["cell"]
+            raise TypeError("spherecal_cell: 'cell' takes a spherecal.sim.SimulatedCell and no other key (but "
+                            f"'plan'), got {sorted(param)}")
+        return _with_plan(kwargs["cell"], plan)
     known = set(inspect.signature(standard_cell).parameters) | set(CELL_PARAMETERS)
     unknown = sorted(set(kwargs) - known)
     if unknown:
@@ -416,11 +499,19 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     if true is not None and not isinstance(true, Pose):
         raise TypeError(f"spherecal_cell: true_transform must be a spherecal.models.Pose, got {type(true).__name__}")
     kwargs.setdefault("seed", 0)
+    if kwargs.get("fov") is None:
+        kwargs["fov"] = default_field_of_view()
     cell = standard_cell(**kwargs)
     if true is not None:
         cell.true_transform = true
     if centre is not None:
         cell.sphere_centre_mm = np.asarray(centre, dtype=float).reshape(3)
+    return _with_plan(cell, plan)
+
+
+def _with_plan(cell: "SimulatedCell", plan: "SweepPlan | None") -> "SimulatedCell":
+    if plan is not None:
+        _CELL_PLANS[cell] = plan
     return cell
 
 
@@ -454,12 +545,10 @@ def spherecal_context(spherecal_cell) -> "DeviceContext":
 
 @pytest.fixture
 def spherecal_stations(spherecal_cell):
-    """Planned flange targets ``[(label, [base_from_flange, ...]), ...]`` for the cell."""
-    from spherecal.planning import plan_stations
-
-    cell = spherecal_cell
-    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
-                         field_of_view=cell.fov)
+    """Planned flange targets ``[(label, [base_from_flange, ...]), ...]`` for the cell: of
+    the plan given with it (``{"plan": SweepPlan(...)}``), else the default plan
+    (:func:`planned_stations`)."""
+    return planned_stations(spherecal_cell)
 
 
 @pytest.fixture

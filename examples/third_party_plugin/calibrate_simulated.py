@@ -67,7 +67,9 @@ def main(argv: list[str] | None = None) -> int:
     robot_config = host.validate_robot_config("example_cartesian", ROBOT_SECTION)
     sensor_config = host.validate_sensor_config("example_profiler", SENSOR_SECTION)
 
-    cell = standard_cell(args.mounting, seed=args.seed)
+    # the cell measures with the field of view the profiler declares
+    fov = host.registry.sensor_type("example_profiler").field_of_view
+    cell = standard_cell(args.mounting, seed=args.seed, fov=fov)
     context = DeviceContext(cell=cell, log=lambda message: print(message, file=sys.stderr))
     robot = host.create_robot(ROBOT_SECTION, context)
     sensor = host.create_sensor(SENSOR_SECTION, context)

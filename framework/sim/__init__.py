@@ -1,7 +1,7 @@
 """The simulated cell: the reference for tests and benchmarks, and the world behind the
 simulated devices."""
 
-from .cell import REFERENCE_FIELD_OF_VIEW, NoiseModel, SensorFieldOfView, SimulatedCell, arm_layout, standard_cell
+from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, arm_layout, standard_cell
 from .objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
 from ..planning import SweepPlan, plan_stations  # re-exported: the simulated acquisition plans with them
 from .planner import simulate_centre_dataset, simulate_dataset
@@ -17,7 +17,6 @@ __all__ = [
     "RobotErrorModel",
     "SimulatedArm",
     "SensorFieldOfView",
-    "REFERENCE_FIELD_OF_VIEW",
     "SimulatedCell",
     "arm_layout",
     "standard_cell",

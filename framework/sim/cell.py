@@ -2,9 +2,9 @@
 
 The laser line sensor is modelled as a fan of rays in its x = 0 plane from an apex on
 its z axis, chosen so that the fan's width matches the sensor's declared field of view
-(:class:`~spherecal.devices.SensorFieldOfView`; the reference sensor's, 28 mm wide at
-z = +40 mm and 48 mm at z = -60 mm, puts the apex at z = +180 mm); the sensor looks
-towards -z. Each ray returns its first hit on the sphere, so only the side the sensor can
+(:class:`~spherecal.devices.SensorFieldOfView`, which the sensor type declares: the
+simulator knows no sensor of its own; a line 28 mm wide at z = +40 mm and 48 mm at
+z = -60 mm, for example, puts the apex at z = +180 mm); the sensor looks towards -z. Each ray returns its first hit on the sphere, so only the side the sensor can
 see is measured; hits outside the measuring range are dropped. Gaussian noise
 is added to y and z of every point (isotropic in the laser plane); stray points
 (reflections, edge points) are added to some profiles. Robot pose noise: the reported
@@ -26,13 +26,18 @@ from .objects import BallBar, SceneObject, Sphere
 from .robot_error import RobotErrorModel, SimulatedArm
 
 
-#: The field of view of the standard cell's reference sensor, used when a cell is built
-#: without one (:func:`standard_cell` from Python, ``spherecal simulate`` without a
-#: configuration); configured runs use their sensor type's own
-#: (:attr:`spherecal.devices.SensorType.field_of_view`). The simulated datasets of the
-#: tests and benchmarks are made with it.
-REFERENCE_FIELD_OF_VIEW = SensorFieldOfView(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=28.0, width_far_mm=48.0,
-                                            standoff_z_mm=-20.0)
+def _field_of_view(fov, who: str) -> SensorFieldOfView:
+    """``fov`` checked: a cell measures with the field of view its sensor declares; the
+    simulator has none of its own."""
+    if isinstance(fov, SensorFieldOfView):
+        return fov
+    if fov is None:
+        raise TypeError(
+            f"{who}: fov is required: the field of view of the sensor the cell simulates, a "
+            "spherecal.devices.SensorFieldOfView (a sensor type declares its own: "
+            "PluginHost().registry.sensor_type(name).field_of_view); the simulator knows no sensor's"
+        )
+    raise TypeError(f"{who}: fov must be a spherecal.devices.SensorFieldOfView, got {type(fov).__name__}")
 
 
 class NoiseModel(BaseModel):
@@ -77,7 +82,7 @@ class SimulatedCell:
         true_transform: Pose,
         sphere_centre_mm,
         sphere_radius_mm: float,
-        fov: SensorFieldOfView | None = None,
+        fov: SensorFieldOfView,
         noise: NoiseModel | None = None,
         seed: int | None = 0,
         base_from_flange: Pose | None = None,
@@ -90,7 +95,7 @@ class SimulatedCell:
         self.objects: list[SceneObject] = [
             Sphere(sphere_centre_mm, sphere_radius_mm, frame=SPHERE_FRAME[mounting], name="reference_sphere")
         ]
-        self.fov = fov or REFERENCE_FIELD_OF_VIEW
+        self.fov = _field_of_view(fov, "SimulatedCell")
         self.noise = noise or NoiseModel()
         self.seed = seed
         self.rng = np.random.default_rng(seed)
@@ -271,12 +276,15 @@ class SimulatedCell:
         frame_from_sensor_rotation,
         half_length_mm: float,
         n_profiles: int,
-        standoff_z_mm: float = -10.0,
+        standoff_z_mm: float | None = None,
     ) -> list[Pose]:
         """True flange poses of a pure-translation sweep that carries ``target_mm`` (a point
         in ``frame``) through the laser plane along the sensor's x, from -half_length to
-        +half_length, at sensor-frame (y, z) = (0, ``standoff_z_mm``). The sensor's
-        orientation relative to ``frame`` is ``frame_from_sensor_rotation`` (3x3)."""
+        +half_length, at sensor-frame (y, z) = (0, ``standoff_z_mm``; default the middle of
+        the field of view's measuring range). The sensor's orientation relative to
+        ``frame`` is ``frame_from_sensor_rotation`` (3x3)."""
+        if standoff_z_mm is None:
+            standoff_z_mm = self.fov.middle_z_mm
         R = geo.check_rotation_matrix(frame_from_sensor_rotation, "frame_from_sensor_rotation")
         target = np.asarray(target_mm, dtype=float).reshape(3)
         poses = []
@@ -403,7 +411,12 @@ def standard_cell(
     a UR5, reaches less of its sphere of reach with a tilted flange).
 
     ``arm`` (a robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) also attaches
-    a simulated arm, with ``robot_error`` in its true geometry when given."""
+    a simulated arm, with ``robot_error`` in its true geometry when given.
+
+    ``fov`` is required: the field of view of the sensor the cell simulates, as its sensor
+    type declares it (:attr:`spherecal.devices.SensorType.field_of_view`); a TypeError
+    without one (the simulator knows no sensor's)."""
+    fov = _field_of_view(fov, "standard_cell")
     if arm is not None and reach_mm is None:
         reach_mm, arm_shoulder = arm_layout(arm)
         shoulder_mm = arm_shoulder if shoulder_mm is None else shoulder_mm

@@ -21,7 +21,8 @@ import pytest
 
 from spherecal import dataio
 from spherecal.cli import EXIT_DATA, EXIT_USAGE, main
-from spherecal.sim import REFERENCE_FIELD_OF_VIEW, SweepPlan, simulate_dataset, standard_cell
+from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TIME_LIMIT_S = 10.0
@@ -44,7 +45,7 @@ class Case:
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
     folder = tmp_path_factory.mktemp("base")
-    cell = standard_cell("eye_in_hand", seed=7, fov=REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 64}))
+    cell = standard_cell("eye_in_hand", seed=7, fov=reference_fov(n_columns=64))
     ds = simulate_dataset(cell, SweepPlan(profiles_per_station=5))
     path = folder / "base.jsonl"
     dataio.write_dataset(path, ds)
@@ -572,7 +573,7 @@ def test_station_names_that_look_like_mathtext_do_not_break_the_report(tmp_path,
     names as they are. A name longer than the bound is refused when read (corpus)."""
     from spherecal.sim import simulate_dataset
 
-    cell = standard_cell("eye_in_hand", seed=7, fov=REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 64}))
+    cell = standard_cell("eye_in_hand", seed=7, fov=reference_fov(n_columns=64))
     ds = simulate_dataset(cell, SweepPlan(profiles_per_station=5))
     names = {"S1": "$x^$", "S2": "a_{b}$\\frac", "S3": "$$", "S4": "S" * 200}
     ds = ds.model_copy(update={"observations": [o.model_copy(update={"station": names[o.station]})

@@ -17,6 +17,7 @@ from spherecal.plugins.host import PluginHost
 from spherecal.sim import plan_stations, standard_cell
 
 from pathlib import Path
+from reference_sensor import reference_fov
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -46,7 +47,8 @@ def test_solve_a_broken_dataset_says_where(tmp_path, capsys):
 def test_solve_degenerate_data_says_what_to_add(tmp_path, capsys):
     from spherecal.sim import SweepPlan, simulate_dataset
 
-    ds = simulate_dataset(standard_cell("eye_in_hand"), SweepPlan(tilts_deg=[(0, 0, 0), (20, 0, 0)]))
+    ds = simulate_dataset(standard_cell("eye_in_hand", fov=reference_fov()),
+                          SweepPlan(tilts_deg=[(0, 0, 0), (20, 0, 0)]))
     path = tmp_path / "two.jsonl"
     dataio.write_dataset(path, ds)
     assert main(["solve", str(path), "--no-report"]) == EXIT_DATA
@@ -74,7 +76,7 @@ def test_top_level_help_documents_exit_codes():
 
 def test_manual_mode_captures_on_enter_and_refuses_rotation_within_a_station(tmp_path):
     """The operator 'jogs' (the test moves the simulated robot) and presses Enter."""
-    cell = standard_cell("eye_in_hand", seed=3)
+    cell = standard_cell("eye_in_hand", seed=3, fov=reference_fov())
     cell.noise_per_pose = True
     host = PluginHost()
     ctx = DeviceContext(cell=cell, log=lambda m: None)

@@ -9,6 +9,7 @@ from spherecal.cli import EXIT_DATA, EXIT_DRIFT, EXIT_OK, EXIT_USAGE, main
 from spherecal.estimation import calibrate
 from spherecal.models import Pose
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 
 @pytest.fixture(scope="module")
@@ -16,14 +17,16 @@ def results(tmp_path_factory):
     """A result, the same result moved by 0.25 deg about flange z and 0.4 mm along x
     (a run folder), and an eye-to-hand result."""
     root = tmp_path_factory.mktemp("compare")
-    r = calibrate(simulate_dataset(standard_cell("eye_in_hand", seed=7), SweepPlan(profiles_per_station=6)))
+    r = calibrate(simulate_dataset(standard_cell("eye_in_hand", seed=7, fov=reference_fov()),
+                                   SweepPlan(profiles_per_station=6)))
     X = r.transform
     moved = Pose.from_rt(geo.matrix_from_rotvec([0, 0, np.radians(0.25)]) @ X.rotation_matrix,
                          X.translation + [0.4, 0, 0])
     dataio.write_result(root / "a.json", r)
     (root / "run_b").mkdir()
     dataio.write_result(root / "run_b" / "result.json", r.model_copy(update={"transform": moved}))
-    e = calibrate(simulate_dataset(standard_cell("eye_to_hand", seed=7), SweepPlan(profiles_per_station=6)))
+    e = calibrate(simulate_dataset(standard_cell("eye_to_hand", seed=7, fov=reference_fov()),
+                                   SweepPlan(profiles_per_station=6)))
     dataio.write_result(root / "eth.json", e)
     return root, X, moved
 

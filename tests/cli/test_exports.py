@@ -10,14 +10,15 @@ from spherecal.cli import EXIT_OK, EXIT_USAGE, main
 from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex
 from spherecal.robots.abb_irb2400.export import read_rapid
-from spherecal.sim import REFERENCE_FIELD_OF_VIEW, SweepPlan, simulate_dataset, standard_cell
+from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
 from tests.cli.test_no_overwrite import REPLAY
+from reference_sensor import reference_fov
 
 
 @pytest.fixture(scope="module")
 def dataset():
-    cell = standard_cell("eye_in_hand", seed=5, fov=REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 160}))
+    cell = standard_cell("eye_in_hand", seed=5, fov=reference_fov(n_columns=160))
     return simulate_dataset(cell, SweepPlan(profiles_per_station=6))
 
 

@@ -150,7 +150,9 @@ def test_the_fan_matches_the_declared_widths_and_the_standoff_moves_the_sweep():
     # a standoff given in the plan wins over the sensor's
     assert with_standoff(SweepPlan(standoff_z_mm=-7.0), SMALL).standoff_z_mm == -7.0
     a = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan, field_of_view=NXSENSOR_FOV)
-    b = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan.model_copy(update={"standoff_z_mm": -20.0}))
+    b = plan_stations("eye_in_hand", _identity(), [0, 0, 0], 19.1, plan.model_copy(update={
+        "standoff_z_mm": -20.0, "lateral_amplitude_mm": 4.0,
+        "station_offsets_mm": [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)]}))
     assert all(np.allclose(p.translation, q.translation) for (_, s), (_, t) in zip(a, b) for p, q in zip(s, t))
 
 
@@ -158,3 +160,164 @@ def _identity():
     from spherecal.models import Pose
 
     return Pose.identity()
+
+
+def test_a_cell_built_without_a_sensor_must_be_given_a_field_of_view():
+    import spherecal.sim as sim
+    from spherecal.models import Pose
+    from spherecal.sim import SimulatedCell, standard_cell
+
+    assert not hasattr(sim, "REFERENCE_FIELD_OF_VIEW")  # the simulator holds no sensor's numbers
+    with pytest.raises(TypeError, match=r"standard_cell: fov is required: the field of view of the sensor"):
+        standard_cell("eye_in_hand", seed=0)
+    with pytest.raises(TypeError, match=r"SimulatedCell: fov is required"):
+        SimulatedCell("eye_in_hand", Pose.identity(), (0.0, 0.0, 0.0), 10.0, None)
+    with pytest.raises(TypeError, match=r"standard_cell: fov must be a spherecal.devices.SensorFieldOfView, got dict"):
+        standard_cell("eye_in_hand", fov={"z_near_mm": 40.0})
+    assert standard_cell("eye_in_hand", fov=SMALL).fov is SMALL
+
+
+#: A sensor with a 25 mm measuring range (standoff: the middle) and one with 400 mm.
+RANGE_25 = SensorFieldOfView(z_near_mm=12.5, z_far_mm=-12.5, width_near_mm=10.0, width_far_mm=14.0)
+RANGE_400 = SensorFieldOfView(z_near_mm=150.0, z_far_mm=-250.0, width_near_mm=120.0, width_far_mm=280.0,
+                              standoff_z_mm=-80.0)
+#: The default plan's offsets and wander as they were, in mm: sized for a 100 mm range.
+FIXED_MM = {"station_offsets_mm": [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)], "lateral_amplitude_mm": 4.0}
+
+
+def _sections_outside(cell, plan) -> list[str]:
+    """The planned shots whose sphere section is not inside the cell's field of view: its
+    visible half (from the centre's z up to the top of the circle the laser plane cuts)
+    out of the measuring range, or its centre off the line."""
+    fov, r = cell.fov, cell.sphere_radius_mm
+    out = []
+    for label, poses in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, r, plan,
+                                      field_of_view=fov):
+        for k, pose in enumerate(poses):
+            c = cell.sphere_centre_in_sensor(pose)
+            rho = np.sqrt(r * r - c[0] ** 2)
+            if not (fov.z_far_mm <= c[2] and c[2] + rho <= fov.z_near_mm
+                    and abs(c[1]) <= fov.width_at_mm(c[2]) / 2 and len(cell.ideal_profile(pose)) >= 20):
+                out.append(f"{label}/{k}: centre (y, z) = ({c[1]:.2f}, {c[2]:.2f}) mm, section radius {rho:.2f} mm")
+    return out
+
+
+def _centres_z_span_mm(cell, plan) -> float:
+    """How far the planned sphere centres spread along the sensor's z, mm."""
+    z = [cell.sphere_centre_in_sensor(pose)[2] for _, poses in plan_stations(
+        cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
+        field_of_view=cell.fov) for pose in poses]
+    return float(np.ptp(z))
+
+
+@pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
+@pytest.mark.parametrize("fov, radius_mm", [(RANGE_25, 4.0), (NXSENSOR_FOV, 19.1), (RANGE_400, 50.0)],
+                         ids=["25mm", "nxsensor", "400mm"])
+def test_the_default_plan_fits_the_sensors_field_of_view(fov, radius_mm, mounting):
+    from spherecal.sim import standard_cell
+
+    cell = standard_cell(mounting, seed=0, fov=fov, sphere_radius_mm=radius_mm)
+    assert _sections_outside(cell, SweepPlan()) == []
+    fitted = with_standoff(SweepPlan(), fov)
+    range_mm = fov.z_near_mm - fov.z_far_mm
+    assert fitted.lateral_amplitude_mm == pytest.approx(0.04 * range_mm)
+    assert [z for _, z in fitted.station_offsets_mm] == pytest.approx([0.0, -0.25 * range_mm, 0.18 * range_mm,
+                                                                       -0.3 * range_mm])
+    if fov is NXSENSOR_FOV:  # the nxSensor-I's plan is the one sized for it before, to the bit
+        assert fitted.model_dump() == SweepPlan(standoff_z_mm=-20.0, **FIXED_MM).model_dump()
+    elif fov is RANGE_25:  # the offsets sized for a 100 mm range do not fit a 25 mm one
+        assert _sections_outside(cell, SweepPlan(**FIXED_MM)) != []
+    else:  # and use a tenth of a 400 mm one, where the sized stations spread over half of it
+        assert _centres_z_span_mm(cell, SweepPlan(**FIXED_MM)) < 0.15 * range_mm
+        assert _centres_z_span_mm(cell, SweepPlan()) > 0.45 * range_mm
+    # offsets and wander a plan gives are its own
+    own = with_standoff(SweepPlan(station_offsets_mm=[(1.0, 2.0)], lateral_amplitude_mm=0.5), fov)
+    assert own.station_offsets_mm == [(1.0, 2.0)] and own.lateral_amplitude_mm == 0.5
+
+
+def test_a_plan_without_a_field_of_view_names_the_setting_it_lacks():
+    with pytest.raises(ConfigError, match=r"acquisition.sweep.station_offsets_mm: not set, and the sensor type "
+                                          r"declares no field of view"):
+        with_standoff(SweepPlan(standoff_z_mm=-5.0), None)
+    with pytest.raises(ConfigError, match=r"acquisition.sweep.lateral_amplitude_mm: not set"):
+        with_standoff(SweepPlan(standoff_z_mm=-5.0, station_offsets_mm=[(0.0, 0.0)]), None)
+    given = SweepPlan(standoff_z_mm=-5.0, station_offsets_mm=[(0.0, 0.0)], lateral_amplitude_mm=1.0)
+    assert with_standoff(given, None) is given
+
+
+#: The field of view of the profiler the simulate tests register (a 120 mm range).
+WIDE = SensorFieldOfView(z_near_mm=60.0, z_far_mm=-60.0, width_near_mm=40.0, width_far_mm=70.0, n_columns=200)
+
+
+def test_simulate_takes_the_sensor_type_by_name(tmp_path, monkeypatch, capsys):
+    import spherecal.runner
+    from spherecal import dataio
+    from spherecal.cli import EXIT_OK, EXIT_USAGE, main
+
+    monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: host_with_profiler(WIDE))
+    out = tmp_path / "acme.jsonl"
+    assert main(["simulate", str(out), "--sensor", "acme_profiler", "--profiles", "4"]) == EXIT_OK
+    ds = dataio.read_dataset(out)
+    assert ds.provenance["fov"] == WIDE.model_dump()  # measured with the named sensor's field of view
+    fitted = with_standoff(SweepPlan(profiles_per_station=4), WIDE)
+    assert ds.provenance["plan"]["standoff_z_mm"] == 0.0  # the middle of its range
+    assert [tuple(o) for o in ds.provenance["plan"]["station_offsets_mm"]] == fitted.station_offsets_mm
+    assert len(ds.observations) == 16  # every planned shot sees the sphere
+    for obs in ds.observations:
+        assert obs.profile.points_mm[:, 1].min() >= WIDE.z_far_mm and obs.profile.points_mm[:, 1].max() <= 60.0
+    capsys.readouterr()
+    # an unknown name: exit 2 naming the option and the installed types
+    assert main(["simulate", str(tmp_path / "x.jsonl"), "--sensor", "acme_profilr"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--sensor acme_profilr: unknown sensor type; installed sensor types: acme_profiler, nxsensor_i" in err
+    # two sensor types declare a field of view: the user chooses
+    assert main(["simulate", str(tmp_path / "y.jsonl")]) == EXIT_USAGE
+    assert ("--sensor: give the sensor type to simulate (installed sensor types with a field of view: "
+            "acme_profiler, nxsensor_i)") in capsys.readouterr().err
+    assert not (tmp_path / "x.jsonl").exists() and not (tmp_path / "y.jsonl").exists()
+
+
+def test_simulate_sensor_is_not_for_a_configuration(tmp_path, sim_config, capsys):
+    from spherecal.cli import EXIT_USAGE, main
+
+    assert main(["simulate", str(tmp_path / "z.jsonl"), "--config", str(sim_config()), "--sensor",
+                 "nxsensor_i"]) == EXIT_USAGE
+    assert "--sensor nxsensor_i: the configuration names its sensor ([sensor] type)" in capsys.readouterr().err
+
+
+def test_simulate_without_a_name_uses_the_only_sensor_type_with_a_field_of_view(tmp_path, monkeypatch):
+    import spherecal.runner
+    from spherecal import dataio
+    from spherecal.cli import EXIT_OK, main
+
+    only = PluginHost(autoload=False)  # the built-ins: one sensor type, the nxSensor-I
+    monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: only)
+    assert main(["simulate", str(tmp_path / "d.jsonl"), "--profiles", "4"]) == EXIT_OK
+    assert dataio.read_dataset(tmp_path / "d.jsonl").provenance["fov"] == NXSENSOR_FOV.model_dump()
+
+
+def test_the_default_validation_views_are_sized_to_the_field_of_view():
+    from spherecal.config import FlatConfig, ValidationConfig
+    from spherecal.planning import site_offset_mm
+
+    spheres = ValidationConfig().sphere_positions
+    flat = FlatConfig(centre_mm=(0.0, 0.0, 0.0)).positions
+
+    def offsets(sites, fov, standoff):
+        return [site_offset_mm(s.offset_mm, s.offset_percent, fov, standoff, "validation") for s in sites]
+
+    # the nxSensor-I's views are those sized for it before, to the bit
+    assert offsets(spheres, NXSENSOR_FOV, -20.0) == [(5.0, -10.0), (-8.0, 10.0), (0.0, -20.0), (8.0, 0.0)]
+    assert offsets(flat, NXSENSOR_FOV, NXSENSOR_FOV.middle_z_mm) == [(0.0, 0.0), (0.0, -15.0)]
+    # a 25 mm range: a quarter of the z shifts, y shares of its narrower line
+    small = offsets(spheres, RANGE_25, 0.0)
+    assert [z for _, z in small] == pytest.approx([-2.5, 2.5, -5.0, 0.0])
+    assert [y for y, _ in small] == pytest.approx([1.5, -2.4, 0.0, 2.4])  # the line is 12 mm wide at z = 0
+    # an offset in mm is the user's, field of view or not
+    from spherecal.config import SweepSite
+
+    assert offsets([SweepSite(offset_mm=(1.0, -2.0))], None, 0.0) == [(1.0, -2.0)]
+    assert offsets([SweepSite()], None, 0.0) == [(0.0, 0.0)]
+    with pytest.raises(ConfigError, match=r"validation.offset_mm: not set, and the sensor type declares no field of "
+                                          r"view to size offset_percent \(12.5, -10.0\) in"):
+        offsets(spheres[:1], None, 0.0)

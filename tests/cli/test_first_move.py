@@ -21,6 +21,7 @@ from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
 from spherecal.runner import make_cell
 from spherecal.sim import SweepPlan, simulate_dataset
 from spherecal.sim.cell import standard_cell
+from reference_sensor import reference_fov
 
 #: The example's first target (station S1), base, mm.
 FIRST_TARGET_MM = [1132.0, 163.3, 583.3]
@@ -84,7 +85,7 @@ def test_resume_checks_the_move_to_the_first_target_left(sim_config, irb2400_con
 
 
 def test_the_robot_refuses_a_move_from_outside_its_box_at_move_time_too():
-    cell = standard_cell(seed=1)
+    cell = standard_cell(seed=1, fov=reference_fov())
     cfg = AbbIrb2400Config(timeout_s=0.5, simulated={"transport": "pty"},
                            workspace={"min_mm": [-1600, -1600, 0], "max_mm": [1600, 1600, 1300]})
     robot = plugin.create_robot(cfg, DeviceContext(cell=cell, log=lambda m: None))

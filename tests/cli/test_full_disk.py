@@ -7,6 +7,7 @@ import errno
 from spherecal import dataio
 from spherecal.cli import EXIT_DATA, EXIT_OK, main
 from spherecal.errors import FileWriteError
+from reference_sensor import reference_fov
 
 
 class FullDisk:
@@ -31,7 +32,8 @@ def test_the_writer_names_the_file_and_closes_on_a_full_disk(tmp_path):
 
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
-    obs = simulate_dataset(standard_cell("eye_in_hand", seed=1), SweepPlan(profiles_per_station=4)).observations
+    obs = simulate_dataset(standard_cell("eye_in_hand", seed=1, fov=reference_fov()),
+                           SweepPlan(profiles_per_station=4)).observations
     path = tmp_path / "j.jsonl"
     with pytest.raises(FileWriteError, match=r"j\.jsonl: cannot write \(No space left on device\); the lines "
                                              r"written before are kept"):

@@ -13,13 +13,14 @@ from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
 from spherecal.errors import FileWriteError, InputError
 from spherecal.models import Observation, Pose, Profile
 from spherecal.ply import PlyWriter
-from spherecal.sim import REFERENCE_FIELD_OF_VIEW, SweepPlan, simulate_dataset, standard_cell
+from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 
 @pytest.fixture(scope="module")
 def dataset_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("data") / "data.jsonl"
-    cell = standard_cell("eye_in_hand", seed=5, fov=REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 160}))
+    cell = standard_cell("eye_in_hand", seed=5, fov=reference_fov(n_columns=160))
     dataio.write_dataset(path, simulate_dataset(cell, SweepPlan(profiles_per_station=6)))
     return path
 

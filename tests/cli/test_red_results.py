@@ -8,7 +8,8 @@ import pytest
 
 from spherecal import dataio
 from spherecal.cli import EXIT_OK, EXIT_RED, main
-from spherecal.sim import REFERENCE_FIELD_OF_VIEW, SweepPlan, simulate_dataset, standard_cell
+from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 EXPORTS = ["result.json", "SpherecalSensor.mod", "flange_from_sensor_4x4.txt", "ros_static_transform.yaml"]
 
@@ -16,7 +17,7 @@ EXPORTS = ["result.json", "SpherecalSensor.mod", "flange_from_sensor_4x4.txt", "
 @pytest.fixture(scope="module")
 def clean():
     # a small dataset (160 points per profile, 6 per station) keeps the absurd solve short
-    cell = standard_cell("eye_in_hand", seed=3, fov=REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 160}))
+    cell = standard_cell("eye_in_hand", seed=3, fov=reference_fov(n_columns=160))
     return simulate_dataset(cell, SweepPlan(profiles_per_station=6))
 
 

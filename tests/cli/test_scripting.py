@@ -14,12 +14,14 @@ import pytest
 from spherecal import dataio
 from spherecal.cli import EXIT_DATA, EXIT_DRIFT, EXIT_OK, EXIT_PIPE, build_parser, main
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 
 @pytest.fixture(scope="module")
 def dataset_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("scripting") / "d.jsonl"
-    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3), SweepPlan(profiles_per_station=6)))
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()),
+                                                SweepPlan(profiles_per_station=6)))
     return path
 
 

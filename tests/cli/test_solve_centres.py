@@ -9,6 +9,7 @@ from spherecal import geometry as geo
 from spherecal.cli import EXIT_OK, main
 from spherecal.estimation.centres import circles_from_profiles
 from spherecal.sim import NoiseModel, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
 
@@ -21,7 +22,7 @@ def within_truth(result, cell, k=5.0):
 
 @pytest.mark.parametrize("mounting, kind", [("eye_in_hand", "sphere_centre"), ("eye_to_hand", "circle")])
 def test_solve_a_dataset_of_centres_with_its_report(tmp_path, capsys, mounting, kind):
-    cell = standard_cell(mounting, seed=9, noise=NOISE)
+    cell = standard_cell(mounting, seed=9, noise=NOISE, fov=reference_fov())
     path = tmp_path / "centres.dataset.jsonl"
     dataio.write_dataset(path, simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind,
                                                        centre_noise_mm=0.02))
@@ -40,7 +41,7 @@ def test_solve_a_dataset_of_centres_with_its_report(tmp_path, capsys, mounting, 
 
 
 def test_solve_a_file_mixing_profiles_and_circles(tmp_path, capsys):
-    cell = standard_cell("eye_to_hand", seed=2, noise=NOISE)
+    cell = standard_cell("eye_to_hand", seed=2, noise=NOISE, fov=reference_fov())
     profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
     circles = {o.index: o for o in circles_from_profiles(profiles).observations}
     mixed = [circles.get(o.index) if o.station in ("S2", "S4") else o for o in profiles.observations]

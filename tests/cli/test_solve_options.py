@@ -11,12 +11,13 @@ from spherecal.config import load_config
 from spherecal.models import Observation, Pose
 from spherecal.robots.abb_irb2400.kinematics import kinematics_for
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 
 def _joints_dataset(mounting: str, keep_poses: bool = False, robot_in_provenance: bool = False, seed: int = 3):
     """A simulated dataset whose observations carry the joints the IRB 2400 needs for
     the reported flange poses (its inverse kinematics), with or without the poses."""
-    ds = simulate_dataset(standard_cell(mounting, seed=seed), SweepPlan(profiles_per_station=6))
+    ds = simulate_dataset(standard_cell(mounting, seed=seed, fov=reference_fov()), SweepPlan(profiles_per_station=6))
     kin = kinematics_for()
     q = np.zeros(6)
     obs = []
@@ -132,7 +133,7 @@ def test_station_rotation_tolerance_from_the_command_line(tmp_path):
     """Two shots of S2 report an orientation 0.1 deg off the rest: left out by default,
     kept with a tolerance of 0.5 deg (which spoils the result: RED, written only with
     --force); a tolerance <= 0 is a usage error."""
-    ds = simulate_dataset(standard_cell("eye_in_hand", seed=2), SweepPlan(profiles_per_station=6))
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=2, fov=reference_fov()), SweepPlan(profiles_per_station=6))
     turn = geo.matrix_from_rotvec(np.radians([0.1, 0.0, 0.0]))
     obs = [o.model_copy(update={"base_from_flange": Pose.from_rt(turn @ o.base_from_flange.rotation_matrix,
                                                                  o.base_from_flange.translation)})
@@ -180,7 +181,8 @@ def test_a_kinematic_model_asked_for_without_joints_is_refused_not_dropped(tmp_p
     drop the robot's accuracy from the uncertainty): a dataset without joint readings is
     refused, naming what is missing and what to use instead."""
     path = tmp_path / "poses_only.jsonl"
-    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=4), SweepPlan(profiles_per_station=4)))
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()),
+                                                SweepPlan(profiles_per_station=4)))
     assert main(["solve", str(path), "--robot-error-model", model, "--out", str(tmp_path / "o"), "--no-report"]) \
         == EXIT_DATA
     err = capsys.readouterr().err

@@ -11,6 +11,7 @@ import subprocess
 import sys
 
 import pytest
+from reference_sensor import reference_fov
 
 HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 
@@ -39,7 +40,8 @@ def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(t
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     path = tmp_path / "small.jsonl"
-    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3), SweepPlan(profiles_per_station=6)))
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()),
+                                                SweepPlan(profiles_per_station=6)))
     modules = _modules_after(["solve", str(path), "--no-report", "--out", str(tmp_path / "out")])
     assert (tmp_path / "out" / "result.json").exists()  # it did solve
     assert "spherecal.estimation.refine" in modules

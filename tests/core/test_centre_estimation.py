@@ -17,6 +17,7 @@ from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.centres import circles_from_profiles
 from spherecal.models import Circle, Dataset, Pose
 from spherecal.sim import NoiseModel, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
 #: chi^2 with 6 degrees of freedom exceeded with probability 1e-4
@@ -57,7 +58,7 @@ def sphere_centres_from_fits(dataset: Dataset, cell) -> Dataset:
 
 # --- known answers ---------------------------------------------------------------------------------
 def test_fitted_circles_of_simulated_profiles_give_the_known_answer(mounting):
-    cell = standard_cell(mounting, seed=4, noise=NOISE)
+    cell = standard_cell(mounting, seed=4, noise=NOISE, fov=reference_fov())
     profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
     circles = circles_from_profiles(profiles)
     assert all(o.kind == "circle" for o in circles.observations) and len(circles.observations) >= 20
@@ -74,7 +75,7 @@ def test_fitted_circles_of_simulated_profiles_give_the_known_answer(mounting):
 @pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
 @pytest.mark.parametrize("given", [False, True], ids=["estimated-noise", "given-noise"])
 def test_centres_from_the_true_geometry_plus_noise_give_the_known_answer(mounting, kind, given):
-    cell = standard_cell(mounting, seed=7, noise=NOISE)
+    cell = standard_cell(mounting, seed=7, noise=NOISE, fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind, centre_noise_mm=0.03,
                                  give_covariance=given)
     sol = solve(ds, CalibrationOptions(robot_error_model="none"))
@@ -109,7 +110,7 @@ def test_centres_cleaner_than_the_stated_pose_noise_converge_green(mounting):
 
 def test_the_station_robot_error_model_on_centres():
     """The station random effect works on centre rows as on profiles (its default 'auto')."""
-    cell = standard_cell("eye_in_hand", seed=11, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=11, noise=NOISE, fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="sphere_centre", centre_noise_mm=0.02)
     res = solve(ds).result
     assert res.robot_error is not None and res.robot_error.model == "station"
@@ -123,7 +124,7 @@ def test_the_kinematic_robot_error_model_on_centres(mounting):
     from spherecal.sim import RobotErrorModel
 
     kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
-    cell = standard_cell(mounting, seed=12, noise=NOISE, robot_error=RobotErrorModel(), arm=kin)
+    cell = standard_cell(mounting, seed=12, noise=NOISE, robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="sphere_centre", centre_noise_mm=0.01)
     assert all(o.joints_deg is not None for o in ds.observations)
     res = solve(ds, CalibrationOptions(robot_error_model="kinematic"), kinematics=kin).result
@@ -142,7 +143,7 @@ def minimal(ds: Dataset) -> Dataset:
 
 @pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
 def test_the_papers_minimal_procedure_solves(mounting, kind):
-    cell = standard_cell(mounting, seed=3, noise=NOISE)
+    cell = standard_cell(mounting, seed=3, noise=NOISE, fov=reference_fov())
     full = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind=kind, centre_noise_mm=0.01)
     assert len(full.observations) == 16
     ds = minimal(full)
@@ -153,7 +154,7 @@ def test_the_papers_minimal_procedure_solves(mounting, kind):
 
 
 def test_three_non_collinear_translations_fix_the_rotation_and_collinear_ones_do_not():
-    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE, fov=reference_fov())
     ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre",
                                          centre_noise_mm=0.01))
     three = [o for o in ds.observations if o.index != 3]  # S1: three shots, not on one line
@@ -166,7 +167,7 @@ def test_three_non_collinear_translations_fix_the_rotation_and_collinear_ones_do
 
 
 def test_a_circle_station_needs_two_shots_a_sphere_centre_station_one():
-    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE, fov=reference_fov())
     opts = CalibrationOptions(robot_error_model="none")
     for kind, kept in (("circle", False), ("sphere_centre", True)):
         ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind=kind, centre_noise_mm=0.01))
@@ -182,7 +183,7 @@ def test_a_circle_station_needs_two_shots_a_sphere_centre_station_one():
 
 # --- mixed files ---------------------------------------------------------------------------------------
 def test_a_file_mixing_profiles_circles_and_sphere_centres(tmp_path, mounting):
-    cell = standard_cell(mounting, seed=5, noise=NOISE)
+    cell = standard_cell(mounting, seed=5, noise=NOISE, fov=reference_fov())
     profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
     circles = {o.index: o for o in circles_from_profiles(profiles).observations}
     spheres = {o.index: o for o in sphere_centres_from_fits(profiles, cell).observations}
@@ -202,7 +203,7 @@ def test_a_file_mixing_profiles_circles_and_sphere_centres(tmp_path, mounting):
 
 # --- typed tables: typos are caught and the row is named ------------------------------------------
 def table(seed=21, kind="sphere_centre") -> tuple[Dataset, object]:
-    cell = standard_cell("eye_in_hand", seed=seed, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=seed, noise=NOISE, fov=reference_fov())
     return simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind, centre_noise_mm=0.01), cell
 
 
@@ -364,7 +365,7 @@ def test_a_small_inconsistency_is_flagged_in_mm_never_used():
 
 
 def test_in_a_station_of_two_the_solution_of_the_others_names_the_row_with_the_typo():
-    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=3, noise=NOISE, fov=reference_fov())
     ds = minimal(simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre",
                                          centre_noise_mm=0.01))
     o = next(x for x in ds.observations if x.index == 7)  # S2 holds observations 4 and 7

@@ -18,6 +18,7 @@ from spherecal.errors import ConfigError, InputError
 from spherecal.estimation import calibrate
 from spherecal.models import Pose
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 PLAN = SweepPlan(profiles_per_station=6)
 
@@ -29,7 +30,7 @@ def moved(pose: Pose, rotvec_rad, dt_mm) -> Pose:
 
 @pytest.fixture(scope="module")
 def result():
-    return calibrate(simulate_dataset(standard_cell("eye_in_hand", seed=5), PLAN))
+    return calibrate(simulate_dataset(standard_cell("eye_in_hand", seed=5, fov=reference_fov()), PLAN))
 
 
 def test_a_known_rotation_and_translation_are_found(result):
@@ -124,11 +125,11 @@ def test_two_simulated_calibrations_with_a_known_difference():
     """Two cells whose true transforms differ by a known rotation and translation:
     the calibrations' difference is that one, within its own stated uncertainty, and
     drift; two calibrations of the same cell (other noise) are not."""
-    cell_a = standard_cell("eye_in_hand", seed=11)
-    cell_b = standard_cell("eye_in_hand", seed=12)
+    cell_a = standard_cell("eye_in_hand", seed=11, fov=reference_fov())
+    cell_b = standard_cell("eye_in_hand", seed=12, fov=reference_fov())
     w, dt = np.radians(0.15) * np.array([0.0, 0.6, 0.8]), np.array([0.4, -0.3, 0.0])
     cell_b.true_transform = moved(cell_a.true_transform, w, dt)
-    cell_c = standard_cell("eye_in_hand", seed=13)
+    cell_c = standard_cell("eye_in_hand", seed=13, fov=reference_fov())
     ra, rb, rc = (calibrate(simulate_dataset(cell, PLAN)) for cell in (cell_a, cell_b, cell_c))
     a, b, same = (TransformEstimate.of_result(r, n) for r, n in ((ra, "A"), (rb, "B"), (rc, "C")))
     c = compare(a, b)

@@ -33,6 +33,7 @@ from spherecal.models import (
     ResidualStats,
 )
 from spherecal.sim import simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 T0 = datetime(2026, 3, 4, 5, 6, 7, 123456, tzinfo=timezone.utc)
 
@@ -85,7 +86,7 @@ def json_normalised(value):
 
 
 def test_simulated_dataset_round_trip_is_exact(tmp_path, mounting, parser):
-    ds = simulate_dataset(standard_cell(mounting, seed=3))
+    ds = simulate_dataset(standard_cell(mounting, seed=3, fov=reference_fov()))
     assert len(ds.observations) > 10
     path = tmp_path / "run.dataset.jsonl"
     write_dataset(path, ds)
@@ -594,7 +595,7 @@ def test_result_with_nan_is_refused_with_its_field(tmp_path):
 
 def test_real_result_round_trip(tmp_path):
     from spherecal import estimation
-    ds = simulate_dataset(standard_cell("eye_in_hand", seed=2))
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=2, fov=reference_fov()))
     write_dataset(tmp_path / "d.jsonl", ds)
     result = estimation.calibrate(read_dataset(tmp_path / "d.jsonl"))
     write_result(tmp_path / "r.json", result)

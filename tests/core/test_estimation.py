@@ -11,6 +11,7 @@ from spherecal.estimation.problem import build_problem
 from spherecal.estimation.twostep import two_step
 from spherecal.models import Dataset, Observation, Pose, Profile
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 NOISE_FREE = NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0, pose_rotation_noise_deg=0.0)
 
@@ -41,7 +42,7 @@ def test_circle_fit_needs_three_points():
 
 # --- known answers -----------------------------------------------------------------------
 def test_noise_free_data_recovers_the_truth(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     result = calibrate(simulate_dataset(cell))
     rot, trans = errors(cell, result)
     assert rot < 1e-6 and trans < 1e-6
@@ -52,7 +53,7 @@ def test_noise_free_data_recovers_the_truth(mounting):
 
 
 def test_noise_free_with_free_radius(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, sphere_radius_mm=19.1)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, sphere_radius_mm=19.1, fov=reference_fov())
     ds = simulate_dataset(cell)
     ds = ds.model_copy(update={"sphere_radius_mm": 19.0})  # certified value slightly off
     result = calibrate(ds, CalibrationOptions(fit_radius=True))
@@ -70,7 +71,7 @@ def test_noisy_data_lands_within_three_reported_standard_deviations(mounting):
                              robot_accuracy_mm=0.0, robot_accuracy_deg=0.0)
     z = []
     for seed in range(24):
-        cell = standard_cell(mounting, seed=seed, noise=noise)
+        cell = standard_cell(mounting, seed=seed, noise=noise, fov=reference_fov())
         res = calibrate(simulate_dataset(cell, SweepPlan(profiles_per_station=8)), opt)
         X = cell.true_transform
         # rotation error as a small rotation about the target frame's axes, as documented
@@ -86,7 +87,7 @@ def test_noisy_data_lands_within_three_reported_standard_deviations(mounting):
 # --- side of the laser plane ---------------------------------------------------------------
 def _one_sided_dataset(mounting, side):
     """Keep only the shots where the true centre is on one side of the laser plane."""
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell, SweepPlan(profiles_per_station=16))
     keep = []
     for o in ds.observations:
@@ -113,7 +114,7 @@ def test_centre_side_is_decided_on_each_side(mounting, side):
 
 def test_profiles_near_the_equator(mounting):
     """A sweep that stays within 1.5 mm of the sphere's equator still solves."""
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     plan = SweepPlan(profiles_per_station=8, sweep_fraction=0.08)
     rot, trans = errors(cell, calibrate(simulate_dataset(cell, plan)))
     assert rot < 1e-6 and trans < 1e-6
@@ -122,7 +123,7 @@ def test_profiles_near_the_equator(mounting):
 def test_coplanar_moves_in_each_station_give_a_proper_rotation(mounting):
     """Two parallel sweeps per station: planar moves leave a mirror ambiguity per
     station, settled by the whole dataset; the rotation stays proper."""
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     lines = [
         simulate_dataset(cell, SweepPlan(profiles_per_station=6, lateral_amplitude_mm=0.0, station_offsets_mm=[off]))
         for off in [(0.0, 0.0), (6.0, -6.0)]
@@ -158,9 +159,9 @@ def test_procrustes_returns_a_rotation_for_coplanar_columns():
 # --- robustness ------------------------------------------------------------------------------
 def test_stray_points_are_rejected(mounting):
     noise = NoiseModel(stray_profile_fraction=0.6, strays_per_profile=6)
-    cell = standard_cell(mounting, seed=5, noise=noise)
+    cell = standard_cell(mounting, seed=5, noise=noise, fov=reference_fov())
     res = calibrate(simulate_dataset(cell))
-    clean = calibrate(simulate_dataset(standard_cell(mounting, seed=5)))
+    clean = calibrate(simulate_dataset(standard_cell(mounting, seed=5, fov=reference_fov())))
     assert res.residuals.n_points_rejected >= 0.6 * 6 * 40 * 0.5
     rot, trans = errors(cell, res)
     assert rot < 4 * max(res.std_rotation_deg) and trans < 4 * np.linalg.norm(res.std_translation_mm)
@@ -169,7 +170,7 @@ def test_stray_points_are_rejected(mounting):
 
 
 def test_a_pose_read_at_the_wrong_moment_is_flagged_and_dropped(mounting):
-    cell = standard_cell(mounting, seed=2)
+    cell = standard_cell(mounting, seed=2, fov=reference_fov())
     ds = simulate_dataset(cell)
     bad = ds.observations[13]
     shifted = Pose.from_rt(bad.base_from_flange.rotation_matrix, bad.base_from_flange.translation + [0.0, 0.8, 0.0])
@@ -183,7 +184,7 @@ def test_a_pose_read_at_the_wrong_moment_is_flagged_and_dropped(mounting):
 
 
 def test_diagnostics_report_station_consistency_and_conditioning(mounting):
-    res = calibrate(simulate_dataset(standard_cell(mounting, seed=1)))
+    res = calibrate(simulate_dataset(standard_cell(mounting, seed=1, fov=reference_fov())))
     cons = res.diagnostics["station_consistency"]
     assert set(cons) == {"S1", "S2", "S3", "S4"}
     assert all(0 < v["rms_mm"] < 0.1 for v in cons.values())
@@ -193,21 +194,21 @@ def test_diagnostics_report_station_consistency_and_conditioning(mounting):
 
 # --- degenerate data -------------------------------------------------------------------------------
 def test_single_orientation_says_what_to_add(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell, SweepPlan(tilts_deg=[(0, 0, 0)]))
     with pytest.raises(DegenerateDataError, match="share one orientation.*add at least two stations"):
         calibrate(ds)
 
 
 def test_rotations_about_one_axis_say_what_to_add(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell, SweepPlan(tilts_deg=[(0, 0, 0), (25, 0, 0), (-25, 0, 0)]))
     with pytest.raises(DegenerateDataError, match="about one axis.*tilted about a different axis"):
         calibrate(ds)
 
 
 def test_all_moves_along_one_line(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     plan = SweepPlan(lateral_amplitude_mm=0.0, station_offsets_mm=[(0, 0)])
     ds = simulate_dataset(cell, plan)
     with pytest.raises(DegenerateDataError, match="along one line.*add moves in a second direction"):
@@ -215,7 +216,7 @@ def test_all_moves_along_one_line(mounting):
 
 
 def test_too_few_profiles_per_station(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell)
     obs = [o for o in ds.observations if o.index % 10 < 3]
     with pytest.raises(DegenerateDataError, match="no station has 4 usable profiles"):
@@ -223,7 +224,7 @@ def test_too_few_profiles_per_station(mounting):
 
 
 def test_too_few_points_are_flagged(mounting):
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell, SweepPlan(profiles_per_station=8))
     obs = list(ds.observations)
     obs[3] = obs[3].model_copy(update={"profile": Profile.from_points(obs[3].profile.points_mm[:10])})
@@ -233,7 +234,7 @@ def test_too_few_points_are_flagged(mounting):
 
 def test_sphere_out_of_view(mounting):
     """Profiles of something that is not the sphere: a flat surface."""
-    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE)
+    cell = standard_cell(mounting, seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell, SweepPlan(profiles_per_station=8))
     flat = Profile.from_points(np.column_stack([np.linspace(-20, 20, 200), np.full(200, -30.0)]))
     obs = [o.model_copy(update={"profile": flat}) for o in ds.observations]
@@ -248,14 +249,14 @@ def test_empty_dataset():
 
 # --- bad input -------------------------------------------------------------------------------------
 def test_profiles_in_metres_are_refused(mounting):
-    ds = simulate_dataset(standard_cell(mounting, seed=0))
+    ds = simulate_dataset(standard_cell(mounting, seed=0, fov=reference_fov()))
     obs = [o.model_copy(update={"profile": Profile.from_points(o.profile.points_mm / 1000)}) for o in ds.observations]
     with pytest.raises(InputError, match="profiles look like metres"):
         calibrate(ds.model_copy(update={"observations": obs}))
 
 
 def test_poses_in_metres_are_refused(mounting):
-    ds = simulate_dataset(standard_cell(mounting, seed=0))
+    ds = simulate_dataset(standard_cell(mounting, seed=0, fov=reference_fov()))
     obs = [
         o.model_copy(update={"base_from_flange": Pose.from_rt(o.base_from_flange.rotation_matrix,
                                                               o.base_from_flange.translation / 1000)})
@@ -266,7 +267,7 @@ def test_poses_in_metres_are_refused(mounting):
 
 
 def test_joint_readings_without_kinematics_are_refused():
-    ds = simulate_dataset(standard_cell("eye_in_hand", seed=0))
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=0, fov=reference_fov()))
     o = ds.observations[0]
     obs = [Observation(index=0, station="S1", joints_deg=[0, 0, 0, 0, 30, 0], profile=o.profile)] + ds.observations[1:]
     with pytest.raises(InputError, match="observation 0 .station S1. has joint readings but no flange pose"):
@@ -275,7 +276,7 @@ def test_joint_readings_without_kinematics_are_refused():
 
 def test_joint_readings_with_kinematics_are_used():
     """An observation with joints only goes through the given forward kinematics."""
-    cell = standard_cell("eye_in_hand", seed=0, noise=NOISE_FREE)
+    cell = standard_cell("eye_in_hand", seed=0, noise=NOISE_FREE, fov=reference_fov())
     ds = simulate_dataset(cell)
     table = {}
     obs = []

@@ -12,6 +12,7 @@ from spherecal.exporters import write_exports
 from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 MM_TOL = 0.5 * 10 ** -ex.MM_DECIMALS + 1e-12
 Q_TOL = 0.5 * 10 ** -ex.QUAT_DECIMALS + 1e-15
@@ -20,7 +21,8 @@ Q_TOL = 0.5 * 10 ** -ex.QUAT_DECIMALS + 1e-15
 @pytest.fixture(scope="module")
 def results():
     plan = SweepPlan(profiles_per_station=6)
-    return {m: solve(simulate_dataset(standard_cell(m, seed=4), plan)).result for m in ("eye_in_hand", "eye_to_hand")}
+    return {m: solve(simulate_dataset(standard_cell(m, seed=4, fov=reference_fov()),
+                                      plan)).result for m in ("eye_in_hand", "eye_to_hand")}
 
 
 @pytest.fixture

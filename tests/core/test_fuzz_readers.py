@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 import pytest
+from reference_sensor import reference_fov
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
@@ -94,9 +95,9 @@ def test_dataset_reader_on_mutated_lines(tmp_path, data):
 @pytest.fixture(scope="module")
 def valid_result(tmp_path_factory):
     from spherecal.estimation import calibrate
-    from spherecal.sim import REFERENCE_FIELD_OF_VIEW, SweepPlan, simulate_dataset, standard_cell
+    from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
-    ds = simulate_dataset(standard_cell("eye_in_hand", seed=1, fov=REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 64})),
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=1, fov=reference_fov(n_columns=64)),
                           SweepPlan(profiles_per_station=5))
     path = tmp_path_factory.mktemp("r") / "result.json"
     dataio.write_result(path, calibrate(ds))

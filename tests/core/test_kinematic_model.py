@@ -18,6 +18,7 @@ from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
 from spherecal.urdf import read_urdf_chain
 from spherecal.validation import points_in_object_frame
+from reference_sensor import reference_fov
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -136,7 +137,7 @@ def test_noise_free_identification_recovers_the_true_geometry(kin, mounting):
     tenths of a millimetre."""
     plan, fresh = PLANS[mounting]
     cell = standard_cell(mounting, seed=3, noise=NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0),
-                         robot_error=RobotErrorModel(), arm=kin)
+                         robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
     ds = simulate_dataset(cell, plan.model_copy(update={"profiles_per_station": 4}))  # noise-free: 4 are plenty
     sol = solve(ds, CalibrationOptions(pose_translation_noise_mm=0.0, point_noise_mm=1e-4, identify_kinematics=True),
                 kinematics=kin)
@@ -210,7 +211,7 @@ def test_planned_stations_calibrate_the_arm(kin, mounting, tmp_path):
     bends = [0, 1, 2, 4]  # the IRB 2400's waist, shoulder, elbow and wrist bend (4 and 6 roll)
     assert np.all(spans[bends] > 1.5 * default[bends]) and spans[1] > 20 and spans[2] > 15, (spans, default)
 
-    cell = standard_cell(mounting, seed=11, noise=NOISE, robot_error=RobotErrorModel(), arm=kin)
+    cell = standard_cell(mounting, seed=11, noise=NOISE, robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
     sol = solve(simulate_dataset(cell, plan.sweep), OPTIONS.model_copy(update={"identify_kinematics": True}),
                 kinematics=kin)
     identified = np.array(sol.refined.diagnostics["kinematic_effects"]["identified"])
@@ -231,7 +232,8 @@ def test_marginalised_arm_error_is_honest(kin, mounting):
     kinematic model is used and the transform is within 4 reported standard deviations of
     the truth on every seed (accuracy against the two-step: benchmarks/bench_accuracy.py)."""
     for seed in range(3):
-        cell = standard_cell(mounting, seed=seed, noise=NOISE, robot_error=RobotErrorModel(), arm=kin)
+        cell = standard_cell(mounting, seed=seed, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                             fov=reference_fov())
         sol = solve(simulate_dataset(cell), OPTIONS, kinematics=kin)
         assert sol.result.robot_error.model == "kinematic"
         assert sol.result.robot_error.model_choice.startswith("auto: the data show the arm's geometric error")
@@ -248,7 +250,7 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
     robot-frame standard deviations, hundredths of a mm: the kinematic model's fit is
     0.1-0.5 mm off here), and the geometry one sphere cannot see stays in the covariance
     against the true frames. Told 'kinematic', the model is kept whatever the evidence."""
-    cell = standard_cell(mounting, seed=1, noise=NOISE, arm=kin)
+    cell = standard_cell(mounting, seed=1, noise=NOISE, arm=kin, fov=reference_fov())
     ds = simulate_dataset(cell)
     sol = solve(ds, OPTIONS, kinematics=kin)
     re = sol.result.robot_error
@@ -268,7 +270,8 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
 def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
     from spherecal.runner import write_calibrated_urdf
 
-    cell = standard_cell("eye_in_hand", seed=5, noise=NOISE, robot_error=RobotErrorModel(), arm=kin)
+    cell = standard_cell("eye_in_hand", seed=5, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                         fov=reference_fov())
     sol = solve(simulate_dataset(cell, KIN_PLAN), OPTIONS.model_copy(update={"identify_kinematics": True}),
                 kinematics=kin)
     path = write_calibrated_urdf(sol, kin, tmp_path)

@@ -15,17 +15,18 @@ import json
 from pathlib import Path
 
 import numpy as np
+from reference_sensor import reference_fov
 
 REFERENCE = Path(__file__).parent / "data" / "large_profile_results_before_scale.json"
 
 
 def solve_cases() -> dict:
     from spherecal.estimation import CalibrationOptions, solve
-    from spherecal.sim import REFERENCE_FIELD_OF_VIEW, NoiseModel, SweepPlan, simulate_dataset, standard_cell
+    from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 
     noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002,
                        stray_profile_fraction=0.2, strays_per_profile=20)
-    fov = REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 3200})
+    fov = reference_fov(n_columns=3200)
     out = {}
     for name, mounting, model in (("eye_in_hand-station", "eye_in_hand", "station"),
                                   ("eye_to_hand-none", "eye_to_hand", "none")):
@@ -61,7 +62,7 @@ def test_normal_equations_summed_by_blocks_of_profiles_equal_the_whole():
     from spherecal.estimation.problem import build_problem
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
-    cell = standard_cell("eye_to_hand", seed=4)
+    cell = standard_cell("eye_to_hand", seed=4, fov=reference_fov())
     problem = build_problem(simulate_dataset(cell, SweepPlan(profiles_per_station=5)), None, None)
     pts = rf._Points(problem)
     X = cell.true_transform

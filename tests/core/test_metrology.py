@@ -19,6 +19,7 @@ from spherecal.metrology import (
 from spherecal.models import Pose
 from spherecal.sim.cell import NoiseModel, standard_cell
 from spherecal.sim.objects import BallBar, FlatPlate
+from reference_sensor import reference_fov
 
 CENTRE = np.array([100.0, -50.0, 300.0])
 
@@ -137,7 +138,8 @@ R_B = geo.matrix_from_rotvec([0.5, 0.0, 0.0])  # and in the second: 29 degrees a
 def scans():
     """Eye-in-hand cell with a ball bar and a plate; point noise only (independent points),
     so the fits' uncertainties explain the spread. Each scan is a pure-translation sweep."""
-    cell = standard_cell("eye_in_hand", seed=7, noise=NoiseModel(point_noise_mm=SIGMA, pose_translation_noise_mm=0.0))
+    cell = standard_cell("eye_in_hand", seed=7, noise=NoiseModel(point_noise_mm=SIGMA,
+                                                                 pose_translation_noise_mm=0.0), fov=reference_fov())
     bar = cell.add_object(BallBar([900.0, -300.0, 300.0], [900.0, -50.0, 300.0], 12.5))
     plate = cell.add_object(FlatPlate(Pose.from_rt(geo.matrix_from_rotvec([0.1, 0.05, 0.0]), [700.0, 300.0, 250.0]), 200.0, 150.0))
 

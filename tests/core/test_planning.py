@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from reference_sensor import reference_fov
 
 
 @pytest.mark.parametrize("module", ["spherecal.planning", "spherecal.kinplan"])
@@ -24,12 +25,13 @@ def test_the_simulated_acquisition_plans_with_the_planner_of_real_motion():
     from spherecal.sim import simulate_dataset, standard_cell
 
     assert sim.SweepPlan is planning.SweepPlan and sim.plan_stations is planning.plan_stations
-    cell = standard_cell("eye_in_hand", seed=3)
+    cell = standard_cell("eye_in_hand", seed=3, fov=reference_fov())
     plan = planning.SweepPlan(profiles_per_station=5)
     ds = simulate_dataset(cell, plan)
-    # the plan leaves its standoff to the sensor: the cell's field of view's
+    # the plan leaves its standoff, offsets and wander to the sensor: sized to the cell's field of view
     assert plan.standoff_z_mm is None and cell.fov.standoff_z_mm == -20.0
-    assert ds.provenance["plan"] == {**plan.model_dump(), "standoff_z_mm": -20.0}
+    assert ds.provenance["plan"] == {**plan.model_dump(), "standoff_z_mm": -20.0, "lateral_amplitude_mm": 4.0,
+                                     "station_offsets_mm": [(0.0, 0.0), (10.0, -25.0), (-10.0, 18.0), (0.0, -30.0)]}
     # every shot was taken at a target of the plan (reported with the cell's pose noise, 0.02 mm per axis)
     targets = np.array([p.translation for _, poses in planning.plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, field_of_view=cell.fov)

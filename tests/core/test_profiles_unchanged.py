@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from reference_sensor import reference_fov
 
 REFERENCE = Path(__file__).parent / "data" / "profile_results_before_centres.json"
 
@@ -25,11 +26,13 @@ def solve_cases() -> dict:
                        stray_profile_fraction=0.2)
     kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
     cases = {
-        "eye_in_hand-station": (standard_cell("eye_in_hand", seed=5, noise=noise), "station", None),
-        "eye_to_hand-none": (standard_cell("eye_to_hand", seed=5, noise=noise), "none", None),
-        "eye_in_hand-auto-exact-arm": (standard_cell("eye_in_hand", seed=6, noise=noise, arm=kin), "auto", kin),
+        "eye_in_hand-station": (standard_cell("eye_in_hand", seed=5, noise=noise, fov=reference_fov()),
+                                "station", None),
+        "eye_to_hand-none": (standard_cell("eye_to_hand", seed=5, noise=noise, fov=reference_fov()), "none", None),
+        "eye_in_hand-auto-exact-arm": (standard_cell("eye_in_hand", seed=6, noise=noise, arm=kin,
+                                                     fov=reference_fov()), "auto", kin),
         "eye_in_hand-kinematic": (standard_cell("eye_in_hand", seed=6, noise=noise, robot_error=RobotErrorModel(),
-                                                arm=kin), "kinematic", kin),
+                                                arm=kin, fov=reference_fov()), "kinematic", kin),
     }
     out = {}
     for name, (cell, model, kinematics) in cases.items():

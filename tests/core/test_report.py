@@ -13,6 +13,7 @@ from spherecal.models import ObservationFlag, Pose
 from spherecal.report.assess import Thresholds, advice, calibration_std, inconsistent_stations, verdict
 from spherecal.report.html import FIGURE_NAMES, mapped_points, write_report
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 PLAN = SweepPlan(profiles_per_station=6)
 SHIFTED = 8  # observation whose pose is read 1 mm off
@@ -29,7 +30,8 @@ def _shift_pose(ds, index, offset_mm):
 @pytest.fixture(scope="module")
 def bad_solution():
     """Eye-in-hand, stray points on a third of the profiles, one pose shifted by 1 mm."""
-    cell = standard_cell("eye_in_hand", seed=3, noise=NoiseModel(stray_profile_fraction=0.3, strays_per_profile=8))
+    cell = standard_cell("eye_in_hand", seed=3, noise=NoiseModel(stray_profile_fraction=0.3,
+                                                                 strays_per_profile=8), fov=reference_fov())
     ds = _shift_pose(simulate_dataset(cell, PLAN), SHIFTED, [0.0, 1.0, 0.0])
     return solve(ds)
 
@@ -53,7 +55,7 @@ NOTES = (ExportNote("Toy controller", "On a toy controller this is <tool.frame>.
 
 @pytest.fixture(scope="module")
 def clean_solution():
-    return solve(simulate_dataset(standard_cell("eye_to_hand", seed=3), PLAN))
+    return solve(simulate_dataset(standard_cell("eye_to_hand", seed=3, fov=reference_fov()), PLAN))
 
 
 # --- the file -----------------------------------------------------------------------------------------
@@ -162,7 +164,7 @@ def test_clean_data_is_green_with_nothing_to_do(clean_solution):
 
 
 def test_wrong_sphere_radius_asks_to_check_it():
-    ds = simulate_dataset(standard_cell("eye_in_hand", seed=3), PLAN)
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()), PLAN)
     res = solve(ds.model_copy(update={"sphere_radius_mm": 19.0})).result  # certified 19.1
     v = verdict(res)
     assert v.level == "red"
@@ -173,7 +175,7 @@ def test_wrong_sphere_radius_asks_to_check_it():
 
 
 def test_a_station_read_before_settling_is_named():
-    ds = simulate_dataset(standard_cell("eye_to_hand", seed=3), PLAN)
+    ds = simulate_dataset(standard_cell("eye_to_hand", seed=3, fov=reference_fov()), PLAN)
     obs = [o.model_copy(update={"base_from_flange": Pose.from_rt(
         o.base_from_flange.rotation_matrix, o.base_from_flange.translation + [0.0, 0.15 * (o.index % 6), 0.0])})
         if o.station == "S2" else o for o in ds.observations]

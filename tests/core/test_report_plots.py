@@ -13,11 +13,13 @@ import pytest
 from spherecal.estimation import solve
 from spherecal.report import html as rh
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 
 @pytest.fixture(scope="module")
 def solution():
-    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=5), SweepPlan(profiles_per_station=6)))
+    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=5, fov=reference_fov()),
+                                  SweepPlan(profiles_per_station=6)))
 
 
 @pytest.fixture(scope="module")

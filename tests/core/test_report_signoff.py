@@ -20,6 +20,7 @@ from spherecal.report.assess import Verdict, verdict, with_validation
 from spherecal.report.html import point_uncertainty, write_report
 from spherecal.runner import traceability
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 PLAN = SweepPlan(profiles_per_station=6)
 
@@ -27,7 +28,7 @@ PLAN = SweepPlan(profiles_per_station=6)
 @pytest.fixture(scope="module")
 def dataset_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("ds") / "run.jsonl"
-    ds = simulate_dataset(standard_cell("eye_in_hand", seed=4), PLAN)
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()), PLAN)
     ds = ds.model_copy(update={"provenance": {
         **ds.provenance, "source": "spherecal calibrate", "robot": "abb_irb2400", "sensor": "nxsensor_i",
         "robot_identity": {"manufacturer": "ABB", "model": "IRB 2400"},

@@ -18,6 +18,7 @@ from spherecal.plugins.host import PluginHost
 from spherecal.report.assess import robot_error_dominates, verdict
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
 from spherecal.validation import points_in_object_frame
+from reference_sensor import reference_fov
 
 NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02)
 OPTIONS = CalibrationOptions(pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.0)
@@ -33,7 +34,7 @@ def kin():
 
 
 def _solve(mounting, seed, kin, error=RobotErrorModel(), options=OPTIONS):
-    cell = standard_cell(mounting, seed=seed, noise=NOISE, robot_error=error, arm=kin)
+    cell = standard_cell(mounting, seed=seed, noise=NOISE, robot_error=error, arm=kin, fov=reference_fov())
     return cell, solve(simulate_dataset(cell), options)
 
 
@@ -85,7 +86,7 @@ def test_an_uncalibrated_arm_is_off_by_a_real_arms_error(kin):
 
 def test_simulated_dataset_reports_the_nominal_pose_of_the_actual_joints(kin):
     cell = standard_cell("eye_in_hand", seed=2, noise=NoiseModel(point_noise_mm=0, pose_translation_noise_mm=0),
-                         robot_error=RobotErrorModel(), arm=kin)
+                         robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
     ds = simulate_dataset(cell)
     for o in ds.observations[:8]:
         nominal = kin.flange_pose_from_joints(o.joints_deg)
@@ -98,7 +99,7 @@ def test_simulated_dataset_reports_the_nominal_pose_of_the_actual_joints(kin):
 
 def test_robot_error_needs_an_arm():
     with pytest.raises(ValueError, match="needs an arm"):
-        standard_cell("eye_in_hand", robot_error=RobotErrorModel())
+        standard_cell("eye_in_hand", robot_error=RobotErrorModel(), fov=reference_fov())
 
 
 def test_robot_error_model_rejects_bad_ranges():

@@ -12,10 +12,11 @@ from spherecal.errors import DegenerateDataError
 from spherecal.estimation import CalibrationOptions, pipeline, solve
 from spherecal.estimation.problem import derived_station_rotation_tolerance_deg
 from spherecal.models import Dataset, Observation, Pose, Profile
-from spherecal.sim import REFERENCE_FIELD_OF_VIEW, NoiseModel, SweepPlan, plan_stations, simulate_dataset, standard_cell
+from spherecal.sim import NoiseModel, SweepPlan, plan_stations, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 #: fewer points per profile: the loops over seeds stay fast
-FOV = REFERENCE_FIELD_OF_VIEW.model_copy(update={"n_columns": 200})
+FOV = reference_fov(n_columns=200)
 MOUNTINGS = ["eye_in_hand", "eye_to_hand"]
 
 

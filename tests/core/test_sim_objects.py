@@ -8,6 +8,7 @@ from spherecal.mapping import frame_from_sensor_stack, map_profile_list, rt_from
 from spherecal.models import Pose
 from spherecal.sim.cell import NoiseModel, standard_cell
 from spherecal.sim.objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
+from reference_sensor import reference_fov
 
 NOISE_FREE = NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0)
 
@@ -50,7 +51,7 @@ def test_ballbar_returns_the_nearer_sphere():
 
 
 def test_laser_plane_cut_matches_general_ray_cast():
-    cell = standard_cell("eye_in_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_in_hand", noise=NOISE_FREE, fov=reference_fov())
     sph = cell.reference_sphere
     apex, d = cell.fan_rays()
     pose = cell.sweep_poses(sph.centre_mm, "base", geo.matrix_from_rotvec([0.2, -0.1, 0.4]), 10.0, 3)[1]
@@ -137,7 +138,7 @@ def test_car_door_panel_rejects_bad_parameters():
 
 # the cell -----------------------------------------------------------------------------
 def test_a_plate_in_front_of_the_sphere_occludes_it():
-    cell = standard_cell("eye_in_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_in_hand", noise=NOISE_FREE, fov=reference_fov())
     pose = cell.sweep_poses(cell.sphere_centre_mm, "base", np.eye(3), 0.0, 1)[0]
     assert len(cell.ideal_profile(pose)) > 100
     base_from_sensor = cell.base_from_sensor(pose)
@@ -153,7 +154,7 @@ def test_a_plate_in_front_of_the_sphere_occludes_it():
 
 
 def test_sphere_only_cell_points_lie_on_the_sphere():
-    cell = standard_cell("eye_to_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_to_hand", noise=NOISE_FREE, fov=reference_fov())
     for pose in cell.sweep_poses(cell.sphere_centre_mm, "flange", np.eye(3), 12.0, 5):
         pts = cell.ideal_profile(pose)
         c = cell.sphere_centre_in_sensor(pose)
@@ -162,7 +163,7 @@ def test_sphere_only_cell_points_lie_on_the_sphere():
 
 
 def test_ball_bar_on_the_flange_eye_to_hand_maps_back_onto_its_spheres():
-    cell = standard_cell("eye_to_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_to_hand", noise=NOISE_FREE, fov=reference_fov())
     bar = cell.add_object(BallBar([60.0, 0.0, 120.0], [-60.0, 10.0, 120.0], 10.0, frame="flange"))
     poses = cell.sweep_poses(bar.sphere_a.centre_mm, "flange", geo.matrix_from_rotvec([0.0, 0.3, 0.0]), 8.0, 9)
     reported, profiles = cell.scan(poses)
@@ -174,7 +175,7 @@ def test_ball_bar_on_the_flange_eye_to_hand_maps_back_onto_its_spheres():
 
 
 def test_object_on_the_flange_moves_with_the_sensor_in_eye_in_hand():
-    cell = standard_cell("eye_in_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_in_hand", noise=NOISE_FREE, fov=reference_fov())
     X = cell.true_transform
     # a plate 20 mm in front of the sensor, fixed to the flange
     cell.add_object(FlatPlate(X @ Pose.from_rt(np.eye(3), [0.0, 0.0, -20.0]), 100.0, 100.0, frame="flange"))
@@ -186,7 +187,7 @@ def test_object_on_the_flange_moves_with_the_sensor_in_eye_in_hand():
 
 
 def test_scanned_car_door_points_lie_on_the_panel():
-    cell = standard_cell("eye_in_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_in_hand", noise=NOISE_FREE, fov=reference_fov())
     panel = cell.add_object(CarDoorPanel(Pose.from_rt(np.eye(3), [900.0, -600.0, 100.0])))
     target = panel.surface_point_mm(0.0, panel.crease_offset_mm)
     poses = cell.sweep_poses(target, "base", np.eye(3), 20.0, 6)
@@ -200,7 +201,7 @@ def test_scanned_car_door_points_lie_on_the_panel():
 
 
 def test_cell_rejects_non_objects_and_impossible_views():
-    cell = standard_cell("eye_in_hand")
+    cell = standard_cell("eye_in_hand", fov=reference_fov())
     with pytest.raises(TypeError, match="is not a scene object"):
         cell.add_object("a plate")
     with pytest.raises(ValueError, match="cannot move the sensor relative to frame 'flange'"):
@@ -208,7 +209,7 @@ def test_cell_rejects_non_objects_and_impossible_views():
 
 
 def test_reference_sphere_attributes_stay_in_step_with_the_scene():
-    cell = standard_cell("eye_in_hand", noise=NOISE_FREE)
+    cell = standard_cell("eye_in_hand", noise=NOISE_FREE, fov=reference_fov())
     cell.sphere_centre_mm = [1000.0, 0.0, 300.0]
     cell.sphere_radius_mm = 12.7
     assert cell.objects[0].radius_mm == 12.7

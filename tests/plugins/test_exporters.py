@@ -14,6 +14,7 @@ from spherecal.models import CalibrationResult, Pose
 from spherecal.plugins.host import PluginHost
 
 from plugin_host_helpers import make_plugin
+from reference_sensor import reference_fov
 
 
 class ToolSettings(BaseModel):
@@ -56,7 +57,8 @@ def result() -> CalibrationResult:
     from spherecal.estimation import solve
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
-    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=4), SweepPlan(profiles_per_station=4))).result
+    return solve(simulate_dataset(standard_cell("eye_in_hand", seed=4, fov=reference_fov()),
+                                  SweepPlan(profiles_per_station=4))).result
 
 
 # --- registration ------------------------------------------------------------------------------------------

@@ -287,6 +287,22 @@ def test_with_autoload_off_an_unknown_type_does_not_say_install(fake_entry_point
     assert text.startswith("robot.type: unknown robot type 'acme_arm'; installed robot types: fake_robot.")
     assert "install the plugin" not in text
     assert f"not loaded because {DISABLE_AUTOLOAD_ENV} is set (installed but not loaded: acme)" in text
+
+
+def test_with_autoload_off_an_unknown_exporter_says_which_plugins_are_not_loaded(fake_entry_points):
+    third = make_plugin("acme_plugins.robot", robots=["acme_arm"])
+    fake_entry_points({"acme": ("acme_plugins.robot", third)})
+    host = PluginHost(environ={DISABLE_AUTOLOAD_ENV: "1"})
+    with pytest.raises(ConfigError) as info:
+        host.export_plan({"run": ["acme_tooldata"], "acme_tooldata": {}}, "eye_in_hand", "abb_irb2400")
+    text = str(info.value)
+    assert text.startswith("export.acme_tooldata: unknown exporter 'acme_tooldata'; installed exporters: ")
+    assert "install the plugin" not in text
+    assert f"not loaded because {DISABLE_AUTOLOAD_ENV} is set (installed but not loaded: acme)" in text
+    # with autoload on, nothing is said about loading
+    with pytest.raises(ConfigError) as info:
+        PluginHost(environ={}).export_plan({"acme_tooldata": {}}, "eye_in_hand", None)
+    assert "not loaded" not in str(info.value)
     assert f"unset {DISABLE_AUTOLOAD_ENV} or enable that plugin by name" in text
     # with autoload on, a type nobody provides still says to install its plugin
     with pytest.raises(ConfigError, match="install the plugin that provides it"):

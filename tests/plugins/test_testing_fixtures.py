@@ -10,7 +10,9 @@ import pytest
 
 from spherecal.errors import DeviceError
 from spherecal.models import Pose, Profile
+from spherecal.planning import SweepPlan
 from spherecal.plugins.testing import RobotHarness, SensorHarness, acquire_dataset, pose_error
+from reference_sensor import reference_fov
 
 
 class CellRobot:
@@ -73,7 +75,7 @@ def test_cell_fixture_defaults_to_eye_in_hand_and_is_seeded(spherecal_cell):
     from spherecal.sim import standard_cell
 
     assert spherecal_cell.mounting == "eye_in_hand"
-    again = standard_cell("eye_in_hand", seed=0)
+    again = standard_cell("eye_in_hand", seed=0, fov=reference_fov())
     assert np.array_equal(spherecal_cell.rng.normal(size=3), again.rng.normal(size=3))
 
 
@@ -243,7 +245,8 @@ def _small_fov():
     return SensorFieldOfView(z_near_mm=15.0, z_far_mm=-15.0, width_near_mm=18.0, width_far_mm=26.0, n_columns=200)
 
 
-@pytest.mark.parametrize("spherecal_cell", [{"fov": _small_fov()}], indirect=True)
+#: a sphere whose visible half fits the 30 mm range with the plan's wander and offsets sized to it
+@pytest.mark.parametrize("spherecal_cell", [{"fov": _small_fov(), "sphere_radius_mm": 6.35}], indirect=True)
 def test_cell_fixture_takes_the_sensors_field_of_view(spherecal_cell, spherecal_stations, spherecal_sensor_harness):
     assert spherecal_cell.fov == _small_fov()
     # planned in that range: the reference station (no offset) sweeps the sphere's centre at its middle
@@ -265,7 +268,7 @@ def _whole_cell():
         from spherecal.sim import NoiseModel, SimulatedCell
 
         _WHOLE = SimulatedCell("eye_in_hand", OWN_TRUTH, (1000.0, 0.0, 350.0), 12.7,
-                               noise=NoiseModel(pose_translation_noise_mm=0.0), seed=9)
+                               noise=NoiseModel(pose_translation_noise_mm=0.0), seed=9, fov=reference_fov())
     return _WHOLE
 
 
@@ -320,7 +323,7 @@ def test_robot_harness_kinematics_tolerance_follows_the_pose_noise(spherecal_cel
 def make_quiet(cell, noise):
     from spherecal.sim import standard_cell
 
-    return standard_cell(cell.mounting, seed=0, noise=noise)
+    return standard_cell(cell.mounting, seed=0, noise=noise, fov=reference_fov())
 
 
 def _stations(cell):
@@ -354,3 +357,108 @@ def test_my_cell(spherecal_cell, spherecal_stations, spherecal_context):
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
                          capture_output=True, text=True, cwd=tmp_path)
     assert run.returncode == 0 and "1 passed" in run.stdout, run.stdout + run.stderr
+
+
+#: A plan of a cell's own, unlike the default one: two stations of five shots, the second tilted 20 deg about x.
+OWN_PLAN_KW = {"profiles_per_station": 5, "tilts_deg": [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0)],
+               "station_offsets_mm": [(0.0, 0.0), (4.0, -6.0)]}
+OWN_PLAN = SweepPlan(**OWN_PLAN_KW)
+
+
+class RecordingRobot(CellRobot):
+    """An honest robot that remembers where it was sent."""
+
+    def __init__(self, cell):
+        super().__init__(cell)
+        self.targets = []
+
+    def move_linear(self, base_from_flange, speed_mm_s):
+        super().move_linear(base_from_flange, speed_mm_s)
+        self.targets.append(base_from_flange)
+
+
+def _expected_stations(cell, plan):
+    from spherecal.planning import plan_stations
+
+    return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
+                         field_of_view=cell.fov)
+
+
+def _same(a, b) -> bool:
+    return [label for label, _ in a] == [label for label, _ in b] and all(
+        np.allclose(p.as_matrix(), q.as_matrix(), atol=1e-12) for (_, s), (_, t) in zip(a, b) for p, q in zip(s, t))
+
+
+def test_robot_harness_takes_the_cells_plan():
+    from spherecal.planning import SweepPlan
+    from spherecal.sim import standard_cell
+
+    cell = standard_cell("eye_to_hand", seed=4, fov=reference_fov())
+    plan = SweepPlan(**OWN_PLAN_KW)
+    harness = RobotHarness(cell, plan=plan)
+    assert _same(harness.stations, _expected_stations(cell, plan))
+    assert not _same(harness.stations, _expected_stations(cell, SweepPlan()))  # not the default plan
+    robot = RecordingRobot(cell)
+    report = harness.check(robot)
+    assert report.n_moves == 2 * 3  # three shots of each of the plan's two stations
+    planned = [p for _, poses in harness.stations for p in poses]
+    for target in robot.targets[:-1]:  # the last one is the refused zero-speed move's
+        assert any(np.array_equal(target.as_matrix(), p.as_matrix()) for p in planned)
+    # the sensor harness takes one too; stations and a plan together are refused
+    assert _same(SensorHarness(cell, plan=plan).stations, harness.stations)
+    with pytest.raises(TypeError, match=r"RobotHarness: give stations or plan .*not both"):
+        RobotHarness(cell, harness.stations, plan=plan)
+    with pytest.raises(TypeError, match=r"plan must be a spherecal.planning.SweepPlan, got dict"):
+        RobotHarness(cell, plan=OWN_PLAN_KW)
+
+
+@pytest.mark.parametrize("spherecal_cell", [{"mounting": "eye_in_hand", "plan": OWN_PLAN}], indirect=True)
+def test_cell_fixture_takes_the_cells_plan(spherecal_cell, spherecal_stations, spherecal_robot_harness,
+                                          spherecal_sensor_harness):
+    from spherecal.plugins.testing import make_cell
+
+    assert _same(spherecal_stations, _expected_stations(spherecal_cell, OWN_PLAN))
+    assert spherecal_robot_harness.stations is spherecal_stations
+    assert spherecal_robot_harness.check(CellRobot(spherecal_cell)).n_moves == 6
+    assert spherecal_sensor_harness.check(CellSensor(spherecal_cell)).n_profiles > 0
+    # a whole cell takes one too, and a plan that is not a SweepPlan is refused
+    whole = make_cell({"cell": _whole_cell(), "plan": OWN_PLAN})
+    assert whole is _whole_cell() and _same(RobotHarness(whole).stations, _expected_stations(whole, OWN_PLAN))
+    with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.planning.SweepPlan, got dict"):
+        make_cell({"plan": OWN_PLAN_KW})
+
+
+def test_the_default_field_of_view_is_the_only_declared_or_the_built_in_one(monkeypatch):
+    from pydantic import BaseModel, ConfigDict
+
+    import spherecal.plugins.host as host_module
+    from spherecal.devices import SensorFieldOfView, SensorType
+    from spherecal.plugins import hookimpl
+    from spherecal.plugins.testing import default_field_of_view, make_cell
+
+    assert default_field_of_view() == reference_fov()  # here: the built-in nxSensor-I, the only one
+    acme_fov = SensorFieldOfView(z_near_mm=10.0, z_far_mm=-10.0, width_near_mm=8.0, width_far_mm=12.0)
+
+    class AcmeConfig(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+    class Acme:
+        @staticmethod
+        @hookimpl
+        def spherecal_register_devices(registry):
+            registry.add_sensor(SensorType(name="acme", config_model=AcmeConfig, factory=lambda c, ctx: None,
+                                           field_of_view=acme_fov))
+
+    real = host_module.PluginHost
+    # a sensor plugin installed beside the built-in one: the built-in one still
+    monkeypatch.setattr(host_module, "PluginHost", lambda autoload=None: real(
+        plugins=[("acme", Acme)] if autoload is not False else [], autoload=autoload))
+    assert default_field_of_view() == reference_fov()
+    assert make_cell("eye_to_hand").fov == reference_fov()
+    # two that nothing tells apart: the test must say
+    monkeypatch.setattr(host_module, "PluginHost", lambda autoload=None: real(plugins=[("acme", Acme)],
+                                                                               autoload=autoload))
+    with pytest.raises(TypeError, match=r"spherecal_cell: give the cell's field of view .*installed sensor types "
+                                        r"that declare one: acme, nxsensor_i"):
+        make_cell("eye_in_hand")
+    assert make_cell({"fov": acme_fov}).fov == acme_fov

@@ -24,6 +24,7 @@ from spherecal.robots.abb_irb2400.driver import AbbIrb2400Robot
 from spherecal.robots.abb_irb2400.kinematics import kinematics_for
 from spherecal.robots.abb_irb2400.simulator import SimulatedIrb2400, start_simulator
 from spherecal.sim.cell import NoiseModel, standard_cell
+from reference_sensor import reference_fov
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 S45 = math.sqrt(0.5)
@@ -35,7 +36,7 @@ S45 = math.sqrt(0.5)
     Pose(translation_mm=(3000.0, 1500.0, 0.0), quaternion_wxyz=(S45, 0.0, 0.0, S45)),  # the second robot of a cell
 ], ids=["riser", "inverted", "second-robot"])
 def test_a_base_frame_is_refused_on_connect(irb2400_controllers, base_frame):
-    cell = standard_cell(seed=1)
+    cell = standard_cell(seed=1, fov=reference_fov())
     cfg = AbbIrb2400Config(timeout_s=0.5, simulated={"transport": "pty", "base_frame": base_frame})
     with pytest.raises(DeviceError, match=r"wobj0 is the world frame: the controller has a base frame \(a riser, an "
                                           r"inverted mount, a multi-robot cell\).* Nothing was moved\. Calibrate with "
@@ -54,7 +55,7 @@ def test_the_simulated_base_frame_is_world_from_base():
     """What the refusal rests on: with a base frame the controller's pose is in world,
     the plugin's forward kinematics in base (where the cell is), and a target is taken
     in world."""
-    cell = standard_cell(seed=1, noise=NoiseModel(pose_translation_noise_mm=0.0))
+    cell = standard_cell(seed=1, noise=NoiseModel(pose_translation_noise_mm=0.0), fov=reference_fov())
     world_from_base = Pose(translation_mm=(0.0, 0.0, 500.0), quaternion_wxyz=(1.0, 0.0, 0.0, 0.0))
     settings = SimulatedControllerSettings(base_frame=world_from_base, single_precision=False)
     kin = kinematics_for(AbbIrb2400Config().geometry, True)
@@ -71,7 +72,7 @@ def test_the_simulated_base_frame_is_world_from_base():
 def test_within_the_tolerance_the_connection_is_made(irb2400_controllers):
     base_frame = Pose(translation_mm=(1.0, -1.0, 0.5), quaternion_wxyz=(1.0, 0.0, 0.0, 0.0))
     cfg = AbbIrb2400Config(timeout_s=0.5, simulated={"transport": "pty", "base_frame": base_frame})
-    robot = plugin.create_robot(cfg, DeviceContext(cell=standard_cell(seed=1), log=lambda m: None))
+    robot = plugin.create_robot(cfg, DeviceContext(cell=standard_cell(seed=1, fov=reference_fov()), log=lambda m: None))
     robot.close()
 
 

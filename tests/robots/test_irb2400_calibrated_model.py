@@ -19,6 +19,7 @@ from spherecal.robots.abb_irb2400.kinematics import CalibratedIrb2400Kinematics,
 from spherecal.sim.cell import standard_cell
 from spherecal.sim.robot_error import RobotErrorModel, SimulatedArm
 from spherecal.urdf import chain_to_urdf, fold_zero_offsets, write_urdf
+from reference_sensor import reference_fov
 
 #: Controller joints (deg) of a few targets around the standard cell's sphere, away
 #: from singularities, plus ones near the limits of axes 4 and 6.
@@ -108,7 +109,7 @@ def _run(cell, config: dict, host, targets):
 def test_simulated_arm_reaches_commanded_poses_and_reports_true_ones(tmp_path, host):
     """Through the plugin, the driver, the line protocol and the simulated controller
     (which keeps the nominal model) to a simulated arm with a real arm's error."""
-    cell = standard_cell(seed=3, robot_error=RobotErrorModel(), arm=kinematics_for())
+    cell = standard_cell(seed=3, robot_error=RobotErrorModel(), arm=kinematics_for(), fov=reference_fov())
     arm = cell.arm
     path = write_urdf(tmp_path / "true.urdf", fold_zero_offsets(arm.true_chain, arm.zero_offsets_rad), "true_arm")
     targets = [arm.true_flange_pose(q) for q in JOINT_SETS[:4]]
@@ -124,7 +125,7 @@ def test_simulated_arm_reaches_commanded_poses_and_reports_true_ones(tmp_path, h
         assert max(_pose_error(read, arm.true_flange_pose(joints))) < 1e-9
 
     # the same moves without the calibrated model miss by the arm's error
-    cell2 = standard_cell(seed=3, robot_error=RobotErrorModel(), arm=kinematics_for())
+    cell2 = standard_cell(seed=3, robot_error=RobotErrorModel(), arm=kinematics_for(), fov=reference_fov())
     for target, (true, read, _) in zip(targets, _run(cell2, {}, host, targets)):
         assert _pose_error(true, target)[0] > 0.2 and _pose_error(read, true)[0] > 0.2
 

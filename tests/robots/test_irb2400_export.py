@@ -15,6 +15,7 @@ from spherecal.report import export as ex
 from spherecal.report.html import write_report
 from spherecal.robots.abb_irb2400 import export as rapid
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+from reference_sensor import reference_fov
 
 MM_TOL = 0.5 * 10 ** -ex.MM_DECIMALS + 1e-12
 Q_TOL = 0.5 * 10 ** -ex.QUAT_DECIMALS + 1e-15
@@ -23,7 +24,8 @@ Q_TOL = 0.5 * 10 ** -ex.QUAT_DECIMALS + 1e-15
 @pytest.fixture(scope="module")
 def solutions():
     plan = SweepPlan(profiles_per_station=6)
-    return {m: solve(simulate_dataset(standard_cell(m, seed=4), plan)) for m in ("eye_in_hand", "eye_to_hand")}
+    return {m: solve(simulate_dataset(standard_cell(m, seed=4, fov=reference_fov()),
+                                      plan)) for m in ("eye_in_hand", "eye_to_hand")}
 
 
 @pytest.fixture(scope="module")

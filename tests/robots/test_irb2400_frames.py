@@ -6,6 +6,7 @@ import pytest
 from spherecal.errors import InputError
 from spherecal.models import Pose
 from spherecal.robots.abb_irb2400.frames import read_frame
+from reference_sensor import reference_fov
 
 X = Pose.from_abb((44.5123, -19.8, 166.25), (0.02714, -0.96565, 0.25663, 0.03026))
 
@@ -49,7 +50,8 @@ def test_what_the_exporter_writes_reads_back():
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     for mounting in ("eye_in_hand", "eye_to_hand"):
-        result = calibrate(simulate_dataset(standard_cell(mounting, seed=2), SweepPlan(profiles_per_station=5)))
+        result = calibrate(simulate_dataset(standard_cell(mounting, seed=2, fov=reference_fov()),
+                                            SweepPlan(profiles_per_station=5)))
         frame = read_frame(rapid_declaration(result))
         assert frame.transform_name == result.transform_name
         # the export rounds to 4 decimals (mm) and 8 (quaternion)

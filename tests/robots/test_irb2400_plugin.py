@@ -10,6 +10,7 @@ from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
 from spherecal.robots.abb_irb2400.driver import AbbIrb2400Robot
 from spherecal.sim.cell import NoiseModel, standard_cell
+from reference_sensor import reference_fov
 
 
 class _Registry:
@@ -71,7 +72,7 @@ def test_bad_configuration_is_a_config_error(spherecal_host, section, message):
 
 
 def test_simulated_factory_runs_the_real_driver_over_pyserial():
-    cell = standard_cell(seed=1)
+    cell = standard_cell(seed=1, fov=reference_fov())
     messages = []
     cfg = AbbIrb2400Config(timeout_s=0.2, simulated={"transport": "pty"})
     robot = plugin.create_robot(cfg, DeviceContext(cell=cell, log=messages.append))
@@ -89,7 +90,8 @@ def test_simulated_factory_runs_the_real_driver_over_pyserial():
 
 def test_passes_the_robot_harness(spherecal_host, spherecal_stations):
     # pose noise in rotation, so the harness allows for the protocol's 6-decimal quaternions
-    cell = standard_cell(seed=0, noise=NoiseModel(pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002))
+    cell = standard_cell(seed=0, noise=NoiseModel(pose_translation_noise_mm=0.02,
+                                                  pose_rotation_noise_deg=0.002), fov=reference_fov())
     robot = spherecal_host.create_robot({"type": "abb_irb2400", "timeout_s": 0.5}, DeviceContext(cell=cell))
     harness = RobotHarness(cell, spherecal_stations, move_tolerance_mm=1e-3, move_tolerance_deg=2e-4)
     cfg = AbbIrb2400Config()

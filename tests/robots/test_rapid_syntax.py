@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from spherecal.robots.abb_irb2400.rapid_syntax import check_module, check_modules, main, tokenize
+from reference_sensor import reference_fov
 
 RAPID_DIR = resources.files("spherecal.robots.abb_irb2400") / "rapid"
 CORE = (RAPID_DIR / "SpherecalServer.mod").read_text()
@@ -39,7 +40,8 @@ def exported_modules(tmp_path_factory):
     host = PluginHost()
     found = {}
     for mounting in ("eye_in_hand", "eye_to_hand"):
-        result = solve(simulate_dataset(standard_cell(mounting, seed=4), SweepPlan(profiles_per_station=6))).result
+        result = solve(simulate_dataset(standard_cell(mounting, seed=4, fov=reference_fov()),
+                                        SweepPlan(profiles_per_station=6))).result
         plan = host.export_plan(None, mounting, "abb_irb2400")
         paths = write_exports(result, tmp_path_factory.mktemp(mounting), plan)
         rapid = [p for p in paths.values() if p.suffix.lower() in (".mod", ".sys")]

@@ -20,6 +20,7 @@ from spherecal.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, plan_stations, simulate_dataset, standard_cell
 from spherecal.urdf import chain_to_urdf
+from reference_sensor import reference_fov
 
 #: The IRB 2400's parallel linkage as a joint map: q3_model = q3_controller - q2_controller.
 IRB_COUPLING = [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, -1, 1, 0, 0, 0],
@@ -97,7 +98,7 @@ def test_ur5_inverse_kinematics_returns_the_joints_nearest_the_seed(ur5_kin):
 def test_simulated_ur5_honours_the_robot_protocol(host, ur5_urdf, ur5_kin, mounting):
     from spherecal.plugins.testing import RobotHarness
 
-    cell = standard_cell(mounting, seed=0, arm=ur5_kin)
+    cell = standard_cell(mounting, seed=0, arm=ur5_kin, fov=reference_fov())
     cell.arm = None  # the simulated controller attaches its own
     stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
                              field_of_view=cell.fov)
@@ -114,7 +115,7 @@ def test_simulated_ur5_honours_the_robot_protocol(host, ur5_urdf, ur5_kin, mount
 
 
 def test_nothing_moves_when_a_check_fails(host, ur5_urdf, ur5_kin):
-    cell = standard_cell("eye_in_hand", seed=0, arm=ur5_kin)
+    cell = standard_cell("eye_in_hand", seed=0, arm=ur5_kin, fov=reference_fov())
     cell.arm = None
     target = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
                              field_of_view=cell.fov)[0][1][0]
@@ -271,7 +272,7 @@ def test_calibrated_model_reads_back_through_the_urdf_type(host, irb, tmp_path):
              zip(rng.uniform(-45, 45, 12), rng.uniform(-45, 45, 12), rng.uniform(-90, 90, 12))]
     plan = SweepPlan(profiles_per_station=6, tilts_deg=tilts, station_offsets_mm=[(0.0, 0.0), (8.0, -15.0)])
     cell = standard_cell("eye_in_hand", seed=5, noise=NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02),
-                         robot_error=RobotErrorModel(), arm=irb)
+                         robot_error=RobotErrorModel(), arm=irb, fov=reference_fov())
     sol = solve(simulate_dataset(cell, plan), CalibrationOptions(pose_translation_noise_mm=0.02,
                                                                  identify_kinematics=True), kinematics=irb)
     path = write_calibrated_urdf(sol, irb, tmp_path)

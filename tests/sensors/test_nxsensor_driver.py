@@ -10,6 +10,7 @@ from spherecal.errors import DeviceError
 from spherecal.models import Pose, Profile
 from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend, WireConfig
 from spherecal.sim import NoiseModel, plan_stations, standard_cell
+from reference_sensor import reference_fov
 
 HALF_COUNT_MM = 0.005 / 2 + 1e-9
 
@@ -22,7 +23,7 @@ def _in_view_pose(cell):
 
 @pytest.fixture
 def cell():
-    c = standard_cell("eye_in_hand", seed=11)
+    c = standard_cell("eye_in_hand", seed=11, fov=reference_fov())
     c.move_flange_to(_in_view_pose(c))
     return c
 
@@ -70,7 +71,8 @@ def test_read_profile_equals_what_the_cell_measured(driver, backend, cell):
 
 
 def test_noise_free_profile_equals_the_ideal_one():
-    cell = standard_cell("eye_in_hand", seed=2, noise=NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0))
+    cell = standard_cell("eye_in_hand", seed=2, noise=NoiseModel(point_noise_mm=0.0,
+                                                                 pose_translation_noise_mm=0.0), fov=reference_fov())
     pose = _in_view_pose(cell)
     cell.move_flange_to(pose)
     with NxSensorDriver(NxSensorConfig(), backend=SimulatedNxSensorBackend(cell)) as d:

@@ -12,13 +12,14 @@ from spherecal.errors import DeviceError
 from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend, WireConfig
 from spherecal.sensors.nxsensor_i.shots import CounterMismatch, FrameCounter
 from spherecal.sim import plan_stations, standard_cell
+from reference_sensor import reference_fov
 
 HALF_COUNT_MM = 0.005 / 2 + 1e-9
 
 
 @pytest.fixture
 def cell():
-    c = standard_cell("eye_in_hand", seed=5)
+    c = standard_cell("eye_in_hand", seed=5, fov=reference_fov())
     stations = plan_stations(c.mounting, c.true_transform, c.sphere_centre_mm, c.sphere_radius_mm,
                              field_of_view=c.fov)
     c.poses = stations[1][1][2:8]  # six poses along one sweep, 1-2 mm apart: each sees another circle

@@ -119,7 +119,7 @@ def create_robot(config: CartesianConfig, context: DeviceContext) -> ExampleCart
     if context.cell is None:
         raise DeviceError(
             f"{TYPE_NAME} is a simulated robot and has no hardware to connect to; "
-            f"run it on a simulated cell (DeviceContext(cell=spherecal.sim.standard_cell()))"
+            f"run it on a simulated cell (DeviceContext(cell=spherecal.sim.standard_cell(fov=...)))"
         )
     context.log(f"{TYPE_NAME}: simulated Cartesian robot on a {context.cell.mounting} cell")
     return ExampleCartesianRobot(config, context.cell)

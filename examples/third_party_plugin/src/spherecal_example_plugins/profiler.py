@@ -76,7 +76,7 @@ def create_sensor(config: ProfilerConfig, context: DeviceContext) -> ExampleProf
     if context.cell is None:
         raise DeviceError(
             f"{TYPE_NAME} is a simulated sensor and has no hardware to connect to; "
-            f"run it on a simulated cell (DeviceContext(cell=spherecal.sim.standard_cell()))"
+            f"run it on a simulated cell (DeviceContext(cell=spherecal.sim.standard_cell(fov=...)))"
         )
     return ExampleProfiler(config, context.cell)
 
