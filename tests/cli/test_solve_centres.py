@@ -64,7 +64,7 @@ def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(
     the mounting named, and no result or exports without --force."""
     from spherecal.cli import EXIT_RED
 
-    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind=kind, centre_noise_mm=0.01)
     path = tmp_path / "centres.dataset.jsonl"
     dataio.write_dataset(path, ds.model_copy(update={"mounting": "eye_to_hand"}))

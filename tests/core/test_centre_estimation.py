@@ -99,7 +99,7 @@ def test_centres_cleaner_than_the_stated_pose_noise_converge_green(mounting):
     from spherecal.report.assess import verdict
 
     cell = standard_cell(mounting, seed=1, noise=NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.0,
-                                                           pose_rotation_noise_deg=0.0))
+                                                           pose_rotation_noise_deg=0.0), fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=10), kind="circle", centre_noise_mm=0.01)
     sol = solve(ds)
     assert sol.refined.converged, f"not converged in {sol.refined.iterations} iterations"
@@ -299,7 +299,7 @@ def test_a_typed_table_with_one_centre_off_by_2_mm_names_the_row_and_the_size(tm
     """A typo of 2 mm in one centre coordinate (a digit wrong) is flagged by its row with
     a size near 2 mm, although the distances the centre moved change by less (under 1 mm
     here: the typo lies mostly across the robot's moves)."""
-    cell = standard_cell("eye_in_hand", seed=21, noise=NOISE)
+    cell = standard_cell("eye_in_hand", seed=21, noise=NOISE, fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=10), kind=kind, centre_noise_mm=0.01)
     path = tmp_path / "paper-table.dataset.jsonl"
     rows = typed(ds, path)
