@@ -139,13 +139,19 @@ def _flagged_mark(ax, k: int, index: int, label_y: float) -> None:
     ax.annotate(f"obs {index}\nflagged", (k, label_y), ha="center", va="bottom", fontsize=7, color="#c5221f")
 
 
+#: Most observation indices written under a per-observation figure (every k-th beyond).
+MAX_TICK_LABELS = 80
+
+
 def _station_axis(ax, entries: list[tuple], label_y: float) -> None:
     """The x axis of per-observation figures (entries: (station, index, ...)): dashed
     lines between stations, each station's label centred above its entries at
-    ``label_y``, the observation indices as ticks."""
+    ``label_y``, the observation indices as ticks (at most :data:`MAX_TICK_LABELS`,
+    evenly spread, when there are more)."""
     stations = [e[0] for e in entries]
     n = len(stations)
-    ax.set_xticks(range(n), [str(e[1]) for e in entries], fontsize=7, rotation=90 if n > 40 else 0)
+    ticks = plot_sample(n, MAX_TICK_LABELS)
+    ax.set_xticks(ticks, [str(entries[k][1]) for k in ticks], fontsize=7, rotation=90 if n > 40 else 0)
     ax.set_xlim(-0.7, n - 0.3)
     ax.set_xlabel("observation index (grouped by station)")
     for k in range(1, n):
@@ -167,13 +173,7 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.2), layout="constrained")
     ax = fig.add_subplot()
     used = [(k, e) for k, e in enumerate(entries) if e[2] is not None]
-    bp = ax.boxplot([e[2] for _, e in used], positions=[k for k, _ in used], widths=0.6,
-                    showfliers=False, whis=(1, 99), patch_artist=True)
-    for patch, (_, e) in zip(bp["boxes"], used):
-        patch.set_facecolor(colours.get(e[0], "grey"))
-        patch.set_alpha(0.75)
-    for med in bp["medians"]:
-        med.set_color("black")
+    _boxes(ax, [k for k, _ in used], [e[2] for _, e in used], [colours.get(e[0], "grey") for _, e in used])
     lim = max(float(np.max(np.abs(np.concatenate([e[2] for _, e in used])))), 1e-3)
     ax.set_ylim(-1.15 * lim, 1.3 * lim)
     for k, e in enumerate(entries):
@@ -184,6 +184,30 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     ax.set_ylabel("in-plane residual (mm)")
     ax.set_title("Residuals per profile (box: quartiles, whiskers: 1-99 %; red: flagged and left out)", fontsize=10)
     return fig
+
+
+def _boxes(ax, positions, samples, colours, width: float = 0.6) -> None:
+    """Box plots of ``samples`` at ``positions`` (box: quartiles, whiskers: 1-99 %, a
+    black median), drawn as three collections however many there are: the statistics of
+    every point, the drawing of thousands of profiles in a fraction of a second (one
+    artist per box took seconds)."""
+    from matplotlib.collections import LineCollection, PolyCollection
+
+    if not len(positions):
+        return
+    q = np.array([np.percentile(v, [1, 25, 50, 75, 99]) for v in samples])  # (n, 5), every point
+    x = np.asarray(positions, dtype=float)
+    h = width / 2
+    boxes = np.stack([np.column_stack([x - h, q[:, 1]]), np.column_stack([x + h, q[:, 1]]),
+                      np.column_stack([x + h, q[:, 3]]), np.column_stack([x - h, q[:, 3]])], axis=1)
+    ax.add_collection(PolyCollection(boxes, facecolors=colours, edgecolors="black", linewidths=0.6, alpha=0.75))
+    whiskers = [((xi, lo), (xi, b)) for xi, lo, b in zip(x, q[:, 0], q[:, 1])]
+    whiskers += [((xi, t), (xi, hi)) for xi, t, hi in zip(x, q[:, 3], q[:, 4])]
+    caps = [((xi - h / 2, v), (xi + h / 2, v)) for xi, v in zip(np.r_[x, x], np.r_[q[:, 0], q[:, 4]])]
+    ax.add_collection(LineCollection(whiskers + caps, colors="black", linewidths=0.6))
+    ax.add_collection(LineCollection([((xi - h, m), (xi + h, m)) for xi, m in zip(x, q[:, 2])], colors="black",
+                                     linewidths=1.0))
+    ax.autoscale_view()
 
 
 def _fig_per_centre(solution, result, colours) -> Figure:
@@ -263,6 +287,16 @@ def _fig_sphere(solution, result, colours) -> Figure:
     pts = mapped_points(solution)
     c, r = np.asarray(ref.centre, dtype=float), float(ref.radius)
     frame = SPHERE_FRAME[result.mounting]
+    # at most _MAX_POINTS_3D_PER_PROFILE of each profile, and MAX_POINTS_PLOTTED in all
+    per_profile = [p[::max(1, len(p) // _MAX_POINTS_3D_PER_PROFILE)] for p in pts]
+    every = np.concatenate(per_profile) if per_profile else np.zeros((0, 3))
+    station = np.repeat(np.asarray(prob.station_of[:len(pts)]), [len(p) for p in per_profile])
+    pick = plot_sample(len(every), MAX_POINTS_PLOTTED)
+    drawn = {}
+    for k, label in enumerate(prob.station_labels):
+        mine = pick[station[pick] == k]
+        if len(mine):
+            drawn[label] = every[mine]
     fig = Figure(figsize=(11, 5.2), layout="constrained")
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
     sx, sy, sz = c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v), c[2] + r * np.cos(v)
@@ -271,12 +305,9 @@ def _fig_sphere(solution, result, colours) -> Figure:
         ax.plot_wireframe(sx, sy, sz, color="#9aa0a6", lw=0.4, alpha=0.6)
         ax.scatter([c[0]], [c[1]], [c[2]], color="black", s=20, marker="+")
         seen = set()
-        for i, p in enumerate(pts):
-            label = prob.station_labels[prob.station_of[i]]
-            step = max(1, len(p) // _MAX_POINTS_3D_PER_PROFILE)
-            q = p[::step]
+        for label, q in drawn.items():  # one scatter per station (one per profile took seconds)
             ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=1.5, color=colours[label], depthshade=False,
-                       label=None if label in seen else f"station {label}")
+                       label=f"station {label}")
             seen.add(label)
         for i, (kind, q) in mapped_centres(solution).items():
             label = prob.station_labels[prob.station_of[i]]

@@ -129,3 +129,29 @@ def test_the_interactive_view_draws_in_a_browser_without_network(report):
     assert canvas, proc.stderr[-2000:]
     n = len(json.loads(re.search(r'id="view3d-data">(.*?)</script>', text, re.S).group(1))["residuals"])
     assert f'data-drawn="{n}"' in canvas.group(0)
+
+
+def test_the_3d_and_per_profile_figures_draw_a_bounded_number_of_artists(solution, monkeypatch):
+    """However many profiles: one scatter per station in each 3-D view, at most
+    MAX_POINTS_PLOTTED points in all; the per-profile boxes are three collections, their
+    statistics from every point; at most MAX_TICK_LABELS observation indices."""
+    prob = solution.problem
+    monkeypatch.setattr(rh, "MAX_POINTS_PLOTTED", 300)
+    monkeypatch.setattr(rh, "MAX_TICK_LABELS", 7)
+    sphere = rh._fig_sphere(solution, solution.result, rh._station_colours(list(prob.station_labels)))
+    for ax in sphere.axes:
+        counts = [len(c._offsets3d[0]) for c in ax.collections if hasattr(c, "_offsets3d")]
+        counts = [n for n in counts if n > 1]  # (the centre's '+' is one point)
+        assert len(counts) == len(prob.station_labels) and sum(counts) <= 300
+    per_profile = rh._fig_per_profile(solution, solution.result, rh._station_colours(list(prob.station_labels)))
+    ax = per_profile.axes[0]
+    assert len(ax.collections) == 3  # boxes, whiskers with caps, medians
+    boxes = ax.collections[0].get_paths()
+    assert len(boxes) == prob.n_profiles
+    # box i spans the quartiles of profile i's residuals: all its points
+    order = sorted(range(prob.n_profiles), key=lambda i: (prob.station_of[i], prob.obs_index[i]))
+    for k, i in enumerate(order):
+        ys = boxes[k].vertices[:, 1]
+        q1, q3 = np.percentile(solution.refined.residuals[i], [25, 75])
+        assert np.isclose(ys.min(), q1) and np.isclose(ys.max(), q3)
+    assert len([t for t in ax.get_xticklabels() if t.get_text()]) <= 7
