@@ -568,6 +568,11 @@ class LineRobot:
             seq = self._next_seq()
             self._write(build(seq))
             deadline = time.monotonic() + timeout_s
+            if session is not None:
+                msg, problem = self._await_pong(seq, session, deadline, timeout_s)
+                if msg is not None:
+                    return msg
+                continue
             while True:
                 raw = self._read_line(deadline)
                 if raw is None:
@@ -583,23 +588,19 @@ class LineRobot:
                     break
                 if msg.kind == "ERR":
                     code, text = P.parse_error_reply(msg)
-                    hint = ""
-                    if session is not None and code == P.ErrorCode.SYNTAX:
-                        hint = (f" (a server of protocol version 2 or older refuses the session token; this "
-                                f"driver speaks version {P.PROTOCOL_VERSION}: {self.version_hint})")
                     if msg.seq is None or code == P.ErrorCode.CHECKSUM:
                         if msg.seq in (None, seq):  # the controller got a garbled request
-                            problem = f"controller could not read the request: ERR {code} {text}{hint}"
+                            problem = f"controller could not read the request: ERR {code} {text}"
                             break
                     if msg.seq != seq:
                         self.stale_replies += 1
                         continue
                     raise DeviceError(
                         f"{self.name} on {self.url}: controller refused {kind} (seq {seq}): "
-                        f"ERR {code} {_error_name(code)}: {text}{hint}"
+                        f"ERR {code} {_error_name(code)}: {text}"
                     )
-                if msg.seq != seq or (session is not None and (msg.kind != "PONG" or msg.args[1] != session)):
-                    self.stale_replies += 1  # another request's reply, or another session's
+                if msg.seq != seq:
+                    self.stale_replies += 1  # a late reply to an earlier attempt
                     continue
                 if msg.kind != expect:
                     raise P.ProtocolError(
@@ -615,6 +616,55 @@ class LineRobot:
             f"{self.name} on {self.url}: no valid reply to {kind} after {attempts} attempt(s); last problem: "
             f"{problem}. {check}"
         )
+
+    def _await_pong(self, seq: int, token: str, deadline: float, timeout_s: float) -> tuple[P.Message | None, str]:
+        """Read until the PONG that echoes ``token`` under ``seq`` (returned with ""), or
+        the deadline (None and the problem). Before that PONG every line may be an
+        earlier session's, whatever it says: an ERR (even under this seq), a garbled
+        line, a PONG with another token are held, never acted on at once; only if no
+        PONG comes by the deadline do they say what went wrong. An ERR under this seq is
+        then the server's refusal of the PING, raised as such."""
+        refusal = noted = ""
+        held = 0  # lines held before the PONG: stale, if it comes
+        while True:
+            raw = self._read_line(deadline)
+            if raw is None:
+                break
+            held += 1
+            try:
+                msg = P.decode_reply(raw, self.n_joints)
+            except P.ProtocolError as exc:
+                text = raw.decode("ascii", "replace")
+                noted = str(exc) + (self._old_server_hint() if text.startswith("PONG ") else "")
+                continue
+            if msg.kind == "ERR":
+                code, text = P.parse_error_reply(msg)
+                if msg.seq == seq and code != P.ErrorCode.CHECKSUM:
+                    hint = self._old_server_hint() if code == P.ErrorCode.SYNTAX else ""
+                    refusal = f"ERR {code} {_error_name(code)}: {text}{hint}"
+                elif msg.seq in (None, seq):
+                    hint = self._old_server_hint() if code == P.ErrorCode.SYNTAX else ""
+                    noted = f"controller could not read the request: ERR {code} {text}{hint}"
+                continue
+            if msg.seq == seq and msg.kind == "PONG":
+                if msg.args[1] == token:
+                    self.stale_replies += held - 1
+                    return msg, ""
+                noted = (f"the server answered PING {seq} with the token {msg.args[1]!r}, not this session's "
+                         f"{token!r}: its PING handling is wrong (it must echo the token as it came; "
+                         "docs/line-protocol.md, 'Sessions and stale replies')")
+        self.stale_replies += held
+        if refusal:
+            raise DeviceError(f"{self.name} on {self.url}: controller refused PING (seq {seq}): {refusal}")
+        problem = noted or f"no reply within {timeout_s:.3g} s"
+        if self._buffer:  # the start of a reply that never ended: stale now
+            problem += f" (discarded a partial line {bytes(self._buffer)[:40]!r})"
+            self._buffer.clear()
+        return None, problem
+
+    def _old_server_hint(self) -> str:
+        return (f" (a server of protocol version 2 or older refuses the session token, or answers PING without "
+                f"it; this driver speaks version {P.PROTOCOL_VERSION}: {self.version_hint})")
 
     def _write(self, data: bytes) -> None:
         try:

@@ -198,5 +198,90 @@ def test_a_server_of_protocol_2_is_told_to_update(server, monkeypatch):
     monkeypatch.setitem(P.REQUEST_ARGS, "PING", 0)  # the old server's table
     with connect(server) as robot:
         with pytest.raises(DeviceError, match=r"PING.*takes 0 arguments.*protocol version 2 or older refuses "
-                                              r"the session token; this driver speaks version 3"):
+                                              r"the session token, or answers PING without it; this driver "
+                                              r"speaks version 3"):
             robot.read_joints_deg()
+
+
+# --- a scripted controller: what an earlier session, or a wrong server, leaves before the PONG
+class ScriptedServer:
+    """A TCP controller that answers each PING with ``before(seq, token)`` lines, then
+    ``answer(seq, token)`` (None: nothing), and GETJ with NOW."""
+
+    def __init__(self, before, answer):
+        import socket
+        import threading
+
+        self.before, self.answer = before, answer
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.url = f"socket://127.0.0.1:{self.listener.getsockname()[1]}"
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        conn, _ = self.listener.accept()
+        with conn, conn.makefile("rb") as lines:
+            for line in lines:
+                msg = P.decode_request(line)
+                if msg.kind == "PING":
+                    token = P.ping_token(msg)
+                    out = b"".join(self.before(msg.seq, token))
+                    reply = self.answer(msg.seq, token)
+                    conn.sendall(out + (reply or b""))
+                elif msg.kind == "GETJ":
+                    conn.sendall(P.joints_reply(msg.seq, NOW))
+
+    def close(self):
+        self.listener.close()
+
+
+def _frame(text: str) -> bytes:
+    return P.frame(text)
+
+
+STALE_BEFORE_PONG = {
+    "ok-j-err-under-the-seq": lambda s, t: [P.ok_reply(s), P.joints_reply(s, OLD), P.error_reply(s, 5, "old")],
+    "pong-of-another-session": lambda s, t: [P.pong_reply(s, "0123456789ab")],
+    "err-dash-and-checksum-err": lambda s, t: [P.error_reply(None, 1, "bad checksum"), P.error_reply(s, 1, "bad")],
+    "garbage": lambda s, t: [b"\x00\xffnoise\n", b"J 12 1 2*00\n"],
+}
+
+
+@pytest.mark.parametrize("case", sorted(STALE_BEFORE_PONG))
+def test_whatever_comes_before_the_pong_is_discarded(case):
+    """Lines of an earlier session before this session's PONG, of any kind and under the
+    PING's own seq (an ERR too), are discarded: the session opens at the PONG, at once
+    (no resend), and the joints read are the arm's now."""
+    before = STALE_BEFORE_PONG[case]
+    srv = ScriptedServer(before, lambda s, t: P.pong_reply(s, t))
+    try:
+        config = AbbIrb2400Config(port=srv.url, timeout_s=1.0, retries=0)
+        with AbbIrb2400Robot(config, kinematics=KIN) as robot:
+            np.testing.assert_allclose(robot.read_joints_deg(), NOW)
+            assert robot.resends == 0 and robot.stale_replies == len(before(0, ""))
+    finally:
+        srv.close()
+
+
+@pytest.mark.parametrize(
+    "answer, message",
+    [
+        (lambda s, t: P.pong_reply(s, "0123456789ab"),
+         r"answered PING \d+ with the token '0123456789ab', not this session's '[0-9a-f]{12}': its PING handling is "
+         r"wrong \(it must echo the token as it came"),
+        (lambda s, t: _frame(f"PONG {s} 2"), r"PONG takes 2 arguments, got 1.*protocol version 2 or older"),
+        (lambda s, t: P.error_reply(s, 2, "wrong number of fields"),
+         r"controller refused PING \(seq \d+\): ERR 2 syntax: wrong number of fields.*protocol version 2 or older"),
+        (lambda s, t: None, r"no valid reply to PING after 2 attempt\(s\); last problem: no reply within 0.3 s"),
+    ],
+    ids=["wrong-token", "protocol-2-pong", "refused", "silent"],
+)
+def test_a_server_that_does_not_open_the_session_is_named_for_what_it_does(answer, message):
+    srv = ScriptedServer(lambda s, t: [], answer)
+    try:
+        config = AbbIrb2400Config(port=srv.url, timeout_s=0.3, retries=1)
+        with AbbIrb2400Robot(config, kinematics=KIN) as robot:
+            with pytest.raises(DeviceError, match=message):
+                robot.ping()
+    finally:
+        srv.close()
