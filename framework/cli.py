@@ -424,23 +424,45 @@ def cmd_simulate(args) -> int:
 
     if args.config:
         from .config import load_config
-        from .runner import make_cell, make_host, robot_arm, sensor_field_of_view
+        from .runner import configured_for_sensor, make_cell, make_host, robot_arm
 
-        if args.sensor is not None:
-            raise ConfigError(f"--sensor {args.sensor}: the configuration names its sensor ([sensor] type); give "
-                              "--sensor or --config, not both")
-        loaded = load_config(args.config)
-        cfg = loaded.config
+        from .kinplan import plan_kinematic_stations, uses_planner
+
+        # the configuration gives the cell and the plan: an option that would change them is refused, never ignored
+        clash = [flag for flag, value in (("--sensor", args.sensor), ("--mounting", args.mounting),
+                                          ("--profiles", args.profiles), ("--point-noise-mm", args.point_noise_mm),
+                                          ("--pose-noise-mm", args.pose_noise_mm),
+                                          ("--stray-fraction", args.stray_fraction)) if value is not None]
+        if clash:
+            raise ConfigError(f"{', '.join(clash)}: the configuration gives the sensor, the mounting, the plan and "
+                              "the noise ([sensor], mounting, [acquisition], [simulation]); give these options "
+                              "without --config, or change the configuration")
         host = make_host()
-        fov = sensor_field_of_view(cfg, host)
-        cell = make_cell(cfg, robot_arm(loaded, host), field_of_view=fov)
+        loaded, fov = configured_for_sensor(load_config(args.config), host)  # the standoffs the sensor sets, as a run
+        cfg = loaded.config
+        arm = robot_arm(loaded, host)
+        cell = make_cell(cfg, arm, field_of_view=fov)
         if cell is None:  # no [simulation]: the standard cell, measuring with the configured sensor's field of view
             if fov is None:
                 raise ConfigError(f"{loaded.path}: sensor.type {cfg.sensor['type']!r} declares no field of view to "
                                   "simulate; give it whole in [simulation.fov]")
-            cell = standard_cell(cfg.mounting, seed=args.seed, fov=fov)
-        plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
+            cell = standard_cell(cfg.mounting, seed=args.seed or 0, fov=fov)
+        elif args.seed is not None:
+            raise ConfigError(f"--seed {args.seed}: {loaded.path} has a [simulation] section, whose seed is used; "
+                              "change simulation.seed there")
+        if arm is not None and cell.arm is None:
+            cell.attach_arm(arm)  # as the simulated controller does: the joints of every shot are recorded
+        if uses_planner(cfg):  # the kinematic planner's stations, as calibrate plans them
+            plan = plan_kinematic_stations(cfg, arm).sweep
+        else:
+            plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
     else:
+        args.mounting = args.mounting or "eye_in_hand"
+        args.seed = 0 if args.seed is None else args.seed
+        args.profiles = 10 if args.profiles is None else args.profiles
+        args.point_noise_mm = 0.01 if args.point_noise_mm is None else args.point_noise_mm
+        args.pose_noise_mm = 0.02 if args.pose_noise_mm is None else args.pose_noise_mm
+        args.stray_fraction = 0.0 if args.stray_fraction is None else args.stray_fraction
         noise = NoiseModel(
             point_noise_mm=args.point_noise_mm,
             pose_translation_noise_mm=args.pose_noise_mm,
@@ -664,12 +686,13 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
                    "`spherecal plugins`): the cell measures with its declared field of view and the plan fits it "
                    "(default: the only installed sensor type that declares one); not with --config, whose [sensor] "
                    "names it")
-    m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], default="eye_in_hand")
-    m.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0)
-    m.add_argument("--profiles", type=_int_in(4, 10_000), default=10, help="profiles per station (4 to 10000)")
-    m.add_argument("--point-noise-mm", type=_non_negative_float, default=0.01)
-    m.add_argument("--pose-noise-mm", type=_non_negative_float, default=0.02)
-    m.add_argument("--stray-fraction", type=_fraction, default=0.0, help="share of profiles with stray points (0 to 1)")
+    # (defaults applied in cmd_simulate: with --config these options are refused, so their absence must show)
+    m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], help="default eye_in_hand")
+    m.add_argument("--seed", type=_int_in(0, 2**63 - 1), help="default 0")
+    m.add_argument("--profiles", type=_int_in(4, 10_000), help="profiles per station (4 to 10000, default 10)")
+    m.add_argument("--point-noise-mm", type=_non_negative_float, help="default 0.01")
+    m.add_argument("--pose-noise-mm", type=_non_negative_float, help="default 0.02")
+    m.add_argument("--stray-fraction", type=_fraction, help="share of profiles with stray points (0 to 1, default 0)")
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
     m.set_defaults(func=cmd_simulate)
 

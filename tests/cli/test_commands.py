@@ -129,3 +129,19 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
     seed = np.zeros(6)
     for t in targets:
         seed = kin.joints_from_flange_pose(t.pose, seed_joints_deg=seed)
+
+
+def test_simulate_from_a_kinematic_configuration_uses_its_plan_and_records_joints(tmp_path):
+    """simulate --config plans as calibrate does: the kinematic planner's stations, every
+    shot with the arm's joints, so that solve --identify-kinematics can use the file."""
+    from pathlib import Path
+
+    from spherecal.config import load_config
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "sim-kinematic-eye-in-hand.toml"
+    out = tmp_path / "kin.jsonl"
+    assert main(["simulate", str(out), "--config", str(example)]) == EXIT_OK
+    ds = dataio.read_dataset(out)
+    stations = load_config(example).config.acquisition.kinematic_plan.stations
+    assert len({o.station for o in ds.observations}) == stations == 20
+    assert all(o.joints_deg is not None and len(o.joints_deg) == 6 for o in ds.observations)

@@ -277,12 +277,20 @@ def test_simulate_takes_the_sensor_type_by_name(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "x.jsonl").exists() and not (tmp_path / "y.jsonl").exists()
 
 
-def test_simulate_sensor_is_not_for_a_configuration(tmp_path, sim_config, capsys):
+@pytest.mark.parametrize("extra", [["--sensor", "nxsensor_i"], ["--mounting", "eye_to_hand"], ["--profiles", "6"],
+                                   ["--point-noise-mm", "0.1"], ["--pose-noise-mm", "0"], ["--stray-fraction", "0.5"],
+                                   ["--seed", "9"], ["--mounting", "eye_to_hand", "--seed", "9"]])
+def test_simulate_options_that_clash_with_a_configuration_are_refused(tmp_path, sim_config, capsys, extra):
+    """The configuration gives the sensor, mounting, plan, noise and (its [simulation]) seed:
+    an option that would change them exits 2 naming it, never ignored."""
     from spherecal.cli import EXIT_USAGE, main
 
-    assert main(["simulate", str(tmp_path / "z.jsonl"), "--config", str(sim_config()), "--sensor",
-                 "nxsensor_i"]) == EXIT_USAGE
-    assert "--sensor nxsensor_i: the configuration names its sensor ([sensor] type)" in capsys.readouterr().err
+    out = tmp_path / "z.jsonl"
+    assert main(["simulate", str(out), "--config", str(sim_config()), *extra]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert extra[0] in err and not out.exists()
+    assert ("[simulation] section, whose seed is used" in err) if extra == ["--seed", "9"] else \
+        ("the configuration gives the sensor, the mounting, the plan and the noise" in err)
 
 
 def test_simulate_without_a_name_uses_the_only_sensor_type_with_a_field_of_view(tmp_path, monkeypatch):
