@@ -270,7 +270,7 @@ def cmd_solve(args) -> int:
         raise ConfigError("--identify-kinematics needs the robot's kinematics: give --robot TYPE (a type whose "
                           "plugin describes its arm; `spherecal plugins` lists them) and joints_deg in every "
                           "observation")
-    _log.info("options: %s", options.model_dump_json(exclude={"nominal_transform"}))
+    _log.debug("options: %s", options.model_dump_json(exclude={"nominal_transform"}))
     if not args.overwrite:
         from .runner import check_output_folder
 

@@ -50,6 +50,7 @@ def check_output_folder(out: Path, what: str, how: str, exports=None) -> None:
     ``exports`` the run's :class:`~spherecal.exporters.ExportPlan` (its files count too)."""
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} is not a folder: give an output folder")
+    check_output_targets(out, exports)  # a planted link is named as a link, before anything else
     found = existing_outputs(out, exports.file_patterns() if exports is not None else ())
     journal = out / JOURNAL_NAME
     if found:
@@ -738,8 +739,8 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
         base_link=getattr(kinematics, "base_link", "base_link"),
         flange_link=getattr(kinematics, "flange_link", "tool0"),
         joint_limits_rad=limits() if callable(limits) else None,
-        comment=(f"{red_warning(solution.result)}. " if red_warning(solution.result) else "")
-        + f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
+        warning=red_warning(solution.result) or None,
+        comment=f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
                 f"{len(ke['identified'])} geometric parameters (result.json, robot_error.kinematic_parameters); "
                 "joint zero offsets are folded into the joint origins.",
     )

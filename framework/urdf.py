@@ -134,6 +134,7 @@ def chain_to_urdf(
     base_link: str = "base_link",
     joint_limits_rad=None,
     comment: str | None = None,
+    warning: str | None = None,
     joint_velocity_limits_rad_s=None,
 ) -> str:
     """The chain as URDF text, in **metres** (the chain is in mm).
@@ -148,7 +149,8 @@ def chain_to_urdf(
     (URDF requires limits on revolute joints); None writes -pi .. pi and says in the
     file that these are not the robot's limits. ``joint_velocity_limits_rad_s``: (n,)
     speeds; None writes 0 (unknown), as the effort always is. ``comment`` is added to
-    the header comment (say where the geometry came from)."""
+    the header comment (say where the geometry came from); ``warning``, when given, is
+    its first line (a RED result's, :func:`spherecal.exporters.red_warning`)."""
     if not isinstance(chain, SerialChain):
         raise InputError(f"chain_to_urdf: expected a SerialChain, got {type(chain).__name__}")
     n = chain.n_joints
@@ -190,6 +192,8 @@ def chain_to_urdf(
     header.append("Links carry no inertia: kinematics only.")
     if comment:
         header.extend(str(comment).splitlines())
+    if warning:
+        header.insert(0, str(warning))
 
     out = ['<?xml version="1.0"?>', "<!--"]
     out += [f"  {_xml_comment(line)}" for line in header]

@@ -225,3 +225,15 @@ def test_a_ply_planted_as_a_link_is_named_as_a_link(sim_config, capsys, tmp_path
     err = capsys.readouterr().err
     assert "scan.ply is a symbolic link" in err and "outside the output folder" not in err
     assert victim.read_text() == "precious\n"
+
+
+def test_a_planted_link_is_named_as_a_link_without_overwrite_too(tmp_path, dataset_file, capsys):
+    out = tmp_path / "res"
+    out.mkdir()
+    victim = tmp_path / "victim.html"
+    victim.write_text("precious\n")
+    (out / "report.html").symlink_to(victim)
+    assert main(["solve", str(dataset_file), "--out", str(out)]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert f"{out / 'report.html'} is a symbolic link" in err and "--overwrite" not in err
+    assert victim.read_text() == "precious\n"
