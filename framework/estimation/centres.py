@@ -12,8 +12,10 @@ typo does and what catches it, naming the row (the observation index):
   within a station: a pure translation moves the sphere centre in the sensor frame by
   exactly what the robot moved, so the distance between two shots' centres equals the
   distance between their flange positions, whatever the unknown rotation. The row that
-  breaks this with the other rows of its station is left out (:func:`pairwise_move_check`)
-  and, once the others are solved, flagged with the size of its error in mm: how far its
+  breaks this with two or more rows of its station is left out (:func:`pairwise_move_check`);
+  two rows that break it with each other only are left out together, and the solution of
+  the others tells which is wrong (:func:`settle_pairs`). Once the others are solved, the
+  row is flagged with the size of its error in mm: how far its
   centre is from where that solution puts it, relative to the rest of its station
   (:func:`leave_one_out_sizes`; a difference of distances understates an error across
   the move). A flipped quaternion component
