@@ -111,21 +111,61 @@ class _FieldError(Exception):
         super().__init__(f"{field}: {message}" if field else message)
 
 
+#: The components of the fixed-length number lists of the format, by field name: a list
+#: of the wrong length is reported as "needs 3 numbers (x, y, z), got 2".
+_COMPONENTS = {"translation_mm": "x, y, z", "quaternion_wxyz": "w, x, y, z", "sphere_centre_mm": "x, y, z",
+               "centre_yz_mm": "y, z"}
+
+
+def _loc_text(loc) -> str:
+    text = ""
+    for item in loc:
+        text += f"[{item}]" if isinstance(item, int) else (f".{item}" if text else str(item))
+    return text
+
+
+def _wrong_length(loc, given, needed: int | None) -> str | None:
+    """"needs N numbers (names), got M" for a fixed-length list of the wrong length, else None."""
+    name = next((x for x in reversed(loc) if isinstance(x, str)), "")
+    if not isinstance(given, (list, tuple)):
+        return None
+    parts = _COMPONENTS.get(name)
+    n = len(parts.split(", ")) if parts else needed
+    if n is None:
+        return None
+    names = f" ({parts})" if parts else ""
+    return f"needs {n} numbers{names}, got {len(given)}"
+
+
 def _describe_validation_error(exc: ValidationError) -> str:
     parts = []
-    for err in exc.errors():
-        loc = ""
-        for item in err["loc"]:
-            loc += f"[{item}]" if isinstance(item, int) else (f".{item}" if loc else str(item))
+    short: dict[tuple, int] = {}  # a list too short: its location -> how many items the errors ask for
+    errors = exc.errors()
+    for err in errors:
+        loc = err["loc"]
+        if err["type"] == "missing" and loc and isinstance(loc[-1], int) and isinstance(err.get("input"), (list, tuple)):
+            short[tuple(loc[:-1])] = max(short.get(tuple(loc[:-1]), 0), loc[-1] + 1)
+    done: set[tuple] = set()
+    for err in errors:
+        loc = err["loc"]
         msg = err["msg"]
         for prefix in ("Value error, ", "Assertion failed, "):
             if msg.startswith(prefix):
                 msg = msg[len(prefix):]
         if err["type"] == "extra_forbidden":
             msg = "unknown field (not part of the format; check the spelling)"
+        elif err["type"] == "missing" and tuple(loc[:-1]) in short:
+            loc = tuple(loc[:-1])
+            if loc in done:
+                continue
+            done.add(loc)
+            msg = _wrong_length(loc, err["input"], short[loc]) or "missing (required)"
         elif err["type"] == "missing":
             msg = "missing (required)"
-        parts.append(f"{loc}: {msg}" if loc else msg)
+        elif err["type"] == "too_long" and (ctx := err.get("ctx")) and ctx.get("field_type") == "Tuple":
+            msg = _wrong_length(loc, err.get("input"), ctx.get("max_length")) or msg
+        text = _loc_text(loc)
+        parts.append(f"{text}: {msg}" if text else msg)
     return "; ".join(parts)
 
 

@@ -243,7 +243,7 @@ def check_covariance_3x3(value, what: str) -> tuple[tuple[float, float, float], 
         raise ValueError(f"{what}: is all zeros; a measurement has some noise (leave it out to have it estimated)")
     if np.abs(C - C.T).max() > _COV_RTOL * scale:
         i, j = np.unravel_index(int(np.argmax(np.abs(C - C.T))), C.shape)
-        raise ValueError(f"{what}: not symmetric (row {i} column {j} is {C[i, j]!r}, row {j} column {i} is {C[j, i]!r})")
+        raise ValueError(f"{what}: not symmetric (row {i} column {j} is {float(C[i, j])!r}, row {j} column {i} is {float(C[j, i])!r})")
     w = np.linalg.eigvalsh((C + C.T) / 2)
     if w[0] < -_COV_RTOL * scale:
         raise ValueError(f"{what}: not positive semi-definite (eigenvalue {w[0]:.4g} mm^2): not a covariance")

@@ -625,7 +625,7 @@ def solve_and_write(
     solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
     if provenance is not None:
         solution = replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
-    graded = assess_solution(solution, dataset, options, fk, log)
+    graded = assess_solution(solution, dataset, options, fk, log, kinematics=kinematics)
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
     # the verdict travels with the result: a RED one written with --force says so in result.json
@@ -754,7 +754,7 @@ def _other_mounting(mounting: str) -> str:
 
 
 def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
-                    log: Callable[[str], None] = _LOG) -> "Verdict":
+                    log: Callable[[str], None] = _LOG, kinematics=None) -> "Verdict":
     """The verdict of ``solution`` (:func:`spherecal.report.assess.verdict`); for a RED
     one, the likely cause named where the data can tell it:
 
@@ -763,7 +763,10 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     - residuals above the expected with the certified radius: solved again with the
       radius fitted; when the data prefer another radius, it is named.
 
-    Each check costs one more solve, and only for a RED result."""
+    Each check costs one more solve, and only for a RED result. ``kinematics`` (the arm's,
+    as given to :func:`solve`) is passed to every such solve: without it a solve that
+    identifies the arm's geometry or uses the kinematic error model refuses to run, and
+    the check would say nothing."""
     from .report.assess import Thresholds, absurd_ratio, expected_rms_mm, is_absurd, verdict
 
     th = Thresholds()
@@ -778,7 +781,7 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
         log(f"the result is absurd: checking whether the data are {other} data")
         try:
             alt = solve(dataset.model_copy(update={"mounting": other}),
-                        options.model_copy(update={"nominal_transform": None}), fk).result
+                        options.model_copy(update={"nominal_transform": None}), fk, kinematics=kinematics).result
         except SpherecalError:
             alt = None
         if alt is not None and not is_absurd(alt, th):
@@ -791,7 +794,7 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
         log("residuals above the expected: checking which sphere radius the data prefer")
         try:
-            alt = solve(dataset, options.model_copy(update={"fit_radius": True}), fk).result
+            alt = solve(dataset, options.model_copy(update={"fit_radius": True}), fk, kinematics=kinematics).result
         except SpherecalError:
             alt = None
         if alt is not None and alt.std_sphere_radius_mm is not None:
@@ -804,14 +807,15 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
                 )
     re = result.robot_error
     if not causes and re is not None and len(dataset.observations) and re.station_translation_mm > 0.1:
-        causes.extend(_odd_station(solution, dataset, options, fk, log, th))
+        causes.extend(_odd_station(solution, dataset, options, fk, log, th, kinematics))
     if causes:
         v.reasons.extend(("red", "likely cause: " + c) for c in causes)
         v.headline = f"{v.headline} Likely cause: {causes[0].split(':')[0]}."
     return v
 
 
-def _odd_station(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk, log, th) -> list[str]:
+def _odd_station(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk, log, th,
+                 kinematics=None) -> list[str]:
     """The station whose leaving out makes the others agree, when there is one: each
     station left out in turn (one solve each)."""
     from .report.assess import verdict
@@ -825,7 +829,7 @@ def _odd_station(solution: Solution, dataset: Dataset, options: CalibrationOptio
     for label in labels:
         keep = [o for o in dataset.observations if o.station != label]
         try:
-            alt = solve(dataset.model_copy(update={"observations": keep}), options, fk).result
+            alt = solve(dataset.model_copy(update={"observations": keep}), options, fk, kinematics=kinematics).result
         except SpherecalError:
             continue
         spread = alt.robot_error.station_translation_mm if alt.robot_error is not None else 0.0

@@ -12,8 +12,10 @@ typo does and what catches it, naming the row (the observation index):
   within a station: a pure translation moves the sphere centre in the sensor frame by
   exactly what the robot moved, so the distance between two shots' centres equals the
   distance between their flange positions, whatever the unknown rotation. The row that
-  breaks this with the other rows of its station is left out (:func:`pairwise_move_check`)
-  and, once the others are solved, flagged with the size of its error in mm: how far its
+  breaks this with two or more rows of its station is left out (:func:`pairwise_move_check`);
+  two rows that break it with each other only are left out together, and the solution of
+  the others tells which is wrong (:func:`settle_pairs`). Once the others are solved, the
+  row is flagged with the size of its error in mm: how far its
   centre is from where that solution puts it, relative to the rest of its station
   (:func:`leave_one_out_sizes`; a difference of distances understates an error across
   the move). A flipped quaternion component
@@ -49,6 +51,10 @@ CIRCLE_RADIUS_SLACK = 1.02
 #: covariances are given). Finer errors are left to the fits, which know the noise.
 GROSS_MOVE_MM = 1.0
 GROSS_MOVE_RELATIVE = 0.02
+#: The end of the flag of each row of a pair :func:`pairwise_move_check` cannot settle
+#: (:func:`settle_pairs` replaces it once the solution of the others tells which is wrong).
+PAIR_UNDECIDED = ("one of the two rows has a typo (a sign, metres for millimetres) and nothing within the station "
+                  "tells which: both left out")
 
 
 def _flag(problem: Problem, i: int, reason: str) -> ObservationFlag:
@@ -171,10 +177,11 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
                         ) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
     """Within each station, the sphere centre must move in the sensor frame by the
     distance the flange moved (a pure translation): compares every pair of centre
-    observations. The row that disagrees with most of its station (worst first, then
-    again without it) is left out and flagged with its inconsistency in mm; two rows that
-    disagree with each other and with nothing else to tell which is wrong are both
-    flagged, and returned as a pair."""
+    observations. The row that disagrees with two or more rows of its station (worst
+    first, then again without it) is left out and flagged with its inconsistency in mm;
+    two rows that disagree with each other only (the rest of the station agreeing with
+    both, or no rest) are both left out and flagged, and returned as a pair: the check
+    cannot tell which is wrong, :func:`settle_pairs` may."""
     n = problem.n_profiles
     keep = np.ones(n, dtype=bool) if keep is None else keep.copy()
     flags: list[ObservationFlag] = []
@@ -203,18 +210,27 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
             bad = (sub > 0).sum(axis=1)
             if not bad.any():
                 break
-            if len(alive) == 2:
-                a, b = alive
-                for x, y in ((a, b), (b, a)):
-                    i = rows[x]
-                    keep[i] = False
-                    flags.append(_flag(problem, i, (
-                        f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station: the robot "
-                        f"moved {moved[x, y]:.3f} mm between them, the sphere centre moved otherwise in the sensor frame "
-                        f"(the distances differ by {gap[x, y]:.3f} mm) (a pure translation moves both alike); one of the two "
-                        "rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out")))
-                pairs.append((rows[a], rows[b]))
-                alive = []
+            if bad.max() == 1:
+                # every row that disagrees does so with one other row only, which disagrees
+                # with it only: the rest of the station agrees with both, so nothing within
+                # the station tells which of the two is wrong (a typo mostly across the
+                # robot's moves changes only the distance to the row it was moved along,
+                # and a station's first or last row has one such neighbour). Both are left
+                # out as a pair, for the solution of the others to settle (settle_pairs).
+                for u in range(len(alive)):
+                    w = int(np.flatnonzero(sub[u] > 0)[0]) if bad[u] else -1
+                    if w <= u:
+                        continue
+                    a, b = alive[u], alive[w]
+                    for x, y in ((a, b), (b, a)):
+                        i = rows[x]
+                        keep[i] = False
+                        flags.append(_flag(problem, i, (
+                            f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station: the robot "
+                            f"moved {moved[x, y]:.3f} mm between them, the sphere centre moved otherwise in the sensor "
+                            f"frame (the distances differ by {gap[x, y]:.3f} mm) (a pure translation moves both alike); "
+                            + PAIR_UNDECIDED)))
+                    pairs.append((rows[a], rows[b]))
                 break
             worst = max(range(len(alive)), key=lambda x: (bad[x], sub[x].sum()))
             x = alive[worst]

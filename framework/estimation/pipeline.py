@@ -24,7 +24,7 @@ from .problem import (
 )
 from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
 from .centres import (
-    leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
+    PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
 from .twostep import CentreShot, TwoStepResult, two_step
 
@@ -246,7 +246,7 @@ def solve(
         g, b = int(problem.obs_index[good]), int(problem.obs_index[bad])
         flags = [f for f in flags if f.index != g]
         flags = [f.model_copy(update={"reason": f.reason.replace(
-            "one of the two rows has a typo (a sign, metres for millimetres) and nothing tells which: both left out",
+            PAIR_UNDECIDED,
             f"the typo is in this row (a sign, metres for millimetres?): the solution of the other observations puts "
             f"observation {g} where it was seen (chi2 {chi_good:.1f}, 3 dof) and this one not (chi2 {chi_bad:.3g})")})
                  if f.index == b else f for f in flags]
@@ -338,9 +338,13 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         if worst is None or worst[1] <= GROSS_MOVE_OUTLIER_SDS:
             break
         j, sds, off_mm, scale_mm = worst
-        flags.append(_flag(sub, j, f"inconsistent with the other profiles: its sphere centre is {off_mm:.3f} mm off "
-                                   f"where the robot motion puts it ({sds:.0f} robust SDs of {scale_mm:.3f} mm): "
-                                   "a pose read at the wrong moment or a mis-paired shot"))
+        is_profile = sub.kinds[j] == KIND_PROFILE
+        flags.append(_flag(sub, j, f"inconsistent with the other {'profiles' if is_profile else 'observations'}: its "
+                                   f"sphere centre is {off_mm:.3f} mm off where the robot motion puts it ({sds:.0f} "
+                                   f"robust SDs of {scale_mm:.3f} mm): "
+                                   + ("a pose read at the wrong moment or a mis-paired shot" if is_profile else
+                                      "a typo in the row (a sign, metres for millimetres), a pose read at the wrong "
+                                      "moment or a mis-paired shot")))
         del fits[int(used[j])]
         rejected += 1
         _drop_thin_stations_of_fits(problem, fits, flags, opt, "left once others were left out ")

@@ -142,3 +142,29 @@ def test_the_terminal_verdict_lists_the_reasons_of_an_amber_one_too():
     red = Verdict("red", "Do not use yet.", [("amber", "a"), ("red", "b"), ("green", "c")])
     assert format_verdict(red).splitlines()[1:] == ["  red: b", "  amber: a"]
     assert format_verdict(Verdict("green", "Good.", [("green", "c")])) == "verdict: GREEN: Good."
+
+
+def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_path):
+    """The likely-cause checks solve again (here: with the other mounting) with the run's
+    options; when those identify the arm's geometry the re-solve needs the arm's
+    kinematics too, or it refuses and the check names nothing (a generic list only).
+    Centre rows with joints keep the two kinematic solves short."""
+    from spherecal.estimation import CalibrationOptions
+    from spherecal.plugins.host import PluginHost
+    from spherecal.runner import solve_and_write
+    from spherecal.sim import NoiseModel, RobotErrorModel, simulate_centre_dataset
+
+    kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
+    noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+    cell = standard_cell("eye_in_hand", seed=12, noise=noise, robot_error=RobotErrorModel(), arm=kin,
+                         fov=reference_fov())
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="sphere_centre", centre_noise_mm=0.01)
+    bad = ds.model_copy(update={"mounting": "eye_to_hand"})
+    _, graded, written = solve_and_write(bad, CalibrationOptions(identify_kinematics=True), tmp_path / "res",
+                                         log=lambda msg: None, report=False, kinematics=kin)
+    assert graded.level == "red" and not written
+    causes = [text for level, text in graded.reasons if text.startswith("likely cause: ")]
+    assert len(causes) == 1, graded.reasons
+    for text in ("mounting is probably wrong", "it says eye_to_hand", "solved as eye_in_hand"):
+        assert text in causes[0], causes[0]
+    assert "Likely cause: the dataset's mounting is probably wrong" in graded.headline
