@@ -418,6 +418,17 @@ def _simulated_sensor_fov(name: str | None):
     return fov
 
 
+#: The defaults of simulate's options for the standard cell (with --config these options
+#: are refused, so the parser leaves them None and cmd_simulate fills them in).
+_SIMULATE_DEFAULTS = {"mounting": "eye_in_hand", "seed": 0, "profiles": 10, "point_noise_mm": 0.01,
+                      "pose_noise_mm": 0.02, "stray_fraction": 0.0}
+
+
+def _flag(name: str) -> str:
+    """The command-line flag of an argparse destination (``point_noise_mm`` -> ``--point-noise-mm``)."""
+    return "--" + name.replace("_", "-")
+
+
 def cmd_simulate(args) -> int:
     from . import dataio
     from .sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
@@ -429,10 +440,8 @@ def cmd_simulate(args) -> int:
         from .kinplan import plan_kinematic_stations, uses_planner
 
         # the configuration gives the cell and the plan: an option that would change them is refused, never ignored
-        clash = [flag for flag, value in (("--sensor", args.sensor), ("--mounting", args.mounting),
-                                          ("--profiles", args.profiles), ("--point-noise-mm", args.point_noise_mm),
-                                          ("--pose-noise-mm", args.pose_noise_mm),
-                                          ("--stray-fraction", args.stray_fraction)) if value is not None]
+        clash = [_flag(name) for name in ("sensor", *_SIMULATE_DEFAULTS) if name != "seed"
+                 and getattr(args, name) is not None]
         if clash:
             raise ConfigError(f"{', '.join(clash)}: the configuration gives the sensor, the mounting, the plan and "
                               "the noise ([sensor], mounting, [acquisition], [simulation]); give these options "
@@ -457,12 +466,9 @@ def cmd_simulate(args) -> int:
         else:
             plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
     else:
-        args.mounting = args.mounting or "eye_in_hand"
-        args.seed = 0 if args.seed is None else args.seed
-        args.profiles = 10 if args.profiles is None else args.profiles
-        args.point_noise_mm = 0.01 if args.point_noise_mm is None else args.point_noise_mm
-        args.pose_noise_mm = 0.02 if args.pose_noise_mm is None else args.pose_noise_mm
-        args.stray_fraction = 0.0 if args.stray_fraction is None else args.stray_fraction
+        for name, default in _SIMULATE_DEFAULTS.items():
+            if getattr(args, name) is None:
+                setattr(args, name, default)
         noise = NoiseModel(
             point_noise_mm=args.point_noise_mm,
             pose_translation_noise_mm=args.pose_noise_mm,
@@ -687,12 +693,15 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
                    "(default: the only installed sensor type that declares one); not with --config, whose [sensor] "
                    "names it")
     # (defaults applied in cmd_simulate: with --config these options are refused, so their absence must show)
-    m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], help="default eye_in_hand")
-    m.add_argument("--seed", type=_int_in(0, 2**63 - 1), help="default 0")
-    m.add_argument("--profiles", type=_int_in(4, 10_000), help="profiles per station (4 to 10000, default 10)")
-    m.add_argument("--point-noise-mm", type=_non_negative_float, help="default 0.01")
-    m.add_argument("--pose-noise-mm", type=_non_negative_float, help="default 0.02")
-    m.add_argument("--stray-fraction", type=_fraction, help="share of profiles with stray points (0 to 1, default 0)")
+    d = _SIMULATE_DEFAULTS
+    m.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], help=f"default {d['mounting']}")
+    m.add_argument("--seed", type=_int_in(0, 2**63 - 1), help=f"default {d['seed']}")
+    m.add_argument("--profiles", type=_int_in(4, 10_000),
+                   help=f"profiles per station (4 to 10000, default {d['profiles']})")
+    m.add_argument("--point-noise-mm", type=_non_negative_float, help=f"default {d['point_noise_mm']}")
+    m.add_argument("--pose-noise-mm", type=_non_negative_float, help=f"default {d['pose_noise_mm']}")
+    m.add_argument("--stray-fraction", type=_fraction,
+                   help=f"share of profiles with stray points (0 to 1, default {d['stray_fraction']:g})")
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
     m.set_defaults(func=cmd_simulate)
 

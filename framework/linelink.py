@@ -639,11 +639,10 @@ class LineRobot:
                 continue
             if msg.kind == "ERR":
                 code, text = P.parse_error_reply(msg)
+                hint = self._old_server_hint() if code == P.ErrorCode.SYNTAX else ""
                 if msg.seq == seq and code != P.ErrorCode.CHECKSUM:
-                    hint = self._old_server_hint() if code == P.ErrorCode.SYNTAX else ""
                     refusal = f"ERR {code} {_error_name(code)}: {text}{hint}"
                 elif msg.seq in (None, seq):
-                    hint = self._old_server_hint() if code == P.ErrorCode.SYNTAX else ""
                     noted = f"controller could not read the request: ERR {code} {text}{hint}"
                 continue
             if msg.seq == seq and msg.kind == "PONG":

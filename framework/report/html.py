@@ -241,12 +241,7 @@ def _fig_per_station(solution, result, colours) -> Figure:
     data = [_station_residuals(solution, np.flatnonzero(prob.station_of == k)) for k in range(len(labels))]
     fig = Figure(figsize=(max(5.0, 1.2 * len(labels) + 2.5), 3.8), layout="constrained")
     ax = fig.add_subplot()
-    bp = ax.boxplot(data, positions=range(len(labels)), widths=0.6, showfliers=False, whis=(1, 99), patch_artist=True)
-    for patch, label in zip(bp["boxes"], labels):
-        patch.set_facecolor(colours[label])
-        patch.set_alpha(0.75)
-    for med in bp["medians"]:
-        med.set_color("black")
+    _boxes(ax, range(len(labels)), data, [colours[label] for label in labels])
     top = max(float(np.percentile(np.abs(d), 99)) for d in data)
     for k, label in enumerate(labels):
         rms = result.residuals.per_station_rms_mm.get(label, float(np.sqrt(np.mean(data[k] ** 2))))
