@@ -15,9 +15,13 @@ Printed per mounting and way: RMS rotation (deg) and translation (mm) errors aga
 simulated truth, the NEES of the six transform parameters under the reported covariance
 (6 when honest), the median solve time (CPU s) and how many solves did not converge.
 ``--robot-error-model station`` (the default of ``spherecal solve`` without joints) solves
-with the station random effect instead.
+with the station random effect instead. ``--world systematic`` gives the arm what a real
+arm has and the exact world does not: an IRB 2400 whose geometry differs from its
+nominal model (``RobotErrorModel()``, the flange 0.5-2 mm off, drawn per seed; the
+world of benchmarks/bench_accuracy.py), so that the robot error the station model
+assumes is there, and not only noise.
 
-    python benchmarks/bench_centres.py --seeds 10 [--robot-error-model station]
+    python benchmarks/bench_centres.py --seeds 10 [--robot-error-model station] [--world systematic]
 """
 
 from __future__ import annotations
@@ -32,7 +36,8 @@ import numpy as np
 from spherecal import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.centres import circles_from_profiles
-from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+from spherecal.plugins.host import PluginHost
+from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/reference_sensor.py
 from reference_sensor import reference_fov  # noqa: E402 (after the path) the reference sensor's field of view
@@ -63,14 +68,18 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--profiles", type=int, default=8, help="profiles per station")
     ap.add_argument("--robot-error-model", default="none", choices=["none", "station"])
+    ap.add_argument("--world", default="exact", choices=["exact", "systematic"],
+                    help="exact: the arm is its nominal model; systematic: an IRB 2400 with geometric error")
     args = ap.parse_args()
     opts = CalibrationOptions(robot_error_model=args.robot_error_model)
-    print(f"robot error model: {args.robot_error_model}; {args.seeds} seeds")
+    arm = PluginHost().arm_kinematics({"type": "abb_irb2400"}) if args.world == "systematic" else None
+    world = {"robot_error": RobotErrorModel(), "arm": arm} if arm is not None else {}
+    print(f"robot error model: {args.robot_error_model}; world: {args.world}; {args.seeds} seeds")
     print(f"{'mounting':12} {'way':9} {'rot RMS deg':>12} {'trans RMS mm':>13} {'NEES':>6} {'CPU s':>6} {'not conv.':>9}")
     for mounting in ("eye_in_hand", "eye_to_hand"):
         rows: dict[str, list] = {"profiles": [], "circles": [], "spheres": []}
         for seed in range(args.seeds):
-            cell = standard_cell(mounting, seed=seed, noise=NOISE, fov=reference_fov())
+            cell = standard_cell(mounting, seed=seed, noise=NOISE, fov=reference_fov(), **world)
             profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=args.profiles))
             circles = circles_from_profiles(profiles)
             for way, ds in (("profiles", profiles), ("circles", circles), ("spheres", resolved(circles, profiles, cell))):
