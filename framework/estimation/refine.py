@@ -514,6 +514,103 @@ def _neg2_reml(L, A_tt, A_td, A_dd, b_t, b_d, yy) -> float:
     return float(logdet_V + logdet_X + quad)
 
 
+def _neg2_reml_derivatives(sd, group, n_groups: int, A_tt, A_td, A_dd, b_t, b_d, yy):
+    """:func:`_neg2_reml` for a diagonal prior square root ``L = diag(sd)`` whose columns
+    share ``n_groups`` scales (``group[j]``: the scale of column j), with its gradient
+    and Hessian with respect to the logarithm of each scale: ``(value, (g,), (g, g))``.
+
+    With V the marginal covariance of the whitened residuals (linear in the variances
+    theta_j = sd_j^2), P = V^-1 - V^-1 X (X^T V^-1 X)^-1 X^T V^-1, M = J_d^T P J_d and
+    p = J_d^T P y: d(-2 l) / d theta_j = M_jj - p_j^2 and
+    d^2(-2 l) / d theta_j d theta_k = -M_jk^2 + 2 p_j M_jk p_k; a scale's logarithm
+    moves theta_j of its columns by 2 theta_j. Exact derivatives let the search stop
+    where the gradient vanishes, to rounding, rather than where a finite-difference
+    estimate of it drowns in noise: the scales, and through them the transform, are a
+    smooth function of the data (reproducible to about 1e-13 instead of 1e-7), and
+    Gauss-Newton around them settles."""
+    sd = np.asarray(sd, dtype=float)
+    q = len(sd)
+    B = np.eye(q) + sd[:, None] * A_dd * sd[None, :]
+    cB = np.linalg.cholesky(B)
+    logdet_V = 2.0 * np.sum(np.log(np.diag(cB)))
+    Cmat = sd[:, None] * np.linalg.solve(B, np.diag(sd))  # (Sigma^-1 + A_dd)^-1 = D B^-1 D, D = diag(sd)
+    C_dt = Cmat @ A_td.T  # (q, p)
+    C_bd = Cmat @ b_d
+    XVX = A_tt - A_td @ C_dt
+    XVy = b_t - A_td @ C_bd
+    yVy = yy - b_d @ C_bd
+    sign, logdet_X = np.linalg.slogdet(XVX)
+    if sign <= 0:
+        return np.inf, np.zeros(n_groups), np.eye(n_groups)
+    # J_d^T V^-1 J_d, J_d^T V^-1 X, J_d^T V^-1 y (V^-1 = I - J_d C J_d^T), then P's
+    M_dd = A_dd - A_dd @ Cmat @ A_dd
+    M_dt = A_td.T - A_dd @ C_dt
+    m_d = b_d - A_dd @ C_bd
+    sol = np.linalg.solve(XVX, np.column_stack([XVy, M_dt.T]))
+    beta = sol[:, 0]
+    value = float(logdet_V + logdet_X + yVy - XVy @ beta)
+    M = M_dd - M_dt @ sol[:, 1:]
+    M = 0.5 * (M + M.T)
+    p = m_d - M_dt @ beta
+    theta = sd**2
+    g_theta = np.diag(M) - p**2
+    H_theta = -M**2 + 2.0 * np.outer(p, p) * M
+    E = np.zeros((q, n_groups))
+    E[np.arange(q), np.asarray(group)] = 1.0
+    grad = E.T @ (2.0 * theta * g_theta)
+    hess = E.T @ (np.outer(2.0 * theta, 2.0 * theta) * H_theta) @ E + np.diag(E.T @ (4.0 * theta * g_theta))
+    return value, grad, hess
+
+
+def _reml_search(evaluate, x0, lower, upper, max_iterations: int = 60):
+    """Minimise ``evaluate(x) -> (value, gradient, Hessian)`` over the box [lower, upper]
+    by projected Newton steps: a variable at a bound that the gradient pushes outward is
+    held there, the Hessian's eigenvalues are taken in absolute value (a descent direction
+    also where the objective is not convex), a step moves no variable by more than 2 (a
+    factor e^2 of a scale), and it is halved until the value falls; a variable the full
+    step moves toward its lower bound is also tried at that bound. Stops when a step
+    moves no variable by more than 1e-10, the value no longer falls beyond rounding or the
+    gradient is below 1e-8. Returns (x, value)."""
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    x = np.clip(np.asarray(x0, dtype=float), lower, upper)
+    f, g, H = evaluate(x)
+    for _ in range(max_iterations):
+        held = ((x <= lower) & (g > 0)) | ((x >= upper) & (g < 0))
+        free = ~held
+        if not free.any() or not np.isfinite(f) or np.abs(g[free]).max() < 1e-8:
+            break  # (a gradient of 1e-8: -2 log-likelihood flat to 1e-8 per factor e of a scale)
+        w, V = np.linalg.eigh(H[np.ix_(free, free)])
+        w = np.maximum(np.abs(w), 1e-12 * max(np.abs(w).max(), 1e-300))
+        step = -V @ ((V.T @ g[free]) / w)
+        step *= min(1.0, 2.0 / max(np.abs(step).max(), 1e-300))
+        frac, moved = 1.0, False
+        while frac > 1e-6:
+            x_new = x.copy()
+            x_new[free] = np.clip(x[free] + frac * step, lower[free], upper[free])
+            f_new, g_new, H_new = evaluate(x_new)
+            if f_new <= f:
+                moved = True
+                break
+            frac *= 0.5
+        if not moved:
+            break
+        # a scale on its way to its floor: Newton moves its logarithm by only about 0.5
+        # a step there (the objective flattens like sigma^2), so try the floor itself
+        falling = free.copy()
+        falling[free] = (step < 0) & (g[free] > 0)
+        falling &= x_new > lower
+        if frac == 1.0 and falling.any():
+            x_floor = np.where(falling, lower, x_new)
+            f_floor, g_floor, H_floor = evaluate(x_floor)
+            if f_floor < f_new:
+                x_new, f_new, g_new, H_new = x_floor, f_floor, g_floor, H_floor
+        size, fell = np.abs(x_new - x).max(), f - f_new
+        x, f, g, H = x_new, f_new, g_new, H_new
+        if size < 1e-10 or fell <= 1e-13 * max(abs(f), 1.0):
+            break  # (the value no longer falls beyond its rounding)
+    return x, f
+
+
 def _kinematic_evidence(Jw_t, Jw_k, yw, prior_sd) -> dict:
     """How strongly the data ask for the arm's geometric error: the REML likelihood
     ratio of the linearised model with the kinematic prior's scale free (``lam`` >= 0,
@@ -628,8 +725,6 @@ def refine(
     estimates the transform with those errors marginalised, and their scales by
     restricted maximum likelihood (REML) on the linearised model. The covariance is that
     of the transform with the errors integrated out."""
-    from scipy.optimize import minimize
-
     R = np.array(R, dtype=float)
     t = np.array(t, dtype=float)
     c = np.array(centre, dtype=float)
@@ -657,7 +752,8 @@ def refine(
     fixed = (None if se is None else
              (None if se.rotation_deg is None else np.radians(se.rotation_deg),
               se.translation_mm))
-    s_hat = np.array([np.radians(0.01), 0.1])  # start of the station-effect scales
+    s_start = np.array([np.radians(0.01), 0.1])  # start of the station-effect scales
+    s_hat = s_start.copy()
     # kinematic parameters: identified (fixed effects, in the parameter vector) or random
     n_kin = 0 if ke is None else 6 * ke.chain.n_joints
     kappa = np.zeros(n_kin)
@@ -807,18 +903,39 @@ def refine(
                                 sv[i] = fixed[i]
                         return sv, (float(np.exp(x[-1])) if lam_now else lam)
 
+                    # each prior column's scale: a free station scale, the kinematic
+                    # factor, or held (the last group, no gradient wanted)
+                    n_x = len(free) + int(lam_now)
+                    group = np.concatenate([
+                        np.tile([free.index(g) if g in free else n_x for g in (0, 0, 0, 1, 1, 1)], K)
+                        if se is not None else np.zeros(0, dtype=int),
+                        np.full(len(rand_cols), len(free) if lam_now else n_x, dtype=int)]).astype(int)
+
                     def objective(x):
                         sv, lam_ = unpack(x)
-                        return _neg2_reml(sqrt_prior(sv, lam_), A_tt, A_td, A_dd, b_t, b_d, yy)
+                        sd = np.concatenate([np.tile(np.repeat(sv, 3), K) if se is not None else [],
+                                             lam_ * kin_prior[rand_cols]])  # (the diagonal of sqrt_prior)
+                        value, grad, hess = _neg2_reml_derivatives(sd, group, n_x + 1, A_tt, A_td, A_dd, b_t, b_d,
+                                                                   yy)
+                        return value, grad[:n_x], hess[:n_x, :n_x]
 
                     bounds = [(np.log(_SCALE_BOUNDS[i][0]), np.log(_SCALE_BOUNDS[i][1])) for i in free]
                     x0 = [np.log(s_hat[i]) for i in free]
                     if lam_now:
                         bounds.append((np.log(_KIN_SCALE_BOUNDS[0]), np.log(_KIN_SCALE_BOUNDS[1])))
                         x0.append(np.log(lam))
-                    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
-                    best = minimize(objective, x0, method="L-BFGS-B", bounds=bounds)
-                    s_hat, lam = unpack(best.x)
+                    lo_hi = ([b[0] for b in bounds], [b[1] for b in bounds])
+                    # from the last scales and from the first start: near its floor a
+                    # scale's gradient vanishes (it moves sigma^2 by 2 sigma^2), so a
+                    # scale that once fell there could not leave it from the last scales
+                    # alone, however much the data came to ask for it
+                    starts = [np.clip(x0, *lo_hi)]
+                    first = np.clip([np.log(s_start[i]) for i in free] + ([np.log(lam)] if lam_now else []), *lo_hi)
+                    near_floor = starts[0][:len(free)] < np.array(lo_hi[0][:len(free)]) + np.log(100.0)
+                    if near_floor.any() and np.abs(first - starts[0]).max() > 1e-3:
+                        starts.append(first)
+                    best = min((_reml_search(objective, x, *lo_hi) for x in starts), key=lambda res: res[1])
+                    s_hat, lam = unpack(best[0])
                 if se is not None:
                     for i in range(2):
                         if fixed[i] is not None:
