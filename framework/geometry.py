@@ -12,14 +12,6 @@ import numpy as np
 ROTATION_TOLERANCE = 1e-6
 
 
-def _Rotation():
-    """SciPy's ``Rotation`` class, imported on first use (``scipy.spatial`` takes about
-    0.3 s to import, which commands that never turn anything should not pay)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation
-
-
 def check_rotation_matrix(R, name: str = "rotation") -> np.ndarray:
     """Return ``R`` as a float (3, 3) array or raise ``ValueError`` naming the problem.
 
@@ -52,30 +44,89 @@ def quat_wxyz_from_xyzw(q_xyzw) -> np.ndarray:
 
 
 def matrix_from_quat_wxyz(q_wxyz) -> np.ndarray:
-    """Rotation matrix from a unit quaternion in (w, x, y, z) order (ABB's ``orient``)."""
+    """Rotation matrix from a unit quaternion in (w, x, y, z) order (ABB's ``orient``);
+    works on (..., 4). The quaternion is normalised first (its norm must be 1 within
+    1e-3: a typo is refused, rounding is not)."""
     q = np.asarray(q_wxyz, dtype=float)
     if q.shape[-1] != 4 or not np.all(np.isfinite(q)):
         raise ValueError(f"quaternion (w, x, y, z): expected 4 finite numbers, got {q.tolist()}")
     norm = np.linalg.norm(q, axis=-1)
     if np.any(np.abs(norm - 1.0) > 1e-3):
         raise ValueError(f"quaternion (w, x, y, z) {q.tolist()}: norm {norm} is not 1")
-    return _Rotation().from_quat(quat_xyzw_from_wxyz(q)).as_matrix()
+    w, x, y, z = np.moveaxis(q / norm[..., None], -1, 0)
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R[..., 0, 1] = 2.0 * (x * y - w * z)
+    R[..., 0, 2] = 2.0 * (x * z + w * y)
+    R[..., 1, 0] = 2.0 * (x * y + w * z)
+    R[..., 1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R[..., 1, 2] = 2.0 * (y * z - w * x)
+    R[..., 2, 0] = 2.0 * (x * z - w * y)
+    R[..., 2, 1] = 2.0 * (y * z + w * x)
+    R[..., 2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return R
 
 
 def quat_wxyz_from_matrix(R) -> np.ndarray:
-    """Unit quaternion (w, x, y, z), w >= 0, from a rotation matrix."""
-    q = quat_wxyz_from_xyzw(_Rotation().from_matrix(R).as_quat())
-    return np.where(q[..., :1] < 0, -q, q)
+    """Unit quaternion (w, x, y, z), w >= 0, from a rotation matrix; works on (..., 3, 3).
+
+    Each matrix is read from its largest diagonal term (of w, x, y, z, the largest
+    component is computed from the diagonal, the others from the off-diagonal terms
+    divided by it), which keeps every division away from zero."""
+    R = np.asarray(R, dtype=float)
+    m = R.reshape(-1, 3, 3)
+    trace = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    largest = np.argmax(np.stack([trace, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1), axis=1)
+    q = np.empty((len(m), 4))
+    sel = largest == 0
+    if sel.any():
+        a = m[sel]
+        four_w = 2.0 * np.sqrt(1.0 + trace[sel])
+        q[sel, 0] = 0.25 * four_w
+        q[sel, 1] = (a[:, 2, 1] - a[:, 1, 2]) / four_w
+        q[sel, 2] = (a[:, 0, 2] - a[:, 2, 0]) / four_w
+        q[sel, 3] = (a[:, 1, 0] - a[:, 0, 1]) / four_w
+    for i in range(3):
+        sel = largest == i + 1
+        if not sel.any():
+            continue
+        a = m[sel]
+        j, k = (i + 1) % 3, (i + 2) % 3
+        four_qi = 2.0 * np.sqrt(1.0 + a[:, i, i] - a[:, j, j] - a[:, k, k])
+        q[sel, 0] = (a[:, k, j] - a[:, j, k]) / four_qi
+        q[sel, 1 + i] = 0.25 * four_qi
+        q[sel, 1 + j] = (a[:, j, i] + a[:, i, j]) / four_qi
+        q[sel, 1 + k] = (a[:, k, i] + a[:, i, k]) / four_qi
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q = np.where(q[:, :1] < 0, -q, q)
+    return q.reshape(R.shape[:-2] + (4,))
 
 
 def matrix_from_rotvec(rotvec) -> np.ndarray:
-    """Rotation matrix from a rotation vector (axis times angle, radians)."""
-    return _Rotation().from_rotvec(rotvec).as_matrix()
+    """Rotation matrix from a rotation vector (axis times angle, radians); works on
+    (..., 3). Rodrigues' formula, with its coefficients' series below 1e-4 rad."""
+    v = np.asarray(rotvec, dtype=float)
+    angle = np.linalg.norm(v, axis=-1)
+    small = angle < 1e-4
+    a = np.where(small, 1.0, angle)
+    sin_term = np.where(small, 1.0 - angle**2 / 6.0 + angle**4 / 120.0, np.sin(a) / a)
+    cos_term = np.where(small, 0.5 - angle**2 / 24.0 + angle**4 / 720.0, (1.0 - np.cos(a)) / a**2)
+    K = skew(v)
+    return np.eye(3) + sin_term[..., None, None] * K + cos_term[..., None, None] * (K @ K)
 
 
 def rotvec_from_matrix(R) -> np.ndarray:
-    """Rotation vector (axis times angle, radians) from a rotation matrix."""
-    return _Rotation().from_matrix(R).as_rotvec()
+    """Rotation vector (axis times angle, radians, angle in [0, pi]) from a rotation
+    matrix; works on (..., 3, 3). Through the quaternion (w >= 0): angle = 2 atan2(|v|, w)."""
+    q = quat_wxyz_from_matrix(R)
+    w, v = q[..., 0], q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    small = s < 1e-6
+    # angle / s = 2 atan2(s, w) / s; near 0: (2 / w) (1 - s^2 / (3 w^2)) to second order
+    w_small = np.where(small, w, 1.0)  # (w is near 1 there; 0 only at half a turn)
+    factor = np.where(small, 2.0 / w_small * (1.0 - s**2 / (3.0 * w_small**2)),
+                      2.0 * np.arctan2(s, w) / np.where(small, 1.0, s))
+    return v * factor[..., None]
 
 
 def rotation_angle_deg(R_a, R_b) -> float:

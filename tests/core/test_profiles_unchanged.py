@@ -1,7 +1,13 @@
 """Profile-only calibrations are unchanged by centre observations (issue 14): the
 results of a few simulated profile datasets, solved by the code before centre
 observations existed (main at commit 1977c88, stored in data/profile_results_before_centres.json
-by :func:`solve_cases`), are reproduced to 1e-12. The station-model case was regenerated
+by :func:`solve_cases`), are reproduced to 1e-9 relative: bit for bit until the rotation
+conversions stopped being SciPy's (issue 13), which moves the last bits of every pose.
+The covariance is held to 1e-7 of its largest element: in the kinematic case its
+sphere-centre terms, which come through the arm's prior, moved by 8.4e-8 with those
+last bits (they are that ill-conditioned; the other covariances agree to 3e-10, every
+other figure to 1e-11). The
+station-model case was regenerated
 when the REML search of the station scales got exact gradients (issue 14): it moved by
 at most 1e-7 relative, the finite-difference search's own precision. A change that is meant to alter
 profile results regenerates that file on purpose:
@@ -51,11 +57,13 @@ def write_reference() -> None:
     REFERENCE.write_text(json.dumps(solve_cases(), indent=1) + "\n")
 
 
-def test_profile_only_results_are_bit_for_bit_those_before_centre_observations():
+def test_profile_only_results_are_those_before_centre_observations():
     before = json.loads(REFERENCE.read_text())
     now = solve_cases()
     assert set(now) == set(before)
     for name in before:
         for key, value in before[name].items():
-            np.testing.assert_allclose(np.asarray(now[name][key], float), np.asarray(value, float), rtol=1e-12,
-                                       atol=1e-15, err_msg=f"{name}: {key}")
+            value = np.asarray(value, float)
+            atol = 1e-7 * np.abs(value).max() if key == "covariance" else 1e-12
+            np.testing.assert_allclose(np.asarray(now[name][key], float), value, rtol=1e-9, atol=atol,
+                                       err_msg=f"{name}: {key}")
