@@ -99,137 +99,109 @@ def _pose_noise_jacobian(problem: Problem, R, c):
     return R.T @ Ju
 
 
-def _rows_times(G, A, index):
-    """``G[m] @ A[index[m]]`` for every row m, (M, P), for G (M, 3) and A (n, 3, P).
+class _Reduced:
+    """The whitened least-squares problem of one linearisation, reduced to each shot.
 
-    Built one output column at a time from 1-D gathers (no (M, 3, P) gather; the result
-    is column-major, the layout the whitening reads it in), summed over k = 0, 1, 2 in
-    that order: the same sums, bit for bit, as ``einsum("mk,mkp->mp", G, A[index])``."""
-    Gc = np.ascontiguousarray(G.T)
-    index = np.asarray(index)
-    out = np.empty((A.shape[2], len(index)))
-    tmp = np.empty(len(index))
-    for p in range(A.shape[2]):
-        acc = out[p]
-        np.multiply(Gc[0], A[:, 0, p].take(index), out=acc)
-        for k in (1, 2):
-            np.multiply(Gc[k], A[:, k, p].take(index), out=tmp)
-            acc += tmp
-    return out.T
+    Every Jacobian column of a profile point m of shot i is ``g_m A_i``: ``g_m`` =
+    (d res / d C, 1), a 4-vector per point, times a (4, P) matrix per shot (the sphere
+    centre's derivatives, and the radius in the fourth row). The residuals of a profile
+    have covariance ``sigma^2 I + G_i S_i G_i^T`` (S_i: its centre's covariance from the
+    pose noise), so, with ``T_i = sum_m g_m g_m^T`` and ``s_i = sum_m g_m res_m`` (push
+    through and Woodbury, no subtraction of large terms):
 
+    * ``J^T Cov^-1 J`` sums ``A_i^T W_i A_i`` with ``W_i = (sigma^2 I + T_i Sigma_i)^-1 T_i``,
+    * ``J^T Cov^-1 res`` sums ``A_i^T w_i`` with ``w_i = (sigma^2 I + T_i Sigma_i)^-1 s_i``,
+    * ``res^T Cov^-1 res`` sums ``c_i = (sum_m res_m^2 - s_i^T Sigma_i w_i) / sigma^2``,
 
-class _Whitener:
-    """Cov_i^-1/2 for each profile, applied to stacked per-point arrays.
+    ``Sigma_i`` = diag(S_i, 0). A centre observation is the same with its three rows:
+    ``g`` = (d res / d C | radius column) (3, 4) and its covariance. So the normal
+    equations cost O(points) once per linearisation (15 sums a point) and O(shots)
+    for any set of columns, and no per-point Jacobian is ever built."""
 
-    Profile i's points are the contiguous rows ``starts[i]:starts[i + 1]``. Memory: the
-    per-point (M, 3) basis Q, held by columns; every operation works one column of its
-    operand at a time (no (M, 3, K) temporaries) and sums in the order the (M, 3, K) form
-    did, so the results are the same to the last bit."""
+    def __init__(self, W, w, c, chi2):
+        self.W, self.w, self.c, self.chi2 = W, w, c, chi2  # (n, 4, 4), (n, 4), (n,), (n,)
 
-    def __init__(self, G, pid, starts, L, sigma):
-        H_rows = _rows_times(G, L, pid)  # rows of H_i = G_i L_i
-        n = len(starts)
-        HtH = np.empty((n, 3, 3))
-        for a in range(3):
-            for b in range(a, 3):
-                HtH[:, a, b] = np.add.reduceat(H_rows[:, a] * H_rows[:, b], starts)
-                HtH[:, b, a] = HtH[:, a, b]
-        S2, V = np.linalg.eigh(HtH)
-        S2 = np.maximum(S2, 0.0)
-        S = np.sqrt(S2)
-        ok = S > 1e-12 * max(S.max(), 1e-300)
-        inv_S = np.where(ok, 1.0 / np.where(ok, S, 1.0), 0.0)
-        self.Qc = np.ascontiguousarray(_rows_times(H_rows, V * inv_S[:, None, :], pid).T)  # (3, M): Q by columns
-        self.gain = np.where(ok, 1.0 / np.sqrt(1.0 + S2 / sigma**2) - 1.0, 0.0)  # (n, 3)
-        self.starts, self.sigma = starts, sigma
-        self.counts = np.diff(np.append(starts, len(pid)))
+    def cost(self) -> float:
+        return float(self.c.sum())
 
-    def _block(self, lo: int, hi: int | None):
-        """Q by columns, profile starts (relative) and counts of profiles lo..hi-1."""
-        hi = len(self.starts) if hi is None else hi
-        a = int(self.starts[lo])
-        b = int(self.starts[hi]) if hi < len(self.starts) else self.Qc.shape[1]
-        return self.Qc[:, a:b], self.starts[lo:hi] - a, self.counts[lo:hi], self.gain[lo:hi]
+    def gram(self, X, Y, rows=slice(None)):
+        """sum_i X_i^T W_i Y_i for per-shot columns X (n, 4, p), Y (n, 4, q) (of the
+        shots ``rows`` only, X and Y holding theirs)."""
+        WY = self.W[rows] @ Y
+        return X.reshape(-1, X.shape[2]).T @ WY.reshape(-1, WY.shape[2])
 
-    def project(self, x, lo: int = 0, hi: int | None = None):
-        """Q_i^T x_i per profile: (n, 3, K) for x (M, K); with ``lo``, ``hi``: for profiles
-        lo..hi-1 only, x holding their rows."""
-        Qc, starts, _, _ = self._block(lo, hi)
-        K = x.shape[1]
-        out = np.empty((len(starts), 3, K))
-        for k in range(K):
-            col = np.ascontiguousarray(x[:, k])
-            for j in range(3):
-                out[:, j, k] = np.add.reduceat(Qc[j] * col, starts)
-        return out
+    def rhs(self, X, z=None, rows=slice(None)):
+        """J_X^T Cov^-1 (-res + J z): sum_i X_i^T (W_i z_i - w_i), z (n, 4) per shot."""
+        v = -self.w[rows] if z is None else np.einsum("nab,nb->na", self.W[rows], z[rows]) - self.w[rows]
+        return X.reshape(-1, X.shape[2]).T @ v.ravel()
 
-    def apply(self, x, lo: int = 0, hi: int | None = None):
-        """Cov_i^-1/2 x_i for every profile (x: (M,) or (M, K)); with ``lo``, ``hi``: for
-        profiles lo..hi-1 only, x holding their rows (the same numbers as those rows of
-        the whole)."""
-        Qc, _, counts, gain = self._block(lo, hi)
-        x2 = x if x.ndim == 2 else x[:, None]
-        Y = self.project(x2, lo, hi) * gain[:, :, None]
-        out = np.empty(x2.shape)
-        # Q_i Y_i summed in the order the (M, 3, K) contraction took: k = 0, 1, 2 for
-        # several columns, (0 + 2) + 1 for a single one
-        order = (0, 1, 2) if x2.shape[1] > 1 else (0, 2, 1)
-        for k in range(x2.shape[1]):
-            acc = Qc[order[0]] * np.repeat(Y[:, order[0], k], counts)
-            acc += Qc[order[1]] * np.repeat(Y[:, order[1], k], counts)
-            acc += Qc[order[2]] * np.repeat(Y[:, order[2], k], counts)
-            acc += x2[:, k]
-            acc /= self.sigma
-            out[:, k] = acc
-        return out if x.ndim == 2 else out[:, 0]
-
-    def profile_chi2(self, e):
-        """Whitened chi^2 of each profile's 3-D 'pose' subspace, (n,)."""
-        Y = self.project(e[:, None])[:, :, 0] * (self.gain + 1.0) / self.sigma
-        return np.sum(Y**2, axis=1)
+    def quad(self, z=None) -> float:
+        """(-res + J z)^T Cov^-1 (-res + J z)."""
+        if z is None:
+            return self.cost()
+        return float(self.c.sum() - 2.0 * np.sum(z * self.w) + np.einsum("na,nab,nb->", z, self.W, z))
 
 
-class _MixedWhitener:
-    """Profiles' points (rows 0..M-1, :class:`_Whitener`) and centre observations (three
-    rows each, after them): each centre's residual is whitened by ``L_j^-1``, ``L_j L_j^T``
-    its covariance (measurement plus pose noise)."""
+def _profile_sums(G, res, pid, n):
+    """Per shot (n): sum g g^T (n, 4, 4), sum g res (n, 4) and sum res^2, g = (G, 1)."""
+    T = np.zeros((n, 4, 4))
+    s = np.zeros((n, 4))
+    cols = [G[:, 0], G[:, 1], G[:, 2], None]
+    for a in range(4):
+        for b in range(a, 4):
+            if cols[a] is None:  # (1, 1)
+                v = np.bincount(pid, minlength=n).astype(float)
+            elif cols[b] is None:
+                v = np.bincount(pid, weights=cols[a], minlength=n)
+            else:
+                v = np.bincount(pid, weights=cols[a] * cols[b], minlength=n)
+            T[:, a, b] = T[:, b, a] = v
+        s[:, a] = np.bincount(pid, weights=res if cols[a] is None else cols[a] * res, minlength=n)
+    return T, s, np.bincount(pid, weights=res * res, minlength=n)
 
-    def __init__(self, points: _Whitener | None, Wc: np.ndarray, M: int, n: int, shots: np.ndarray,
-                 centre_shots: np.ndarray):
-        self.points, self.Wc, self.M, self.n = points, Wc, M, n
-        self.shots, self.centre_shots = shots, centre_shots
 
-    def apply(self, x):
-        x2 = x if x.ndim == 2 else x[:, None]
-        m, K = len(self.centre_shots), x2.shape[1]
-        top = self.points.apply(x2[:self.M]) if self.M else np.zeros((0, K))
-        bottom = np.einsum("mij,mjk->mik", self.Wc, x2[self.M:].reshape(m, 3, K)).reshape(3 * m, K)
-        out = np.vstack([top, bottom])
-        return out if x.ndim == 2 else out[:, 0]
-
-    def profile_chi2(self, e):
-        """Whitened chi^2 of each shot (n,): a profile's 3-D 'pose' subspace, a centre's
-        three components."""
-        out = np.zeros(self.n)
-        if self.M:
-            out[self.shots] = self.points.profile_chi2(e[:self.M])
-        ec = np.einsum("mij,mj->mi", self.Wc, e[self.M:].reshape(-1, 3))
-        out[self.centre_shots] = np.sum(ec**2, axis=1)
-        return out
+def _reduce_profiles(T, s, rr, SC, sigma):
+    """W, w, c and the pose-subspace chi^2 of profiles with sums T, s, rr (see
+    :class:`_Reduced`) and centre covariances SC (n, 3, 3)."""
+    n = len(T)
+    Sig = np.zeros((n, 4, 4))
+    Sig[:, :3, :3] = SC
+    Mx = sigma**2 * np.eye(4) + T @ Sig
+    W = np.linalg.solve(Mx, T)
+    W = 0.5 * (W + np.swapaxes(W, 1, 2))
+    w = np.linalg.solve(Mx, s[:, :, None])[:, :, 0]
+    c = (rr - np.einsum("na,nab,nb->n", s, Sig, w)) / sigma**2
+    # whitened chi^2 of each profile's 3-D 'pose' subspace: H = G L (L L^T = S_C), with
+    # H^T H = V diag(lam) V^T and u = H^T res = L^T s: sum_j (v_j^T u)^2 / (lam_j (sigma^2 + lam_j))
+    L = np.linalg.cholesky(SC + 1e-18 * np.eye(3))
+    HtH = np.swapaxes(L, 1, 2) @ T[:, :3, :3] @ L
+    lam, V = np.linalg.eigh(HtH)
+    lam = np.maximum(lam, 0.0)
+    ok = np.sqrt(lam) > 1e-12 * max(np.sqrt(lam).max(), 1e-300)
+    proj = np.einsum("nab,na->nb", V, np.einsum("nba,nb->na", L, s[:, :3]))
+    chi2 = np.sum(np.where(ok, proj**2 / np.where(ok, lam * (sigma**2 + lam), 1.0), 0.0), axis=1)
+    return W, w, c, chi2
 
 
 @dataclass
 class _Linearisation:
     res: np.ndarray  # (M,) residuals, mm (then 3 per centre observation)
-    J: np.ndarray  # (M, P) d res / d params
-    W: _Whitener | _MixedWhitener
+    red: _Reduced  # the whitened problem reduced to each shot
     C: np.ndarray  # (n, 3) predicted sensor-frame centres
     SC: np.ndarray  # (n, 3, 3) their covariance from pose noise
-    G: np.ndarray  # (M, 3) d res / d C per point (and per centre residual row)
-    Jd: np.ndarray  # (n, 3, 6) d C / d(pose error) per profile
-    centre_parts: tuple | None = None
-    Jc: np.ndarray | None = None  # (n, 3, P) d C / d params per profile (for the per-chunk Jacobian)
-    radius_column: np.ndarray | None = None  # (n,) d res / d r per profile (fitting the radius), else None  # centre residuals (m, 3), their pose-noise covariance (m, 3, 3), given (m, 3, 3)
+    Jd: np.ndarray  # (n, 3, 6) d C / d(pose error) per shot
+    Jc: np.ndarray  # (n, 3, P) d C / d(w, t, c) per shot
+    radius_column: np.ndarray | None = None  # (n,) d res / d r per profile point (fitting the radius), else None
+    centre_parts: tuple | None = None  # centre residuals (m, 3), their pose-noise covariance (m, 3, 3), given (m, 3, 3), used (m, 3, 3)
+
+    def columns(self, A3: np.ndarray, radius: bool = False) -> np.ndarray:
+        """Per-shot columns (n, 4, P) of C-derivatives ``A3`` (n, 3, P) (fourth row: the
+        radius, with ``radius`` as the last column)."""
+        A = np.zeros((A3.shape[0], 4, A3.shape[2] + int(radius)))
+        A[:, :3, :A3.shape[2]] = A3
+        if radius:
+            A[:, 3, -1] = self.radius_column
+        return A
 
 
 class _Points:
@@ -262,71 +234,70 @@ def _pose_cov(noise: NoiseAssumptions) -> np.ndarray:
 
 
 def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s2_centre=None,
-               with_jacobian: bool = True, centre_cov_frozen: np.ndarray | None = None) -> _Linearisation:
-    """Residuals, Jacobian and whitening at (R, t, c, r); see the module docstring.
-    ``s2_centre`` (mm^2, per axis): the variance of centre observations given without
-    one. ``centre_cov_frozen`` (m, 3, 3): the centre observations' covariance to whiten
-    with instead of the one at (R, t, c, r) (see :func:`refine`). ``with_jacobian=False`` (profiles only): the per-point Jacobian is not built
-    (``J`` None); :func:`_chunk_jacobian` builds it a block of profiles at a time."""
+               centre_cov_frozen: np.ndarray | None = None) -> _Linearisation:
+    """Residuals and the whitened problem reduced to each shot (:class:`_Reduced`) at
+    (R, t, c, r); see the module docstring. ``s2_centre`` (mm^2, per axis): the variance
+    of centre observations given without one. ``centre_cov_frozen`` (m, 3, 3): the centre
+    observations' covariance to whiten with instead of the one at (R, t, c, r) (see
+    :func:`refine`)."""
     pid = pts.pid
+    n = problem.n_profiles
     u, C = _centres(problem, R, t, c)
     rho = np.sqrt(np.maximum(r * r - C[:, 0] ** 2, 1e-6))
     d = pts.P - C[pid, 1:]
     dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
     res = dist - rho[pid]
     G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
+    del d, dist
     Jc = _centre_jacobian(problem, R, u)
-    radius_column = -(r / rho) if fit_radius else None
-    J = None
-    if with_jacobian or len(pts.centre_shots):
-        J = _rows_times(G, Jc, pid)
-        if fit_radius:
-            J = np.column_stack([J, radius_column[pid]])
+    radius_column = -(r / rho)
     Jd = _pose_noise_jacobian(problem, R, c)
     SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
+    T, s, rr = _profile_sums(G, res, pid, n)
+    del G
+    W, w, cc, chi2 = _reduce_profiles(T, s, rr, SC, sigma)
     if not len(pts.centre_shots):
-        W = _Whitener(G, pid, pts.starts, np.linalg.cholesky(SC + 1e-18 * np.eye(3)), sigma)
-        return _Linearisation(res, J, W, C, SC, G, Jd, None, Jc, radius_column)
-    Wp = _Whitener(G, pts.local, pts.starts, np.linalg.cholesky(SC[pts.shots] + 1e-18 * np.eye(3)), sigma) \
-        if pts.M else None
-    res_c, J_c, G_c, Wc, parts = _centre_rows(problem, pts.centre_shots, C, Jc, rho, r, SC, fit_radius, s2_centre,
-                                              centre_cov_frozen)
-    W = _MixedWhitener(Wp, Wc, pts.M, problem.n_profiles, pts.shots, pts.centre_shots)
-    return _Linearisation(np.concatenate([res, res_c]), np.vstack([J, J_c]), W, C, SC, np.vstack([G, G_c]), Jd,
-                          parts)
+        return _Linearisation(res, _Reduced(W, w, cc, chi2), C, SC, Jd, Jc, radius_column if fit_radius else None)
+    cs = pts.centre_shots
+    res_c, Gc, Wc, parts = _centre_rows(problem, cs, C, rho, SC, s2_centre, centre_cov_frozen)
+    Ci = np.swapaxes(Wc, 1, 2) @ Wc  # covariance^-1
+    e = parts[0]
+    W[cs] = np.swapaxes(Gc, 1, 2) @ Ci @ Gc
+    w[cs] = np.einsum("mba,mbc,mc->ma", Gc, Ci, e)
+    cc[cs] = chi2[cs] = np.einsum("ma,mab,mb->m", e, Ci, e)
+    return _Linearisation(np.concatenate([res, res_c]), _Reduced(W, w, cc, chi2), C, SC, Jd, Jc,
+                          radius_column if fit_radius else None, parts)
 
 
-def _centre_rows(problem, cs, C, Jc, rho, r, SC, fit_radius, s2_centre, cov_frozen=None):
-    """Residuals (3 m,), Jacobian rows (3 m, P), d res / d C rows (3 m, 3) and whitening
-    matrices (m, 3, 3) of the centre observations ``cs``. A sphere centre: C_i minus the
-    measured centre. A circle: (C_y, C_z) minus the measured centre and the radius of the
-    circle the laser plane cuts from the predicted sphere, ``sqrt(r^2 - C_x^2)``, minus the
-    measured radius (no side of the plane needed). Covariance: the given one (else
-    ``s2_centre`` I) plus the pose noise's ``G S_C G^T``, or ``cov_frozen`` (m, 3, 3)
-    when given. The returned parts carry the covariance used, (m, 3, 3), last."""
+def _centre_rows(problem, cs, C, rho, SC, s2_centre, cov_frozen=None):
+    """Residuals (3 m,), d res / d (C, r) (m, 3, 4: the radius's column last, as
+    :meth:`_Linearisation.columns` puts it) and whitening matrices (m, 3, 3) of the
+    centre observations ``cs``. A sphere centre: C_i minus the measured centre. A
+    circle: (C_y, C_z) minus the measured centre and the radius of the circle the laser
+    plane cuts from the predicted sphere, ``sqrt(r^2 - C_x^2)``, minus the measured
+    radius (no side of the plane needed). Covariance: the given one (else ``s2_centre``
+    I) plus the pose noise's ``G S_C G^T``, or ``cov_frozen`` (m, 3, 3) when given. The
+    returned parts carry the covariance used, (m, 3, 3), last."""
     kinds, meas, given = problem.kind[cs], problem.centre_meas[cs], problem.centre_cov[cs]
     m = len(cs)
-    Gc = np.zeros((m, 3, 3))
+    Gc = np.zeros((m, 3, 4))
     res = np.zeros((m, 3))
     sph, cir = kinds == KIND_SPHERE_CENTRE, kinds == KIND_CIRCLE
-    Gc[sph] = np.eye(3)
+    Gc[sph, :, :3] = np.eye(3)
     res[sph] = C[cs[sph]] - meas[sph]
     Cc, rc = C[cs[cir]], rho[cs[cir]]
     Gc[cir, 0, 1] = 1.0
     Gc[cir, 1, 2] = 1.0
     Gc[cir, 2, 0] = -Cc[:, 0] / rc
+    Gc[cir, 2, 3] = -1.0  # (the radius column holds -r / rho: d res / d r = r / rho)
     res[cir] = np.column_stack([Cc[:, 1:] - meas[cir, :2], rc - meas[cir, 2]])
-    J = Gc @ Jc[cs]
-    if fit_radius:
-        col = np.zeros((m, 3, 1))
-        col[cir, 2, 0] = r / rc
-        J = np.concatenate([J, col], axis=2)
-    pose_part = Gc @ SC[cs] @ np.swapaxes(Gc, 1, 2)
+    G3 = Gc[:, :, :3]
+    pose_part = G3 @ SC[cs] @ np.swapaxes(G3, 1, 2)
     unknown = np.isnan(given[:, 0, 0])
     S = np.where(unknown[:, None, None], (s2_centre if s2_centre is not None else 1.0) * np.eye(3), given)
     cov = S + pose_part if cov_frozen is None else cov_frozen
     Wc = np.linalg.inv(np.linalg.cholesky(cov))
-    return res.ravel(), J.reshape(3 * m, -1), Gc.reshape(3 * m, 3), Wc, (res, pose_part, given, cov)
+    return res.ravel(), Gc, Wc, (res, pose_part, given, cov)
 
 
 #: Bounds of the estimated variance of centre observations given without one, mm^2.
@@ -611,17 +582,15 @@ def _reml_search(evaluate, x0, lower, upper, max_iterations: int = 60):
     return x, f
 
 
-def _kinematic_evidence(Jw_t, Jw_k, yw, prior_sd) -> dict:
+def _kinematic_evidence(blocks, prior_sd) -> dict:
     """How strongly the data ask for the arm's geometric error: the REML likelihood
     ratio of the linearised model with the kinematic prior's scale free (``lam`` >= 0,
-    times the stated spread) against none (``lam`` = 0)."""
+    times the stated spread) against none (``lam`` = 0). ``blocks``: the normal-equation
+    blocks (A_tt, A_td, A_dd, b_t, b_d, yy) of the transform's and the kinematic columns."""
     from scipy.optimize import minimize_scalar
 
-    A_tt, A_td, A_dd, b_t, b_d = _effect_blocks(Jw_t, None, Jw_k, yw, [])
-    yy = float(yw @ yw)
-
     def f(lam):
-        return _neg2_reml(np.diag(lam * prior_sd), A_tt, A_td, A_dd, b_t, b_d, yy)
+        return _neg2_reml(np.diag(lam * prior_sd), *blocks)
 
     f0 = f(0.0)
     best = minimize_scalar(lambda x: f(np.exp(x)), bounds=(np.log(1e-4), np.log(_KIN_SCALE_BOUNDS[1])),
@@ -630,77 +599,32 @@ def _kinematic_evidence(Jw_t, Jw_k, yw, prior_sd) -> dict:
     return {"likelihood_ratio": float(max(f0 - best.fun, 0.0)), "scale_free": lam}
 
 
-#: Points per block when the normal equations are summed a block of profiles at a time
-#: (profiles only, pose noise only): above this many points the per-point Jacobian is
-#: never held whole. Smaller problems take the one-block path as before.
-CHUNK_POINTS = 1 << 16
-
-
-def _profile_chunks(counts: np.ndarray, limit: int) -> list[tuple[int, int]]:
-    """Consecutive profiles grouped into blocks of at most ``limit`` points (a profile
-    with more makes a block of its own): (first, end) profile indices."""
-    out, lo, total = [], 0, 0
-    for i, cnt in enumerate(counts):
-        if i > lo and total + cnt > limit:
-            out.append((lo, i))
-            lo, total = i, 0
-        total += int(cnt)
-    out.append((lo, len(counts)))
-    return out
-
-
-def _chunked_normal_equations(lin: "_Linearisation", pts: "_Points", ew: np.ndarray,
-                              chunks: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
-    """``Jw^T Jw`` and ``-Jw^T ew`` of the whitened problem, summed a block of profiles at a
-    time: whitening is per profile, so each block's whitened Jacobian is built, used and
-    dropped (the per-point Jacobian is never held whole)."""
-    A = b_vec = None
-    for lo, hi in chunks:
-        a = int(pts.starts[lo])
-        b = int(pts.starts[hi]) if hi < len(pts.starts) else pts.M
-        pid = pts.pid[a:b]
-        J = _rows_times(lin.G[a:b], lin.Jc, pid)
-        if lin.radius_column is not None:
-            J = np.column_stack([J, lin.radius_column[pid]])
-        Jw = lin.W.apply(J, lo, hi)
-        del J
-        A_part, b_part = Jw.T @ Jw, Jw.T @ -ew[a:b]
-        A, b_vec = (A_part, b_part) if A is None else (A + A_part, b_vec + b_part)
-    return A, b_vec
-
-
-def _as_slice(rows: np.ndarray):
-    """``rows`` (sorted indices) as a slice when they are one contiguous run (a view, not
-    a copy, of the per-point arrays they select), else as they are."""
-    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
-        return slice(int(rows[0]), int(rows[-1]) + 1)
-    return rows
-
-
-def _effect_blocks(Jw_t, Jw_s, Jw_k, yw, station_rows):
-    """Normal-equation blocks of ``y = J_t b + [J_s | J_k] d + e``: the station offsets'
-    columns (``Jw_s`` (M, 6), each point against its own station's six) kept per station,
-    then the dense kinematic columns ``Jw_k`` (M, q). Either may be None."""
-    K = len(station_rows) if Jw_s is not None else 0
-    q = Jw_k.shape[1] if Jw_k is not None else 0
-    p = Jw_t.shape[1]
+def _effect_blocks(red: _Reduced, At, As, Ak, z, station_shots):
+    """Normal-equation blocks of ``y = J_t b + [J_s | J_k] d + e`` with y = -res + J z
+    (``z`` (n, 4) per shot, or None): per-shot fixed-effect columns ``At`` (n, 4, p),
+    station-offset columns ``As`` (n, 4, 6) (each shot against its own station's six,
+    ``station_shots[k]`` the shots of station k) and dense kinematic columns ``Ak``
+    (n, 4, q); either may be None. Returns (A_tt, A_td, A_dd, b_t, b_d, yy)."""
+    K = len(station_shots) if As is not None else 0
+    q = Ak.shape[2] if Ak is not None else 0
+    p = At.shape[2]
     A_td = np.zeros((p, 6 * K + q))
     A_dd = np.zeros((6 * K + q, 6 * K + q))
     b_d = np.zeros(6 * K + q)
-    for k, rows in enumerate(station_rows[:K]):
-        Jd = Jw_s[rows]
+    for k, rows in enumerate(station_shots[:K]):
+        Xs = As[rows]
         sl = slice(6 * k, 6 * k + 6)
-        A_td[:, sl] = Jw_t[rows].T @ Jd
-        A_dd[sl, sl] = Jd.T @ Jd
-        b_d[sl] = Jd.T @ yw[rows]
+        A_td[:, sl] = red.gram(At[rows], Xs, rows)
+        A_dd[sl, sl] = red.gram(Xs, Xs, rows)
+        b_d[sl] = red.rhs(Xs, z, rows)
         if q:
-            A_dd[sl, 6 * K:] = Jd.T @ Jw_k[rows]
+            A_dd[sl, 6 * K:] = red.gram(Xs, Ak[rows], rows)
             A_dd[6 * K:, sl] = A_dd[sl, 6 * K:].T
     if q:
-        A_td[:, 6 * K:] = Jw_t.T @ Jw_k
-        A_dd[6 * K:, 6 * K:] = Jw_k.T @ Jw_k
-        b_d[6 * K:] = Jw_k.T @ yw
-    return Jw_t.T @ Jw_t, A_td, A_dd, Jw_t.T @ yw, b_d
+        A_td[:, 6 * K:] = red.gram(At, Ak)
+        A_dd[6 * K:, 6 * K:] = red.gram(Ak, Ak)
+        b_d[6 * K:] = red.rhs(Ak, z)
+    return red.gram(At, At), A_td, A_dd, red.rhs(At, z), b_d, red.quad(z)
 
 
 def refine(
@@ -737,7 +661,7 @@ def refine(
     se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
     ke = kinematic_effects if kinematic_effects is not None and problem.q_rad is not None else None
     delta = np.zeros((K, 6))
-    station_rows = [_as_slice(np.flatnonzero(problem.station_of[pts.rid] == k)) for k in range(K)]
+    station_shots = [np.flatnonzero(problem.station_of == k) for k in range(K)]
     # centre observations given without a covariance: one variance per axis, estimated
     # from their residuals (a variance component, like the pose noise's scale)
     n_shots = problem.n_profiles
@@ -773,15 +697,6 @@ def refine(
         return _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations,
                                    tolerance, ke, rand_cols)
     n_kin_fitted = len(id_cols) + len(rand_cols)
-    # many points, profiles only, pose noise only (no station or kinematic effects): the
-    # normal equations are summed a block of profiles at a time and the per-point
-    # Jacobian is never held whole; the step solves them instead of a least-squares
-    # problem over every point (results agree to about 1e-13). Not with station effects:
-    # their scales come from a REML search (L-BFGS-B, numerical gradients) whose stopping
-    # point moves by about 1 % when the normal equations change by rounding (1e-16), which
-    # moves the transform by about 1e-7 (tests/core/test_large_profiles_unchanged.py).
-    chunks = _profile_chunks(pts.counts, CHUNK_POINTS) \
-        if se is None and ke is None and not m_centres and pts.M > CHUNK_POINTS else None
     lam = 1.0
     n_par = n_geo + len(id_cols)
     scale = 1.0
@@ -809,12 +724,11 @@ def refine(
 
     def linearise(scale_):
         return _linearise(current(problem), pts, R, t, c, r, fit_radius, scale_ * pose_cov, sigma, s2_centre,
-                          with_jacobian=chunks is None, centre_cov_frozen=centre_cov_frozen)
+                          centre_cov_frozen=centre_cov_frozen)
 
-    def kin_point_columns(lin):
-        """Whitened d res / d kappa (M, n_kin)."""
-        Kc = lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad)  # (n, 3, n_kin)
-        return lin.W.apply(_rows_times(lin.G, Kc, pts.rid))
+    def kin_columns(lin):
+        """Per-shot d res / d kappa (n, 4, n_kin)."""
+        return lin.columns(lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad))
 
     def sqrt_prior(sv, lam_):
         blocks = []
@@ -832,16 +746,25 @@ def refine(
         return out
 
     def design(lin):
-        """Whitened fixed-effect columns, station columns, random kinematic columns."""
-        Jw = lin.W.apply(lin.J)
-        Jw_s = _station_jacobian(lin, pts) if se is not None else None
-        Jw_k = None
+        """Per-shot fixed-effect columns, station columns, random kinematic columns."""
+        At = lin.columns(lin.Jc, fit_radius)
+        As = lin.columns(lin.Jd) if se is not None else None
+        Ak = None
         if ke is not None:
-            Jk = kin_point_columns(lin)
+            Kk = kin_columns(lin)
             if len(id_cols):
-                Jw = np.column_stack([Jw, Jk[:, id_cols]])
-            Jw_k = Jk[:, rand_cols] if len(rand_cols) else None
-        return Jw, Jw_s, Jw_k
+                At = np.concatenate([At, Kk[:, :, id_cols]], axis=2)
+            Ak = Kk[:, :, rand_cols] if len(rand_cols) else None
+        return At, As, Ak
+
+    def shift(As, Ak):
+        """J z of the random effects now, per shot (n, 4)."""
+        z = np.zeros((n_shots, 4))
+        if As is not None:
+            z += np.einsum("nap,np->na", As, delta[problem.station_of])
+        if Ak is not None:
+            z += Ak @ kappa[rand_cols]
+        return z
 
     # the prior's scale: the stated spread is a floor, the data may widen it (REML)
     estimate_lam = (ke is not None and ke.estimate_scale and not ke.identify
@@ -854,8 +777,7 @@ def refine(
 
     def penalised_cost(lin_, sv, lam_):
         """The MAP objective: whitened residuals plus the random effects against their prior."""
-        ew_ = lin_.W.apply(lin_.res)
-        cost = float(ew_ @ ew_)
+        cost = lin_.red.cost()
         if any_random:
             d = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]])
             sd = np.diag(sqrt_prior(sv, lam_))
@@ -872,23 +794,12 @@ def refine(
             centre_cov_frozen = linearise(scale).centre_parts[3]
         for it in range(1, max_iterations + 1):
             lin = lin if lin is not None else linearise(scale)
-            ew = lin.W.apply(lin.res)
-            Jw, Jw_s, Jw_k = design(lin) if chunks is None else (None, None, None)
-            if chunks is not None:  # (pose noise only)
-                A_tt, b_t = _chunked_normal_equations(lin, pts, ew, chunks)
-                step = np.linalg.lstsq(A_tt, b_t, rcond=None)[0]
-                d_new = None
-            elif not any_random:
-                step = np.linalg.lstsq(Jw, -ew, rcond=None)[0]
+            At, As, Ak = design(lin)
+            if not any_random:
+                step = np.linalg.lstsq(lin.red.gram(At, At), lin.red.rhs(At), rcond=None)[0]
                 d_new = None
             else:
-                yw = -ew
-                if Jw_s is not None:
-                    yw = yw + _stack_station_effect(Jw_s, delta, problem.station_of[pts.rid])
-                if Jw_k is not None:
-                    yw = yw + Jw_k @ kappa[rand_cols]
-                A_tt, A_td, A_dd, b_t, b_d = _effect_blocks(Jw, Jw_s, Jw_k, yw, station_rows)
-                yy = float(yw @ yw)
+                A_tt, A_td, A_dd, b_t, b_d, yy = _effect_blocks(lin.red, At, As, Ak, shift(As, Ak), station_shots)
                 # the station scales from the start (as they always were); the kinematic
                 # prior's factor only near a solution (far from it the misfit of the start
                 # would pass for robot error and blow the prior up)
@@ -952,7 +863,7 @@ def refine(
             cost0 = penalised_cost(lin, s_hat, lam)
             # the per-point design is rebuilt at the next point: let it go before the
             # line search builds linearisations (memory: one per-point set at a time)
-            ew = Jw = Jw_s = Jw_k = yw = None
+            At = As = Ak = None
             d_old = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]]) if any_random else None
             frac = 1.0
             for _ in range(12):
@@ -992,13 +903,13 @@ def refine(
         n_effects = (6 * K if se else 0) + (int(np.count_nonzero(kin_identifiable)) if n_kin_fitted else 0)
         if not m_centres:
             dof_profiles = 3 * problem.n_profiles - n_geo - n_effects
-            s2_profiles = float(lin.W.profile_chi2(lin.res).sum() / max(dof_profiles, 1))
+            s2_profiles = float(lin.red.chi2.sum() / max(dof_profiles, 1))
             update_centre = False
         else:
             # the degrees of freedom shared out between profiles and centres by their count
             dof_all = 3 * n_shots - n_geo - n_effects
             dof_profiles = dof_all * len(pts.shots) / n_shots
-            s2_profiles = float(lin.W.profile_chi2(lin.res)[pts.shots].sum() / max(dof_profiles, 1)) \
+            s2_profiles = float(lin.red.chi2[pts.shots].sum() / max(dof_profiles, 1)) \
                 if len(pts.shots) else 1.0
             update_centre = False
             if estimate_centre:
@@ -1017,21 +928,14 @@ def refine(
             scale = float(np.clip(scale * s2_profiles, 1e-8, 1e4))
 
     lin = linearise(scale)
-    ew = lin.W.apply(lin.res)
-    if chunks is None:
-        Jw, Jw_s, Jw_k = design(lin)
-        info = Jw.T @ Jw
-        A_tr, A_rr = _effect_blocks(Jw, Jw_s, Jw_k, np.zeros(len(ew)), station_rows)[1:3]
-    else:  # pose noise only: no random effects, no kinematic columns below
-        Jw = Jw_s = Jw_k = None
-        info = _chunked_normal_equations(lin, pts, ew, chunks)[0]
-        A_tr, A_rr = np.zeros((n_par, 0)), np.zeros((0, 0))
+    At, As, Ak = design(lin)
+    info, A_tr, A_rr = _effect_blocks(lin.red, At, As, Ak, None, station_shots)[:3]
     cov_fixed = np.linalg.pinv(info)  # with the random robot errors known (none)
     diagnostics = {
         "information_condition_number": float(np.linalg.cond(info[:n_geo, :n_geo])),
         "profile_variance_factor": s2_profiles,
         "point_noise_mm_assumed": sigma,
-        "profile_chi2": lin.W.profile_chi2(lin.res).tolist(),
+        "profile_chi2": lin.red.chi2.tolist(),
     }
     cov = cov_robot_frame = cov_fixed
     kin_posterior_sd = np.zeros(n_kin)
@@ -1062,7 +966,8 @@ def refine(
         hidden = kin_posterior_sd[rand_cols] >= SEEN_POSTERIOR_SHARE * np.diag(Lk)
     if len(rand_cols) and se is None and not len(id_cols):
         diagnostics["kinematic_evidence"] = {
-            **_kinematic_evidence(Jw, Jw_k, -ew + Jw_k @ kappa[rand_cols], kin_prior[rand_cols]),
+            **_kinematic_evidence(_effect_blocks(lin.red, At, None, Ak, Ak @ kappa[rand_cols], []),
+                                  kin_prior[rand_cols]),
             "threshold": KINEMATIC_EVIDENCE_LR, "selected": "stated"}
     if hidden.any():
         L_rf = Lp.copy()
@@ -1079,15 +984,16 @@ def refine(
         # the arm's parameters considered: what the data leave of their prior (the
         # posterior at the stated spread; the prior itself where one sphere cannot see
         # them) through the estimator
-        Jk = kin_point_columns(lin)[:, consider_cols]
+        Kc = kin_columns(lin)[:, :, consider_cols]
         prior_c = kin_prior[consider_cols]
-        JtK = Jw.T @ Jk
-        S_kk = Jk.T @ Jk - JtK.T @ cov_fixed @ JtK
+        JtK = lin.red.gram(At, Kc)
+        S_kk = lin.red.gram(Kc, Kc) - JtK.T @ cov_fixed @ JtK
         post_c = prior_c[:, None] * np.linalg.solve(np.eye(len(prior_c)) + prior_c[:, None] * S_kk * prior_c,
                                                     np.diag(prior_c))
         S = cov @ JtK
         cov = cov + S @ post_c @ S.T
-        diagnostics["kinematic_evidence"] = {**_kinematic_evidence(Jw, Jk, -ew, prior_c),
+        diagnostics["kinematic_evidence"] = {**_kinematic_evidence(_effect_blocks(lin.red, At, None, Kc, None, []),
+                                                                   prior_c),
                                              "threshold": KINEMATIC_EVIDENCE_LR, "selected": "stated"}
     if ke is not None and len(id_cols):
         # kinematic calibration: a new pose is mapped through the identified model, so its
@@ -1150,7 +1056,7 @@ def refine(
         diagnostics["centre_noise_mm"] = float(np.sqrt(s2_centre)) if estimate_centre else None
     return RefineResult(
         R, t, c, r, cov, np.split(lin.res[:pts.M], np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
-        converged, float(ew @ ew / dof), scale, diagnostics, covariance_without_robot_error=cov_fixed,
+        converged, lin.red.cost() / dof, scale, diagnostics, covariance_without_robot_error=cov_fixed,
         covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=station_scales,
         kinematic_errors=kappa if ke is not None else None,
         kinematic_sd=kin_posterior_sd if ke is not None else None, kinematic_terms=kinematic_terms,
@@ -1192,16 +1098,6 @@ def _centre_design(problem, R, t, c, chain, fit_radius: bool = False):
     return Jg.reshape(-1, Jg.shape[2]), Jk.reshape(-1, Jk.shape[2])
 
 
-def _station_jacobian(lin: "_Linearisation", pts: _Points) -> np.ndarray:
-    """Whitened d res / d(station offset), (M, 6): each point against its station's offset."""
-    return lin.W.apply(_rows_times(lin.G, lin.Jd, pts.rid))
-
-
-def _stack_station_effect(Jw_d, delta, station_of_point):
-    """J_d delta per point (whitened), for the station of each point."""
-    return np.einsum("mp,mp->m", Jw_d, delta[station_of_point])
-
-
 def cramer_rao_bound(problem_true: Problem, R, t, centre, noise: NoiseAssumptions, fit_radius: bool = False) -> np.ndarray:
     """Cramer-Rao bound of (w, t, c[, r]) for the noise model of :mod:`.refine`,
     evaluated at the true parameters on the noise-free profile points of
@@ -1210,8 +1106,8 @@ def cramer_rao_bound(problem_true: Problem, R, t, centre, noise: NoiseAssumption
     lin = _linearise(problem_true, _Points(problem_true), np.asarray(R, float), np.asarray(t, float),
                      np.asarray(centre, float), problem_true.radius_mm, fit_radius, _pose_cov(noise),
                      max(noise.point_noise_mm, 1e-9))
-    Jw = lin.W.apply(lin.J)
-    return np.linalg.inv(Jw.T @ Jw)
+    At = lin.columns(lin.Jc, fit_radius)
+    return np.linalg.inv(lin.red.gram(At, At))
 
 
 def plan_design(mounting: str, R0: np.ndarray, t0: np.ndarray, q_rad: np.ndarray, X, centre, chain: SerialChain):

@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from reference_sensor import reference_fov
 
 REFERENCE = Path(__file__).parent / "data" / "large_profile_results_before_scale.json"
@@ -58,29 +59,41 @@ def test_results_on_many_points_a_profile_are_those_before_the_scale_work():
                                        atol=1e-12, err_msg=f"{name}: {key}")
 
 
-def test_normal_equations_summed_by_blocks_of_profiles_equal_the_whole():
-    """The per-block sum (whitening is per profile) gives Jw^T Jw and -Jw^T ew of the
-    whole stacked problem, to rounding, whatever the block size."""
+def test_normal_equations_reduced_per_shot_equal_the_dense_whitened_ones():
+    """The per-shot reduction (fifteen sums a point, then 4 x 4 algebra a shot) gives
+    J^T Cov^-1 J, -J^T Cov^-1 res, res^T Cov^-1 res and each profile's pose-subspace
+    chi^2 of the problem whitened point by point with each profile's dense covariance
+    sigma^2 I + G S_C G^T, to rounding."""
     from spherecal.estimation import refine as rf
     from spherecal.estimation.problem import build_problem
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     cell = standard_cell("eye_to_hand", seed=4, fov=reference_fov())
-    problem = build_problem(simulate_dataset(cell, SweepPlan(profiles_per_station=5)), None, None)
+    problem = build_problem(simulate_dataset(cell, SweepPlan(profiles_per_station=4)), None, None)
     pts = rf._Points(problem)
     X = cell.true_transform
-    lin = rf._linearise(problem, pts, X.rotation_matrix, np.asarray(X.translation_mm) + 0.3, cell.sphere_centre_mm,
-                        problem.radius_mm, True, rf._pose_cov(rf.NoiseAssumptions(0.01, 0.02, 0.005)), 0.01)
-    ew = lin.W.apply(lin.res)
-    Jw = lin.W.apply(lin.J)
-    whole_A, whole_b = Jw.T @ Jw, Jw.T @ -ew
-    for limit in (1, 700, 5_000, 10**9):
-        chunks = rf._profile_chunks(pts.counts, limit)
-        # consecutive, covering every profile once, within the limit unless one profile exceeds it
-        assert chunks[0][0] == 0 and chunks[-1][1] == problem.n_profiles
-        assert all(a[1] == b[0] for a, b in zip(chunks, chunks[1:]))
-        assert all(pts.counts[lo:hi].sum() <= limit or hi - lo == 1 for lo, hi in chunks)
-        A, b = rf._chunked_normal_equations(lin, pts, ew, chunks)
-        np.testing.assert_allclose(A, whole_A, rtol=1e-12, atol=1e-12 * np.abs(whole_A).max())
-        np.testing.assert_allclose(b, whole_b, rtol=1e-10, atol=1e-12 * np.abs(whole_b).max())
-    assert len(rf._profile_chunks(pts.counts, 1)) == problem.n_profiles
+    R, t, c, r = X.rotation_matrix, np.asarray(X.translation_mm) + 0.3, np.asarray(cell.sphere_centre_mm), problem.radius_mm
+    sigma, pose_cov = 0.01, rf._pose_cov(rf.NoiseAssumptions(0.01, 0.02, 0.005))
+    lin = rf._linearise(problem, pts, R, t, c, r, True, pose_cov, sigma)
+    At = lin.columns(lin.Jc, True)
+    A, b, cost, chi2 = lin.red.gram(At, At), lin.red.rhs(At), lin.red.cost(), lin.red.chi2
+    # the same, point by point, with dense covariances
+    u, C = rf._centres(problem, R, t, c)
+    A_d, b_d, cost_d, chi2_d = np.zeros_like(A), np.zeros_like(b), 0.0, np.zeros(problem.n_profiles)
+    for i, P in enumerate(problem.profiles):
+        rho = np.sqrt(r * r - C[i, 0] ** 2)
+        d = P - C[i, 1:]
+        dist = np.hypot(d[:, 0], d[:, 1])
+        res = dist - rho
+        G = np.column_stack([np.full(len(P), C[i, 0] / rho), -d[:, 0] / dist, -d[:, 1] / dist])
+        J = np.column_stack([G @ lin.Jc[i], np.full(len(P), -r / rho)])
+        cov = sigma**2 * np.eye(len(P)) + G @ lin.SC[i] @ G.T
+        A_d += J.T @ np.linalg.solve(cov, J)
+        b_d -= J.T @ np.linalg.solve(cov, res)
+        cost_d += res @ np.linalg.solve(cov, res)
+        Q, sv, _ = np.linalg.svd(G @ np.linalg.cholesky(lin.SC[i]), full_matrices=False)
+        chi2_d[i] = np.sum((Q.T @ res) ** 2 / (sigma**2 + sv**2))
+    np.testing.assert_allclose(A, A_d, rtol=1e-9, atol=1e-9 * np.abs(A_d).max())
+    np.testing.assert_allclose(b, b_d, rtol=1e-8, atol=1e-9 * np.abs(b_d).max())
+    assert cost == pytest.approx(cost_d, rel=1e-9)
+    np.testing.assert_allclose(chi2, chi2_d, rtol=1e-8)

@@ -19,8 +19,7 @@ def _blocks(rng, M=400, p=9, q=12):
     Jt = rng.normal(size=(M, p))
     Jd = rng.normal(size=(M, q)) * rng.uniform(0.2, 3.0, size=q)
     y = rng.normal(size=M) + Jd @ rng.normal(scale=0.3, size=q)
-    A_tt, A_td, A_dd, b_t, b_d = rf._effect_blocks(Jt, None, Jd, y, [])
-    return A_tt, A_td, A_dd, b_t, b_d, float(y @ y)
+    return Jt.T @ Jt, Jt.T @ Jd, Jd.T @ Jd, Jt.T @ y, Jd.T @ y, float(y @ y)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
