@@ -142,22 +142,39 @@ class _Reduced:
         return float(self.c.sum() - 2.0 * np.sum(z * self.w) + np.einsum("na,nab,nb->", z, self.W, z))
 
 
-def _profile_sums(G, res, pid, n):
-    """Per shot (n): sum g g^T (n, 4, 4), sum g res (n, 4) and sum res^2, g = (G, 1)."""
+def _profile_sums(g0, G1, G2, res, pts: "_Points", n):
+    """Per shot (n): sum g g^T (n, 4, 4), sum g res (n, 4) and sum res^2, with
+    g = (g0, G1, G2, 1) (``g0`` (n,): one number per shot; ``G1``, ``G2``, ``res`` per
+    point), over each profile's points (contiguous runs from ``pts.starts``)."""
     T = np.zeros((n, 4, 4))
     s = np.zeros((n, 4))
-    cols = [G[:, 0], G[:, 1], G[:, 2], None]
-    for a in range(4):
-        for b in range(a, 4):
-            if cols[a] is None:  # (1, 1)
-                v = np.bincount(pid, minlength=n).astype(float)
-            elif cols[b] is None:
-                v = np.bincount(pid, weights=cols[a], minlength=n)
-            else:
-                v = np.bincount(pid, weights=cols[a] * cols[b], minlength=n)
-            T[:, a, b] = T[:, b, a] = v
-        s[:, a] = np.bincount(pid, weights=res if cols[a] is None else cols[a] * res, minlength=n)
-    return T, s, np.bincount(pid, weights=res * res, minlength=n)
+    rr = np.zeros(n)
+    if not pts.M:
+        return T, s, rr
+    M = pts.M
+    # eight per-point products, each summed per profile as soon as it is made (one
+    # temporary of M + 1: a last zero, so that an empty profile sums to zero)
+    tmp = np.zeros(M + 1)
+    sums = np.empty((9, len(pts.starts)))
+    for k, (x, y) in enumerate(((G1, G1), (G1, G2), (G2, G2), (G1, None), (G2, None), (G1, res), (G2, res),
+                                (res, None), (res, res))):
+        if y is None:
+            tmp[:M] = x
+        else:
+            np.multiply(x, y, out=tmp[:M])
+        sums[k] = np.add.reduceat(tmp, pts.starts)
+    shots = pts.shots
+    sums[:, pts.counts[shots] == 0] = 0.0  # (reduceat gives an empty run the element it starts at)
+    g = g0[shots]
+    cnt = pts.counts[shots].astype(float)
+    s1, s2, sr = sums[3], sums[4], sums[7]
+    entries = {(0, 0): g * g * cnt, (0, 1): g * s1, (0, 2): g * s2, (0, 3): g * cnt,
+               (1, 1): sums[0], (1, 2): sums[1], (1, 3): s1, (2, 2): sums[2], (2, 3): s2, (3, 3): cnt}
+    for (a, b), v in entries.items():
+        T[shots, a, b] = T[shots, b, a] = v
+    s[shots] = np.column_stack([g * sr, sums[5], sums[6], sr])
+    rr[shots] = sums[8]
+    return T, s, rr
 
 
 def _reduce_profiles(T, s, rr, SC, sigma):
@@ -227,6 +244,8 @@ class _Points:
             self.P = np.vstack([problem.profiles[i] for i in self.shots]) if len(self.shots) else np.zeros((0, 2))
             self.rid = np.concatenate([self.pid, np.repeat(self.centre_shots, 3)])
         self.M = len(self.pid)
+        self.Py, self.Pz = np.ascontiguousarray(self.P[:, 0]), np.ascontiguousarray(self.P[:, 1])
+        del self.P  # (by coordinate: every per-point operation reads them contiguously)
 
 
 def _pose_cov(noise: NoiseAssumptions) -> np.ndarray:
@@ -244,17 +263,23 @@ def _linearise(problem, pts: _Points, R, t, c, r, fit_radius, pose_cov, sigma, s
     n = problem.n_profiles
     u, C = _centres(problem, R, t, c)
     rho = np.sqrt(np.maximum(r * r - C[:, 0] ** 2, 1e-6))
-    d = pts.P - C[pid, 1:]
-    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    # per point: d res / d C = (C_x / rho, -d_y / dist, -d_z / dist); the first is one
+    # number per profile, left to the per-shot sums
+    G1 = pts.Py - C[pid, 1]
+    G2 = pts.Pz - C[pid, 2]
+    dist = np.maximum(np.hypot(G1, G2), 1e-12)
     res = dist - rho[pid]
-    G = np.column_stack([(C[:, 0] / rho)[pid], -d[:, 0] / dist, -d[:, 1] / dist])
-    del d, dist
+    np.divide(G1, dist, out=G1)
+    np.negative(G1, out=G1)
+    np.divide(G2, dist, out=G2)
+    np.negative(G2, out=G2)
+    del dist
     Jc = _centre_jacobian(problem, R, u)
     radius_column = -(r / rho)
     Jd = _pose_noise_jacobian(problem, R, c)
     SC = Jd @ pose_cov @ np.swapaxes(Jd, 1, 2)
-    T, s, rr = _profile_sums(G, res, pid, n)
-    del G
+    T, s, rr = _profile_sums(C[:, 0] / rho, G1, G2, res, pts, n)
+    del G1, G2
     W, w, cc, chi2 = _reduce_profiles(T, s, rr, SC, sigma)
     if not len(pts.centre_shots):
         return _Linearisation(res, _Reduced(W, w, cc, chi2), C, SC, Jd, Jc, radius_column if fit_radius else None)
@@ -947,7 +972,12 @@ def refine(
         # GLS covariance with the random robot errors integrated out
         B = np.eye(n_rand) + Lp.T @ A_rr @ Lp
         Cinv = Lp @ np.linalg.solve(B, Lp.T)
-        cov_robot_frame = np.linalg.pinv(A_tt - A_tr @ Cinv @ A_tr.T)
+        # = (A_tt - A_tr Cinv A_tr^T)^-1, the top-left block of the inverse of the joint
+        # normal matrix in (theta, eta): no subtraction of the large terms the random
+        # effects share with the transform (that difference lost seven digits when the
+        # arm's parameters absorb most of the information)
+        N = np.block([[A_tt, A_tr @ Lp], [Lp.T @ A_tr.T, B]])
+        cov_robot_frame = np.linalg.pinv(N)[:n_par, :n_par]
     else:
         Cinv = np.zeros((0, 0))
     cov = cov_robot_frame

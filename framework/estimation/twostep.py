@@ -289,6 +289,12 @@ def centre_residuals(problem: Problem, R, t, centre, radius: float | None = None
     return out
 
 
+#: Points (all profiles) above which the two-step's sphere fits and its choice of signs
+#: take every k-th point of each profile: they give the joint refinement its start, and
+#: the refinement uses every point.
+TWO_STEP_POINTS = 200_000
+
+
 def two_step(
     problem: Problem,
     fits: dict[int, CircleFit],
@@ -304,6 +310,11 @@ def two_step(
     one, and without it a :class:`DegenerateDataError` says what to add."""
     inliers = [p[fits[i].inliers] if isinstance(fits.get(i), CircleFit) else p[:0]
                for i, p in enumerate(problem.profiles)]
+    # a start and a choice of signs: on very many points, every k-th point of each
+    # profile is enough (the joint refinement then uses every point)
+    stride = max(1, -(-sum(len(p) for p in inliers) // TWO_STEP_POINTS))
+    if stride > 1:
+        inliers = [p[::stride] for p in inliers]
     stations = [station_centres(problem, fits, k) for k in range(len(problem.station_labels))]
     stations = [st for st in stations if st.candidates]
     if not stations:

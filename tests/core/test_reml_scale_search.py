@@ -100,3 +100,21 @@ def test_station_model_on_centres_converges_with_systematic_robot_error(mounting
     rot_err = geo.rotvec_from_matrix(sol.result.transform.rotation_matrix @ X.rotation_matrix.T)
     assert np.degrees(np.linalg.norm(rot_err)) < 0.3
     assert np.linalg.norm(np.asarray(sol.result.transform.translation) - X.translation) < 2.5
+
+
+def test_kinematic_model_covariance_does_not_depend_on_the_order_of_the_observations():
+    """The transform's covariance with the arm's parameters marginalised, from the joint
+    normal matrix: the same shots in reverse order agree to 1e-9 of its largest element
+    (the difference of large terms it was computed as moved by 1.1e-7)."""
+    from spherecal.plugins.host import PluginHost
+    from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell
+
+    noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+    kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
+    cell = standard_cell("eye_in_hand", seed=6, noise=noise, robot_error=RobotErrorModel(), arm=kin, fov=reference_fov())
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=4))
+    reverse = ds.model_copy(update={"observations": list(reversed(ds.observations))})
+    opts = CalibrationOptions(robot_error_model="kinematic")
+    a = np.array(solve(ds, opts, kinematics=kin).result.covariance)
+    b = np.array(solve(reverse, opts, kinematics=kin).result.covariance)
+    np.testing.assert_allclose(b, a, atol=1e-9 * np.abs(a).max())
