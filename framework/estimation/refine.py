@@ -9,11 +9,11 @@ maximum-likelihood residual for isotropic Gaussian noise in the laser plane.
 Noise model: point noise sigma (each of y, z) and robot pose noise (rotation and
 translation, base frame) that is shared by all points of one profile. The residuals of a
 profile are therefore correlated, ``Cov_i = sigma^2 I + G_i S_Ci G_i^T`` with
-``S_Ci`` the covariance of C_i due to the pose noise; we whiten with ``Cov_i^-1/2``
-(a rank-3 update, cheap) and solve by Gauss-Newton on the rotation manifold
-(``R <- exp([w]) R``, w about the target frame's axes). Unknowns: w (3), t (3), c (3)
-and optionally r. The pose-noise scale is re-estimated from the data (variance
-component) unless fixed. The covariance is ``(J_w^T J_w)^-1`` of the whitened problem.
+``S_Ci`` the covariance of C_i due to the pose noise. Gauss-Newton on the rotation
+manifold (``R <- exp([w]) R``, w about the target frame's axes) solves the generalised
+least-squares problem, reduced to each shot (:class:`_Reduced`: no per-point Jacobian).
+Unknowns: w (3), t (3), c (3) and optionally r. The pose-noise scale is re-estimated
+from the data (variance component) unless fixed. The covariance is ``(J^T Cov^-1 J)^-1``.
 """
 
 from __future__ import annotations
