@@ -399,8 +399,9 @@ def _observation_line(obs: Observation) -> bytes:
     elif obs.circle is not None:
         c = obs.circle
         doc["circle"] = {"centre_yz_mm": list(c.centre_yz_mm), "radius_mm": c.radius_mm}
-        if c.centre_std_mm is not None:
-            doc["circle"].update(centre_std_mm=c.centre_std_mm, radius_std_mm=c.radius_std_mm)
+        for key in ("centre_std_mm", "radius_std_mm"):
+            if getattr(c, key) is not None:
+                doc["circle"][key] = getattr(c, key)
         centre_numbers = [*c.centre_yz_mm, c.radius_mm]
     else:
         doc["sphere_centre_mm"] = list(obs.sphere_centre_mm)

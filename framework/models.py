@@ -218,8 +218,6 @@ class Circle(BaseModel):
             v = getattr(self, name)
             if v is not None and not math.isfinite(v):
                 raise ValueError(f"{name} must be finite, got {v}")
-        if (self.centre_std_mm is None) != (self.radius_std_mm is None):
-            raise ValueError("give both centre_std_mm and radius_std_mm, or neither (then both are estimated)")
         if self.radius_mm > MAX_SPHERE_RADIUS_MM:
             raise ValueError(f"radius_mm = {self.radius_mm:g} is implausibly large (at most {MAX_SPHERE_RADIUS_MM:g} mm)")
         return self

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import ObservationFlag
-from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
+from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, unknown_variances
 
 __all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out_sizes", "with_leave_one_out_size",
            "within_station_noise", "circles_from_profiles"]
@@ -170,7 +170,7 @@ def within_station_noise(problem: Problem) -> float | None:
 def _given_sd(problem: Problem, i: int) -> float:
     """Largest standard deviation of shot i's given covariance, mm (0 when none)."""
     C = problem.centre_cov[i]
-    return 0.0 if np.isnan(C[0, 0]) else float(np.sqrt(np.linalg.eigvalsh(C)[-1]))
+    return 0.0 if unknown_variances(C).all() else float(np.sqrt(np.linalg.eigvalsh(fill_unknown(C, 0.0))[-1]))
 
 
 def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
@@ -260,8 +260,7 @@ def settle_pairs(problem: Problem, pairs: list[tuple[int, int]], R, t, centre, n
     out = []
 
     def chi2(i):
-        C = problem.centre_cov[i]
-        S = noise_mm**2 * np.eye(3) if np.isnan(C[0, 0]) else C
+        S = fill_unknown(problem.centre_cov[i], noise_mm**2)
         return float(e[i] @ np.linalg.solve(S, e[i]))
 
     for a, b in pairs:

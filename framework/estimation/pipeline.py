@@ -20,7 +20,7 @@ from .circle import CircleFit, fit_circle
 from .prediction import point_error_budget
 from .problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, build_problem,
-    derived_station_rotation_tolerance_deg, screen_station_orientations,
+    derived_station_rotation_tolerance_deg, fill_unknown, screen_station_orientations,
 )
 from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
 from .centres import (
@@ -487,10 +487,7 @@ def _centre_shot(problem: Problem, i: int) -> CentreShot:
 def _typical_centre_sd(problem: Problem, ref: RefineResult) -> float:
     """RMS per-axis standard deviation of the centre observations, mm: the estimated one
     for those given without a covariance, the given ones' otherwise."""
-    given = problem.centre_cov
-    known = ~np.isnan(given[:, 0, 0])
-    var = np.where(known, np.trace(np.where(known[:, None, None], given, 0.0), axis1=1, axis2=2) / 3,
-                   (ref.centre_noise_mm or 0.0) ** 2)
+    var = np.trace(fill_unknown(problem.centre_cov, (ref.centre_noise_mm or 0.0) ** 2), axis1=1, axis2=2) / 3
     return float(np.sqrt(np.mean(var[problem.kinds != KIND_PROFILE])))
 
 

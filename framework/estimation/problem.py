@@ -155,7 +155,8 @@ def build_problem(
 def centre_arrays(observations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Kind (n,), measurement (n, 3) and given covariance (n, 3, 3) of each observation
     (see :class:`Problem`): a circle's standard deviations become a diagonal covariance
-    of (y, z, radius); NaN where nothing is given (the fit estimates it)."""
+    of (y, z, radius); NaN where nothing is given (the fit estimates it: a circle may give
+    one of its two standard deviations, see :func:`fill_unknown`)."""
     n = len(observations)
     kind = np.zeros(n, dtype=int)
     meas = np.full((n, 3), np.nan)
@@ -164,14 +165,33 @@ def centre_arrays(observations) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if o.circle is not None:
             kind[i] = KIND_CIRCLE
             meas[i] = [*o.circle.centre_yz_mm, o.circle.radius_mm]
-            if o.circle.centre_std_mm is not None:
-                cov[i] = np.diag([o.circle.centre_std_mm**2] * 2 + [o.circle.radius_std_mm**2])
+            sd = [o.circle.centre_std_mm] * 2 + [o.circle.radius_std_mm]
+            if any(v is not None for v in sd):
+                cov[i] = np.diag([np.nan if v is None else v * v for v in sd])
         elif o.sphere_centre_mm is not None:
             kind[i] = KIND_SPHERE_CENTRE
             meas[i] = o.sphere_centre_mm
             if o.sphere_centre_covariance_mm2 is not None:
                 cov[i] = np.array(o.sphere_centre_covariance_mm2, dtype=float)
     return kind, meas, cov
+
+
+def unknown_variances(cov: np.ndarray) -> np.ndarray:
+    """Which diagonal entries of given centre covariances (..., 3, 3) are not given (NaN)."""
+    return np.isnan(np.diagonal(cov, axis1=-2, axis2=-1))
+
+
+def fill_unknown(cov: np.ndarray, variance) -> np.ndarray:
+    """Given centre covariances (..., 3, 3) with the variances not given (NaN diagonal
+    entries) set to ``variance`` (mm^2, scalar or per matrix) and NaN off-diagonal terms
+    (those of a component not given) to 0."""
+    cov = np.asarray(cov, dtype=float)
+    out = np.where(np.isnan(cov), 0.0, cov)
+    diag = unknown_variances(cov)
+    v = np.broadcast_to(np.asarray(variance, dtype=float)[..., None], diag.shape)
+    idx = np.arange(3)
+    out[..., idx, idx] = np.where(diag, v, out[..., idx, idx])
+    return out
 
 
 # --- one orientation per station ------------------------------------------------------------

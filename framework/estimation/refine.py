@@ -26,7 +26,9 @@ from .. import geometry as geo
 from ..kinematics import (
     SerialChain, chain_with_errors, error_parameter_names, flange_corrections, flange_error_jacobian,
 )
-from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, sphere_frame_from_base
+from .problem import (
+    KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, sphere_frame_from_base, unknown_variances,
+)
 
 
 @dataclass(frozen=True)
@@ -318,8 +320,7 @@ def _centre_rows(problem, cs, C, rho, SC, s2_centre, cov_frozen=None):
     res[cir] = np.column_stack([Cc[:, 1:] - meas[cir, :2], rc - meas[cir, 2]])
     G3 = Gc[:, :, :3]
     pose_part = G3 @ SC[cs] @ np.swapaxes(G3, 1, 2)
-    unknown = np.isnan(given[:, 0, 0])
-    S = np.where(unknown[:, None, None], (s2_centre if s2_centre is not None else 1.0) * np.eye(3), given)
+    S = fill_unknown(given, s2_centre if s2_centre is not None else 1.0)
     cov = S + pose_part if cov_frozen is None else cov_frozen
     Wc = np.linalg.inv(np.linalg.cholesky(cov))
     return res.ravel(), Gc, Wc, (res, pose_part, given, cov)
@@ -335,12 +336,11 @@ def _centre_variance(parts, dof: float, s2_start: float) -> float:
     (a variance component; the given covariances and the pose noise stay as they are).
     Bisection on log s2: chi^2 falls as s2 grows."""
     e, P, given = parts[:3]
-    unknown = np.isnan(given[:, 0, 0])
-    if not unknown.any() or dof <= 0:
+    if not unknown_variances(given).any() or dof <= 0:
         return s2_start
 
     def chi2(s2):
-        S = np.where(unknown[:, None, None], s2 * np.eye(3), given) + P
+        S = fill_unknown(given, s2) + P
         return float(np.einsum("mi,mi->", e, np.linalg.solve(S, e[:, :, None])[:, :, 0]))
 
     lo, hi = np.log(_CENTRE_VARIANCE_BOUNDS[0]), np.log(_CENTRE_VARIANCE_BOUNDS[1])
@@ -691,7 +691,7 @@ def refine(
     # from their residuals (a variance component, like the pose noise's scale)
     n_shots = problem.n_profiles
     m_centres = len(pts.centre_shots)
-    estimate_centre = bool(m_centres) and bool(np.any(np.isnan(problem.centre_cov[pts.centre_shots, 0, 0])))
+    estimate_centre = bool(m_centres) and bool(unknown_variances(problem.centre_cov[pts.centre_shots]).any())
     s2_centre = None
     if m_centres:
         s2_centre = 1.0 if estimate_centre else None

@@ -423,3 +423,33 @@ def test_in_a_station_of_two_the_solution_of_the_others_names_the_row_with_the_t
     assert error_size_mm(flags[7]) == pytest.approx(2 * abs(o.base_from_flange.translation_mm[1]), rel=0.2)
     assert res.residuals.n_centres_used == 9
     assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
+
+
+@pytest.mark.parametrize("known", ["centre_std_mm", "radius_std_mm"])
+def test_a_circle_may_give_one_standard_deviation_and_the_other_is_estimated(mounting, known):
+    """Each of a circle's two standard deviations is optional on its own (issue 14): the
+    one not given is estimated from the data, the one given is used as it is."""
+    cell = standard_cell(mounting, seed=7, noise=NOISE, fov=reference_fov())
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="circle", centre_noise_mm=0.03,
+                                 radius_noise_mm=0.03, give_covariance=True)
+    other = "radius_std_mm" if known == "centre_std_mm" else "centre_std_mm"
+    ds = ds.model_copy(update={"observations": [
+        o.model_copy(update={"circle": o.circle.model_copy(update={other: None})}) for o in ds.observations]})
+    assert all(getattr(o.circle, known) is not None and getattr(o.circle, other) is None for o in ds.observations)
+    res = solve(ds, CalibrationOptions(robot_error_model="none")).result
+    assert_known_answer(res, cell)
+    est = res.diagnostics["noise"]["centre_noise_mm"]
+    assert est is not None and 0.01 < est < 0.06, est  # (the missing one: 0.03 mm simulated)
+
+
+def test_fill_unknown_sets_only_what_was_not_given():
+    from spherecal.estimation.problem import fill_unknown, unknown_variances
+
+    nan = np.nan
+    cov = np.array([[[4.0, nan, 0.0], [nan, nan, nan], [0.0, nan, 9.0]], np.full((3, 3), nan), np.eye(3)])
+    assert unknown_variances(cov).tolist() == [[False, True, False], [True, True, True], [False, False, False]]
+    out = fill_unknown(cov, 0.5)
+    np.testing.assert_array_equal(out[0], np.diag([4.0, 0.5, 9.0]))
+    np.testing.assert_array_equal(out[1], 0.5 * np.eye(3))
+    np.testing.assert_array_equal(out[2], np.eye(3))
+    np.testing.assert_array_equal(fill_unknown(cov, np.array([1.0, 2.0, 3.0]))[1], 2.0 * np.eye(3))

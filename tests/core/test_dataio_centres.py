@@ -126,8 +126,8 @@ PROFILE = {"profile": {"y_mm": [1.0, 2.0, 3.0], "z_mm": [-20.0, -21.0, -22.0]}}
         ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": float("nan")}}, r"circle\.radius_mm: nan is not a finite"),
         ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": -1.0}}, r"circle\.radius_mm: Input should be greater than 0"),
         ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": "15"}}, r'circle\.radius_mm: must be a number, got "15"'),
-        ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": 15.0, "centre_std_mm": 0.01}},
-         r"circle: give both centre_std_mm and radius_std_mm, or neither"),
+        ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": 15.0, "radius_std_mm": -0.01}},
+         r"circle\.radius_std_mm: Input should be greater than 0"),
         ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": 15.0, "centre_std_mm": 0.0, "radius_std_mm": 0.01}},
          r"circle\.centre_std_mm: Input should be greater than 0"),
         ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius": 15.0}}, r"circle\.radius: unknown field"),
@@ -185,3 +185,17 @@ def test_the_documented_version_2_example_reads(tmp_path):
     ds = read_dataset(path)
     assert [o.kind for o in ds.observations] == ["sphere_centre", "sphere_centre", "circle", "circle"]
     assert ds.observations[0].sphere_centre_covariance_mm2 is not None and ds.observations[2].circle.radius_std_mm == 0.006
+
+
+@pytest.mark.parametrize("known", ["centre_std_mm", "radius_std_mm"])
+def test_a_circle_with_one_standard_deviation_round_trips(tmp_path, known):
+    obs = [line(0, **SPHERE), line(1, circle={"centre_yz_mm": [2.0, -20.0], "radius_mm": 15.0, known: 0.02})]
+    path = tmp_path / "one_sd.jsonl"
+    write_lines(path, obs)
+    ds = read_dataset(path)
+    circle = ds.observations[1].circle
+    other = "radius_std_mm" if known == "centre_std_mm" else "centre_std_mm"
+    assert getattr(circle, known) == 0.02 and getattr(circle, other) is None
+    again = tmp_path / "again.jsonl"
+    write_dataset(again, ds)
+    assert read_dataset(again).observations[1].circle == circle
