@@ -69,11 +69,29 @@ def _metres_rows(values: np.ndarray, rows: np.ndarray) -> list[tuple[int, float,
         return []
     mag = np.linalg.norm(values[rows], axis=1)
     out = []
-    for k, i in enumerate(rows):
-        others = np.median(np.delete(mag, k))
+    for k, others in enumerate(_medians_of_the_others(mag)):
         if others >= METRES_MIN_MEDIAN_MM and mag[k] < others / METRES_RATIO:
-            out.append((int(i), float(mag[k]), float(others)))
+            out.append((int(rows[k]), float(mag[k]), float(others)))
     return out
+
+
+def _medians_of_the_others(x: np.ndarray) -> np.ndarray:
+    """For each element, the median of all the others (as ``np.median(np.delete(x, k))``),
+    from one sort: leaving out the element at sorted position p shifts the ones above it
+    down by one."""
+    n = len(x)
+    order = np.argsort(x, kind="stable")
+    s = x[order]
+    pos = np.empty(n, dtype=int)
+    pos[order] = np.arange(n)
+
+    def kth_without(j):  # the j-th smallest of the others, for every element
+        return np.where(j < pos, s[np.minimum(j, n - 1)], s[np.minimum(j + 1, n - 1)])
+
+    m = n - 1
+    if m % 2:
+        return kth_without(np.full(n, m // 2))
+    return (kth_without(np.full(n, m // 2 - 1)) + kth_without(np.full(n, m // 2))) / 2.0
 
 
 def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]], list[int]]:

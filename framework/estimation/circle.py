@@ -12,6 +12,7 @@ repeated (reflections and edge points). Minimum data: 3 points; we ask for more.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -26,8 +27,8 @@ class CircleFit:
     inliers: np.ndarray  # boolean mask over the input points
     converged: bool
 
-    @property
-    def n_inliers(self) -> int:
+    @cached_property
+    def n_inliers(self) -> int:  # (asked for many times per fit: counted once)
         return int(self.inliers.sum())
 
 
@@ -46,8 +47,16 @@ def _gauss_newton(p: np.ndarray, c: np.ndarray, r: float, iterations: int = 20) 
         dist = np.hypot(d[:, 0], d[:, 1])
         dist = np.maximum(dist, 1e-12)
         res = dist - x[2]
-        J = np.column_stack([-d[:, 0] / dist, -d[:, 1] / dist, -np.ones(len(p))])
-        step, *_ = np.linalg.lstsq(J, -res, rcond=None)
+        # normal equations (3 x 3): the same step as a least-squares solve of J, a
+        # fraction of its cost (a fit is a few of them; a dataset, thousands of fits)
+        uy, uz = d[:, 0] / dist, d[:, 1] / dist
+        A = np.array([[uy @ uy, uy @ uz, uy.sum()], [0.0, uz @ uz, uz.sum()], [0.0, 0.0, float(len(p))]])
+        A = np.triu(A) + np.triu(A, 1).T
+        rhs = np.array([uy @ res, uz @ res, res.sum()])  # J^T (-res), J = -(uy, uz, 1) per point
+        try:
+            step = np.linalg.solve(A, rhs)
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(np.column_stack([-uy, -uz, -np.ones(len(p))]), -res, rcond=None)[0]
         x += step
         if np.abs(step).max() < 1e-10:
             return x[:2], float(x[2]), True

@@ -126,9 +126,9 @@ def build_problem(
                 pose = flange_pose_from_joints(np.asarray(o.joints_deg, dtype=float))
             except SpherecalError as exc:
                 raise InputError(f"observation {o.index} (station {o.station}): joints_deg: {exc}") from None
-        R0.append(pose.rotation_matrix)
+        R0.append(pose.quaternion_wxyz)
         t0.append(pose.translation)
-    R0 = np.array(R0)
+    R0 = geo.matrix_from_quat_wxyz(np.array(R0, dtype=float).reshape(-1, 4))  # (all at once: one call, not n)
     t0 = np.array(t0)
     profiles = [o.profile.points_mm if o.profile is not None else np.zeros((0, 2)) for o in obs]
     _check_units(dataset, t0, profiles)
@@ -240,11 +240,18 @@ def _angles_deg(R: np.ndarray, Rs: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
+def _pairwise_angles_deg(Rs: np.ndarray) -> np.ndarray:
+    """Angle (deg) between every two of Rs (n, 3, 3): (n, n), one matrix product."""
+    flat = Rs.reshape(len(Rs), 9)
+    c = (flat @ flat.T - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
 def _clusters(Rs: np.ndarray, tolerance_deg: float) -> list[tuple[np.ndarray, np.ndarray]]:
     """Groups of shots whose orientations lie within ``tolerance_deg`` of their group's
     chordal mean, largest first: ``[(positions, mean rotation), ...]``."""
     n = len(Rs)
-    D = np.array([_angles_deg(R, Rs) for R in Rs])
+    D = _pairwise_angles_deg(Rs)
     remaining = np.ones(n, dtype=bool)
     groups = []
     while remaining.any():
@@ -291,7 +298,7 @@ def screen_station_orientations(
     for k in range(len(problem.station_labels)):
         idx = np.flatnonzero(problem.station_of == k)
         if len(idx) > 1:
-            D = np.array([_angles_deg(R0[i], R0[idx]) for i in idx])
+            D = _pairwise_angles_deg(R0[idx])
             pair_angles.append(D[np.triu_indices(len(idx), 1)])
     pairs = np.concatenate(pair_angles) if pair_angles else np.zeros(0)
     noise_seen = float(np.median(pairs) / (np.sqrt(2.0) * _CHI3_MEDIAN)) if len(pairs) >= 10 else 0.0

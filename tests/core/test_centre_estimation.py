@@ -453,3 +453,19 @@ def test_fill_unknown_sets_only_what_was_not_given():
     np.testing.assert_array_equal(out[1], 0.5 * np.eye(3))
     np.testing.assert_array_equal(out[2], np.eye(3))
     np.testing.assert_array_equal(fill_unknown(cov, np.array([1.0, 2.0, 3.0]))[1], 2.0 * np.eye(3))
+
+
+def test_medians_of_the_others_are_those_of_numpy():
+    """The metres-among-millimetres check compares each row with the median of the
+    others; one sort gives all of them (it used to take a median per row: 1.2 s on
+    4,000 rows), exactly as numpy's, ties and both parities included."""
+    from spherecal.estimation.centres import _medians_of_the_others
+
+    rng = np.random.default_rng(0)
+    for n in (3, 4, 5, 6, 11, 100, 501):
+        for rep in range(6):
+            x = rng.normal(size=n) * (1000.0 if rep % 2 else 1.0)
+            if rep % 3 == 0:
+                x = np.round(x)
+            np.testing.assert_array_equal(_medians_of_the_others(x),
+                                          [np.median(np.delete(x, k)) for k in range(n)])
