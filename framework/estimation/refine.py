@@ -458,13 +458,6 @@ def identifiable_kinematic_parameters(J_fixed: np.ndarray, J_kin: np.ndarray, pr
     return mask, share
 
 
-def _station_sqrt_cov(n_stations: int, s_rot: float, s_trans: float) -> np.ndarray:
-    """A square root ``L`` of the prior covariance of the stacked station-to-station
-    offsets (6K,): ``L L^T = I (x) diag(s_rot^2 I3, s_trans^2 I3)``. (The common part is
-    a consider parameter, handled in the covariance only.)"""
-    return np.kron(np.eye(n_stations), np.diag([s_rot] * 3 + [s_trans] * 3))
-
-
 def _apply_station_offsets(problem: Problem, delta: np.ndarray) -> Problem:
     """``problem`` with station k's flange poses moved by ``delta[k]`` (see StationEffects)."""
     if not np.any(delta):
@@ -489,31 +482,13 @@ def _apply_kinematic_errors(problem: Problem, chain: SerialChain, kappa: np.ndar
     return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
 
 
-def _neg2_reml(L, A_tt, A_td, A_dd, b_t, b_d, yy) -> float:
-    """-2 x REML log-likelihood of the linearised model ``y = J_t b + J_d delta + e``,
-    e ~ N(0, I), delta ~ N(0, L L^T), from its normal-equation blocks (Woodbury and
-    Sylvester keep every matrix small and stable as L -> 0)."""
-    B = np.eye(L.shape[1]) + L.T @ A_dd @ L
-    cB = np.linalg.cholesky(B)
-    logdet_V = 2.0 * np.sum(np.log(np.diag(cB)))
-
-    def Cinv(u):  # (Sigma^-1 + A_dd)^-1 u = L B^-1 L^T u
-        return L @ np.linalg.solve(B, L.T @ u)
-
-    XVX = A_tt - A_td @ Cinv(A_td.T)
-    XVy = b_t - A_td @ Cinv(b_d)
-    yVy = yy - b_d @ Cinv(b_d)
-    sign, logdet_X = np.linalg.slogdet(XVX)
-    if sign <= 0:
-        return np.inf
-    quad = yVy - XVy @ np.linalg.solve(XVX, XVy)
-    return float(logdet_V + logdet_X + quad)
-
-
 def _neg2_reml_derivatives(sd, group, n_groups: int, A_tt, A_td, A_dd, b_t, b_d, yy):
-    """:func:`_neg2_reml` for a diagonal prior square root ``L = diag(sd)`` whose columns
-    share ``n_groups`` scales (``group[j]``: the scale of column j), with its gradient
-    and Hessian with respect to the logarithm of each scale: ``(value, (g,), (g, g))``.
+    """-2 x REML log-likelihood of the linearised model ``y = J_t b + J_d delta + e``,
+    e ~ N(0, I), delta ~ N(0, L L^T), from its normal-equation blocks, for a diagonal
+    prior square root ``L = diag(sd)`` whose columns share ``n_groups`` scales
+    (``group[j]``: the scale of column j), with its gradient and Hessian with respect
+    to the logarithm of each scale: ``(value, (g,), (g, g))``. Woodbury and Sylvester
+    keep every matrix small and stable as L -> 0.
 
     With V the marginal covariance of the whitened residuals (linear in the variances
     theta_j = sd_j^2), P = V^-1 - V^-1 X (X^T V^-1 X)^-1 X^T V^-1, M = J_d^T P J_d and
@@ -615,7 +590,7 @@ def _kinematic_evidence(blocks, prior_sd) -> dict:
     from scipy.optimize import minimize_scalar
 
     def f(lam):
-        return _neg2_reml(np.diag(lam * prior_sd), *blocks)
+        return _neg2_reml_derivatives(lam * prior_sd, np.zeros(len(prior_sd), dtype=int), 1, *blocks)[0]
 
     f0 = f(0.0)
     best = minimize_scalar(lambda x: f(np.exp(x)), bounds=(np.log(1e-4), np.log(_KIN_SCALE_BOUNDS[1])),
@@ -755,20 +730,16 @@ def refine(
         """Per-shot d res / d kappa (n, 4, n_kin)."""
         return lin.columns(lin.Jd @ flange_error_jacobian(chain_with_errors(ke.chain, kappa), problem.q_rad))
 
+    def prior_sd(sv, lam_):
+        """Prior spread of each random effect (station offsets (6 K,): s_rot, s_rot, s_rot,
+        s_trans, ... per station; then the random kinematic parameters): the diagonal of
+        the prior's square root L (L L^T = I (x) diag(s_rot^2 I3, s_trans^2 I3) for the
+        stations; the common part is a consider parameter, in the covariance only)."""
+        return np.concatenate([np.tile(np.repeat(sv, 3), K) if se is not None else [],
+                               lam_ * kin_prior[rand_cols]])
+
     def sqrt_prior(sv, lam_):
-        blocks = []
-        if se is not None:
-            blocks.append(_station_sqrt_cov(K, *sv))
-        if len(rand_cols):
-            blocks.append(np.diag(lam_ * kin_prior[rand_cols]))
-        if not blocks:
-            return np.zeros((0, 0))
-        out = np.zeros((sum(b.shape[0] for b in blocks),) * 2)
-        i = 0
-        for b in blocks:
-            out[i:i + len(b), i:i + len(b)] = b
-            i += len(b)
-        return out
+        return np.diag(prior_sd(sv, lam_))
 
     def design(lin):
         """Per-shot fixed-effect columns, station columns, random kinematic columns."""
@@ -805,7 +776,7 @@ def refine(
         cost = lin_.red.cost()
         if any_random:
             d = np.concatenate([delta.ravel() if se is not None else [], kappa[rand_cols]])
-            sd = np.diag(sqrt_prior(sv, lam_))
+            sd = prior_sd(sv, lam_)
             cost += float(np.sum(np.where(sd > 0, d / np.where(sd > 0, sd, 1.0), 0.0) ** 2))
         return cost
 
@@ -849,10 +820,8 @@ def refine(
 
                     def objective(x):
                         sv, lam_ = unpack(x)
-                        sd = np.concatenate([np.tile(np.repeat(sv, 3), K) if se is not None else [],
-                                             lam_ * kin_prior[rand_cols]])  # (the diagonal of sqrt_prior)
-                        value, grad, hess = _neg2_reml_derivatives(sd, group, n_x + 1, A_tt, A_td, A_dd, b_t, b_d,
-                                                                   yy)
+                        value, grad, hess = _neg2_reml_derivatives(prior_sd(sv, lam_), group, n_x + 1,
+                                                                   A_tt, A_td, A_dd, b_t, b_d, yy)
                         return value, grad[:n_x], hess[:n_x, :n_x]
 
                     bounds = [(np.log(_SCALE_BOUNDS[i][0]), np.log(_SCALE_BOUNDS[i][1])) for i in free]
