@@ -117,7 +117,7 @@ class _Reduced:
 
     ``Sigma_i`` = diag(S_i, 0). A centre observation is the same with its three rows:
     ``g`` = (d res / d C | radius column) (3, 4) and its covariance. So the normal
-    equations cost O(points) once per linearisation (15 sums a point) and O(shots)
+    equations cost O(points) once per linearisation (nine sums a point) and O(shots)
     for any set of columns, and no per-point Jacobian is ever built."""
 
     def __init__(self, W, w, c, chi2):
