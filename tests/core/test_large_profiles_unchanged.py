@@ -60,7 +60,7 @@ def test_results_on_many_points_a_profile_are_those_before_the_scale_work():
 
 
 def test_normal_equations_reduced_per_shot_equal_the_dense_whitened_ones():
-    """The per-shot reduction (fifteen sums a point, then 4 x 4 algebra a shot) gives
+    """The per-shot reduction (nine sums a point, then 4 x 4 algebra a shot) gives
     J^T Cov^-1 J, -J^T Cov^-1 res, res^T Cov^-1 res and each profile's pose-subspace
     chi^2 of the problem whitened point by point with each profile's dense covariance
     sigma^2 I + G S_C G^T, to rounding."""
