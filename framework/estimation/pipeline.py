@@ -16,7 +16,7 @@ from ..models import (
     SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, KinematicParameter, ObservationFlag, Pose, ResidualStats,
     RobotErrorSummary,
 )
-from .circle import CircleFit, fit_circle
+from .circle import CircleFit, fit_circles
 from .prediction import point_error_budget
 from .problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, build_problem,
@@ -294,6 +294,9 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     say(f"fitting circles to {problem.n_profiles - n_centres} profiles"
         + (f"; {n_centres} centre observations" if n_centres else ""))
     fits: dict[int, CircleFit | CentreShot] = {}
+    enough = [i for i, pts in enumerate(problem.profiles)
+              if kinds[i] == KIND_PROFILE and len(pts) >= opt.min_points_per_profile]
+    circles = dict(zip(enough, fit_circles([problem.profiles[i] for i in enough], outlier_k=opt.point_outlier_k)))
     for i, pts in enumerate(problem.profiles):
         if kinds[i] != KIND_PROFILE:
             fits[i] = _centre_shot(problem, i)
@@ -302,7 +305,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
             flags.append(_flag(problem, i, f"only {len(pts)} points (needs {opt.min_points_per_profile}): "
                                            "the line barely touches the sphere or misses it"))
             continue
-        fit = fit_circle(pts, outlier_k=opt.point_outlier_k)
+        fit = circles[i]
         if not fit.converged or fit.rms > opt.max_circle_rms_mm or fit.n_inliers < opt.min_points_per_profile:
             flags.append(_flag(problem, i, f"points do not lie on a circle (rms {fit.rms:.3f} mm): not the sphere?"))
             continue
@@ -365,7 +368,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         sigma = DEFAULT_POINT_NOISE_MM  # no profile: the points' noise enters only the point-error budget
     noise = NoiseAssumptions(max(sigma, 1e-7), opt.pose_translation_noise_mm, opt.pose_rotation_noise_deg)
 
-    clean = sub.with_profiles([p[sub_fits[j].inliers] if isinstance(sub_fits[j], CircleFit) else p
+    clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
                                for j, p in enumerate(sub.profiles)])
     say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points"
         + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
@@ -415,7 +418,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      **robot_effects)
     if any(not k.all() for k in keep_pts):
-        clean = clean.with_profiles([p[k] for p, k in zip(clean.profiles, keep_pts)])
+        clean = clean.with_profiles([p if k.all() else p[k] for p, k in zip(clean.profiles, keep_pts)])
         ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
                      **robot_effects)
 

@@ -27,6 +27,7 @@ from .. import geometry as geo
 from ..kinematics import (
     SerialChain, chain_with_errors, error_parameter_names, flange_corrections, flange_error_jacobian,
 )
+from .blocks import BLOCK_POINTS, profile_blocks
 from .problem import (
     KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, sphere_frame_from_base, unknown_variances,
 )
@@ -152,26 +153,16 @@ class _Reduced:
         return float(self.c.sum() - 2.0 * np.sum(z * self.w) + np.einsum("na,nab,nb->", z, self.W, z))
 
 
-#: Points per block of whole profiles in :func:`_point_sums`: small enough that a block's
-#: dozen temporaries stay in the processor's cache (each per-point operation then runs
-#: at the cache's speed, not the memory's), large enough that NumPy's per-call cost is
-#: small beside the work (measured: 8 k points about 2.7 x faster than all at once).
-BLOCK_POINTS = 8192
-
-
 def _blocks(counts: np.ndarray, target: int) -> list[tuple[int, int, int, int, np.ndarray, np.ndarray]]:
-    """Consecutive profiles (point counts ``counts``) grouped into blocks of at most
-    ``target`` points (a longer profile makes a block of its own): per block (first
-    profile, end profile, first point, end point, the non-empty profiles' positions in
-    the block, their first points relative to the block's)."""
+    """:func:`.blocks.profile_blocks` of profiles with ``counts`` points, with per block
+    (first profile, end profile, first point, end point, the non-empty profiles'
+    positions in the block, their first points relative to the block's)."""
     ends = np.cumsum(counts)
     starts = ends - counts
-    out, p, n = [], 0, len(counts)
-    while p < n:
-        q = min(max(int(np.searchsorted(ends, starts[p] + target, side="right")), p + 1), n)
+    out = []
+    for p, q in profile_blocks(counts, target):
         nz = np.flatnonzero(counts[p:q])
         out.append((p, q, int(starts[p]), int(ends[q - 1]), nz, starts[p:q][nz] - starts[p]))
-        p = q
     return out
 
 
@@ -180,7 +171,7 @@ def _point_sums(pts: "_Points", C: np.ndarray, rho: np.ndarray) -> tuple[np.ndar
     (in ``pts.shots`` order) nine sums over its points (9, n): of u_y, u_z, res, u_y^2,
     u_y u_z, u_z^2, u_y res, u_z res and res^2, with u = (p - C_yz) / |p - C_yz| (d res /
     d C_yz = -u). One pass over the points, a block of whole profiles at a time
-    (:data:`BLOCK_POINTS`), every temporary a block long."""
+    (:mod:`.blocks`), every temporary a block long."""
     res = np.empty(pts.M)
     sums = np.zeros((9, len(pts.shots)))
     if not pts.M:
@@ -298,13 +289,12 @@ class _Points:
         self.shots = np.flatnonzero(problem.kinds == KIND_PROFILE)
         self.n_points = counts[self.shots]
         self.M = int(self.n_points.sum())
-        self.Py, self.Pz = np.empty(self.M), np.empty(self.M)
-        pos = 0
-        for i in self.shots:
-            p = problem.profiles[i]
-            self.Py[pos:pos + len(p)], self.Pz[pos:pos + len(p)] = p[:, 0], p[:, 1]
-            pos += len(p)
         self.blocks = _blocks(self.n_points, BLOCK_POINTS)
+        self.Py, self.Pz = np.empty(self.M), np.empty(self.M)
+        for p0, p1, a, b, _, _ in self.blocks:
+            if b > a:
+                block = np.concatenate([problem.profiles[i] for i in self.shots[p0:p1]])
+                self.Py[a:b], self.Pz[a:b] = block[:, 0], block[:, 1]
         self.block_cap = max((b - a for _, _, a, b, _, _ in self.blocks), default=0)
         self.cache = None  # (C, rho, res, sums) of the last linearisation
 

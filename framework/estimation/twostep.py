@@ -54,7 +54,7 @@ class CentreShot:
 def _depths(problem: Problem, fits: dict, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """|x| of the sphere centre of each shot ``idx``, and its known x (NaN where the side
     of the laser plane is to be decided)."""
-    h = np.array([half_chord_depth(problem.radius_mm, fits[i].radius) for i in idx])
+    h = half_chord_depth(problem.radius_mm, [fits[i].radius for i in idx])
     x_known = np.array([np.nan if getattr(fits[i], "x_mm", None) is None else fits[i].x_mm for i in idx])
     known = ~np.isnan(x_known)
     h[known] = np.abs(x_known[known])
@@ -94,11 +94,29 @@ class TwoStepResult:
     diagnostics: dict = field(default_factory=dict)
 
 
+def _abs_fit_costs(a: np.ndarray, u: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """sum_i (|a_j + u_i| - h_i)^2 for every a_j, in O((m + n) log n): expanded as
+    sum (a + u)^2 - 2 sum h |a + u| + sum h^2, the middle sum split where a + u_i changes
+    sign (prefix sums over u sorted)."""
+    order = np.argsort(u)
+    us, hs = u[order], h[order]
+    H = np.concatenate([[0.0], np.cumsum(hs)])
+    HU = np.concatenate([[0.0], np.cumsum(hs * us)])
+    k = np.searchsorted(us, -a, side="left")  # the u_i with a + u_i < 0
+    abs_sum = (a * H[-1] + HU[-1]) - 2.0 * (a * H[k] + HU[k])
+    return len(u) * a * a + 2.0 * a * u.sum() + u @ u - 2.0 * abs_sum + h @ h
+
+
 def _signs_and_offset(u: np.ndarray, h: np.ndarray) -> np.ndarray:
     """x_i with |x_i| ~ h_i and x_i = a + u_i: choose a, return s_i h_i."""
     cands = np.concatenate([h - u, -h - u])
-    costs = [np.sum((np.abs(a + u) - h) ** 2) for a in cands]
-    a = cands[int(np.argmin(costs))]
+    # every candidate's cost at once; those within rounding of the least are summed
+    # directly and the first of the least taken, as summing each directly would choose
+    fast = _abs_fit_costs(cands, u, h)
+    tol = 1e-9 * (np.abs(fast).min() + len(u) * (np.abs(h).max() + np.abs(u).max()) ** 2 * 1e-6) + 1e-12
+    near = np.flatnonzero(fast <= fast.min() + tol)
+    costs = [np.sum((np.abs(cands[j] + u) - h) ** 2) for j in near]
+    a = cands[near[int(np.argmin(costs))]]
     s = np.where(a + u >= 0, 1.0, -1.0)
     a = np.mean(s * h - u)
     s = np.where(a + u >= 0, 1.0, -1.0)
@@ -112,11 +130,11 @@ def station_centres(problem: Problem, fits: dict[int, CircleFit], label_index: i
     of X^T); orthonormality of X^T gives its first row up to sign, and det X = +1 fixes
     the sign when the moves span 3-D. With planar or collinear moves two mirror
     candidates remain; :func:`two_step` keeps the one the whole dataset agrees with."""
-    idx = np.array([i for i in np.flatnonzero(problem.station_of == label_index) if i in fits])
+    idx = np.array([i for i in np.flatnonzero(problem.station_of == label_index).tolist() if i in fits], dtype=int)
     if len(idx) == 0:
         return StationCentres(problem.station_labels[label_index], idx, np.zeros((0, 3)), [], 0)
-    yz = np.array([fits[i].centre_yz for i in idx])
-    h = np.array([half_chord_depth(problem.radius_mm, fits[i].radius) for i in idx])
+    yz = np.array([fits[i].centre_yz for i in idx.tolist()])
+    h = half_chord_depth(problem.radius_mm, [fits[i].radius for i in idx.tolist()])
     centres = problem.has_centres and bool(np.any(problem.kinds[idx] != KIND_PROFILE))
     if centres:
         h, x_known = _depths(problem, fits, idx)
@@ -174,26 +192,45 @@ def rotation_from_translations(stations: list[StationCentres], choice) -> tuple[
 
 
 def fit_sphere_fixed_radius(points: np.ndarray, radius: float, start: np.ndarray, iterations: int = 30) -> np.ndarray:
-    """Centre of the sphere of given radius closest (least squares) to 3-D points."""
+    """Centre of the sphere of given radius closest (least squares) to 3-D points:
+    Gauss-Newton on the distances, each step from its 3 x 3 normal equations."""
     c = np.asarray(start, dtype=float).copy()
     for _ in range(iterations):
         dvec = points - c
         dist = np.maximum(np.linalg.norm(dvec, axis=1), 1e-12)
-        J = -dvec / dist[:, None]
-        step = np.linalg.lstsq(J, -(dist - radius), rcond=None)[0]
+        u = dvec / dist[:, None]  # d dist / d c = -u
+        try:
+            step = np.linalg.solve(u.T @ u, u.T @ (dist - radius))
+        except np.linalg.LinAlgError:  # (points on a line or at one place: least squares, minimum norm)
+            step = np.linalg.lstsq(-u, -(dist - radius), rcond=None)[0]
         c += step
         if np.abs(step).max() < 1e-11:
             break
     return c
 
 
-def points_3d(profile_yz: np.ndarray) -> np.ndarray:
-    """(N, 2) laser-plane points to (N, 3) sensor-frame points (0, y, z)."""
-    return np.column_stack([np.zeros(len(profile_yz)), profile_yz])
+class InlierPoints:
+    """The profiles' points the two-step uses, stacked by coordinate (laser plane, mm):
+    ``y``, ``z`` (N,), ``shot`` (N,) the profile of each, in profile order."""
+
+    def __init__(self, profiles: list[np.ndarray]):
+        counts = np.array([len(p) for p in profiles], dtype=int)
+        stacked = np.concatenate(profiles) if len(profiles) else np.zeros((0, 2))
+        self.y, self.z = np.ascontiguousarray(stacked[:, 0]), np.ascontiguousarray(stacked[:, 1])
+        self.shot = np.repeat(np.arange(len(profiles)), counts)
+
+    def mapped(self, R_sf: np.ndarray, t_sf: np.ndarray, rows=slice(None)) -> np.ndarray:
+        """The points (of ``rows``, an index or mask over the points) through per-shot
+        transforms ``R_sf (0, y, z) + t_sf[i]`` (N, 3): ``R_sf`` one rotation (3, 3) or
+        one a shot (n, 3, 3), ``t_sf`` (n, 3)."""
+        shot, y, z = self.shot[rows], self.y[rows][:, None], self.z[rows][:, None]
+        if R_sf.ndim == 2:
+            return R_sf[:, 1] * y + R_sf[:, 2] * z + t_sf[shot]
+        return np.ascontiguousarray(R_sf[:, :, 1])[shot] * y + np.ascontiguousarray(R_sf[:, :, 2])[shot] * z + t_sf[shot]
 
 
 def translation_from_orientations(
-    problem: Problem, R: np.ndarray, stations: list[StationCentres], choice, inlier_profiles: list[np.ndarray]
+    problem: Problem, R: np.ndarray, stations: list[StationCentres], choice, inliers: InlierPoints
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Step 2: [Tx; c] by linear least squares over the stations' fitted centres."""
     rows, rhs = [], []
@@ -212,7 +249,8 @@ def translation_from_orientations(
             cands = st.candidates[ch][~is_centre]
         else:
             prof, cands = st.profiles, st.candidates[ch]
-        pts = np.vstack([points_3d(inlier_profiles[i]) @ R.T @ R_A.T + problem.t_A[i] for i in prof])
+        # the station's points through R_A X (the station shares R_A), each shot's t_A added
+        pts = inliers.mapped(R_A @ R, problem.t_A, np.isin(inliers.shot, prof))
         start = np.mean(cands @ R.T @ R_A.T + problem.t_A[prof], axis=0)
         xb = fit_sphere_fixed_radius(pts, problem.radius_mm, start)
         rows.append(np.hstack([R_A, -np.eye(3)]))
@@ -243,18 +281,13 @@ def _orientation_advice(problem: Problem, stations: list[StationCentres]) -> str
     )
 
 
-def point_rms(problem: Problem, R, t, centre, profiles) -> float:
+def point_rms(problem: Problem, R, t, centre, inliers: InlierPoints) -> float:
     """RMS distance (mm) of all mapped points to the sphere |A_i X p - c| = r; with
     centre observations, their residuals' components (:func:`centre_residuals`) join
     the points."""
-    sq, n = 0.0, 0
-    for i, p in enumerate(profiles):
-        if not len(p):
-            continue
-        q = (points_3d(p) @ R.T + t) @ problem.R_A[i].T + problem.t_A[i]
-        res = np.linalg.norm(q - centre, axis=1) - problem.radius_mm
-        sq += float(res @ res)
-        n += len(res)
+    q = inliers.mapped(problem.R_A @ R, problem.R_A @ t + problem.t_A)
+    res = np.linalg.norm(q - centre, axis=1) - problem.radius_mm
+    sq, n = float(res @ res), len(res)
     if problem.has_centres:
         e = centre_residuals(problem, R, t, centre)
         e = e[~np.isnan(e[:, 0])]
@@ -308,13 +341,12 @@ def two_step(
     by a large rotation can fit equally well (within ``ambiguity_ratio`` of the best
     RMS); ``nominal_R`` (the rough rotation of X, e.g. from the configuration) then picks
     one, and without it a :class:`DegenerateDataError` says what to add."""
-    inliers = [p[fits[i].inliers] if isinstance(fits.get(i), CircleFit) else p[:0]
+    inliers = [fits[i].inlier_points(p) if isinstance(fits.get(i), CircleFit) else p[:0]
                for i, p in enumerate(problem.profiles)]
     # a start and a choice of signs: on very many points, every k-th point of each
     # profile is enough (the joint refinement then uses every point)
     stride = max(1, -(-sum(len(p) for p in inliers) // TWO_STEP_POINTS))
-    if stride > 1:
-        inliers = [p[::stride] for p in inliers]
+    inliers = InlierPoints([p[::stride] for p in inliers] if stride > 1 else inliers)
     stations = [station_centres(problem, fits, k) for k in range(len(problem.station_labels))]
     stations = [st for st in stations if st.candidates]
     if not stations:
