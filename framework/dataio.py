@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import warnings
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -532,12 +533,15 @@ def _is_result_document(data: bytes) -> bool:
     return isinstance(doc, dict) and doc.get("format") == RESULT_FORMAT
 
 
+_NOT_BLANK = re.compile(rb"\S")
+
+
 def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     name = os.fspath(path)
     if not data:
         raise DatasetFileError(f"{name}: the file is empty; expected a spherecal dataset (header line first)")
     start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # tolerate a UTF-8 byte order mark
-    if start == len(data) or not data[start:].strip():
+    if start == len(data) or _NOT_BLANK.search(data, start) is None:
         raise DatasetFileError(f"{name}: the file holds no data (only a byte order mark or blank space); "
                                "expected a spherecal dataset (header line first)")
     from .safeio import text_encoding_problem
@@ -546,7 +550,9 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     if problem:
         raise DatasetFileError(f"{name}: not a spherecal dataset as written: {problem}. A dataset is UTF-8 "
                                "JSON Lines; the data may well be intact")
-    lines: list[tuple[int, bytes]] = []  # (byte offset, content without newline)
+    # (byte offset, end) of each line's content without its newline; a line's bytes are
+    # copied out only while it is parsed (the file is held once, not twice)
+    lines: list[tuple[int, int]] = []
     pos = start
     while pos < len(data):
         nl = data.find(b"\n", pos)
@@ -554,10 +560,9 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
         if end - pos > MAX_LINE_BYTES:
             raise DatasetFileError(f"{name} line {len(lines) + 1} (byte {pos}): longer than {MAX_LINE_BYTES} bytes; "
                                    "not a spherecal dataset line (one profile is at most a few hundred kB)")
+        lines.append((pos, end))
         if nl < 0:
-            lines.append((pos, data[pos:]))
             break
-        lines.append((pos, data[pos:nl]))
         pos = nl + 1
     ends_with_newline = data.endswith(b"\n")
 
@@ -565,7 +570,8 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     dropped = None
     whole_end = len(data)
     if not ends_with_newline:
-        off, tail = lines[-1]
+        off, end = lines[-1]
+        tail = data[off:end]
         try:
             whole = isinstance(_loads(tail), dict)
         except ValueError:
@@ -582,7 +588,8 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
             whole_end = off
             lines.pop()
 
-    off0, raw0 = lines[0]
+    off0, end0 = lines[0]
+    raw0 = data[off0:end0]
     try:
         header_obj = _loads(raw0)
     except ValueError as exc:
@@ -601,7 +608,8 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     seen: dict[int, int] = {}  # index -> line number
     for k in range(1, len(lines)):
         lineno = k + 1
-        off, raw = lines[k]
+        off, end = lines[k]
+        raw = data[off:end]
         if not raw.strip():
             continue
         try:

@@ -128,7 +128,14 @@ def read_input(path: str | os.PathLike, error: type[Exception], what: str, max_b
         raise error(f"{name}: {st.st_size} bytes is larger than {what} can be (at most {max_bytes} bytes)")
     try:
         with open(path, "rb") as f:
-            data = f.read(max_bytes + 1)
+            # the size it has now (reading max_bytes + 1 at once would reserve that much
+            # memory first), then whatever it grew by since, up to the limit
+            parts = [f.read(min(st.st_size, max_bytes) + 1)]
+            size = len(parts[0])
+            while size <= max_bytes and (more := f.read(min(1 << 24, max_bytes + 1 - size))):
+                parts.append(more)
+                size += len(more)
+            data = parts[0] if len(parts) == 1 else b"".join(parts)
     except OSError as exc:
         raise error(f"{name}: cannot read ({exc.strerror or exc})") from None
     if len(data) > max_bytes:
@@ -139,7 +146,9 @@ def read_input(path: str | os.PathLike, error: type[Exception], what: str, max_b
 def text_encoding_problem(data: bytes) -> str | None:
     """Why ``data`` is not UTF-8 text with LF line ends, in words, or None: a UTF-16 or
     UTF-32 file, binary data (NUL bytes), CR-only line ends."""
-    head = data.rstrip(b"\x00")[:4096]  # a zero-filled tail is what a crash leaves: judged elsewhere
+    head = data[:4096]
+    if b"\x00" in head:  # a zero-filled tail is what a crash leaves (judged elsewhere): not counted here
+        head = data.rstrip(b"\x00")[:4096]
     if head.startswith((b"\xff\xfe", b"\xfe\xff")):
         return "it is UTF-16 (or UTF-32) text; save it as UTF-8 (e.g. iconv -f UTF-16 -t UTF-8)"
     if b"\x00" in head:
