@@ -30,6 +30,7 @@ from matplotlib.figure import Figure
 from .. import __version__
 from .. import geometry as geo
 from ..errors import InputError
+from ..estimation.blocks import BLOCK_POINTS, profile_blocks
 from ..estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
 from ..exporters import ExportNote
 from ..models import SPHERE_FRAME, CalibrationResult
@@ -86,11 +87,15 @@ def mapped_points(solution) -> list[np.ndarray]:
     ``p = R_A_i (R p_sensor + t) + t_A_i`` with p_sensor = (0, y, z); ``A_i`` is
     ``base_from_flange_i`` (eye-in-hand) or ``flange_from_base_i`` (eye-to-hand). mm."""
     prob, ref = solution.problem, solution.refined
-    out = []
-    for i, pts in enumerate(prob.profiles):
-        p_s = np.column_stack([np.zeros(len(pts)), pts])
-        out.append((p_s @ ref.R.T + ref.t) @ prob.R_A[i].T + prob.t_A[i])
-    return out
+    counts = [len(p) for p in prob.profiles]
+    if not sum(counts):
+        return [np.zeros((0, 3)) for _ in counts]
+    M = prob.R_A @ ref.R  # (n, 3, 3): R_A_i R; the sensor's x column meets x = 0
+    o = prob.R_A @ np.asarray(ref.t, dtype=float) + prob.t_A  # (n, 3)
+    shot = np.repeat(np.arange(len(counts)), counts)
+    yz = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p in prob.profiles])
+    q = yz[:, 0:1] * M[shot, :, 1] + yz[:, 1:2] * M[shot, :, 2] + o[shot]
+    return np.split(q, np.cumsum(counts)[:-1])
 
 
 def mapped_centres(solution) -> dict[int, tuple[int, np.ndarray]]:
@@ -182,21 +187,25 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     _station_axis(ax, entries, 1.22 * lim)
     ax.axhline(0, color="black", lw=0.6)
     ax.set_ylabel("in-plane residual (mm)")
-    ax.set_title("Residuals per profile (box: quartiles, whiskers: 1-99 %; red: flagged and left out)", fontsize=10)
+    shape = ("dark band: quartiles, light band: 1-99 %, line: median" if len(used) > MAX_BOXES
+             else "box: quartiles, whiskers: 1-99 %")
+    ax.set_title(f"Residuals per profile ({shape}; red: flagged and left out)", fontsize=10)
     return fig
 
 
 def _boxes(ax, positions, samples, colours, width: float = 0.6) -> None:
     """Box plots of ``samples`` at ``positions`` (box: quartiles, whiskers: 1-99 %, a
-    black median), drawn as three collections however many there are: the statistics of
-    every point, the drawing of thousands of profiles in a fraction of a second (one
-    artist per box took seconds)."""
+    black median), drawn as three collections (one artist per box took seconds); beyond
+    :data:`MAX_BOXES`, as bands (:func:`_bands`). The statistics are every point's."""
     from matplotlib.collections import LineCollection, PolyCollection
 
     if not len(positions):
         return
-    q = np.array([np.percentile(v, [1, 25, 50, 75, 99]) for v in samples])  # (n, 5), every point
+    q = row_percentiles(samples, [1, 25, 50, 75, 99])  # (n, 5), every point
     x = np.asarray(positions, dtype=float)
+    if len(x) > MAX_BOXES:
+        _bands(ax, x, q, colours)
+        return
     h = width / 2
     boxes = np.stack([np.column_stack([x - h, q[:, 1]]), np.column_stack([x + h, q[:, 1]]),
                       np.column_stack([x + h, q[:, 3]]), np.column_stack([x - h, q[:, 3]])], axis=1)
@@ -208,6 +217,50 @@ def _boxes(ax, positions, samples, colours, width: float = 0.6) -> None:
     ax.add_collection(LineCollection([((xi - h, m), (xi + h, m)) for xi, m in zip(x, q[:, 2])], colors="black",
                                      linewidths=1.0))
     ax.autoscale_view()
+
+
+#: More boxes than this in one figure (a box then narrower than a few pixels) are drawn as
+#: bands: the same statistics, every point's, as an area per run of one colour.
+MAX_BOXES = 400
+
+
+def _bands(ax, x, q, colours) -> None:
+    """What :func:`_boxes` draws, for very many positions: per run of positions of one
+    colour (a station), the 1-99 % band (light), the quartiles' band and the median as a
+    line, each point of them a position's statistics (``q`` (n, 5))."""
+    colours = list(colours)
+    runs = [0] + [k for k in range(1, len(x)) if colours[k] != colours[k - 1] or x[k] != x[k - 1] + 1] + [len(x)]
+    for a, b in zip(runs[:-1], runs[1:]):
+        xs = np.repeat(x[a:b], 2) + np.tile([-0.5, 0.5], b - a)  # each position as a step of width 1
+        band = {j: np.repeat(q[a:b, j], 2) for j in range(5)}
+        ax.fill_between(xs, band[0], band[4], color=colours[a], alpha=0.3, lw=0)
+        ax.fill_between(xs, band[1], band[3], color=colours[a], alpha=0.75, lw=0)
+        ax.plot(xs, band[2], color="black", lw=0.3, alpha=0.6)
+    ax.autoscale_view()
+
+
+def row_percentiles(samples, qs) -> np.ndarray:
+    """``np.percentile(v, qs)`` (its default, linear interpolation) of each of
+    ``samples`` (non-empty arrays), (len(samples), len(qs)): thousands of profiles
+    computed a block at a time (rows sorted together), not one call each."""
+    qs = np.asarray(qs, dtype=float) / 100.0
+    out = np.empty((len(samples), len(qs)))
+    counts = np.array([len(v) for v in samples], dtype=int)
+    for p0, p1 in profile_blocks(counts, BLOCK_POINTS):
+        k = counts[p0:p1]
+        rows = np.full((p1 - p0, k.max()), np.inf)
+        rows[np.arange(k.max()) < k[:, None]] = np.concatenate([np.ravel(v) for v in samples[p0:p1]])
+        rows.sort(axis=1)
+        at = qs[None, :] * (k[:, None] - 1)
+        lo = np.floor(at).astype(int)
+        hi = np.minimum(lo + 1, k[:, None] - 1)
+        a = np.take_along_axis(rows, lo, axis=1)
+        b = np.take_along_axis(rows, hi, axis=1)
+        g = at - lo
+        diff = b - a
+        # numpy's lerp: from the nearer end, so that a value between two equal ones is exact
+        out[p0:p1] = np.where(g >= 0.5, b - diff * (1.0 - g), a + diff * g)
+    return out
 
 
 def _fig_per_centre(solution, result, colours) -> Figure:

@@ -155,3 +155,44 @@ def test_the_3d_and_per_profile_figures_draw_a_bounded_number_of_artists(solutio
         q1, q3 = np.percentile(solution.refined.residuals[i], [25, 75])
         assert np.isclose(ys.min(), q1) and np.isclose(ys.max(), q3)
     assert len([t for t in ax.get_xticklabels() if t.get_text()]) <= 7
+
+
+def test_beyond_max_boxes_the_per_profile_figure_draws_bands_of_the_same_statistics(solution, monkeypatch):
+    """More profiles than MAX_BOXES: a band per station (1-99 %, quartiles) and a median
+    line, not one box each; the bands are drawn from each profile's percentiles of every
+    point."""
+    prob = solution.problem
+    monkeypatch.setattr(rh, "MAX_BOXES", 5)
+    drawn = []
+    bands = rh._bands
+    monkeypatch.setattr(rh, "_bands", lambda ax, x, q, colours: (drawn.append((x, q)), bands(ax, x, q, colours)))
+    fig = rh._fig_per_profile(solution, solution.result, rh._station_colours(list(prob.station_labels)))
+    ax = fig.axes[0]
+    assert len(ax.collections) == 2 * len(prob.station_labels)  # two bands a station, no box a profile
+    assert len(ax.lines) >= len(prob.station_labels)  # the medians (and the zero line)
+    assert "dark band: quartiles" in ax.get_title()
+    (x, q), = drawn
+    order = sorted(range(prob.n_profiles), key=lambda i: (prob.station_of[i], prob.obs_index[i]))
+    np.testing.assert_array_equal(x, np.arange(prob.n_profiles))
+    for k, i in enumerate(order):
+        np.testing.assert_allclose(q[k], np.percentile(solution.refined.residuals[i], [1, 25, 50, 75, 99]))
+    ys = np.concatenate([c.get_paths()[0].vertices[:, 1] for c in ax.collections])
+    assert ys.min() == pytest.approx(q[:, 0].min()) and ys.max() == pytest.approx(q[:, 4].max())
+
+
+def test_row_percentiles_are_numpys_for_every_row():
+    rng = np.random.default_rng(3)
+    samples = ([rng.normal(size=int(rng.integers(1, 700))) for _ in range(300)]
+               + [np.array([2.5]), np.ones(4), rng.integers(0, 3, 41).astype(float), np.arange(20_000.0)])
+    qs = [0, 1, 25, 50, 75, 99, 100]
+    np.testing.assert_array_equal(rh.row_percentiles(samples, qs), np.array([np.percentile(v, qs) for v in samples]))
+
+
+def test_mapped_points_are_each_shots_transform_of_its_points(solution):
+    prob, ref = solution.problem, solution.refined
+    mapped = rh.mapped_points(solution)
+    assert [len(m) for m in mapped] == [len(p) for p in prob.profiles]
+    for i in (0, prob.n_profiles // 2, prob.n_profiles - 1):
+        p_s = np.column_stack([np.zeros(len(prob.profiles[i])), prob.profiles[i]])
+        expected = (p_s @ ref.R.T + ref.t) @ prob.R_A[i].T + prob.t_A[i]
+        np.testing.assert_allclose(mapped[i], expected, rtol=0, atol=1e-9)
