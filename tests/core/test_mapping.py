@@ -41,7 +41,8 @@ def test_batched_mapping_matches_reference(backend, in_dtype, out_dtype):
     ref = _reference(poses, y.astype(float), z.astype(float))
     invalid = np.isnan(y) | np.isnan(z)
     assert np.all(np.isnan(got[invalid])) and not np.any(np.isnan(got[~invalid]))
-    # float64: rounding only; float32 output: one rounding of ~1500 mm values (ulp 1.2e-4 mm)
+    # float64: rounding only; float32 output: float32 arithmetic (NumPy) or one rounding
+    # (numba) of ~1500 mm values, whose float32 unit is 1.2e-4 mm
     atol = 1e-9 if out_dtype == np.float64 else 2e-4
     np.testing.assert_allclose(got[~invalid], ref[~invalid], rtol=0, atol=atol)
 
