@@ -33,6 +33,7 @@ from ..errors import InputError
 from ..estimation.blocks import BLOCK_POINTS, profile_blocks
 from ..estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
 from ..exporters import ExportNote
+from ..mapping import map_profile_list
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
 from .. import safeio
@@ -76,26 +77,26 @@ def _station_colours(labels: list[str]) -> dict[str, Any]:
 
 
 def _png(fig: Figure) -> bytes:
+    """The figure as PNG, laid out once (``tight_layout``: a layout engine on the figure
+    would lay it out twice, in a dry draw and again in the real one)."""
     FigureCanvasAgg(fig)
+    fig.tight_layout()
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI)
+    # zlib's fastest level: the encoding took a tenth of the report at level 6 (the
+    # default), for files 4 % smaller
+    fig.savefig(buf, format="png", dpi=_DPI, pil_kwargs={"compress_level": 1})
     return buf.getvalue()
 
 
 def mapped_points(solution) -> list[np.ndarray]:
     """Each used profile's points mapped into the sphere frame through ``A_i X``:
     ``p = R_A_i (R p_sensor + t) + t_A_i`` with p_sensor = (0, y, z); ``A_i`` is
-    ``base_from_flange_i`` (eye-in-hand) or ``flange_from_base_i`` (eye-to-hand). mm."""
+    ``base_from_flange_i`` (eye-in-hand) or ``flange_from_base_i`` (eye-to-hand). mm.
+    (:func:`spherecal.mapping.map_profile_list`, the scan's mapping.)"""
     prob, ref = solution.problem, solution.refined
-    counts = [len(p) for p in prob.profiles]
-    if not sum(counts):
-        return [np.zeros((0, 3)) for _ in counts]
-    M = prob.R_A @ ref.R  # (n, 3, 3): R_A_i R; the sensor's x column meets x = 0
-    o = prob.R_A @ np.asarray(ref.t, dtype=float) + prob.t_A  # (n, 3)
-    shot = np.repeat(np.arange(len(counts)), counts)
-    yz = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p in prob.profiles])
-    q = yz[:, 0:1] * M[shot, :, 1] + yz[:, 1:2] * M[shot, :, 2] + o[shot]
-    return np.split(q, np.cumsum(counts)[:-1])
+    points, _ = map_profile_list(prob.R_A @ ref.R, prob.R_A @ np.asarray(ref.t, dtype=float) + prob.t_A,
+                                 prob.profiles)
+    return np.split(points, np.cumsum([len(p) for p in prob.profiles])[:-1])
 
 
 def mapped_centres(solution) -> dict[int, tuple[int, np.ndarray]]:
@@ -175,7 +176,7 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     order = list(prob.station_labels) + sorted({f.station for f in result.flagged} - set(prob.station_labels))
     entries.sort(key=lambda e: (order.index(e[0]), e[1]))
     n = len(entries)
-    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.2), layout="constrained")
+    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.2))
     ax = fig.add_subplot()
     used = [(k, e) for k, e in enumerate(entries) if e[2] is not None]
     _boxes(ax, [k for k, _ in used], [e[2] for _, e in used], [colours.get(e[0], "grey") for _, e in used])
@@ -273,7 +274,7 @@ def _fig_per_centre(solution, result, colours) -> Figure:
     order = list(prob.station_labels) + sorted({e[0] for e in entries} - set(prob.station_labels))
     entries.sort(key=lambda e: (order.index(e[0]), e[1]))
     n = len(entries)
-    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.0), layout="constrained")
+    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.0))
     ax = fig.add_subplot()
     top = max([e[2] for e in entries if e[2] is not None] + [1e-3])
     for k, (label, index, length) in enumerate(entries):
@@ -292,7 +293,7 @@ def _fig_per_station(solution, result, colours) -> Figure:
     prob, ref = solution.problem, solution.refined
     labels = list(prob.station_labels)
     data = [_station_residuals(solution, np.flatnonzero(prob.station_of == k)) for k in range(len(labels))]
-    fig = Figure(figsize=(max(5.0, 1.2 * len(labels) + 2.5), 3.8), layout="constrained")
+    fig = Figure(figsize=(max(5.0, 1.2 * len(labels) + 2.5), 3.8))
     ax = fig.add_subplot()
     _boxes(ax, range(len(labels)), data, [colours[label] for label in labels])
     top = max(float(np.percentile(np.abs(d), 99)) for d in data)
@@ -312,7 +313,7 @@ def _fig_histogram(solution, result) -> Figure:
     res = _station_residuals(solution, np.arange(solution.problem.n_profiles))
     rms = result.residuals.rms_mm
     point = float(result.diagnostics.get("noise", {}).get("point_noise_mm", 0.0) or 0.0)
-    fig = Figure(figsize=(6.5, 3.8), layout="constrained")
+    fig = Figure(figsize=(6.5, 3.8))
     ax = fig.add_subplot()
     lim = max(float(np.max(np.abs(res))), 4 * rms)
     ax.hist(res, bins=60, range=(-lim, lim), density=True, color="#8ab4f8", edgecolor="white", lw=0.3,
@@ -330,9 +331,9 @@ def _fig_histogram(solution, result) -> Figure:
     return fig
 
 
-def _fig_sphere(solution, result, colours) -> Figure:
+def _fig_sphere(solution, result, colours, pts: list[np.ndarray] | None = None) -> Figure:
     prob, ref = solution.problem, solution.refined
-    pts = mapped_points(solution)
+    pts = mapped_points(solution) if pts is None else pts
     c, r = np.asarray(ref.centre, dtype=float), float(ref.radius)
     frame = SPHERE_FRAME[result.mounting]
     # at most _MAX_POINTS_3D_PER_PROFILE of each profile, and MAX_POINTS_PLOTTED in all
@@ -345,7 +346,7 @@ def _fig_sphere(solution, result, colours) -> Figure:
         mine = pick[station[pick] == k]
         if len(mine):
             drawn[label] = every[mine]
-    fig = Figure(figsize=(11, 5.2), layout="constrained")
+    fig = Figure(figsize=(11, 5.2))
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
     sx, sy, sz = c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v), c[2] + r * np.cos(v)
     for j, (elev, azim) in enumerate([(25, -60), (60, 30)]):
@@ -436,7 +437,7 @@ def _fig_along_line(solution, result) -> Figure:
     pick = plot_sample(res.size, MAX_POINTS_PLOTTED)
     lim = _residual_limit(res)
     outside = int(np.count_nonzero(np.abs(res) > lim))
-    fig = Figure(figsize=(11, 4.0), layout="constrained")
+    fig = Figure(figsize=(11, 4.0))
     for j, (x, name) in enumerate([(y, "position along the laser line, sensor y (mm)"),
                                    (z, "depth, distance from the sensor, sensor z (mm)")]):
         ax = fig.add_subplot(1, 2, j + 1)
@@ -453,16 +454,18 @@ def _fig_along_line(solution, result) -> Figure:
         if j == 0:
             legend = ax.legend(fontsize=7, loc="upper right")
             legend.legend_handles[0].set_sizes([12.0])
-    fig.suptitle("Residuals against position along the line and against depth (all "
+    # (two lines: on one, the title was wider than the figure)
+    fig.suptitle("Residuals against position along the line and against depth\n(all "
                  f"{res.size} points in the lines; residual RMS {result.residuals.rms_mm:.4f} mm"
                  + (f"; {outside} beyond +/-{lim:.3f} mm drawn at the edge" if outside else "") + ")", fontsize=10)
     return fig
 
 
-def sphere_directions(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sphere_directions(solution, pts: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every used profile point's direction from the fitted centre in the sphere frame
-    as azimuth and elevation (deg), with its residual (mm)."""
-    pts = mapped_points(solution)
+    as azimuth and elevation (deg), with its residual (mm). ``pts``: the
+    :func:`mapped_points` of ``solution`` when already at hand."""
+    pts = mapped_points(solution) if pts is None else pts
     prob, ref = solution.problem, solution.refined
     rows = [i for i in range(prob.n_profiles) if prob.kinds[i] == KIND_PROFILE]
     if not rows:
@@ -474,14 +477,14 @@ def sphere_directions(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return az, el, res
 
 
-def _fig_on_sphere(solution, result) -> Figure:
+def _fig_on_sphere(solution, result, pts: list[np.ndarray] | None = None) -> Figure:
     """The residuals mapped on the sphere: each point at its direction from the fitted
     centre (azimuth, elevation in the sphere frame), coloured by its residual."""
-    az, el, res = sphere_directions(solution)
+    az, el, res = sphere_directions(solution, pts)
     pick = plot_sample(res.size, MAX_POINTS_PLOTTED)
     lim = _residual_limit(res)
     frame = SPHERE_FRAME[result.mounting]
-    fig = Figure(figsize=(11, 4.6), layout="constrained")
+    fig = Figure(figsize=(11, 4.6))
     ax = fig.add_subplot()
     sc = ax.scatter(az[pick], el[pick], c=np.clip(res[pick], -lim, lim), cmap="RdBu_r", vmin=-lim, vmax=lim, s=2.0,
                     lw=0, rasterized=True)
@@ -498,12 +501,12 @@ def _fig_on_sphere(solution, result) -> Figure:
     return fig
 
 
-def interactive_points(solution, limit: int = MAX_POINTS_INTERACTIVE) -> dict:
+def interactive_points(solution, limit: int = MAX_POINTS_INTERACTIVE, pts: list[np.ndarray] | None = None) -> dict:
     """The data of the interactive 3-D view: a sample of at most ``limit`` used profile
     points relative to the fitted centre in the sphere frame (mm, 3 decimals) with their
     residuals (mm, 4 decimals), the sphere's radius, the frame's name and the colour
     limit (mm)."""
-    pts = mapped_points(solution)
+    pts = mapped_points(solution) if pts is None else pts
     prob, ref = solution.problem, solution.refined
     rows = [i for i in range(prob.n_profiles) if prob.kinds[i] == KIND_PROFILE]
     if not rows:
@@ -516,11 +519,11 @@ def interactive_points(solution, limit: int = MAX_POINTS_INTERACTIVE) -> dict:
             "total": int(res.size)}
 
 
-def _interactive_html(solution, result) -> str:
+def _interactive_html(solution, result, pts: list[np.ndarray] | None = None) -> str:
     """An interactive 3-D view that works offline: the data inline as JSON and a small
     self-contained script drawing on a canvas (drag to turn, wheel to zoom). Hidden in
     print, where the static figures stand."""
-    data = interactive_points(solution)
+    data = interactive_points(solution, pts=pts)
     if not data["points"]:
         return ""
     data["frame"] = SPHERE_FRAME[result.mounting]
@@ -912,6 +915,13 @@ def write_report(
     colours = _station_colours(list(solution.problem.station_labels)
                                + sorted({f.station for f in result.flagged} - set(solution.problem.station_labels)))
     has_profiles = bool((solution.problem.kinds == KIND_PROFILE).any())
+    mapped_once: list = []
+
+    def mapped() -> list[np.ndarray]:  # the points in the sphere frame, mapped once for every figure
+        if not mapped_once:
+            mapped_once.append(mapped_points(solution))
+        return mapped_once[0]
+
     has_centres = len(_centre_rows(solution)) > 0
     makers = {
         "residuals_per_profile": (lambda: _fig_per_profile(solution, result, colours),
@@ -930,11 +940,11 @@ def write_report(
                                  "from the sensor). The lines (mean and RMS per bin) use every point; the dots are "
                                  "a sample when there are many. A slope or a curve is a systematic error of the "
                                  "sensor (scale, tilt of the line) or of the sphere radius, not noise."),
-        "residuals_on_sphere": (lambda: _fig_on_sphere(solution, result),
+        "residuals_on_sphere": (lambda: _fig_on_sphere(solution, result, mapped()),
                                 "Every point at its direction from the fitted centre, coloured by its residual. "
                                 "Noise looks like salt and pepper; a patch or a band of one colour is a bias "
                                 "(a dirty or damaged area of the sphere, a reflection, a wrong radius)."),
-        "sphere_3d": (lambda: _fig_sphere(solution, result, colours),
+        "sphere_3d": (lambda: _fig_sphere(solution, result, colours, mapped()),
                       "The fitted sphere (wireframe) and the profile points mapped into the sphere frame through "
                       "A_i X, coloured by station: they should lie on the sphere."),
     }
@@ -991,7 +1001,7 @@ def write_report(
         fig_html("residuals_on_sphere"),
         '<section class="keep"><h2 id="sphere">The sphere and the mapped points</h2>',
         fig_html("sphere_3d") + "</section>",
-        _interactive_html(solution, result) if has_profiles else "",
+        _interactive_html(solution, result, mapped()) if has_profiles else "",
         '<section class="keep"><h2 id="uncertainty">Uncertainties</h2>',
         _uncertainty_table(result) + "</section>",
         '<section class="keep"><h3 id="correlation">Correlations of the parameters</h3>',
