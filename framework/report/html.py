@@ -52,6 +52,9 @@ _MAX_POINTS_3D_PER_PROFILE = 60
 #: interactive view; every statistic printed or drawn as a line uses all the points.
 MAX_POINTS_PLOTTED = 20_000
 MAX_POINTS_INTERACTIVE = 4_000
+#: ... and at most this many in each 3-D view of the sphere (an 8 k-point sphere of about
+#: 500 x 500 pixels is already solid colour; each point is projected and depth-sorted).
+MAX_POINTS_3D = 8_000
 #: Bins of the residual statistics against position along the line and against depth.
 RESIDUAL_BINS = 16
 
@@ -146,7 +149,7 @@ def _flagged_mark(ax, k: int, index: int, label_y: float) -> None:
 
 
 #: Most observation indices written under a per-observation figure (every k-th beyond).
-MAX_TICK_LABELS = 80
+MAX_TICK_LABELS = 40
 
 
 def _station_axis(ax, entries: list[tuple], label_y: float) -> None:
@@ -336,11 +339,11 @@ def _fig_sphere(solution, result, colours, pts: list[np.ndarray] | None = None) 
     pts = mapped_points(solution) if pts is None else pts
     c, r = np.asarray(ref.centre, dtype=float), float(ref.radius)
     frame = SPHERE_FRAME[result.mounting]
-    # at most _MAX_POINTS_3D_PER_PROFILE of each profile, and MAX_POINTS_PLOTTED in all
+    # at most _MAX_POINTS_3D_PER_PROFILE of each profile, and MAX_POINTS_3D (MAX_POINTS_PLOTTED if fewer) in all
     per_profile = [p[::max(1, len(p) // _MAX_POINTS_3D_PER_PROFILE)] for p in pts]
     every = np.concatenate(per_profile) if per_profile else np.zeros((0, 3))
     station = np.repeat(np.asarray(prob.station_of[:len(pts)]), [len(p) for p in per_profile])
-    pick = plot_sample(len(every), MAX_POINTS_PLOTTED)
+    pick = plot_sample(len(every), min(MAX_POINTS_PLOTTED, MAX_POINTS_3D))
     drawn = {}
     for k, label in enumerate(prob.station_labels):
         mine = pick[station[pick] == k]
@@ -375,6 +378,7 @@ def _fig_sphere(solution, result, colours, pts: list[np.ndarray] | None = None) 
         ax.set_ylabel(f"{frame} y (mm)", fontsize=8)
         ax.set_zlabel(f"{frame} z (mm)", fontsize=8)
         ax.tick_params(labelsize=7)
+        ax.locator_params(nbins=5)  # (the default's 8-9 labels an axis ran into each other)
         if j == 0:
             ax.legend(fontsize=8, markerscale=5, loc="upper left")
     what = "every profile" if (prob.kinds == KIND_PROFILE).any() else "every observation"
