@@ -357,6 +357,22 @@ class LineRobot:
         ``pose_source`` says (a calibrated model applied on the PC side)."""
         return False
 
+    def controller_frame_offset(self, kinematics) -> tuple[float, float, np.ndarray, Pose]:
+        """How far the controller's pose (``GETP``) lies from ``kinematics``' pose of the
+        joints it reports (``GETJ``), read now: (distance mm, angle deg, the joints,
+        ``controller_from_model`` = GETP @ FK^-1). A controller that reports poses in
+        another frame than the robot base (a base frame: a riser, an inverted mount, a
+        multi-robot cell; a user frame) shows it here, as does a model whose geometry or
+        joint convention is not the arm's; nothing moves. A plugin refuses the connection
+        beyond its tolerance (spherecal's workspace and path checks work in the base
+        frame), each in its controller's words."""
+        joints = self.read_joints_deg()
+        reported = P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
+        model = kinematics.flange_pose_from_joints(joints, check_limits=False)
+        offset_mm = float(np.linalg.norm(reported.translation - model.translation))
+        angle_deg = float(np.degrees(np.linalg.norm(_rotvec(model.rotation_matrix.T @ reported.rotation_matrix))))
+        return offset_mm, angle_deg, joints, reported @ model.inverse()
+
     # Robot protocol ----------------------------------------------------------------
     def read_joints_deg(self) -> np.ndarray:
         """Joints in degrees, controller convention."""

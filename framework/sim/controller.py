@@ -26,7 +26,10 @@ given. A staged target is moved to once, and only in the link session that stage
 (over a socket server, a new connection cannot move to a target staged over an earlier
 one: ``ERR 4``): a ``MOVL`` naming a target already reached answers OK without moving.
 ``GETJ`` reports controller-convention joints (plus optional noise); ``GETP`` the
-nominal forward kinematics of the joints through the pose noise.
+nominal forward kinematics of the joints through the pose noise. A configured base frame
+(``settings.base_frame``, world_from_base: a riser, an inverted mount, a multi-robot
+cell) puts ``GETP`` and ``TGT`` in the world frame, while the joints, the kinematics and
+the cell stay in the robot base.
 Safety, as a controller: a speed above ``max_controller_speed_mm_s`` or a target out of
 reach or beyond a joint limit is refused with an ``ERR`` and nothing moves; nothing moves
 but on a ``MOVL``.
@@ -89,6 +92,11 @@ class SimulatedControllerSettings(BaseModel):
         None, description="joints at start-up, controller convention, deg (None: all zero)"
     )
     seed: int | None = Field(0, ge=0, le=2**63 - 1, description="seed of the simulator's noise generator (None: random)")
+    base_frame: Pose | None = Field(
+        None, description="the controller's base frame, world_from_base (translation_mm, quaternion_wxyz w first), "
+        "as a riser, an inverted mount or a multi-robot cell configures it: GETP reports the flange in the world "
+        "frame and TGT targets are taken in it; None: base = world. For tests of the check on connect",
+    )
 
 
 def _f32(values) -> np.ndarray:
@@ -206,7 +214,10 @@ class SimulatedController:
                 pose = Pose.from_abb(t, q / np.linalg.norm(q))
             return P.pose_reply(msg.seq, pose)
         if msg.kind == "TGT":
-            self.staged = (msg.seq, P.parse_target_request(msg))
+            target = P.parse_target_request(msg)
+            if s.base_frame is not None:  # taken in the world frame; kept in base, where the joints are solved
+                target = s.base_frame.inverse() @ target
+            self.staged = (msg.seq, target)
             self._staged_session = self.session
             self._reached = None
             return P.ok_reply(msg.seq)
@@ -215,6 +226,13 @@ class SimulatedController:
         raise P.ProtocolError(f"unhandled request {msg.kind}")  # pragma: no cover
 
     def _reported_pose(self) -> Pose:
+        """What ``GETP`` reports: the model's pose of the actual joints through the pose
+        noise, in the world frame when a base frame is configured."""
+        pose = self._pose_with_noise()
+        base = self.settings.base_frame
+        return pose if base is None else base @ pose
+
+    def _pose_with_noise(self) -> Pose:
         true = self.nominal_flange_pose()  # a controller reports its model's pose of the actual joints
         s = self.settings
         if s.pose_noise == "cell":

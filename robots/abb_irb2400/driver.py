@@ -46,7 +46,6 @@ import numpy as np
 
 from spherecal import lineproto, linelink
 from spherecal.errors import DeviceError
-from spherecal.geometry import rotvec_from_matrix
 from spherecal.linelink import MIN_SPEED_MM_S, LineRobot  # noqa: F401 - MIN_SPEED_MM_S re-exported
 from spherecal.models import Pose
 
@@ -105,16 +104,10 @@ class AbbIrb2400Robot(LineRobot):
         (GETJ): more than ``base_frame_tolerance_mm`` / ``_deg`` apart raises
         DeviceError, saying what to do; nothing has moved. The same check catches a
         ``geometry`` or ``j23_coupled`` that does not match the arm."""
-        joints = self.read_joints_deg()
-        world_pose = lineproto.parse_pose_reply(self._exchange("GETP", lineproto.getp_request, "P"))
-        base_pose = self.nominal_kin.flange_pose_from_joints(joints, check_limits=False)
-        offset_mm = float(np.linalg.norm(world_pose.translation - base_pose.translation))
-        angle_deg = float(np.degrees(np.linalg.norm(
-            rotvec_from_matrix(base_pose.rotation_matrix.T @ world_pose.rotation_matrix))))
+        offset_mm, angle_deg, joints, world_from_base = self.controller_frame_offset(self.nominal_kin)
         cfg = self.config
         if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
             return
-        world_from_base = world_pose @ base_pose.inverse()
         t = ", ".join(f"{v:.1f}" for v in world_from_base.translation_mm)
         q = ", ".join(f"{v:.4f}" for v in world_from_base.quaternion_wxyz)
         raise DeviceError(

@@ -20,19 +20,17 @@ it), and :meth:`~SimulatedIrb2400.read_timeout` and :meth:`~SimulatedIrb2400.res
 model a read that ends without a line, so that tests can show a line is never served
 twice (the old server served its last line again).
 
-It also models the controller's base frame (``settings.base_frame``, world_from_base),
-as a riser, an inverted mount or a multi-robot cell configures it: the server reads and
-moves tool0 in wobj0, the WORLD frame, so ``GETP`` reports world poses and ``TGT``
-targets are taken in world, while the joints, the kinematics and the cell stay in the
-robot base.
+The controller's base frame (``settings.base_frame``, world_from_base), as a riser, an
+inverted mount or a multi-robot cell configures it, is the core controller's: the server
+reads and moves tool0 in wobj0, the WORLD frame, so ``GETP`` reports world poses and
+``TGT`` targets are taken in world, while the joints, the kinematics and the cell stay in
+the robot base.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from spherecal import lineproto as P
-from spherecal.models import Pose
 from spherecal.sim.controller import ControllerServer, Faults, SimulatedController
 
 from .config import SimulatedControllerSettings
@@ -57,22 +55,8 @@ class SimulatedIrb2400(SimulatedController):
         cell: "SimulatedCell | None" = None,
     ):
         super().__init__(kinematics or Irb2400Kinematics(), settings or SimulatedControllerSettings(), cell, 6)
-        #: the base frame, world_from_base (None: base = world); wobj0 is world
-        self.world_from_base: Pose | None = getattr(self.settings, "base_frame", None)
-
-    # wobj0 is world ----------------------------------------------------------------------
-    def _reported_pose(self) -> Pose:
-        """tool0 in wobj0 (``CRobT``): the model's pose of the joints, in world."""
-        pose = super()._reported_pose()
-        return pose if self.world_from_base is None else self.world_from_base @ pose
-
-    def _dispatch(self, msg: P.Message) -> bytes:
-        reply = super()._dispatch(msg)
-        if msg.kind == "TGT" and self.world_from_base is not None and self.staged is not None:
-            # the target is tool0 in wobj0 (world): kept in base, where the joints are solved
-            seq, world_target = self.staged
-            self.staged = (seq, self.world_from_base.inverse() @ world_target)
-        return reply
+        # (wobj0 is world: the core controller's base frame, settings.base_frame, puts GETP
+        # (CRobT tool0 in wobj0) and TGT in the world frame)
 
     # the RAPID server's read loop -------------------------------------------------------
     # SpherecalServer.mod loops: ``line := "";``, ``line := ReadStr(channel

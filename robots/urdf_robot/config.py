@@ -94,6 +94,15 @@ class UrdfRobotConfig(LineLinkSettings):
         None, description="allowed flange positions, base, mm; absent: a box around the arm's whole reach "
         "(reachability is checked anyway: set a box for your cell)"
     )
+    base_frame_tolerance_mm: float = Field(
+        5.0, gt=0, le=100, description="on connect, the controller's pose of the flange (GETP) may differ from the "
+        "URDF's forward kinematics of the joints it reports (GETJ, base_link) by this much, mm; more means the "
+        "controller works in another frame (a base frame, a user frame) or the URDF is not the arm, and the "
+        "connection is refused (a controller with its own accuracy compensation differs by up to about 2 mm)",
+    )
+    base_frame_tolerance_deg: float = Field(
+        0.5, gt=0, le=10, description="the same check's limit on the orientation difference, deg",
+    )
     simulated: SimulatedControllerSettings = Field(
         default_factory=SimulatedControllerSettings, description="the simulated controller of simulated runs "
         "(home_joints_deg in controller convention)"

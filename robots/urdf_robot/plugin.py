@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from spherecal.devices import DeviceContext, RobotType
+from spherecal.errors import DeviceError
 from spherecal.linelink import LineRobot
 from spherecal.models import Pose
 from spherecal.plugins import hookimpl
@@ -50,10 +51,37 @@ class UrdfRobot(LineRobot):
         self.name = f"urdf robot ({config.urdf.name})"
         super().__init__(config, kin, n_joints=kin.n_joints, workspace=config.workspace_box(kin), **kwargs)
 
+    def check_base_frame(self) -> None:
+        """Refuse a controller that reports (and takes) poses in another frame than the
+        URDF's ``base_link``: spherecal plans, checks the workspace and the paths, and
+        moves in that frame, so its checks would not hold for the motion the controller
+        makes. The controller's pose (GETP) is compared with the URDF's pose of the joints
+        it reports (GETJ); beyond ``base_frame_tolerance_mm`` / ``_deg`` a DeviceError
+        says by how much and what to do. Nothing has moved. The same check catches a
+        URDF, ``joint_map`` or ``flange_link`` that does not match the arm."""
+        offset_mm, angle_deg, joints, controller_from_model = self.controller_frame_offset(self.kin)
+        cfg = self.config
+        if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
+            return
+        t = ", ".join(f"{round(v, 1) + 0.0:.1f}" for v in controller_from_model.translation_mm)  # (no "-0.0")
+        q = ", ".join(f"{round(v, 4) + 0.0:.4f}" for v in controller_from_model.quaternion_wxyz)
+        raise DeviceError(
+            f"{self.name} on {self.url}: the controller reports the flange (GETP) {offset_mm:.1f} mm and "
+            f"{angle_deg:.2f} deg away from where the URDF puts {cfg.flange_link!r} in {cfg.base_link!r} at the joints "
+            f"it reports ({', '.join(f'{v:.2f}' for v in joints)} deg), beyond robot.base_frame_tolerance_mm = "
+            f"{cfg.base_frame_tolerance_mm:g} / _deg = {cfg.base_frame_tolerance_deg:g}: about controller_from_urdf = "
+            f"translation [{t}] mm, quaternion (w, x, y, z) [{q}]. spherecal plans, checks the workspace and the "
+            "paths, and moves in the URDF's base frame, so its checks would not hold. Nothing was moved. Make the "
+            "controller-side server read and move the flange in the robot's base frame (no base frame offset, riser "
+            "or user frame applied), or, if it already does, check robot.urdf, robot.joint_map, robot.base_link and "
+            "robot.flange_link against the arm"
+        )
+
 
 def create_robot(config: UrdfRobotConfig, context: DeviceContext) -> UrdfRobot:
-    """Factory: a connected robot (checked with PING) on ``config.port``, or on a freshly
-    started simulated controller when ``context.cell`` is set."""
+    """Factory: a connected robot (checked with PING, and refused when the controller's
+    frame is not the URDF's base: :meth:`UrdfRobot.check_base_frame`) on ``config.port``,
+    or on a freshly started simulated controller when ``context.cell`` is set."""
     kin = config.kinematics()
     tool = context.tool_point_mm
     if context.cell is None:
@@ -65,6 +93,7 @@ def create_robot(config: UrdfRobotConfig, context: DeviceContext) -> UrdfRobot:
         robot.simulator = server  # for tests and fault injection
     try:
         robot.ping()
+        robot.check_base_frame()  # the controller's frame must be the URDF's base before anything moves
     except BaseException:
         robot.close()
         raise

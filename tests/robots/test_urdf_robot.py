@@ -301,3 +301,41 @@ def test_the_shipped_ur5_urdf_is_example_robot_datas(host, ur5_urdf):
     Q = np.radians(np.random.default_rng(3).uniform(-180.0, 180.0, (1000, 6)))
     assert np.abs(a.chain.flange_matrices(Q)[:, :3, 3] - b.chain.flange_matrices(Q)[:, :3, 3]).max() < 1e-9
     np.testing.assert_array_equal(a.model_joint_limits_rad(), b.model_joint_limits_rad())
+
+
+def test_a_controller_working_in_another_frame_than_the_urdfs_base_is_refused_before_anything_moves(host, ur5_urdf,
+                                                                                                      ur5_kin):
+    """A base frame on the controller (a riser: the world 500 mm below the base) puts
+    GETP and TGT in the world: the poses it reports lie 500 mm from the URDF's pose of
+    its joints, and the connection is refused, naming the offset and what to do; a
+    difference within the tolerance (an accuracy-compensated controller) is accepted."""
+    home = {"home_joints_deg": [180.0, -90.0, 90.0, -90.0, -90.0, 0.0]}
+
+    def connect(base_frame, **extra):
+        cell = standard_cell("eye_in_hand", seed=0, arm=ur5_kin, fov=reference_fov())
+        cell.arm = None
+        section = _ur5(ur5_urdf, simulated={**home, "base_frame": base_frame}, **extra)
+        return cell, lambda: host.create_robot(section, DeviceContext(cell=cell, log=lambda m: None))
+
+    riser = {"translation_mm": [0.0, 0.0, 500.0], "quaternion_wxyz": [1.0, 0.0, 0.0, 0.0]}
+    cell, create = connect(riser)
+    with pytest.raises(DeviceError) as info:
+        create()
+    text = str(info.value)
+    assert "reports the flange (GETP) 500.0 mm and 0.00 deg away from where the URDF puts 'tool0' in 'base'" in text
+    assert "controller_from_urdf = translation [0.0, 0.0, 500.0] mm" in text and "Nothing was moved" in text
+    # the arm stands where the controller started it (its home joints): it never moved
+    at_home = ur5_kin.flange_pose_from_joints(home["home_joints_deg"], check_limits=False)
+    np.testing.assert_allclose(cell.current_base_from_flange.as_matrix(), at_home.as_matrix(), atol=1e-6)
+    turned = {"translation_mm": [0.0, 0.0, 0.0], "quaternion_wxyz": [0.9998477, 0.0, 0.0, 0.0174524]}  # 2 deg about z
+    with pytest.raises(DeviceError, match=r"mm and 2\.00 deg away"):
+        connect(turned)[1]()
+    # 2 mm: within the default 5 mm (a controller's own accuracy compensation), refused at 1 mm
+    small = {"translation_mm": [2.0, 0.0, 0.0], "quaternion_wxyz": [1.0, 0.0, 0.0, 0.0]}
+    with connect(small)[1]() as robot:
+        offset_mm, angle_deg, joints, _ = robot.controller_frame_offset(robot.kin)
+        assert offset_mm == pytest.approx(2.0, abs=0.01) and angle_deg < 0.01
+    with pytest.raises(DeviceError, match=r"2\.0 mm and 0\.00 deg away .*robot.base_frame_tolerance_mm = 1 "):
+        connect(small, base_frame_tolerance_mm=1.0)[1]()
+    with connect(None)[1]() as robot:  # no base frame: the controller's pose is the URDF's
+        assert robot.controller_frame_offset(robot.kin)[0] < 0.1  # (the cell's pose noise, 0.02 mm)
