@@ -144,8 +144,9 @@ def _map_numpy(R, t, y, z, out) -> None:
     strided stores). A float64 output is computed in float64; a float32 output, asked
     for, in float32 from the float64 transform rounded once: half the memory traffic,
     and an error of about one float32 unit of the largest coordinate involved (measured:
-    at most 1.25e-4 mm with translations up to 1.5 m, where float32 itself resolves
-    1.2e-4 mm; a float64 product rounded to float32 is within half of that)."""
+    at most 1.5e-4 mm with translations up to 1.5 m and 2.0e-4 mm up to 2 m, where
+    float32 itself resolves 1.2e-4 mm; a float64 product rounded to float32 is within
+    half of one unit)."""
     n, m = y.shape
     single = out.dtype == np.float32
     rows = max(1, min(n, (_BLOCK_POINTS_FLOAT32 if single else _BLOCK_POINTS) // max(m, 1)))

@@ -113,7 +113,7 @@ def _signs_and_offset(u: np.ndarray, h: np.ndarray) -> np.ndarray:
     # every candidate's cost at once; those within rounding of the least are summed
     # directly and the first of the least taken, as summing each directly would choose
     fast = _abs_fit_costs(cands, u, h)
-    tol = 1e-9 * (np.abs(fast).min() + len(u) * (np.abs(h).max() + np.abs(u).max()) ** 2 * 1e-6) + 1e-12
+    tol = 1e-8 * (np.abs(fast).min() + len(u) * (np.abs(h).max() + np.abs(u).max()) ** 2 * 1e-6) + 1e-11
     near = np.flatnonzero(fast <= fast.min() + tol)
     costs = [np.sum((np.abs(cands[j] + u) - h) ** 2) for j in near]
     a = cands[near[int(np.argmin(costs))]]
@@ -191,17 +191,27 @@ def rotation_from_translations(stations: list[StationCentres], choice) -> tuple[
     }
 
 
+#: Above this condition number of the 3 x 3 normal matrix, :func:`fit_sphere_fixed_radius`
+#: takes its step by least squares on the points instead (its conditioning is the square
+#: root of the normal matrix's: points on one circle seen from its plane).
+NORMAL_EQUATIONS_CONDITION = 1e8
+
+
 def fit_sphere_fixed_radius(points: np.ndarray, radius: float, start: np.ndarray, iterations: int = 30) -> np.ndarray:
     """Centre of the sphere of given radius closest (least squares) to 3-D points:
-    Gauss-Newton on the distances, each step from its 3 x 3 normal equations."""
+    Gauss-Newton on the distances, each step from its 3 x 3 normal equations when they
+    are well conditioned, else by least squares on the points (minimum norm: a direction
+    the points do not determine is left as it is)."""
     c = np.asarray(start, dtype=float).copy()
     for _ in range(iterations):
         dvec = points - c
         dist = np.maximum(np.linalg.norm(dvec, axis=1), 1e-12)
         u = dvec / dist[:, None]  # d dist / d c = -u
-        try:
-            step = np.linalg.solve(u.T @ u, u.T @ (dist - radius))
-        except np.linalg.LinAlgError:  # (points on a line or at one place: least squares, minimum norm)
+        N = u.T @ u
+        lam = np.linalg.eigvalsh(N)
+        if lam[0] > lam[-1] / NORMAL_EQUATIONS_CONDITION:
+            step = np.linalg.solve(N, u.T @ (dist - radius))
+        else:
             step = np.linalg.lstsq(-u, -(dist - radius), rcond=None)[0]
         c += step
         if np.abs(step).max() < 1e-11:

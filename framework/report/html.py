@@ -254,6 +254,7 @@ def row_percentiles(samples, qs) -> np.ndarray:
         k = counts[p0:p1]
         rows = np.full((p1 - p0, k.max()), np.inf)
         rows[np.arange(k.max()) < k[:, None]] = np.concatenate([np.ravel(v) for v in samples[p0:p1]])
+        has_nan = np.isnan(rows).any(axis=1)  # (NaN, as numpy gives it)
         rows.sort(axis=1)
         at = qs[None, :] * (k[:, None] - 1)
         lo = np.floor(at).astype(int)
@@ -264,6 +265,7 @@ def row_percentiles(samples, qs) -> np.ndarray:
         diff = b - a
         # numpy's lerp: from the nearer end, so that a value between two equal ones is exact
         out[p0:p1] = np.where(g >= 0.5, b - diff * (1.0 - g), a + diff * g)
+        out[p0:p1][has_nan] = np.nan
     return out
 
 

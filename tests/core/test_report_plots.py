@@ -183,7 +183,8 @@ def test_beyond_max_boxes_the_per_profile_figure_draws_bands_of_the_same_statist
 def test_row_percentiles_are_numpys_for_every_row():
     rng = np.random.default_rng(3)
     samples = ([rng.normal(size=int(rng.integers(1, 700))) for _ in range(300)]
-               + [np.array([2.5]), np.ones(4), rng.integers(0, 3, 41).astype(float), np.arange(20_000.0)])
+               + [np.array([2.5]), np.ones(4), rng.integers(0, 3, 41).astype(float), np.arange(20_000.0),
+                  np.array([1.0, np.nan, 2.0, 3.0])])
     qs = [0, 1, 25, 50, 75, 99, 100]
     np.testing.assert_array_equal(rh.row_percentiles(samples, qs), np.array([np.percentile(v, qs) for v in samples]))
 
