@@ -49,6 +49,7 @@ import secrets
 import select
 import socket
 import time
+from dataclasses import dataclass
 from typing import Callable, Literal
 
 import numpy as np
@@ -262,6 +263,31 @@ def initial_seq() -> int:
     return secrets.randbelow(P.SEQ_MODULUS)
 
 
+@dataclass(frozen=True)
+class FrameOffset:
+    """The controller's pose against a model's pose of the same joints
+    (:meth:`LineRobot.controller_frame_offset`): their distance (mm) and angle (deg), the
+    joints (deg, controller convention) and ``controller_from_model`` (the controller's
+    pose times the inverse of the model's)."""
+
+    offset_mm: float
+    angle_deg: float
+    joints_deg: np.ndarray
+    controller_from_model: Pose
+
+    def within(self, tolerance_mm: float, tolerance_deg: float) -> bool:
+        return self.offset_mm <= tolerance_mm and self.angle_deg <= tolerance_deg
+
+    def joints_text(self) -> str:
+        return ", ".join(f"{v:.2f}" for v in self.joints_deg)
+
+    def frame_text(self) -> str:
+        """``translation [x, y, z] mm, quaternion (w, x, y, z) [...]`` (no "-0.0")."""
+        t = ", ".join(f"{round(v, 1) + 0.0:.1f}" for v in self.controller_from_model.translation_mm)
+        q = ", ".join(f"{round(v, 4) + 0.0:.4f}" for v in self.controller_from_model.quaternion_wxyz)
+        return f"translation [{t}] mm, quaternion (w, x, y, z) [{q}]"
+
+
 class LineRobot:
     """A connected robot speaking the spherecal line protocol (implements
     :class:`spherecal.devices.Robot`).
@@ -357,21 +383,21 @@ class LineRobot:
         ``pose_source`` says (a calibrated model applied on the PC side)."""
         return False
 
-    def controller_frame_offset(self, kinematics) -> tuple[float, float, np.ndarray, Pose]:
+    def controller_frame_offset(self, kinematics) -> "FrameOffset":
         """How far the controller's pose (``GETP``) lies from ``kinematics``' pose of the
-        joints it reports (``GETJ``), read now: (distance mm, angle deg, the joints,
-        ``controller_from_model`` = GETP @ FK^-1). A controller that reports poses in
-        another frame than the robot base (a base frame: a riser, an inverted mount, a
-        multi-robot cell; a user frame) shows it here, as does a model whose geometry or
-        joint convention is not the arm's; nothing moves. A plugin refuses the connection
-        beyond its tolerance (spherecal's workspace and path checks work in the base
-        frame), each in its controller's words."""
+        joints it reports (``GETJ``), read now (:class:`FrameOffset`). A controller that
+        reports poses in another frame than the robot base (a base frame: a riser, an
+        inverted mount, a multi-robot cell; a user frame) shows it here, as does a model
+        whose geometry or joint convention is not the arm's; nothing moves. A plugin
+        refuses the connection beyond its tolerance (spherecal's workspace and path
+        checks work in the base frame), each in its controller's words."""
         joints = self.read_joints_deg()
         reported = P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
         model = kinematics.flange_pose_from_joints(joints, check_limits=False)
-        offset_mm = float(np.linalg.norm(reported.translation - model.translation))
-        angle_deg = float(np.degrees(np.linalg.norm(_rotvec(model.rotation_matrix.T @ reported.rotation_matrix))))
-        return offset_mm, angle_deg, joints, reported @ model.inverse()
+        return FrameOffset(
+            float(np.linalg.norm(reported.translation - model.translation)),
+            float(np.degrees(np.linalg.norm(_rotvec(model.rotation_matrix.T @ reported.rotation_matrix)))),
+            joints, reported @ model.inverse())
 
     # Robot protocol ----------------------------------------------------------------
     def read_joints_deg(self) -> np.ndarray:

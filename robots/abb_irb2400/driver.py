@@ -104,19 +104,17 @@ class AbbIrb2400Robot(LineRobot):
         (GETJ): more than ``base_frame_tolerance_mm`` / ``_deg`` apart raises
         DeviceError, saying what to do; nothing has moved. The same check catches a
         ``geometry`` or ``j23_coupled`` that does not match the arm."""
-        offset_mm, angle_deg, joints, world_from_base = self.controller_frame_offset(self.nominal_kin)
+        off = self.controller_frame_offset(self.nominal_kin)
         cfg = self.config
-        if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
+        if off.within(cfg.base_frame_tolerance_mm, cfg.base_frame_tolerance_deg):
             return
-        t = ", ".join(f"{v:.1f}" for v in world_from_base.translation_mm)
-        q = ", ".join(f"{v:.4f}" for v in world_from_base.quaternion_wxyz)
         raise DeviceError(
-            f"{self.name} on {self.url}: the controller reports tool0 in wobj0 {offset_mm:.1f} mm and "
-            f"{angle_deg:.2f} deg away from where this plugin's model puts the flange at the joints it reports "
-            f"({', '.join(f'{v:.2f}' for v in joints)} deg), beyond robot.base_frame_tolerance_mm = "
+            f"{self.name} on {self.url}: the controller reports tool0 in wobj0 {off.offset_mm:.1f} mm and "
+            f"{off.angle_deg:.2f} deg away from where this plugin's model puts the flange at the joints it reports "
+            f"({off.joints_text()} deg), beyond robot.base_frame_tolerance_mm = "
             f"{cfg.base_frame_tolerance_mm:g} / _deg = {cfg.base_frame_tolerance_deg:g}. wobj0 is the world frame: "
             f"the controller has a base frame (a riser, an inverted mount, a multi-robot cell), here about "
-            f"world_from_base = translation [{t}] mm, quaternion (w, x, y, z) [{q}], but spherecal plans, checks "
+            f"world_from_base = {off.frame_text()}, but spherecal plans, checks "
             "the workspace and the paths, and moves in the robot base frame, so its checks would not hold. Nothing "
             "was moved. Calibrate with the robot's base frame equal to the world frame (system parameters, topic "
             "Motion, type Robot, the base frame), or, if the base frame is already identity, check robot.geometry "

@@ -59,18 +59,16 @@ class UrdfRobot(LineRobot):
         it reports (GETJ); beyond ``base_frame_tolerance_mm`` / ``_deg`` a DeviceError
         says by how much and what to do. Nothing has moved. The same check catches a
         URDF, ``joint_map`` or ``flange_link`` that does not match the arm."""
-        offset_mm, angle_deg, joints, controller_from_model = self.controller_frame_offset(self.kin)
+        off = self.controller_frame_offset(self.kin)
         cfg = self.config
-        if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
+        if off.within(cfg.base_frame_tolerance_mm, cfg.base_frame_tolerance_deg):
             return
-        t = ", ".join(f"{round(v, 1) + 0.0:.1f}" for v in controller_from_model.translation_mm)  # (no "-0.0")
-        q = ", ".join(f"{round(v, 4) + 0.0:.4f}" for v in controller_from_model.quaternion_wxyz)
         raise DeviceError(
-            f"{self.name} on {self.url}: the controller reports the flange (GETP) {offset_mm:.1f} mm and "
-            f"{angle_deg:.2f} deg away from where the URDF puts {cfg.flange_link!r} in {cfg.base_link!r} at the joints "
-            f"it reports ({', '.join(f'{v:.2f}' for v in joints)} deg), beyond robot.base_frame_tolerance_mm = "
+            f"{self.name} on {self.url}: the controller reports the flange (GETP) {off.offset_mm:.1f} mm and "
+            f"{off.angle_deg:.2f} deg away from where the URDF puts {cfg.flange_link!r} in {cfg.base_link!r} at the "
+            f"joints it reports ({off.joints_text()} deg), beyond robot.base_frame_tolerance_mm = "
             f"{cfg.base_frame_tolerance_mm:g} / _deg = {cfg.base_frame_tolerance_deg:g}: about controller_from_urdf = "
-            f"translation [{t}] mm, quaternion (w, x, y, z) [{q}]. spherecal plans, checks the workspace and the "
+            f"{off.frame_text()}. spherecal plans, checks the workspace and the "
             "paths, and moves in the URDF's base frame, so its checks would not hold. Nothing was moved. Make the "
             "controller-side server read and move the flange in the robot's base frame (no base frame offset, riser "
             "or user frame applied), or, if it already does, check robot.urdf, robot.joint_map, robot.base_link and "

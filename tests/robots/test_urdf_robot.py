@@ -333,9 +333,9 @@ def test_a_controller_working_in_another_frame_than_the_urdfs_base_is_refused_be
     # 2 mm: within the default 5 mm (a controller's own accuracy compensation), refused at 1 mm
     small = {"translation_mm": [2.0, 0.0, 0.0], "quaternion_wxyz": [1.0, 0.0, 0.0, 0.0]}
     with connect(small)[1]() as robot:
-        offset_mm, angle_deg, joints, _ = robot.controller_frame_offset(robot.kin)
-        assert offset_mm == pytest.approx(2.0, abs=0.01) and angle_deg < 0.01
+        off = robot.controller_frame_offset(robot.kin)
+        assert off.offset_mm == pytest.approx(2.0, abs=0.01) and off.angle_deg < 0.01
     with pytest.raises(DeviceError, match=r"2\.0 mm and 0\.00 deg away .*robot.base_frame_tolerance_mm = 1 "):
         connect(small, base_frame_tolerance_mm=1.0)[1]()
     with connect(None)[1]() as robot:  # no base frame: the controller's pose is the URDF's
-        assert robot.controller_frame_offset(robot.kin)[0] < 0.1  # (the cell's pose noise, 0.02 mm)
+        assert robot.controller_frame_offset(robot.kin).offset_mm < 0.1  # (the cell's pose noise, 0.02 mm)
