@@ -41,6 +41,9 @@ NUMBA_AVAILABLE = importlib.util.find_spec("numba") is not None
 #: block is half the bytes, and its product ran fastest in blocks of this size).
 _BLOCK_POINTS = 1 << 13
 _BLOCK_POINTS_FLOAT32 = 1 << 16
+#: Points per block of :func:`map_profile_list`'s NumPy path (its temporaries: a few
+#: (block, 3) arrays).
+_BLOCK_POINTS_RAGGED = 1 << 16
 
 
 # transforms -------------------------------------------------------------------------
@@ -262,12 +265,14 @@ def map_profile_list(
     out = np.empty((total, 3), dtype=dtype)
     if total == 0:
         return out, index
+    yz = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in profiles_mm])
     if _resolve(backend) == "numba":
-        yz = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in profiles_mm])
         _numba_kernels()[1](R, t, yz, offsets, out)
     else:
-        for i, p in enumerate(profiles_mm):
-            if counts[i]:
-                p = np.asarray(p)
-                _map_numpy(R[i : i + 1], t[i : i + 1], p[None, :, 0], p[None, :, 1], out[None, offsets[i] : offsets[i + 1]])
+        # every point through its profile's transform, a block of points at a time (one
+        # call a profile cost more than the arithmetic with thousands of short profiles)
+        for a in range(0, total, _BLOCK_POINTS_RAGGED):
+            b = min(a + _BLOCK_POINTS_RAGGED, total)
+            i = index[a:b]
+            out[a:b] = yz[a:b, 0:1] * R[i, :, 1] + yz[a:b, 1:2] * R[i, :, 2] + t[i]
     return out, index

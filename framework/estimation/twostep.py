@@ -30,6 +30,7 @@ import numpy as np
 
 from .. import geometry as geo
 from ..errors import DegenerateDataError
+from ..mapping import map_profile_list
 from .circle import CircleFit, half_chord_depth
 from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
@@ -219,28 +220,8 @@ def fit_sphere_fixed_radius(points: np.ndarray, radius: float, start: np.ndarray
     return c
 
 
-class InlierPoints:
-    """The profiles' points the two-step uses, stacked by coordinate (laser plane, mm):
-    ``y``, ``z`` (N,), ``shot`` (N,) the profile of each, in profile order."""
-
-    def __init__(self, profiles: list[np.ndarray]):
-        counts = np.array([len(p) for p in profiles], dtype=int)
-        stacked = np.concatenate(profiles) if len(profiles) else np.zeros((0, 2))
-        self.y, self.z = np.ascontiguousarray(stacked[:, 0]), np.ascontiguousarray(stacked[:, 1])
-        self.shot = np.repeat(np.arange(len(profiles)), counts)
-
-    def mapped(self, R_sf: np.ndarray, t_sf: np.ndarray, rows=slice(None)) -> np.ndarray:
-        """The points (of ``rows``, an index or mask over the points) through per-shot
-        transforms ``R_sf (0, y, z) + t_sf[i]`` (N, 3): ``R_sf`` one rotation (3, 3) or
-        one a shot (n, 3, 3), ``t_sf`` (n, 3)."""
-        shot, y, z = self.shot[rows], self.y[rows][:, None], self.z[rows][:, None]
-        if R_sf.ndim == 2:
-            return R_sf[:, 1] * y + R_sf[:, 2] * z + t_sf[shot]
-        return np.ascontiguousarray(R_sf[:, :, 1])[shot] * y + np.ascontiguousarray(R_sf[:, :, 2])[shot] * z + t_sf[shot]
-
-
 def translation_from_orientations(
-    problem: Problem, R: np.ndarray, stations: list[StationCentres], choice, inliers: InlierPoints
+    problem: Problem, R: np.ndarray, stations: list[StationCentres], choice, inlier_profiles: list[np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Step 2: [Tx; c] by linear least squares over the stations' fitted centres."""
     rows, rhs = [], []
@@ -260,7 +241,8 @@ def translation_from_orientations(
         else:
             prof, cands = st.profiles, st.candidates[ch]
         # the station's points through R_A X (the station shares R_A), each shot's t_A added
-        pts = inliers.mapped(R_A @ R, problem.t_A, np.isin(inliers.shot, prof))
+        pts, _ = map_profile_list(np.broadcast_to(R_A @ R, (len(prof), 3, 3)), problem.t_A[prof],
+                                  [inlier_profiles[i] for i in prof], backend=MAPPING_BACKEND)
         start = np.mean(cands @ R.T @ R_A.T + problem.t_A[prof], axis=0)
         xb = fit_sphere_fixed_radius(pts, problem.radius_mm, start)
         rows.append(np.hstack([R_A, -np.eye(3)]))
@@ -291,11 +273,11 @@ def _orientation_advice(problem: Problem, stations: list[StationCentres]) -> str
     )
 
 
-def point_rms(problem: Problem, R, t, centre, inliers: InlierPoints) -> float:
+def point_rms(problem: Problem, R, t, centre, profiles: list[np.ndarray]) -> float:
     """RMS distance (mm) of all mapped points to the sphere |A_i X p - c| = r; with
     centre observations, their residuals' components (:func:`centre_residuals`) join
     the points."""
-    q = inliers.mapped(problem.R_A @ R, problem.R_A @ t + problem.t_A)
+    q, _ = map_profile_list(problem.R_A @ R, problem.R_A @ t + problem.t_A, profiles, backend=MAPPING_BACKEND)
     res = np.linalg.norm(q - centre, axis=1) - problem.radius_mm
     sq, n = float(res @ res), len(res)
     if problem.has_centres:
@@ -332,6 +314,10 @@ def centre_residuals(problem: Problem, R, t, centre, radius: float | None = None
     return out
 
 
+#: The mapping backend of the two-step: NumPy's, so that the start (and its choice of
+#: signs) does not depend on whether numba is installed.
+MAPPING_BACKEND = "numpy"
+
 #: Points (all profiles) above which the two-step's sphere fits and its choice of signs
 #: take every k-th point of each profile: they give the joint refinement its start, and
 #: the refinement uses every point.
@@ -356,7 +342,8 @@ def two_step(
     # a start and a choice of signs: on very many points, every k-th point of each
     # profile is enough (the joint refinement then uses every point)
     stride = max(1, -(-sum(len(p) for p in inliers) // TWO_STEP_POINTS))
-    inliers = InlierPoints([p[::stride] for p in inliers] if stride > 1 else inliers)
+    if stride > 1:
+        inliers = [p[::stride] for p in inliers]
     stations = [station_centres(problem, fits, k) for k in range(len(problem.station_labels))]
     stations = [st for st in stations if st.candidates]
     if not stations:
