@@ -24,6 +24,7 @@ from .kinplan import KinematicPlanSettings
 from .metrology import MaximumPermissibleErrors
 from .models import MountingMode, Pose
 from .planning import SweepPlan
+from .report.assess import POINT_DISTANCE_MM
 from .sim import NoiseModel, RobotErrorModel
 
 #: Largest magnitude of any number in a configuration file: beyond it the value is a
@@ -328,7 +329,7 @@ class ReportConfig(_Section):
     operator: str | None = Field(None, max_length=200, description="who ran the calibration (--operator overrides)")
     cell: str | None = Field(None, max_length=200, description="the cell's name or number")
     point_distance_mm: float = Field(
-        100.0, gt=0, le=10_000, description="the report gives the uncertainty of a point this far from the sensor, "
+        POINT_DISTANCE_MM, gt=0, le=10_000, description="the report gives the uncertainty of a point this far from the sensor, "
         "mm (along its line of sight)"
     )
 

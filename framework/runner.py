@@ -7,23 +7,27 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 from pydantic import ValidationError
 
 from . import dataio
 from .runlog import Notice, progress_log
-from .acquisition import Progress, acquire, acquire_manual, check_first_move, check_targets, describe_plan, plan_targets
-from .config import LoadedConfig, ReportConfig, RunConfig
-from .devices import DeviceContext, SensorFieldOfView, device_identity
 from .errors import ConfigError, InputError, SpherecalError
-from .kinplan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME, TRANSFORM_NAME
 from .report.assess import Verdict
-from .sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
+
+if TYPE_CHECKING:
+    from .config import LoadedConfig, ReportConfig, RunConfig
+    from .devices import SensorFieldOfView
+    from .sim import SimulatedCell
+
+# The acquisition, the configuration file's models, the planners, the devices and the
+# simulated world are imported by the functions that use them: `spherecal solve` (a
+# dataset file, no configuration, no devices) does not load them.
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 JOURNAL_NAME = "journal.jsonl"
@@ -77,6 +81,8 @@ def sensor_field_of_view(cfg: RunConfig, host) -> SensorFieldOfView | None:
     sensor type declares none and the configuration does not give it whole.
     :class:`ConfigError` naming ``simulation.fov`` when the two together are not a field
     of view."""
+    from .devices import SensorFieldOfView
+
     declared = host.registry.sensor_type(cfg.sensor["type"]).field_of_view
     given = cfg.simulation.fov.model_dump(exclude_none=True) if cfg.simulation and cfg.simulation.fov else {}
     if not given:
@@ -116,6 +122,8 @@ def for_sensor(cfg: RunConfig, field_of_view: SensorFieldOfView | None) -> RunCo
 def configured_for_sensor(loaded: LoadedConfig, host) -> tuple[LoadedConfig, SensorFieldOfView | None]:
     """The configuration with the standoffs it leaves to the sensor set
     (:func:`for_sensor`), and the sensor's field of view (:func:`sensor_field_of_view`)."""
+    from .config import LoadedConfig
+
     fov = sensor_field_of_view(loaded.config, host)
     return LoadedConfig(for_sensor(loaded.config, fov), loaded.path), fov
 
@@ -129,6 +137,8 @@ def make_cell(cfg: RunConfig, arm=None, field_of_view: SensorFieldOfView | None 
     as its nominal arm: giving the robot its calibrated model must not move the world.
     ``field_of_view`` is the simulated sensor's (default: :func:`sensor_field_of_view` with
     the installed plugins); :class:`ConfigError` naming ``simulation.fov`` when there is none."""
+    from .sim import BallBar, CarDoorPanel, FlatPlate, standard_cell
+
     sim = cfg.simulation
     if sim is None:
         return None
@@ -211,6 +221,8 @@ def tool_point_mm(cfg: RunConfig) -> tuple[float, float, float] | None:
 @contextlib.contextmanager
 def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Callable[[str], None]) -> Iterator:
     """Robot and sensor from the configuration, closed on the way out whatever happens."""
+    from .devices import DeviceContext
+
     cfg = loaded.config
     context = DeviceContext(cell=cell, log=log, tool_point_mm=tool_point_mm(cfg))
     robot = _in_file(loaded, host.create_robot, cfg.robot, context, base_dir=loaded.path.parent)
@@ -243,6 +255,8 @@ def _check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = f
     """Raise before any motion when a target breaks the configured limits (or, with
     ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
     stands to the first target not in ``done``, breaks either)."""
+    from .acquisition import check_first_move, check_targets
+
     problems = check_targets(targets, acq, robot)
     todo = [t for t in targets if t.index not in done]
     if robot is not None and todo:
@@ -258,6 +272,8 @@ def _check_identification_from_here(robot, targets, cfg, arm, planned, log) -> N
     assumed zero joints; an arm that starts in another wrist or elbow configuration keeps
     it, and sees the arm's geometry from other joints). Raises before anything moves when
     the plan no longer identifies the arm from here."""
+    from .kinplan import check_plan_identifies_kinematics
+
     if not cfg.calibration.identify_kinematics or arm is None:
         return
     start = robot.read_joints_deg()
@@ -350,6 +366,10 @@ def run_calibrate(
     recorded dataset), solve, write the result, exports and report. A RED result's
     ``result.json`` and exports are written only with ``force`` (its report always).
     ``operator`` (``--operator``) overrides the configuration's ``[report] operator``."""
+    from .acquisition import Progress, acquire, acquire_manual, describe_plan, plan_targets
+    from .devices import device_identity
+    from .kinplan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
+
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
     loaded, fov = configured_for_sensor(loaded, host)
@@ -643,8 +663,8 @@ def solve_and_write(
         except ImportError:  # pragma: no cover
             write_report = None
         if write_report is not None:
-            write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result),
-                         point_distance_mm=(report_settings or ReportConfig()).point_distance_mm)
+            chosen = {} if report_settings is None else {"point_distance_mm": report_settings.point_distance_mm}
+            write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result), **chosen)
     return solution, graded, written
 
 
@@ -671,7 +691,7 @@ def traceability(dataset: Dataset, dataset_path: Path | None, loaded: LoadedConf
 
     prov = dataset.provenance
     cfg = loaded.config if loaded is not None else None
-    settings = cfg.report if cfg is not None else ReportConfig()
+    settings = cfg.report if cfg is not None else None  # (its [report]: operator, cell)
 
     def device(kind: str) -> dict:
         given = prov.get(kind)
@@ -692,8 +712,8 @@ def traceability(dataset: Dataset, dataset_path: Path | None, loaded: LoadedConf
         "configuration_sha256": None if loaded is None else sha256_of(loaded.path),
         "software": f"spherecal {__version__}",
         "calibrated_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "operator": operator or settings.operator,
-        "cell": settings.cell,
+        "operator": operator or (settings.operator if settings is not None else None),
+        "cell": settings.cell if settings is not None else None,
         "robot": device("robot"),
         "sensor": device("sensor"),
         "sphere": sphere,
@@ -972,6 +992,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     :class:`~spherecal.compare.TransformEstimate`): validate that transform, one spherecal
     did not compute (the controller's current tool or work object, a pose file), instead
     of the calibration's ``result.json``; the report is then left alone."""
+    from .acquisition import Progress
     from .validation import evaluate, measure, plan_validation
 
     host = make_host()
@@ -1059,6 +1080,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = _LOG,
              progress_stream=None, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal scan``: sweep the object, stream its points to a PLY file."""
+    from .acquisition import Progress
     from .ply import PlyWriter
     from .scanning import plan_scan, scan
 

@@ -886,10 +886,12 @@ class PluginHost:
     def _export_settings(self, exporter: Exporter, table: Mapping[str, Any], where: str):
         """The validated settings, or the list of missing required settings (one line
         each, with their description); ConfigError for any other problem."""
-        from spherecal.config import not_numbers
-
         model = exporter.settings_model
-        problems = not_numbers(dict(table), model, where)
+        problems = []
+        if table:  # (an empty table has nothing to check: `solve` without a configuration does not load its module)
+            from spherecal.config import not_numbers
+
+            problems = not_numbers(dict(table), model, where)
         if problems:
             raise ConfigError("\n  ".join([f"invalid settings for exporter '{exporter.name}' (plugin "
                                            f"'{self.exporters.provider(exporter.name)}'):", *problems]))

@@ -37,7 +37,7 @@ from ..mapping import map_profile_list
 from ..models import SPHERE_FRAME, CalibrationResult
 from . import export
 from .. import safeio
-from .assess import Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
+from .assess import POINT_DISTANCE_MM, Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
 
 __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
 
@@ -907,7 +907,7 @@ def write_report(
     verdict_override: Verdict | None = None,
     notes: Sequence[ExportNote] = (),
     validation_positions: Sequence[Mapping[str, Any]] | None = None,
-    point_distance_mm: float = 100.0,
+    point_distance_mm: float = POINT_DISTANCE_MM,
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
