@@ -7,9 +7,21 @@ pyusb backend), :mod:`.plugin` (registration). See ``docs/sensor-nxsensor-i.md``
 """
 
 from .config import NxSensorConfig
-from .driver import NxSensorDriver, StreamedProfile
-from .simbackend import SimulatedNxSensorBackend
 from .wire import Frame, FrameFormatError, WireConfig
+
+#: Names imported on first use (PEP 562): the driver (and pyusb) and the simulated
+#: backend load when a sensor is opened, not when the plugin registers itself.
+_LAZY = {"NxSensorDriver": ".driver", "StreamedProfile": ".driver", "SimulatedNxSensorBackend": ".simbackend"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "Frame",

@@ -8,12 +8,18 @@ hardware; otherwise pyusb's default backend (libusb-1.0) is used.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from spherecal.devices import DeviceContext, SensorFieldOfView, SensorType
 from spherecal.plugins import hookimpl
 
 from .config import NxSensorConfig
-from .driver import NxSensorDriver
-from .simbackend import SimulatedNxSensorBackend
+
+if TYPE_CHECKING:
+    from .driver import NxSensorDriver
+
+# The driver (and pyusb) and the simulated USB backend are imported when a sensor is
+# opened: commands that only read files (`solve`, `plugins`) do not load them.
 
 NAME = "nxsensor_i"
 
@@ -29,6 +35,9 @@ def create_sensor(config: NxSensorConfig, context: DeviceContext) -> NxSensorDri
     """Factory: a connected :class:`NxSensorDriver`. Raises
     :class:`spherecal.errors.DeviceError` when no USB backend is available or the device
     is not found (the message says which vid:pid was looked for and what to check)."""
+    from .driver import NxSensorDriver
+    from .simbackend import SimulatedNxSensorBackend
+
     if context.cell is not None:
         backend = SimulatedNxSensorBackend(
             context.cell, wire=config.wire, serial_number=config.serial_number or "NXS-SIM-0001"

@@ -3,7 +3,7 @@
 module nor Pinocchio (the robot plugin's kinematics import it on first use), and a
 ``solve`` without a report loads neither matplotlib nor Pinocchio, nor what only runs
 with a configuration file and devices (the configuration's models, the acquisition, the
-planners, the metrology of `validate`). Each command runs in a fresh interpreter, which
+planners, the metrology of `validate`, the sensor's USB driver). Each command runs in a fresh interpreter, which
 then lists what it imported."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from reference_sensor import reference_fov
 HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 #: What `solve` (a dataset file, no configuration, no devices) has no use for.
 RUN_ONLY = ("spherecal.config", "spherecal.acquisition", "spherecal.kinplan", "spherecal.metrology",
-            "spherecal.validation", "spherecal.scanning")
+            "spherecal.validation", "spherecal.scanning", "spherecal.sensors.nxsensor_i.driver", "usb")
 
 
 def _modules_after(argv: list[str]) -> set[str]:
