@@ -51,7 +51,7 @@ UnitQuaternion = Annotated[Vec4, AfterValidator(_unit_quaternion)]
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
 
 class TransformConfig(_Section):
@@ -309,7 +309,7 @@ class ExportConfig(BaseModel):
     exporter's settings, validated by the plugin host against that exporter's own model
     (``spherecal plugins`` lists them). See docs/configuration.md."""
 
-    model_config = ConfigDict(frozen=True, extra="allow")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="allow")
 
     run: list[str] | None = Field(
         None, description="exporters to run, by name (default: every one that applies to the run)"

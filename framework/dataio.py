@@ -89,7 +89,7 @@ class TruncatedFileWarning(UserWarning):
 class DatasetHeader(BaseModel):
     """Line 1 of a dataset file: what the file is and what the observations are of."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     format: Literal["spherecal-dataset"] = Field(description="always 'spherecal-dataset'")
     version: int = Field(ge=1, le=DATASET_VERSION, description="format version the file was written in")

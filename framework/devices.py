@@ -141,7 +141,7 @@ class SensorFieldOfView(BaseModel):
     measures with it and the planner puts the sphere at :attr:`sweep_standoff_z_mm`. A
     configuration's ``[simulation.fov]`` overrides any of its fields."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     z_near_mm: float = Field(description="near end of the measuring range (z, mm)")
     z_far_mm: float = Field(description="far end of the measuring range (z, mm), below z_near_mm")

@@ -58,7 +58,7 @@ class NoSettings(BaseModel):
     """The settings model of an exporter that takes none: ``[export.<name>]`` must then
     be absent or empty."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
 
 
 @dataclass(frozen=True)

@@ -89,7 +89,7 @@ class KinematicPlanSettings(BaseModel):
     """``[acquisition.kinematic_plan]``: stations for kinematic calibration chosen by the
     planner (module docstring) instead of listed in ``acquisition.sweep.tilts_deg``."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     stations: int = Field(20, ge=4, le=200, description="stations to plan")
     candidates: int = Field(240, ge=8, le=5000, description="candidate orientations the stations are chosen from")

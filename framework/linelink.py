@@ -186,7 +186,7 @@ class WorkspaceBox(BaseModel):
     """Axis-aligned box in the base frame (mm) the flange origin must stay in. Moves
     whose target lies outside are refused before anything is sent."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     min_mm: Vec3 = Field(description="lower corner (x, y, z) in base, mm")
     max_mm: Vec3 = Field(description="upper corner (x, y, z) in base, mm")
@@ -208,7 +208,7 @@ class LineLinkSettings(BaseModel):
     (and gives ``workspace`` a default or a way to derive one). Lengths in mm, angles in
     degrees, times in seconds."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     port: str = Field(
         "/dev/ttyS0",

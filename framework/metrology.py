@@ -37,7 +37,7 @@ _MAD_TO_SIGMA = 1.4826
 
 # results ----------------------------------------------------------------------------
 class _Frozen(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
 
 class SphereFit(_Frozen):

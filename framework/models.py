@@ -72,7 +72,7 @@ class Pose(BaseModel):
     translation in mm. Which frames it links is said by the field or variable holding it
     (``base_from_flange``, ``flange_from_sensor``...)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     translation_mm: tuple[float, float, float] = Field(description="origin of B expressed in A, mm")
     quaternion_wxyz: tuple[float, float, float, float] = Field(
@@ -163,7 +163,7 @@ class Profile(BaseModel):
     only keeps it with the profile in the journal, so that the pairing of a profile
     with its robot pose can be audited afterwards."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True)
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid", arbitrary_types_allowed=True)
 
     y_mm: FloatVector = Field(description="in-plane coordinate along the line, mm")
     z_mm: FloatVector = Field(description="in-plane range coordinate, mm (positive towards the sensor)")
@@ -202,7 +202,7 @@ class Circle(BaseModel):
     cuts from the sphere, in the sensor's x = 0 plane, mm. It gives the sphere centre up
     to the side of the plane: (+-sqrt(r^2 - radius^2), y, z)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     centre_yz_mm: tuple[float, float] = Field(description="circle centre (y, z) in the laser plane, sensor frame, mm")
     radius_mm: float = Field(gt=0, description="circle radius, mm")
@@ -268,7 +268,7 @@ class Observation(BaseModel):
     already resolved, sensor frame, with an optional covariance
     ``sphere_centre_covariance_mm2``); :attr:`kind` says which."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     index: int = Field(ge=0, le=2**53, description="position in the acquisition, 0-based")
     station: str = Field(min_length=1, max_length=MAX_STATION_LABEL,
@@ -314,7 +314,7 @@ class Observation(BaseModel):
 class Dataset(BaseModel):
     """Observations of one reference sphere in one mounting mode."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(defer_build=True, extra="forbid")
 
     mounting: MountingMode
     sphere_radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
@@ -370,7 +370,7 @@ class KinematicParameter(BaseModel):
     """One geometric error parameter of the arm (docs/estimation.md, "Kinematic model"),
     in the robot model's joint frames: angles in deg, lengths in mm."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(defer_build=True, extra="forbid")
 
     name: str = Field(description="joint_<i>.<zero_offset | x | y | z | tilt_u | tilt_v>")
     unit: Literal["deg", "mm"]
@@ -391,7 +391,7 @@ class RobotErrorSummary(BaseModel):
     estimated from how the stations disagree; the part common to every station cannot
     be seen from one sphere location and is the robot's stated (or assumed) accuracy."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(defer_build=True, extra="forbid")
 
     model: Literal["kinematic", "station", "kinematic+station", "none"]
     kinematic_parameters: list[KinematicParameter] | None = Field(
@@ -426,7 +426,7 @@ class ParameterCorrelation(BaseModel):
     in the covariance's order (rotation about the target axes, translation, sphere
     centre[, radius])."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(defer_build=True, extra="forbid")
 
     parameters: list[str]
     matrix: list[list[float]]
@@ -461,7 +461,7 @@ class CalibrationResult(BaseModel):
     small rotations about the axes of the transform's target frame (flange or base),
     in degrees; of the translation, mm in that frame."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(defer_build=True, extra="forbid")
 
     format: Literal["spherecal-result"] = "spherecal-result"
     version: Literal[1, 2] = 2

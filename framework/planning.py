@@ -38,7 +38,7 @@ class SweepPlan(BaseModel):
     station span three dimensions (this is what lets each station decide, on its own,
     on which side of the laser plane the centre lies)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     profiles_per_station: int = Field(10, ge=4, le=10_000, description="profiles taken per station")
     sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")

@@ -43,7 +43,7 @@ _CHI3_MEDIAN = 1.5382
 class CalibrationOptions(BaseModel):
     """Settings of the estimator. Lengths in mm, angles in degrees."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     fit_radius: bool = Field(False, description="estimate the sphere radius too (else the certified one is used)")
     point_noise_mm: float | None = Field(

@@ -35,7 +35,7 @@ _AXES = ("x", "y", "z")
 class Thresholds(BaseModel):
     """Limits of the verdict and of the advice. Lengths in mm, angles in degrees."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     robot_repeatability_mm: float = Field(
         0.05, gt=0, description="pose repeatability of the robot, mm (IRB 2400: about 0.03-0.06)"

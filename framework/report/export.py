@@ -540,7 +540,7 @@ MAX_FRAME_ID_LENGTH = 256
 class Ros2ExportSettings(BaseModel):
     """``[export.ros2]``: the frame names of the ROS 2 exports (tf2 frame ids)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
 
     frame_id: str | None = Field(
         None, max_length=MAX_FRAME_ID_LENGTH,

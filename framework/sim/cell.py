@@ -43,7 +43,7 @@ def _field_of_view(fov, who: str) -> SensorFieldOfView:
 class NoiseModel(BaseModel):
     """Noise of the simulated cell. Standard deviations, per axis."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     point_noise_mm: float = Field(0.01, ge=0, description="sensor point noise, each of y and z, mm")
     pose_translation_noise_mm: float = Field(0.02, ge=0, description="robot position noise, each base axis, mm")

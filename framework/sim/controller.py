@@ -63,7 +63,7 @@ class SimulatedControllerSettings(BaseModel):
     """The simulated controller used when the run is simulated (a SimulatedCell is
     given): it serves the line protocol over a real link on localhost."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     transport: Literal["tcp", "pty", "socket"] = Field(
         "tcp",

@@ -35,7 +35,7 @@ class RobotErrorModel(BaseModel):
     """Geometric error of the simulated arm (defaults: an uncalibrated IRB 2400-class
     arm, flange 0.5-2 mm and 0.03-0.15 deg off its nominal pose)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     joint_zero_offset_deg: tuple[float, float] = _range(0.02, 0.05, "zero offset of every joint, deg")
     link_length_mm: tuple[float, float] = _range(0.1, 0.3, "error of each joint placement along the link, mm")

@@ -246,7 +246,7 @@ class AbbRapidExportSettings(BaseModel):
     """``[export.abb_rapid]``: names and tool load of the RAPID export. Lengths in mm,
     mass in kg."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(defer_build=True, extra="forbid", frozen=True)
 
     tool_name: str = Field("tSensor", description="name of the tooldata (eye_in_hand), a RAPID identifier")
     wobj_name: str = Field("wobjSensor", description="name of the wobjdata (eye_to_hand), a RAPID identifier")

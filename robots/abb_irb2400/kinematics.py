@@ -59,7 +59,7 @@ class UnreachableError(InputError):
 class JointSpec(BaseModel):
     """One revolute joint: where it sits on the previous joint, its axis, its range."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     offset_mm: tuple[float, float, float] = Field(
         description="origin of this joint in the previous joint's frame (all joints at zero), mm"
@@ -100,7 +100,7 @@ class Irb2400Geometry(BaseModel):
     The analytic inverse kinematics needs the IRB 2400's structure: axes z, y, y, x, y,
     x; no y offsets; joints 5 and 6 offset along x only (a spherical wrist)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     joints: tuple[JointSpec, JointSpec, JointSpec, JointSpec, JointSpec, JointSpec] = Field(
         IRB2400_JOINTS, description="joints 1..6, base to flange"

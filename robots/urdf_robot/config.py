@@ -37,7 +37,7 @@ class JointMapConfig(BaseModel):
                   [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]]
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     matrix: tuple[tuple[float, ...], ...] | None = Field(
         None, description="n x n matrix A of q_model_deg = A q_controller_deg + offset_deg, rows in controller "

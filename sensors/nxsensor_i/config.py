@@ -11,7 +11,7 @@ class NxSensorConfig(BaseModel):
     """Settings of one nxSensor-I. ``wire`` holds the assumed USB protocol (see
     :mod:`spherecal.sensors.nxsensor_i.wire`); the rest are acquisition settings."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     wire: WireConfig = Field(default_factory=WireConfig, description="assumed USB wire format (ids, endpoints, framing, scaling)")
     serial_number: str | None = Field(

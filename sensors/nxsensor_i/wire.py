@@ -60,7 +60,7 @@ class CommandCodes(BaseModel):
     """Command codes (vendor bRequest values, or the code field of a bulk command).
     ASSUMED values: check them against the real device."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     set_exposure: int = Field(0x10, ge=0, le=0xFF, description="set exposure time; argument in microseconds (us)")
     set_period: int = Field(0x11, ge=0, le=0xFF, description="set streaming frame period; argument in microseconds (us)")
@@ -83,7 +83,7 @@ class WireConfig(BaseModel):
     """The assumed USB wire format of the nxSensor-I. Every default is an ASSUMPTION
     (the protocol is not public); change these fields, not the code, to match a unit."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
     # --- identity and topology ---------------------------------------------------------
     vendor_id: int = Field(
