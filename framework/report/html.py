@@ -156,11 +156,26 @@ def _station_residuals(solution, members) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def _flagged_mark(ax, k: int, index: int, label_y: float) -> None:
-    """A flagged observation at position k: a red band and cross, 'obs <index> flagged'."""
+def _flagged_mark(ax, k: int, n: int, index: int, label_y: float) -> None:
+    """A flagged observation at position k of n: a red band and cross, 'obs <index>
+    flagged' (centred on it; near either end of the axis, ending at it or starting at it,
+    so that it stays inside the figure)."""
     ax.axvspan(k - 0.45, k + 0.45, color="#c5221f", alpha=0.18)
     ax.plot([k], [0.0], marker="x", color="#c5221f", markersize=10, mew=2.5)
-    ax.annotate(f"obs {index}\nflagged", (k, label_y), ha="center", va="bottom", fontsize=7, color="#c5221f")
+    along = (k + 0.7) / (n + 0.4)  # the position in the axis' width (x from -0.7 to n - 0.3)
+    ha = "right" if along > 0.95 else "left" if along < 0.05 else "center"
+    ax.annotate(f"obs {index}\nflagged", (k, label_y), ha=ha, va="bottom", fontsize=7, color="#c5221f")
+
+
+#: Station names longer than this are shortened (with an ellipsis) where a figure writes
+#: them; the report's tables give them whole.
+MAX_LABEL_CHARS = 14
+
+
+def _short(label: str) -> str:
+    """``label`` as a figure writes it: at most :data:`MAX_LABEL_CHARS` characters."""
+    label = str(label)
+    return label if len(label) <= MAX_LABEL_CHARS else label[:MAX_LABEL_CHARS - 1] + "\u2026"
 
 
 #: Most observation indices written under a per-observation figure (every k-th beyond,
@@ -186,7 +201,8 @@ def _station_axis(ax, entries: list[tuple], label_y: float) -> None:
             ax.axvline(k - 0.5, color="#9aa0a6", lw=0.8, ls="--")
     starts = [0] + [k for k in range(1, n) if stations[k] != stations[k - 1]] + [n]
     for a, b in zip(starts[:-1], starts[1:]):
-        ax.text((a + b - 1) / 2, label_y, stations[a], ha="center", va="center", fontsize=9, fontweight="bold")
+        ax.text((a + b - 1) / 2, label_y, _short(stations[a]), ha="center", va="center", fontsize=9,
+                fontweight="bold")
 
 
 def _fig_per_profile(solution, result, colours) -> Figure:
@@ -197,7 +213,7 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     order = list(prob.station_labels) + sorted({f.station for f in result.flagged} - set(prob.station_labels))
     entries.sort(key=lambda e: (order.index(e[0]), e[1]))
     n = len(entries)
-    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.2))
+    fig = Figure(figsize=(min(16.0, max(7.5, 6.0 + 0.16 * n)), 4.2))
     ax = fig.add_subplot()
     used = [(k, e) for k, e in enumerate(entries) if e[2] is not None]
     _boxes(ax, [k for k, _ in used], [e[2] for _, e in used], [colours.get(e[0], "grey") for _, e in used])
@@ -205,7 +221,7 @@ def _fig_per_profile(solution, result, colours) -> Figure:
     ax.set_ylim(-1.15 * lim, 1.3 * lim)
     for k, e in enumerate(entries):
         if e[2] is None:
-            _flagged_mark(ax, k, e[1], -1.05 * lim)
+            _flagged_mark(ax, k, n, e[1], -1.05 * lim)
     _station_axis(ax, entries, 1.22 * lim)
     ax.axhline(0, color="black", lw=0.6)
     ax.set_ylabel("in-plane residual (mm)")
@@ -298,12 +314,12 @@ def _fig_per_centre(solution, result, colours) -> Figure:
     order = list(prob.station_labels) + sorted({e[0] for e in entries} - set(prob.station_labels))
     entries.sort(key=lambda e: (order.index(e[0]), e[1]))
     n = len(entries)
-    fig = Figure(figsize=(min(16.0, 6.0 + 0.16 * n), 4.0))
+    fig = Figure(figsize=(min(16.0, max(7.5, 6.0 + 0.16 * n)), 4.0))
     ax = fig.add_subplot()
     top = max([e[2] for e in entries if e[2] is not None] + [1e-3])
     for k, (label, index, length) in enumerate(entries):
         if length is None:
-            _flagged_mark(ax, k, index, 0.55 * top)
+            _flagged_mark(ax, k, n, index, 0.55 * top)
         else:
             ax.bar([k], [length], width=0.7, color=colours.get(label, "grey"), alpha=0.8)
     _station_axis(ax, entries, 1.12 * top)
@@ -327,7 +343,7 @@ def _fig_per_station(solution, result, colours) -> Figure:
         ax.text(k, 1.12 * top, f"RMS {rms:.4f}", ha="center", fontsize=8)
     ax.set_ylim(-1.25 * top, 1.3 * top)
     ax.axhline(0, color="black", lw=0.6)
-    ax.set_xticks(range(len(labels)), labels)
+    ax.set_xticks(range(len(labels)), [_short(label) for label in labels])
     ax.set_xlabel("station")
     ax.set_ylabel("residual (mm)")
     ax.set_title("Residuals per station", fontsize=10)
@@ -383,16 +399,16 @@ def _fig_sphere(solution, result, colours, pts: list[np.ndarray] | None = None) 
         seen = set()
         for label, q in drawn.items():  # one scatter per station (one per profile took seconds)
             ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=1.5, color=colours[label], depthshade=False,
-                       label=f"station {label}")
+                       label=f"station {_short(label)}")
             seen.add(label)
         for i, (kind, q) in mapped_centres(solution).items():
             label = prob.station_labels[prob.station_of[i]]
             if kind == KIND_SPHERE_CENTRE:
                 ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=18, marker="x", color=colours[label], depthshade=False,
-                           label=None if label in seen else f"station {label}")
+                           label=None if label in seen else f"station {_short(label)}")
             else:
                 ax.plot(q[:, 0], q[:, 1], q[:, 2], lw=0.8, color=colours[label],
-                        label=None if label in seen else f"station {label}")
+                        label=None if label in seen else f"station {_short(label)}")
             seen.add(label)
         for setter, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
             setter(c[k] - 1.15 * r, c[k] + 1.15 * r)

@@ -111,3 +111,34 @@ def test_nothing_is_cut_off_with_centre_observations(tmp_path, monkeypatch):
     mixed = [circles.get(o.index) if o.station in ("S2", "S4") else o for o in profiles.observations]
     solution = solve(profiles.model_copy(update={"observations": [o for o in mixed if o is not None]}))
     _check(solution, tmp_path, monkeypatch, expected=7)
+
+
+def test_nothing_is_cut_off_with_long_station_names_and_a_flagged_last_observation(tmp_path, monkeypatch):
+    """Station names of 40 characters (a dataset may carry them; the figures shorten
+    them, the tables do not) and six-digit observation numbers with the last one
+    flagged (its label ends at it instead of running off the figure)."""
+    ds = _dataset("eye_in_hand", 3)
+    obs = [o.model_copy(update={"station": f"{o.station}-tilted-30-deg-about-x-then-y-rev-b",
+                                "index": 100_000 + o.index}) for o in ds.observations]
+    last = max(range(len(obs)), key=lambda i: (obs[i].station, obs[i].index))
+    o = obs[last]
+    obs[last] = o.model_copy(update={"base_from_flange": Pose.from_rt(o.base_from_flange.rotation_matrix,
+                                                                      o.base_from_flange.translation + [0, 3.0, 0])})
+    solution = solve(ds.model_copy(update={"observations": obs}))
+    assert [f.index for f in solution.result.flagged] == [obs[last].index]
+    assert len(solution.problem.station_labels[0]) > rh.MAX_LABEL_CHARS
+    _check(solution, tmp_path, monkeypatch, expected=6)
+    html = (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert solution.problem.station_labels[0] in html  # whole in the report's tables
+
+
+def test_nothing_is_cut_off_with_two_profiles_among_circles(tmp_path, monkeypatch):
+    """Two profiles, the rest circles: the per-profile figure at its narrowest keeps its
+    title inside."""
+    profiles = _dataset("eye_to_hand", 2)
+    circles = {o.index: o for o in circles_from_profiles(profiles).observations}
+    keep = {profiles.observations[0].index, profiles.observations[1].index}
+    mixed = [o if o.index in keep else circles.get(o.index) for o in profiles.observations]
+    solution = solve(profiles.model_copy(update={"observations": [o for o in mixed if o is not None]}))
+    assert solution.result.residuals.n_profiles_used == 2
+    _check(solution, tmp_path, monkeypatch, expected=7)
