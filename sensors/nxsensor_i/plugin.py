@@ -8,9 +8,11 @@ hardware; otherwise pyusb's default backend (libusb-1.0) is used.
 
 from __future__ import annotations
 
+import importlib.util
 from typing import TYPE_CHECKING
 
 from spherecal.devices import DeviceContext, SensorFieldOfView, SensorType
+from spherecal.errors import DeviceError
 from spherecal.plugins import hookimpl
 
 from .config import NxSensorConfig
@@ -19,7 +21,11 @@ if TYPE_CHECKING:
     from .driver import NxSensorDriver
 
 # The driver (and pyusb) and the simulated USB backend are imported when a sensor is
-# opened: commands that only read files (`solve`, `plugins`) do not load them.
+# opened: commands that only read files (`solve`, `plugins`) do not load them. Without
+# pyusb installed the plugin does not load at all, as when it imported the driver here,
+# so that every command says so at once (finding it costs no import).
+if importlib.util.find_spec("usb") is None:
+    raise ImportError("the nxsensor_i plugin needs pyusb, which is not installed: pip install pyusb")
 
 NAME = "nxsensor_i"
 
@@ -35,8 +41,12 @@ def create_sensor(config: NxSensorConfig, context: DeviceContext) -> NxSensorDri
     """Factory: a connected :class:`NxSensorDriver`. Raises
     :class:`spherecal.errors.DeviceError` when no USB backend is available or the device
     is not found (the message says which vid:pid was looked for and what to check)."""
-    from .driver import NxSensorDriver
-    from .simbackend import SimulatedNxSensorBackend
+    try:
+        from .driver import NxSensorDriver
+        from .simbackend import SimulatedNxSensorBackend
+    except ImportError as exc:  # pyusb found but broken: stop before the run goes on
+        raise DeviceError(f"nxsensor_i: the USB driver cannot be loaded ({exc}); reinstall pyusb "
+                          "(pip install --force-reinstall pyusb)") from exc
 
     if context.cell is not None:
         backend = SimulatedNxSensorBackend(

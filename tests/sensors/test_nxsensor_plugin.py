@@ -71,3 +71,27 @@ def test_hardware_not_connected_says_what_to_check(monkeypatch):
     with pytest.raises(DeviceError, match=r"not found on USB \(looked for vendor:product 04b4:5a01\).*"
                                           r"plugged in.*udev rule.*assumptions"):
         create_sensor(NxSensorConfig(), DeviceContext(cell=None))
+
+
+def test_a_broken_pyusb_stops_the_factory_with_a_device_error_naming_it(spherecal_cell, monkeypatch):
+    """The driver loads when a sensor is opened (not when the plugin registers): a pyusb
+    that is installed but fails to import is a DeviceError that says what to reinstall,
+    not an ImportError from deep inside the run."""
+    import sys
+
+    for name in [m for m in sys.modules if m == "usb" or m.startswith("usb.")]:
+        monkeypatch.setitem(sys.modules, name, None)  # (None in sys.modules: the import fails)
+    monkeypatch.setitem(sys.modules, "usb", None)
+    for name in ("spherecal.sensors.nxsensor_i.driver", "spherecal.sensors.nxsensor_i.simbackend"):
+        monkeypatch.delitem(sys.modules, name, raising=False)
+    with pytest.raises(DeviceError, match=r"USB driver cannot be loaded.*reinstall pyusb"):
+        create_sensor(NxSensorConfig(), DeviceContext(cell=spherecal_cell))
+
+
+def test_the_package_lists_and_loads_its_lazy_names():
+    import spherecal.sensors.nxsensor_i as nx
+
+    assert {"NxSensorDriver", "SimulatedNxSensorBackend", "StreamedProfile"} <= set(dir(nx))
+    assert nx.NxSensorDriver is NxSensorDriver
+    with pytest.raises(AttributeError, match="no attribute 'Nope'"):
+        nx.Nope
