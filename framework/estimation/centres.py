@@ -34,6 +34,7 @@ import numpy as np
 
 from ..models import ObservationFlag
 from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, unknown_variances
+from .robust import median
 
 __all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out_sizes", "with_leave_one_out_size",
            "within_station_noise", "circles_from_profiles"]
@@ -182,7 +183,7 @@ def within_station_noise(problem: Problem) -> float | None:
                 gaps.append(min(abs(d - moved) for d in _centre_distances(problem, i, j)))
     if len(gaps) < WITHIN_STATION_MIN_PAIRS:
         return None
-    return float(1.4826 * np.median(gaps) / np.sqrt(2.0))
+    return float(1.4826 * median(gaps) / np.sqrt(2.0))
 
 
 def _given_sd(problem: Problem, i: int) -> float:
@@ -254,7 +255,7 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
             x = alive[worst]
             i = rows[x]
             others = [y for y in alive if y != x]
-            size = float(np.median(gap[x, others]))
+            size = float(median(gap[x, others]))
             keep[i] = False
             flags.append(_flag(problem, i, (
                 f"inconsistent with {bad[worst]} of the {len(others)} other rows of its station: its sphere centre "
@@ -305,7 +306,7 @@ def leave_one_out_sizes(problem: Problem, rows, R, t, centre, used: np.ndarray) 
     for i in rows:
         same = np.flatnonzero(used & (problem.station_of == problem.station_of[i]) & (problem.kinds != KIND_PROFILE))
         same = same[same != i]
-        ref = np.median(e[same], axis=0) if len(same) else np.zeros(3)
+        ref = median(e[same], axis=0) if len(same) else np.zeros(3)
         out[int(i)] = float(np.linalg.norm(e[i] - ref))
     return out
 

@@ -26,6 +26,7 @@ from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEff
 from .centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
+from .robust import median, percentile
 from .twostep import CentreShot, TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
@@ -394,7 +395,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     while not absurd and (clean.kinds == KIND_PROFILE).any():
         is_profile = clean.kinds == KIND_PROFILE
         all_res = np.concatenate(ref.residuals)
-        limit = opt.point_outlier_k * max(1.4826 * np.median(np.abs(all_res)), noise.point_noise_mm)
+        limit = opt.point_outlier_k * max(1.4826 * median(np.abs(all_res)), noise.point_noise_mm)
         keep_pts = [np.abs(e) <= limit for e in ref.residuals]
         lost = np.array([int((~k).sum()) for k in keep_pts])
         counts = np.array([len(k) for k in keep_pts])
@@ -583,13 +584,13 @@ def _worst_move_outlier(ts: TwoStepResult):
         best = None
         for cand in st.candidates:
             e = cand @ ts.R.T - st.d
-            e = np.linalg.norm(e - np.median(e, axis=0), axis=1)
-            if best is None or np.median(e) < np.median(best):
+            e = np.linalg.norm(e - median(e, axis=0), axis=1)
+            if best is None or median(e) < median(best):
                 best = e
         rows.extend(zip(st.profiles.tolist(), best.tolist()))
     if not rows:
         return None
-    scale = max(float(np.median([e for _, e in rows])) / _CHI3_MEDIAN, _MIN_MOVE_SCALE_MM)
+    scale = max(float(median([e for _, e in rows])) / _CHI3_MEDIAN, _MIN_MOVE_SCALE_MM)
     i, e = max(rows, key=lambda r: r[1])
     return int(i), e / scale, e, scale
 
@@ -727,7 +728,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
         residuals=ResidualStats(
             rms_mm=float(np.sqrt(np.mean(res**2))),
             max_abs_mm=float(np.abs(res).max()),
-            p95_abs_mm=float(np.percentile(np.abs(res), 95)),
+            p95_abs_mm=float(percentile(np.abs(res), 95)),
             n_points_used=n_points,
             n_points_rejected=int(n_point_rejected),
             n_profiles_used=int(np.count_nonzero(clean.kinds == KIND_PROFILE)),

@@ -17,6 +17,7 @@ import numpy as np
 from .. import geometry as geo
 from ..errors import DegenerateDataError, InputError, SpherecalError
 from ..models import Dataset, ObservationFlag, Pose
+from .robust import median
 
 
 #: Kinds of shot in :attr:`Problem.kind`.
@@ -259,7 +260,7 @@ def _clusters(Rs: np.ndarray, tolerance_deg: float) -> list[tuple[np.ndarray, np
         sub = D[np.ix_(rem, rem)]
         counts = (sub <= tolerance_deg).sum(axis=1)
         best = counts == counts.max()
-        seed = rem[np.flatnonzero(best)[np.argmin(np.median(sub[best], axis=1))]]
+        seed = rem[np.flatnonzero(best)[np.argmin(median(sub[best], axis=1))]]
         members = rem[D[seed, rem] <= tolerance_deg]
         mean = Rs[seed]
         for _ in range(5):
@@ -301,7 +302,7 @@ def screen_station_orientations(
             D = _pairwise_angles_deg(R0[idx])
             pair_angles.append(D[np.triu_indices(len(idx), 1)])
     pairs = np.concatenate(pair_angles) if pair_angles else np.zeros(0)
-    noise_seen = float(np.median(pairs) / (np.sqrt(2.0) * _CHI3_MEDIAN)) if len(pairs) >= 10 else 0.0
+    noise_seen = float(median(pairs) / (np.sqrt(2.0) * _CHI3_MEDIAN)) if len(pairs) >= 10 else 0.0
     derived = tolerance_deg is None
     if derived:
         tolerance_deg = derived_station_rotation_tolerance_deg(rotation_noise_deg)

@@ -739,7 +739,7 @@ def refine(
         Jc_geo, Jc_kin = _centre_design(problem, R, t, c, ke.chain, fit_radius)
         kin_identifiable, kin_share = identifiable_kinematic_parameters(Jc_geo, Jc_kin, kin_prior)
     id_cols = np.flatnonzero(kin_identifiable) if ke is not None and ke.identify else np.array([], dtype=int)
-    rand_cols = np.setdiff1d(np.arange(n_kin), id_cols)
+    rand_cols = np.flatnonzero(~np.isin(np.arange(n_kin), id_cols))  # (np.setdiff1d imports numpy.ma)
     rand_cols = rand_cols[kin_prior[rand_cols] > 0]
     consider_cols = np.array([], dtype=int)
     if ke is not None and ke.consider_columns is not None:
