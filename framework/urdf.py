@@ -31,7 +31,6 @@ its URDF.
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -271,6 +270,8 @@ def read_urdf_chain(path_or_text, base_link: str, flange_link: str, joint_names=
             text = Path(path_or_text).read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
             raise InputError(f"{where}: cannot read the URDF file ({getattr(exc, 'strerror', None) or exc})") from None
+    import xml.etree.ElementTree as ET  # (here: reading a URDF is rare beside importing this module)
+
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:

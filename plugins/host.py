@@ -558,6 +558,7 @@ class PluginHost:
             )
         seen: set[tuple[str, str]] = set()
         not_loaded: list[str] = []
+        dist_texts: dict[int, str] = {}  # a distribution's metadata is parsed on each read: once each
         for ep in sorted(found, key=lambda e: (not e.value.startswith(BUILTIN_MODULE_PREFIX), e.name)):
             if (ep.name, ep.value) in seen:
                 continue  # the same distribution seen twice on sys.path
@@ -567,7 +568,12 @@ class PluginHost:
                 not_loaded.append(ep.name)
                 continue
             dist = getattr(ep, "dist", None)
-            dist_text = f"{dist.name} {dist.version}" if dist is not None else None
+            dist_text = None
+            if dist is not None:
+                if id(dist) not in dist_texts:
+                    meta = dist.metadata
+                    dist_texts[id(dist)] = f"{meta['Name']} {meta['Version']}"
+                dist_text = dist_texts[id(dist)]
             info = PluginInfo(
                 name=ep.name,
                 module=ep.value.split(":")[0],

@@ -32,10 +32,8 @@ defines them. Each file says its units and order in a comment.
 
 from __future__ import annotations
 
-import ast
 import math
 import re
-import xml.etree.ElementTree as ET
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -416,6 +414,8 @@ def read_ros_launch(text: str) -> dict:
     """Parse :func:`ros_launch_py`: the file must compile as Python, and the arguments
     of its ``static_transform_publisher`` node are read without running it. Same keys as
     :func:`read_ros_command`."""
+    import ast  # (the readers check exports: tests and tools, not a run)
+
     try:
         tree = ast.parse(compile(text, "launch.py", "exec", ast.PyCF_ONLY_AST))
     except SyntaxError as exc:

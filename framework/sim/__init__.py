@@ -1,27 +1,45 @@
 """The simulated cell: the reference for tests and benchmarks, and the world behind the
-simulated devices."""
+simulated devices.
 
-from .cell import NoiseModel, SensorFieldOfView, SimulatedCell, arm_layout, standard_cell
-from .objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
-from ..planning import SweepPlan, plan_stations  # re-exported: the simulated acquisition plans with them
-from .planner import simulate_centre_dataset, simulate_dataset
-from .robot_error import RobotErrorModel, SimulatedArm
+The names below load on first use (PEP 562): a robot plugin's configuration includes
+the simulated controller's settings (:mod:`spherecal.sim.settings`), and importing them
+should not build the simulated cell's modules."""
 
-__all__ = [
-    "BallBar",
-    "CarDoorPanel",
-    "FlatPlate",
-    "SceneObject",
-    "Sphere",
-    "NoiseModel",
-    "RobotErrorModel",
-    "SimulatedArm",
-    "SensorFieldOfView",
-    "SimulatedCell",
-    "arm_layout",
-    "standard_cell",
-    "SweepPlan",
-    "plan_stations",
-    "simulate_centre_dataset",
-    "simulate_dataset",
-]
+from __future__ import annotations
+
+import importlib
+
+#: name -> the module that defines it
+_WHERE = {
+    "BallBar": ".objects",
+    "CarDoorPanel": ".objects",
+    "FlatPlate": ".objects",
+    "SceneObject": ".objects",
+    "Sphere": ".objects",
+    "NoiseModel": ".cell",
+    "SensorFieldOfView": ".cell",
+    "SimulatedCell": ".cell",
+    "arm_layout": ".cell",
+    "standard_cell": ".cell",
+    "SweepPlan": "..planning",  # re-exported: the simulated acquisition plans with them
+    "plan_stations": "..planning",
+    "simulate_centre_dataset": ".planner",
+    "simulate_dataset": ".planner",
+    "RobotErrorModel": ".robot_error",
+    "SimulatedArm": ".robot_error",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    where = _WHERE.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(where, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))

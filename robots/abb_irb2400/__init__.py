@@ -3,31 +3,43 @@ a driver over a serial line or TCP, the RAPID server modules (with an offline sy
 check) and a simulated controller.
 
 See docs/robot-abb-irb2400.md. The plugin entry point is :mod:`.plugin`.
+
+The names below load on first use (PEP 562): registering the plugin (every ``solve``)
+needs its configuration model, not its simulated controller.
 """
 
-from .config import AbbIrb2400Config, SimulatedControllerSettings, WorkspaceBox
-from .driver import AbbIrb2400Robot
-from .kinematics import (
-    Irb2400Geometry,
-    Irb2400Kinematics,
-    JointLimitError,
-    UnreachableError,
-    flange_pose_from_joints,
-)
-from .simulator import Faults, SimulatedIrb2400, SimulatorServer, start_simulator
+from __future__ import annotations
 
-__all__ = [
-    "AbbIrb2400Config",
-    "AbbIrb2400Robot",
-    "Faults",
-    "Irb2400Geometry",
-    "Irb2400Kinematics",
-    "JointLimitError",
-    "SimulatedControllerSettings",
-    "SimulatedIrb2400",
-    "SimulatorServer",
-    "UnreachableError",
-    "WorkspaceBox",
-    "flange_pose_from_joints",
-    "start_simulator",
-]
+import importlib
+
+#: name -> the module that defines it
+_WHERE = {
+    "AbbIrb2400Config": ".config",
+    "SimulatedControllerSettings": ".config",
+    "WorkspaceBox": ".config",
+    "AbbIrb2400Robot": ".driver",
+    "Irb2400Geometry": ".kinematics",
+    "Irb2400Kinematics": ".kinematics",
+    "JointLimitError": ".kinematics",
+    "UnreachableError": ".kinematics",
+    "flange_pose_from_joints": ".kinematics",
+    "Faults": ".simulator",
+    "SimulatedIrb2400": ".simulator",
+    "SimulatorServer": ".simulator",
+    "start_simulator": ".simulator",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    where = _WHERE.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(where, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))

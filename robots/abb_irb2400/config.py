@@ -12,7 +12,7 @@ from spherecal.errors import InputError
 from spherecal.linelink import LineLinkSettings
 from spherecal.linelink import WorkspaceBox as CoreWorkspaceBox
 from spherecal.models import Pose
-from spherecal.sim.controller import SimulatedControllerSettings as CoreSimulatedControllerSettings
+from spherecal.sim.settings import SimulatedControllerSettings as CoreSimulatedControllerSettings
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
 

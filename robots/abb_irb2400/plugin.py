@@ -31,7 +31,6 @@ from .driver import AbbIrb2400Robot
 from .export import RAPID_EXPORTER
 from .frames import read_frame
 from .kinematics import Irb2400Kinematics, kinematics_for
-from .simulator import start_simulator
 
 NAME = "abb_irb2400"
 DESCRIPTION = (
@@ -39,6 +38,14 @@ DESCRIPTION = (
     "IRC5 over TCP (port = socket://host:port) (spherecal line protocol; simulated controller on localhost "
     "in simulated runs)"
 )
+
+
+def start_simulator(*args, **kwargs):
+    """:func:`.simulator.start_simulator`, imported when a simulated run starts one (the
+    simulated controller's server is not needed to describe the plugin)."""
+    from .simulator import start_simulator as start
+
+    return start(*args, **kwargs)
 
 
 def kinematics_of(config: AbbIrb2400Config) -> Irb2400Kinematics:

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from spherecal.errors import InputError
 from spherecal.linelink import LineLinkSettings, WorkspaceBox
 from spherecal.lineproto import MAX_JOINTS
-from spherecal.sim.controller import SimulatedControllerSettings
+from spherecal.sim.settings import SimulatedControllerSettings
 from spherecal.urdf import read_urdf_chain
 
 from .kinematics import JointMap, UrdfKinematics

@@ -26,7 +26,6 @@ from spherecal.errors import DeviceError
 from spherecal.linelink import LineRobot
 from spherecal.models import Pose
 from spherecal.plugins import hookimpl
-from spherecal.sim.controller import start_controller
 
 from .config import UrdfRobotConfig
 from .kinematics import UrdfKinematics
@@ -85,6 +84,8 @@ def create_robot(config: UrdfRobotConfig, context: DeviceContext) -> UrdfRobot:
     if context.cell is None:
         robot = UrdfRobot(config, kin, tool_point_mm=tool)
     else:
+        from spherecal.sim.controller import start_controller  # (a simulated run only)
+
         server = start_controller(kin, config.simulated, context.cell, kin.n_joints)
         context.log(f"urdf: simulated controller of {config.urdf.name} serving on {server.url}")
         robot = UrdfRobot(config, kin, url=server.url, on_close=server.stop, tool_point_mm=tool)

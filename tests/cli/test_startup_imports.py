@@ -19,7 +19,8 @@ HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 #: What `solve` (a dataset file, no configuration, no devices) has no use for.
 RUN_ONLY = ("spherecal.config", "spherecal.acquisition", "spherecal.kinplan", "spherecal.metrology",
             "spherecal.validation", "spherecal.scanning", "spherecal.sensors.nxsensor_i.driver", "usb",
-            "numpy.ma")  # (np.median's NaN check imports it: the estimator's own median does not)
+            "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
+            "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree")  # (the simulated world, URDF)
 
 
 def _modules_after(argv: list[str]) -> set[str]:
