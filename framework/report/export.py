@@ -495,6 +495,8 @@ def ros_urdf_joint(result: CalibrationResult, frame_id: str | None = None, child
 def read_ros_urdf_joint(text: str) -> dict:
     """Parse :func:`ros_urdf_joint` as XML: ``{"xyz_m", "rpy_rad", "frame_id",
     "child_frame_id", "joint"}`` of its one fixed joint."""
+    import xml.etree.ElementTree as ET  # (the readers check exports: tests and tools, not a run)
+
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
