@@ -49,7 +49,7 @@ def percentile(values, q: float) -> np.float64:
         lo = int(np.floor(virtual))
         hi = lo + 1
     gamma = float(virtual - lo)
-    part = np.partition(a, sorted({0, lo, hi, n - 1}))
+    part = np.partition(a, sorted({lo, hi}))
     if np.isnan(a).any():
         return np.float64(np.nan)
     below, above = part[lo], part[hi]

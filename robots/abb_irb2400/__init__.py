@@ -10,7 +10,8 @@ needs its configuration model, not its simulated controller.
 
 from __future__ import annotations
 
-import importlib
+from spherecal.lazy import lazy_attributes
+
 
 #: name -> the module that defines it
 _WHERE = {
@@ -31,15 +32,4 @@ _WHERE = {
 
 __all__ = sorted(_WHERE)
 
-
-def __getattr__(name: str):
-    where = _WHERE.get(name)
-    if where is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(where, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_WHERE))
+__getattr__, __dir__ = lazy_attributes(__name__, _WHERE)

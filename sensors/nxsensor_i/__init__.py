@@ -6,6 +6,8 @@ Modules: :mod:`.wire` (the assumed USB wire format, all of it configuration),
 pyusb backend), :mod:`.plugin` (registration). See ``docs/sensor-nxsensor-i.md``.
 """
 
+from spherecal.lazy import lazy_attributes
+
 from .config import NxSensorConfig
 from .wire import Frame, FrameFormatError, WireConfig
 
@@ -14,18 +16,7 @@ from .wire import Frame, FrameFormatError, WireConfig
 _LAZY = {"NxSensorDriver": ".driver", "StreamedProfile": ".driver", "SimulatedNxSensorBackend": ".simbackend"}
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)
 
 __all__ = [
     "Frame",
