@@ -8,7 +8,9 @@ data/large_profile_results_before_scale.json by :func:`solve_cases`), are reprod
 to 1e-9 (relative, and 1e-12 absolute). The station-model case was regenerated when the
 REML search of the station scales got exact gradients (issue 14; it moved by at most
 2e-7 relative, the finite-difference search's own precision): before that, its results
-were reproducible to only about 1e-7, and no reordering of the sums could meet 1e-9. A change that is meant to alter the results
+were reproducible to only about 1e-7, and no reordering of the sums could meet 1e-9. Regenerated again when
+the station model's covariance took in the uncertainty of the station scales (session 10): only the station
+case's covariance moved, by 1.5e-3 of its largest element. A change that is meant to alter the results
 regenerates that file on purpose:
 ``python -c "import tests.core.test_large_profiles_unchanged as t; t.write_reference()"``."""
 
