@@ -88,7 +88,9 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
         mean = np.einsum("nij,j->ni", B, kt["posterior_mean"])
         robot = float(np.sqrt(np.mean(np.sum(mean**2, axis=1) + np.einsum("nij,jk,nik->n", B, kt["posterior_cov"], B))))
     else:
-        cov_X = (ref.covariance_robot_frame if ref.covariance_robot_frame is not None else ref.covariance)[:9, :9]
+        # the transform's and the stations' shares at the same (estimated) station scales
+        cov_X = next(c for c in (ref.covariance_robot_frame_at_scales, ref.covariance_robot_frame, ref.covariance)
+                     if c is not None)[:9, :9]
         s_rot, s_trans = ref.station_effect_scales
         robot = rms(JR, np.diag([s_rot**2] * 3 + [s_trans**2] * 3))
     parts = {

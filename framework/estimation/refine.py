@@ -59,6 +59,10 @@ class RefineResult:
     diagnostics: dict = field(default_factory=dict)
     covariance_without_robot_error: np.ndarray | None = None  # as if the station offsets were known
     covariance_robot_frame: np.ndarray | None = None  # without the robot's common error (relative to its frame)
+    # the station model: covariance_robot_frame at the estimated station scales, before it
+    # is averaged over their posterior; the point-error budget's transform share, which it
+    # pairs with its station-to-station share at those same scales
+    covariance_robot_frame_at_scales: np.ndarray | None = None
     station_offsets: np.ndarray | None = None  # (K, 6) estimated (omega rad, tau mm) per station
     station_effect_scales: tuple[float, float] = (0.0, 0.0)  # station-to-station s_rot (rad), s_trans (mm)
     kinematic_errors: np.ndarray | None = None  # (6 n,) estimated geometric errors (rad, mm)
@@ -1094,6 +1098,7 @@ def refine(
         "profile_chi2": lin.red.chi2.tolist(),
     }
     cov = cov_robot_frame = cov_fixed
+    cov_at_scales = None
     kin_posterior_sd = np.zeros(n_kin)
     kinematic_terms = None
     A_tt = info
@@ -1179,7 +1184,7 @@ def refine(
             cols_c_t = lin.red.gram(At, Xc)
             cols_c_d = np.concatenate([lin.red.gram(As[rows], Xc[rows], rows) for rows in station_shots])
             common = np.diag([np.radians(se.common_rotation_deg) ** 2] * 3 + [se.common_translation_mm**2] * 3)
-            cov_robot_frame = cov
+            cov_robot_frame = cov_at_scales = cov
             if free:
                 # the scales are estimates too: their uncertainty widens the covariance
                 cov_robot_frame = _scale_averaged_covariance(
@@ -1225,7 +1230,8 @@ def refine(
     return RefineResult(
         R, t, c, r, cov, np.split(lin.res[:pts.M], np.cumsum(pts.counts)[:-1]), lin.C, lin.SC, it,
         converged, lin.red.cost() / dof, scale, diagnostics, covariance_without_robot_error=cov_fixed,
-        covariance_robot_frame=cov_robot_frame, station_offsets=delta, station_effect_scales=station_scales,
+        covariance_robot_frame=cov_robot_frame, covariance_robot_frame_at_scales=cov_at_scales,
+        station_offsets=delta, station_effect_scales=station_scales,
         kinematic_errors=kappa if ke is not None else None,
         kinematic_sd=kin_posterior_sd if ke is not None else None, kinematic_terms=kinematic_terms,
         centre_residuals=centre_res, centre_noise_mm=float(np.sqrt(s2_centre)) if estimate_centre else None,
