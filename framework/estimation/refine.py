@@ -667,20 +667,30 @@ _SCALE_GRID_POINTS = 16
 _SCALE_GRID_RISE = 20.0
 
 
-def _reml_batch(sd, blocks):
+def _reml_batch(sd, blocks, block_size: int | None = None):
     """For each row of ``sd`` (g, q), the prior's standard deviations of the random
     effects: -2 x the REML log-likelihood of the linearised model (as
     :func:`_neg2_reml_derivatives`; inf where the fixed effects are not determined), and
     the generalised least-squares step of the fixed effects and its covariance with the
-    random effects integrated out. Returns (values (g,), steps (g, p), covariances (g, p, p))."""
+    random effects integrated out. Returns (values (g,), steps (g, p), covariances (g, p, p)).
+
+    ``block_size``: A_dd is block-diagonal in blocks of that size (the station offsets
+    alone: a shot belongs to one station), and only those blocks are factorised; the
+    same numbers as the dense path to rounding, with 1/K of its factorisation work."""
     A_tt, A_td, A_dd, b_t, b_d, yy = blocks
     g, q = sd.shape
-    B = np.eye(q)[None] + sd[:, :, None] * A_dd[None] * sd[:, None, :]
-    logdet_V = 2.0 * np.log(np.diagonal(np.linalg.cholesky(B), axis1=1, axis2=2)).sum(axis=1)
-    Cmat = sd[:, :, None] * np.linalg.inv(B) * sd[:, None, :]  # (Sigma^-1 + A_dd)^-1
-    C_dt = Cmat @ A_td.T  # (g, q, p)
-    C_bd = Cmat @ b_d  # (g, q)
-    XVX = A_tt[None] - A_td[None] @ C_dt
+    p = A_tt.shape[0]
+    b = block_size or q
+    K = q // b
+    idx = np.arange(K)
+    A_blocks = A_dd.reshape(K, b, K, b)[idx, :, idx, :]  # (K, b, b), the diagonal blocks
+    sdb = sd.reshape(g, K, b)
+    B = np.eye(b) + sdb[..., :, None] * A_blocks[None] * sdb[..., None, :]  # (g, K, b, b)
+    logdet_V = 2.0 * np.log(np.diagonal(np.linalg.cholesky(B), axis1=2, axis2=3)).sum(axis=(1, 2))
+    Cmat = sdb[..., :, None] * np.linalg.inv(B) * sdb[..., None, :]  # (Sigma^-1 + A_dd)^-1, per block
+    C_dt = (Cmat @ A_td.T.reshape(K, b, p)).reshape(g, q, p)  # C A_td^T, block by block
+    C_bd = (Cmat @ b_d.reshape(K, b, 1)).reshape(g, q)
+    XVX = A_tt[None] - A_td @ C_dt
     XVX = 0.5 * (XVX + np.swapaxes(XVX, 1, 2))
     XVy = b_t[None] - C_bd @ A_td.T
     yVy = yy - C_bd @ b_d
@@ -725,7 +735,7 @@ def _scale_averaged_covariance(blocks, column_scale, free, s_hat, bounds):
         scales[:, free] = points
         return scales[:, column_scale]
 
-    at_hat, step_hat, _ = _reml_batch(sds(s_hat[free][None]), blocks)
+    at_hat, step_hat, _ = _reml_batch(sds(s_hat[free][None]), blocks, 6)
     reach = []
     for j, i in enumerate(free):
         floor, ceiling = bounds[i]
@@ -733,12 +743,12 @@ def _scale_averaged_covariance(blocks, column_scale, free, s_hat, bounds):
         ladder = np.minimum(ladder, ceiling)
         points = np.tile(s_hat[free], (len(ladder), 1))
         points[:, j] = ladder
-        values = _reml_batch(sds(points), blocks)[0]
+        values = _reml_batch(sds(points), blocks, 6)[0]
         above = np.flatnonzero(values - at_hat[0] > _SCALE_GRID_RISE)
         reach.append(ladder[above[0]] if len(above) else ceiling)
     axes = [top * np.logspace(-3.0, 0.0, _SCALE_GRID_POINTS) for top in reach]
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(free))
-    values, steps, covs = _reml_batch(sds(points), blocks)
+    values, steps, covs = _reml_batch(sds(points), blocks, 6)
     finite = np.isfinite(values)
     w = np.zeros(len(values))
     w[finite] = np.exp(-0.5 * (values[finite] - values[finite].min())) * np.prod(points[finite], axis=1)
