@@ -956,6 +956,7 @@ def refine(
             cost += float(np.sum(np.where(sd > 0, d / np.where(sd > 0, sd, 1.0), 0.0) ** 2))
         return cost
 
+    starts_agreed = False  # the REML search's two starts ended at the same scales
     for outer in range(max(4 if estimate_pose_noise else 1, 8 if m_centres else 1)):
         lin = None
         near = False  # scales are re-estimated only near a solution, where the linearisation holds
@@ -1013,9 +1014,13 @@ def refine(
                     starts = [np.clip(x0, *lo_hi)]
                     first = np.clip([np.log(s_start[i]) for i in free] + ([np.log(lam)] if lam_now else []), *lo_hi)
                     near_floor = starts[0][:len(free)] < np.array(lo_hi[0][:len(free)]) + np.log(100.0)
-                    if near_floor.any() and np.abs(first - starts[0]).max() > 1e-3:
+                    if near_floor.any() and np.abs(first - starts[0]).max() > 1e-3 and not starts_agreed:
                         starts.append(first)
-                    best = min((_reml_search(objective, x, *lo_hi) for x in starts), key=lambda res: res[1])
+                    found = [_reml_search(objective, x, *lo_hi) for x in starts]
+                    best = min(found, key=lambda res: res[1])
+                    # once both starts end at the same scales, the first start adds nothing
+                    # more: from here the linearisation, and the pose noise's weight, move little
+                    starts_agreed = len(found) == 2 and np.abs(found[0][0] - found[1][0]).max() < 1e-6
                     s_hat, lam = unpack(best[0])
                 if se is not None:
                     for i in range(2):
