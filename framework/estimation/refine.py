@@ -1104,7 +1104,10 @@ def refine(
 
     lin = linearise(scale)
     At, As, Ak = design(lin)
-    info, A_tr, A_rr = _effect_blocks(lin.red, At, As, Ak, None, station_shots)[:3]
+    # the normal-equation blocks at the solution (with the random effects' right-hand
+    # sides: the station model's averaged covariance reuses them whole)
+    blocks = _effect_blocks(lin.red, At, As, Ak, shift(As, Ak) if any_random else None, station_shots)
+    info, A_tr, A_rr = blocks[:3]
     cov_fixed = np.linalg.pinv(info)  # with the random robot errors known (none)
     diagnostics = {
         "information_condition_number": float(np.linalg.cond(info[:n_geo, :n_geo])),
@@ -1203,8 +1206,7 @@ def refine(
             if free:
                 # the scales are estimates too: their uncertainty widens the covariance
                 cov_robot_frame = _scale_averaged_covariance(
-                    _effect_blocks(lin.red, At, As, Ak, shift(As, Ak), station_shots),
-                    np.tile([0, 0, 0, 1, 1, 1], K), free, s_hat, _SCALE_BOUNDS)
+                    blocks, np.tile([0, 0, 0, 1, 1, 1], K), free, s_hat, _SCALE_BOUNDS)
             cov = cov_robot_frame + consider(cols_c_t, cols_c_d, common)
         diagnostics["station_effects"] = {
             "rotation_deg": float(np.degrees(s_hat[0])),
