@@ -616,13 +616,15 @@ def _reml_search(evaluate, x0, lower, upper, max_iterations: int = 60):
     by projected Newton steps: a variable at a bound that the gradient pushes outward is
     held there, the Hessian's eigenvalues are taken in absolute value (a descent direction
     also where the objective is not convex), a step moves no variable by more than 2 (a
-    factor e^2 of a scale), and it is halved until the value falls; a variable the full
-    step moves toward its lower bound is also tried at that bound. Stops when a step
+    factor e^2 of a scale), and it is halved until the value falls; the variables the full
+    step moves toward their lower bounds are also tried there, together and each alone
+    (one whose floor alone did worse is not tried there again). Stops when a step
     moves no variable by more than 1e-10, the value no longer falls beyond rounding or the
     gradient is below 1e-8. Returns (x, value)."""
     lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
     x = np.clip(np.asarray(x0, dtype=float), lower, upper)
     f, g, H = evaluate(x)
+    floor_lost = np.zeros(len(x), dtype=bool)
     for _ in range(max_iterations):
         held = ((x <= lower) & (g > 0)) | ((x >= upper) & (g < 0))
         free = ~held
@@ -647,12 +649,21 @@ def _reml_search(evaluate, x0, lower, upper, max_iterations: int = 60):
         # a step there (the objective flattens like sigma^2), so try the floor itself
         falling = free.copy()
         falling[free] = (step < 0) & (g[free] > 0)
-        falling &= x_new > lower
+        falling &= (x_new > lower) & ~floor_lost
+        # (each such scale alone, and all of them together: one at its floor can leave
+        # another to a value between, that the flat floor would take many steps to climb;
+        # a scale whose floor alone did worse is not tried there again)
         if frac == 1.0 and falling.any():
-            x_floor = np.where(falling, lower, x_new)
-            f_floor, g_floor, H_floor = evaluate(x_floor)
-            if f_floor < f_new:
-                x_new, f_new, g_new, H_new = x_floor, f_floor, g_floor, H_floor
+            tries = [falling] if falling.sum() == 1 else [falling] + [np.arange(len(x)) == i
+                                                                       for i in np.flatnonzero(falling)]
+            x_step = x_new
+            for which in tries:
+                x_floor = np.where(which, lower, x_step)
+                f_floor, g_floor, H_floor = evaluate(x_floor)
+                if f_floor < f_new:
+                    x_new, f_new, g_new, H_new = x_floor, f_floor, g_floor, H_floor
+                elif which.sum() == 1:
+                    floor_lost |= which
         size, fell = np.abs(x_new - x).max(), f - f_new
         x, f, g, H = x_new, f_new, g_new, H_new
         if size < 1e-10 or fell <= 1e-13 * max(abs(f), 1.0):
@@ -1019,8 +1030,10 @@ def refine(
                     found = [_reml_search(objective, x, *lo_hi) for x in starts]
                     best = min(found, key=lambda res: res[1])
                     # once both starts end at the same scales, the first start adds nothing
-                    # more: from here the linearisation, and the pose noise's weight, move little
-                    starts_agreed = len(found) == 2 and np.abs(found[0][0] - found[1][0]).max() < 1e-6
+                    # more: from here the linearisation, and the pose noise's weight, move
+                    # little (a later search from one start leaves that as it was)
+                    if len(found) == 2:
+                        starts_agreed = bool(np.abs(found[0][0] - found[1][0]).max() < 1e-6)
                     s_hat, lam = unpack(best[0])
                 if se is not None:
                     for i in range(2):
