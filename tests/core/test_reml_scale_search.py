@@ -134,3 +134,45 @@ def test_kinematic_model_covariance_does_not_depend_on_the_order_of_the_observat
     a = np.array(solve(ds, opts, kinematics=kin).result.covariance)
     b = np.array(solve(reverse, opts, kinematics=kin).result.covariance)
     np.testing.assert_allclose(b, a, atol=1e-9 * np.abs(a).max())
+
+
+def _variance_components(a, b):
+    """-2 log-likelihood of independent variance components in log-scale x: sum over i
+    of log(a_i + e^{2 x_i}) + b_i / (a_i + e^{2 x_i}), with its exact gradient and
+    Hessian. Its minimum is at e^{2 x_i} = b_i - a_i where b_i > a_i, and at zero
+    variance (the floor, flat like sigma^2) where b_i <= a_i."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+
+    def evaluate(x):
+        v = np.exp(2.0 * x)
+        s = a + v
+        f = np.sum(np.log(s) + b / s)
+        df_dv = 1.0 / s - b / s**2
+        d2f_dv2 = -1.0 / s**2 + 2.0 * b / s**3
+        grad = df_dv * 2.0 * v
+        hess = np.diag(d2f_dv2 * (2.0 * v) ** 2 + df_dv * 4.0 * v)
+        return f, grad, hess
+
+    return evaluate
+
+
+def test_search_reaches_an_interior_scale_and_a_floor_together_in_few_evaluations():
+    """One scale's optimum inside the box, the other's at its floor (the common case of
+    the station model: one kind of station offset is not in the data), from a start
+    above both. The floor tried for both scales together overshoots the first, and the
+    floor is flat: the search stopped there, at the wrong scales (it did from this start
+    before the floors were also tried each alone). Tried alone, the second goes to its
+    floor and the first is left to Newton's steps."""
+    evaluate = _variance_components([1.0, 1.0], [1.5, 0.5])  # optimum: v = (0.5, 0)
+    calls = []
+
+    def counted(x):
+        calls.append(np.array(x))
+        return evaluate(x)
+
+    lower, upper = np.log([1e-4, 1e-4]), np.log([100.0, 100.0])
+    x, f = rf._reml_search(counted, np.log([1.5, 1.5]), lower, upper)
+    assert x[1] == pytest.approx(lower[1])  # at its floor exactly
+    assert np.exp(2.0 * x[0]) == pytest.approx(0.5, rel=1e-6)
+    assert f == pytest.approx(evaluate(np.array([0.5 * np.log(0.5), lower[1]]))[0], abs=1e-12)
+    assert len(calls) <= 12, f"{len(calls)} evaluations"
