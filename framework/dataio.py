@@ -95,7 +95,7 @@ class DatasetHeader(BaseModel):
     version: int = Field(ge=1, le=DATASET_VERSION, description="format version the file was written in")
     mounting: MountingMode = Field(description="eye_in_hand or eye_to_hand")
     sphere_radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
-    provenance: dict[str, Any] = Field(default_factory=dict, description="where the data came from (free form)")
+    provenance: dict[str, Any] = Field(default={}, description="where the data came from (free form)")
     created: datetime = Field(description="when the file was started, ISO 8601 with a time zone")
     written_by: str = Field("", description="software that started the file, e.g. 'spherecal 0.1.0'")
 

@@ -118,9 +118,9 @@ class FigureVerdict(_Frozen):
 class AcceptanceReport(_Frozen):
     """All figures per position, the maxima, and the verdicts."""
 
-    probing: list[ProbingResult] = Field(default_factory=list)
-    sphere_spacing: list[SphereSpacingResult] = Field(default_factory=list)
-    flatness: list[FlatnessResult] = Field(default_factory=list)
+    probing: list[ProbingResult] = Field(default=[])
+    sphere_spacing: list[SphereSpacingResult] = Field(default=[])
+    flatness: list[FlatnessResult] = Field(default=[])
     mpe: MaximumPermissibleErrors
     verdicts: list[FigureVerdict] = Field(description="P_F, P_S, SD, F in that order")
     passed: bool | None = Field(description="every judged figure passed; None when none was judged")

@@ -318,8 +318,8 @@ class Dataset(BaseModel):
 
     mounting: MountingMode
     sphere_radius_mm: float = Field(gt=0, description="certified radius of the reference sphere, mm")
-    observations: list[Observation] = Field(default_factory=list)
-    provenance: dict[str, Any] = Field(default_factory=dict, description="where the data came from")
+    observations: list[Observation] = Field(default=[])
+    provenance: dict[str, Any] = Field(default={}, description="where the data came from")
 
     @field_validator("sphere_radius_mm")
     @classmethod
@@ -490,12 +490,12 @@ class CalibrationResult(BaseModel):
     )
     variance_factor: float = Field(description="chi^2 / dof of the whitened residuals")
     residuals: ResidualStats
-    flagged: list[ObservationFlag] = Field(default_factory=list)
+    flagged: list[ObservationFlag] = Field(default=[])
     method: str
     two_step_transform: Pose | None = None
     robot_error: RobotErrorSummary | None = None
-    diagnostics: dict[str, Any] = Field(default_factory=dict)
-    provenance: dict[str, Any] = Field(default_factory=dict)
+    diagnostics: dict[str, Any] = Field(default={})
+    provenance: dict[str, Any] = Field(default={})
 
     @model_validator(mode="after")
     def _check_names(self):

@@ -175,19 +175,19 @@ def rapid_module(
     return _check_rapid_lines([f"MODULE {module_name}"] + ["  " + line for line in decl.splitlines()] + ["ENDMODULE"])
 
 
-_RAPID_TOOL = re.compile(
+# (patterns that ``re`` compiles when read_rapid first uses them: writing the export
+# does not need them)
+_RAPID_TOOL = (
     rf"PERS\s+tooldata\s+(?P<name>[A-Za-z]\w*)\s*:=\s*\[\s*(?P<robhold>TRUE|FALSE)\s*,"
     rf"\s*\[\s*\[(?P<xyz>[^\]]*)\]\s*,\s*\[(?P<q>[^\]]*)\]\s*\]\s*,"
     rf"\s*\[\s*(?P<mass>{_FLOAT})\s*,\s*\[(?P<cog>[^\]]*)\]\s*,\s*\[(?P<aom>[^\]]*)\]"
-    rf"\s*,\s*(?P<ix>{_FLOAT})\s*,\s*(?P<iy>{_FLOAT})\s*,\s*(?P<iz>{_FLOAT})\s*\]\s*\]\s*;",
-    re.IGNORECASE,
+    rf"\s*,\s*(?P<ix>{_FLOAT})\s*,\s*(?P<iy>{_FLOAT})\s*,\s*(?P<iz>{_FLOAT})\s*\]\s*\]\s*;"
 )
-_RAPID_WOBJ = re.compile(
+_RAPID_WOBJ = (
     r"PERS\s+wobjdata\s+(?P<name>[A-Za-z]\w*)\s*:=\s*\[\s*(?P<robhold>TRUE|FALSE)\s*,"
     r"\s*(?P<ufprog>TRUE|FALSE)\s*,\s*\"(?P<ufmec>[^\"]*)\"\s*,"
     r"\s*\[\s*\[(?P<xyz>[^\]]*)\]\s*,\s*\[(?P<q>[^\]]*)\]\s*\]\s*,"
-    r"\s*\[\s*\[(?P<oxyz>[^\]]*)\]\s*,\s*\[(?P<oq>[^\]]*)\]\s*\]\s*\]\s*;",
-    re.IGNORECASE,
+    r"\s*\[\s*\[(?P<oxyz>[^\]]*)\]\s*,\s*\[(?P<oq>[^\]]*)\]\s*\]\s*\]\s*;"
 )
 
 
@@ -208,7 +208,7 @@ def read_rapid(text: str) -> dict:
     "quaternion_wxyz"}`` plus ``"mass_kg"`` and ``"cog_mm"`` for a tooldata, ``"ufprog"``
     for a wobjdata."""
     code = "\n".join(line.split("!", 1)[0] for line in text.splitlines())
-    m = _RAPID_TOOL.search(code)
+    m = re.search(_RAPID_TOOL, code, re.IGNORECASE)
     if m:
         return {
             "kind": "tooldata",
@@ -219,7 +219,7 @@ def read_rapid(text: str) -> dict:
             "mass_kg": float(m["mass"]),
             "cog_mm": _numbers(m["cog"], 3, "tload.cog"),
         }
-    m = _RAPID_WOBJ.search(code)
+    m = re.search(_RAPID_WOBJ, code, re.IGNORECASE)
     if m:
         return {
             "kind": "wobjdata",

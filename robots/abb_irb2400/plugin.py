@@ -29,7 +29,6 @@ from spherecal.plugins import hookimpl
 from .config import AbbIrb2400Config
 from .driver import AbbIrb2400Robot
 from .export import RAPID_EXPORTER
-from .frames import read_frame
 from .kinematics import Irb2400Kinematics, kinematics_for
 
 NAME = "abb_irb2400"
@@ -46,6 +45,14 @@ def start_simulator(*args, **kwargs):
     from .simulator import start_simulator as start
 
     return start(*args, **kwargs)
+
+
+def read_frame(text: str):
+    """:func:`.frames.read_frame` (a ``tooldata`` or ``wobjdata`` line), imported when a
+    command reads one (``compare`` and ``validate --tooldata``), not to describe the plugin."""
+    from .frames import read_frame as read
+
+    return read(text)
 
 
 def kinematics_of(config: AbbIrb2400Config) -> Irb2400Kinematics:

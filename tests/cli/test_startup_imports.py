@@ -20,7 +20,8 @@ HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 RUN_ONLY = ("spherecal.config", "spherecal.acquisition", "spherecal.kinplan", "spherecal.metrology",
             "spherecal.validation", "spherecal.scanning", "spherecal.sensors.nxsensor_i.driver", "usb",
             "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
-            "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree")  # (the simulated world, URDF)
+            "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree",  # (the simulated world, URDF)
+            "spherecal.robots.abb_irb2400.frames")  # (reading a tooldata line: compare and validate)
 
 
 def _modules_after(argv: list[str]) -> set[str]:
