@@ -16,11 +16,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from statistics import median
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from ..estimation.robust import median
 from ..models import CalibrationResult
 
 #: The distance from the sensor (mm, along its line of sight) of the point whose
@@ -292,7 +292,7 @@ def inconsistent_stations(result: CalibrationResult, thresholds: Thresholds | No
     if len(cons) < 2:
         return {}
     rms = {label: float(v["rms_mm"]) for label, v in cons.items()}
-    typical = median(rms.values())
+    typical = float(median(list(rms.values())))
     return {
         label: v for label, v in rms.items()
         if v > th.station_inconsistency_factor * typical and v > th.station_inconsistency_floor_mm
@@ -376,7 +376,7 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
 
     # stations
     if bad_stations:
-        typical = median(float(v["rms_mm"]) for v in cons.values())
+        typical = float(median([float(v["rms_mm"]) for v in cons.values()]))
         listing = ", ".join(f"{k} ({v:.3f} mm)" for k, v in sorted(bad_stations.items()))
         out.append(Advice(
             "station_inconsistent", "amber", "Station(s) inconsistent with the robot's moves",
