@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import logging
 import os
 import sys
@@ -57,6 +58,9 @@ EXIT_MEANING = {
 JSON_SCHEMA = "spherecal-cli-summary/1"
 
 _log = logging.getLogger("spherecal.cli")
+#: True while the ``spherecal`` program (:func:`console`) holds Python's cyclic garbage
+#: collector off for a command's imports (:func:`_imports_done` ends it).
+_GC_HELD = False
 #: The runner's ``log``: its progress lines go to logger ``spherecal.run`` (console and run.log).
 _RUN_LOG = progress_log("run")
 
@@ -182,6 +186,7 @@ def cmd_calibrate(args) -> int:
     from .config import load_config
     from .runner import run_calibrate, summary, truth_check
 
+    _imports_done()
     loaded = load_config(args.config)
     out = Path(args.out) if args.out else loaded.output_dir
     _run_folder(out)
@@ -240,6 +245,7 @@ def cmd_solve(args) -> int:
     from .runner import (make_host, provenance_type, solve_and_write, solve_kinematics, solve_robot_type, summary,
                          truth_check)
 
+    _imports_done()
     out = Path(args.out) if args.out else Path(args.dataset).with_suffix("").with_suffix(".calibration")
     _run_folder(out)
     dataset = dataio.read_dataset(args.dataset)  # checks the file first (a device, a pipe, a size limit)
@@ -433,6 +439,7 @@ def cmd_simulate(args) -> int:
     from . import dataio
     from .sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 
+    _imports_done()
     if args.config:
         from .config import load_config
         from .runner import configured_for_sensor, make_cell, make_host, robot_arm
@@ -488,6 +495,7 @@ def cmd_validate(args) -> int:
     from .config import load_config
     from .runner import run_validate
 
+    _imports_done()
     loaded = load_config(args.config)
     _run_folder(Path(args.out) if args.out else loaded.output_dir)
     if _session.record is not None:
@@ -546,6 +554,7 @@ def _given_transform(args, robot_type: str | None = None):
 def cmd_compare(args) -> int:
     from . import compare as cmp
 
+    _imports_done()
     result, where = cmp.read_result_operand(args.a)
     a = cmp.TransformEstimate.of_result(result, str(where), args.uncertainty)
     given = _given_transform(args)
@@ -575,6 +584,7 @@ def cmd_scan(args) -> int:
     from .config import load_config
     from .runner import run_scan
 
+    _imports_done()
     loaded = load_config(args.config)
     _run_folder(Path(args.out) if args.out else loaded.output_dir)
     path, summary = run_scan(loaded, out_dir=Path(args.out) if args.out else None, log=_RUN_LOG,
@@ -792,6 +802,35 @@ def _after_failure(command: str) -> str:
     if command == "scan":
         return "; the PLY holds the profiles taken so far; set [scan] ply to a new name and scan again"
     return ""
+
+
+def console() -> int:
+    """The ``spherecal`` program (its console script): :func:`main`, with Python's cyclic
+    garbage collector held off while the command imports its modules. What the imports
+    build lives as long as the process; collecting among it again and again as it grows,
+    and once more at exit, was about 6 % of a small ``solve`` (issue 13's start-up). Each
+    command calls :func:`_imports_done` once its modules are in, before it reads data or
+    moves a device, and the collector runs as usual from there. :func:`main` itself (the
+    library entry, tests) leaves the collector alone."""
+    global _GC_HELD
+    gc.disable()
+    _GC_HELD = True
+    try:
+        return main()
+    finally:
+        _imports_done()
+
+
+def _imports_done() -> None:
+    """The end of a command's start-up under :func:`console`: the objects alive now
+    (modules, classes, the parser) move to the collector's permanent generation
+    (:func:`gc.freeze`: never scanned again) and the collector is switched back on.
+    Does nothing elsewhere, or a second time."""
+    global _GC_HELD
+    if _GC_HELD:
+        _GC_HELD = False
+        gc.freeze()
+        gc.enable()
 
 
 def main(argv: list[str] | None = None) -> int:
