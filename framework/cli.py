@@ -934,7 +934,13 @@ def _close_record(args, code: int, started: float) -> None:
 @contextlib.contextmanager
 def _logging(args):
     """For one command: logger ``spherecal`` at DEBUG, a console handler on standard
-    error (INFO; DEBUG with -v; WARNING with -q) and the run's record (everything)."""
+    error (INFO; DEBUG with -v; WARNING with -q) and the run's record (everything).
+    spherecal's own Python warnings (a dataset file cut off mid-line:
+    :class:`~spherecal.dataio.TruncatedFileWarning`) become a ``warning:`` line on that
+    logger, once each however often the file is read, so that they reach run.log too;
+    other warnings are shown as Python shows them."""
+    import warnings
+
     root = logging.getLogger("spherecal")
     console = logging.StreamHandler(sys.stderr)
     console.setFormatter(logging.Formatter("%(message)s"))
@@ -943,12 +949,25 @@ def _logging(args):
     root.setLevel(logging.DEBUG)
     root.addHandler(console)
     root.addHandler(_session.record)
-    try:
-        yield
-    finally:
-        root.removeHandler(console)
-        root.removeHandler(_session.record)
-        root.setLevel(saved)
+    shown: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not (getattr(category, "__module__", "") or "").startswith("spherecal."):
+            return python_show(message, category, filename, lineno, file, line)
+        text = str(message)
+        if text not in shown:
+            shown.add(text)
+            _RUN_LOG(f"warning: {text}")
+
+    with warnings.catch_warnings():
+        python_show = warnings.showwarning
+        warnings.showwarning = show
+        try:
+            yield
+        finally:
+            root.removeHandler(console)
+            root.removeHandler(_session.record)
+            root.setLevel(saved)
 
 
 def _quiet_broken_stdout() -> None:

@@ -110,6 +110,22 @@ def test_quiet_verbose_and_debug_also_after_the_command(dataset_path, tmp_path, 
     assert parser.parse_args(["solve", "d.jsonl", "-o", "x"]).out == "x"
 
 
+def test_a_dataset_cut_off_mid_line_is_one_warning_line_and_is_in_run_log(dataset_path, tmp_path, capsys):
+    """A file whose last line the acquisition did not finish: the whole observations are
+    solved, and the command says what it dropped once, as a ``warning:`` line (not
+    Python's warning with its source line) that run.log keeps too."""
+    cut = tmp_path / "cut.jsonl"
+    data = dataset_path.read_bytes()
+    cut.write_bytes(data[: len(data) - 500])  # into the last observation's line
+    assert main(["solve", str(cut), "-o", str(tmp_path / "o"), "--no-report"]) == EXIT_OK
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "is incomplete" in ln]
+    assert len(lines) == 1 and lines[0].startswith(f"warning: {cut}: line ")
+    assert "Warning" not in err and "cli.py" not in err  # no class name, no source line
+    log = (tmp_path / "o" / "run.log").read_text()
+    assert "WARNING spherecal.run: warning: " in log and "is incomplete" in log
+
+
 def test_no_handler_is_left_installed_and_an_application_can_route_the_messages(dataset_path, tmp_path):
     probe = ("import logging, spherecal, spherecal.cli, spherecal.runner, spherecal.validation; "
              "lg = logging.getLogger('spherecal'); print(len(lg.handlers), lg.level)")
