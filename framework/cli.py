@@ -208,8 +208,9 @@ def cmd_calibrate(args) -> int:
     _say(summary(outcome.solution, outcome.verdict))
     _result_json(outcome.solution.result, outcome.verdict, outcome.exports_written)
     if loaded.config.validation is not None and outcome.verdict.level != "red":
-        _say(f"acceptance test: spherecal validate {args.config} (its figures then join this verdict, in the "
-             "terminal and the report)")
+        folder = f" -o {_shell_word(str(args.out))}" if args.out else ""  # (the run validate is to check)
+        _say(f"acceptance test: spherecal validate {_shell_word(str(args.config))}{folder} (its figures then join "
+             "this verdict, in the terminal and the report)")
     from . import dataio
 
     journal = outcome.files.get("journal")
@@ -236,6 +237,13 @@ def _finish(out: Path, graded, written: bool, force: str = "--force", report: bo
               f"and run again, or give {force} to write them anyway")
     _err("the result is RED (exit 7): see the verdict above")
     return EXIT_RED
+
+
+def _shell_word(text: str) -> str:
+    """``text`` as one word of a shell command to copy (quoted where it needs to be)."""
+    import shlex
+
+    return shlex.quote(text)
 
 
 def cmd_solve(args) -> int:

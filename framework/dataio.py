@@ -902,13 +902,18 @@ def write_dataset(
     path = Path(path)
     tmp = _atomic_target(path, overwrite)
     try:
-        with DatasetWriter(
-            tmp,
-            mounting=dataset.mounting,
-            sphere_radius_mm=dataset.sphere_radius_mm,
-            provenance=dataset.provenance,
-            fsync=False,
-        ) as out:
+        try:
+            writer = DatasetWriter(
+                tmp,
+                mounting=dataset.mounting,
+                sphere_radius_mm=dataset.sphere_radius_mm,
+                provenance=dataset.provenance,
+                fsync=False,
+            )
+        except OSError as exc:  # (the message names the file asked for, not the temporary one)
+            where = "its folder does not exist" if not path.parent.is_dir() else exc.strerror or str(exc)
+            raise FileWriteError(f"{os.fspath(path)}: cannot write ({where})") from None
+        with writer as out:
             out.path = path  # so that error messages name the real file
             for obs in dataset.observations:
                 out.append(obs)

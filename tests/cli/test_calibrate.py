@@ -89,12 +89,14 @@ def test_existing_journal_needs_resume(sim_config, capsys):
     assert "--resume" in capsys.readouterr().err
 
 
-def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path):
+def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path, capsys):
     """SIGKILL in the middle of the acquisition, then --resume: nothing taken is lost and
     the result equals that of an uninterrupted run."""
     cfg = sim_config(**{r"^approach_speed_mm_s = 100.0$": "approach_speed_mm_s = 100.0\nsettle_s = 0.02"})
     whole = tmp_path / "whole"
     assert main(["calibrate", str(cfg), "--out", str(whole), "--no-report"]) == EXIT_OK
+    # the acceptance test it suggests checks this run, in the folder given
+    assert f"acceptance test: spherecal validate {cfg} -o {whole} (" in capsys.readouterr().out
 
     cut = tmp_path / "cut"
     proc = subprocess.Popen([sys.executable, "-m", "spherecal.cli", "calibrate", str(cfg), "--out", str(cut),

@@ -32,7 +32,7 @@ from spherecal.models import (
     Profile,
     ResidualStats,
 )
-from spherecal.sim import simulate_dataset, standard_cell
+from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 
 T0 = datetime(2026, 3, 4, 5, 6, 7, 123456, tzinfo=timezone.utc)
@@ -83,6 +83,19 @@ def json_normalised(value):
 # -------------------------------------------------------------------------------------
 # round trips
 # -------------------------------------------------------------------------------------
+
+
+def test_a_dataset_into_a_missing_folder_names_the_file_asked_for(tmp_path):
+    """The write goes through a temporary file beside the target: a failure names the
+    file the caller asked for and why, never the temporary name."""
+    from spherecal.errors import FileWriteError
+
+    ds = simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()), SweepPlan(profiles_per_station=4))
+    target = tmp_path / "missing" / "d.jsonl"
+    with pytest.raises(FileWriteError) as info:
+        write_dataset(target, ds)
+    assert str(info.value) == f"{target}: cannot write (its folder does not exist)"
+    assert ".tmp" not in str(info.value) and not (tmp_path / "missing").exists()
 
 
 def test_simulated_dataset_round_trip_is_exact(tmp_path, mounting, parser):
