@@ -337,7 +337,10 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         used = np.array(sorted(fits))
         sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
         sub_fits = {j: fits[i] for j, i in enumerate(used)}
-        ts = two_step(sub, sub_fits, nominal_R)
+        try:
+            ts = two_step(sub, sub_fits, nominal_R)
+        except DegenerateDataError as exc:
+            raise _after_screening(exc, problem, sub, flags) from None
         worst = None if rejected >= max_reject else _worst_move_outlier(ts)
         if worst is None or worst[1] <= GROSS_MOVE_OUTLIER_SDS:
             break
@@ -539,6 +542,28 @@ def _drop_thin_stations_of_fits(problem: Problem, fits: dict, flags: list[Observ
     for i in list(fits):
         if not keep[i]:
             del fits[i]
+
+
+def _after_screening(exc: DegenerateDataError, problem: Problem, left: Problem,
+                     flags: list[ObservationFlag]) -> DegenerateDataError:
+    """``exc`` (the stations left do not determine the transform), saying which stations
+    the screening left out and why, when it left any out: the data had them, and the
+    cause to fix is theirs (issue: "all 1 station(s) share one orientation" of a file
+    with four stations, three of them screened out)."""
+    dropped = sorted(set(problem.station_labels) - set(left.station_labels))
+    if not dropped:
+        return exc
+    why: dict[str, int] = {}
+    for f in flags:
+        if f.station in dropped:
+            kind = ("too few usable profiles left in the station" if f.reason.startswith("station ")
+                    else f.reason.split(" (")[0].split(":")[0])
+            why[kind] = why.get(kind, 0) + 1
+    reasons = "; ".join(f"{n} x {kind}" for kind, n in sorted(why.items(), key=lambda kv: -kv[1])[:3])
+    return DegenerateDataError(
+        f"the screening left out station(s) {', '.join(dropped)} ({reasons}), and the station(s) left "
+        f"({', '.join(left.station_labels)}) cannot determine the transform: {exc}. Fix what left them out "
+        "before changing the plan")
 
 
 def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> Problem:

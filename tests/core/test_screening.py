@@ -274,3 +274,23 @@ def test_a_profile_flagged_near_the_spheres_edge_is_explained_by_the_edge_not_th
     assert "edge" not in middle and "mis-paired" in middle
     # beyond the sphere (no circle at all), no division by zero
     assert "inf times" in likely_cause_of_inconsistent_profile([1.2 * r, 0.0, 0.0], r)
+
+
+def test_stations_screened_out_are_named_when_those_left_cannot_determine_the_transform():
+    """Three of four stations whose profiles are not the sphere (a flat line: a plate in
+    the beam): the stations left cannot determine the transform, and the error says that
+    the screening left those three out and why, not only that one station has one
+    orientation (which, said alone, sends the user to a plan that was fine)."""
+    cell = cell_for(3, mounting="eye_in_hand")
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    obs = []
+    for o in ds.observations:
+        if o.station != "S4":
+            y = np.asarray(o.profile.y_mm)
+            o = o.model_copy(update={"profile": Profile(y_mm=y, z_mm=0.3 * y - 20.0 + 0.8 * np.sin(y))})
+        obs.append(o)
+    with pytest.raises(DegenerateDataError) as info:
+        solve(ds.model_copy(update={"observations": obs}))
+    text = str(info.value)
+    assert text.startswith("the screening left out station(s) S1, S2, S3 (18 x points do not lie on a circle")
+    assert "the station(s) left (S4) cannot determine the transform: all 1 station(s) share one orientation" in text
