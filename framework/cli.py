@@ -109,6 +109,9 @@ class _Discard:
 def _run_folder(out: Path) -> None:
     """The command's output folder: run.log goes there, and the files written in it are
     listed in the --json summary."""
+    from .safeio import check_output_folder_writable
+
+    check_output_folder_writable(out, "give another folder with --out")  # before any work
     _session.out_dir = out
     _session.out_existed = out.is_dir()
     _session.before = _snapshot(out)

@@ -86,6 +86,36 @@ def append_text(path: str | os.PathLike, text: str) -> None:
             raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
 
 
+def check_output_folder_writable(folder: str | os.PathLike, hint: str = "") -> None:
+    """Raise :class:`~spherecal.errors.FileWriteError` naming ``folder`` when the files of
+    a run could not be written into it: the check a command makes before it reads,
+    solves or moves anything, so that it does not fail with the work done. An existing
+    folder is probed by creating and removing a file in it (what permissions alone do not
+    show: a read-only or immutable file system, a folder root cannot write either); for
+    a folder not made yet, the nearest existing folder above it must be a writable folder
+    (nothing is written there). ``hint`` ends the message (what to do instead)."""
+    target = Path(folder)
+    end = f": {hint}" if hint else ""
+    if target.exists():
+        if not target.is_dir():
+            raise FileWriteError(f"{os.fspath(target)}: not a folder, cannot hold the run's files{end}")
+        probe = target / f".spherecal-write-check-{os.getpid()}"
+        try:
+            fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o600)
+        except OSError as exc:
+            raise FileWriteError(f"{os.fspath(target)}: cannot write into this folder "
+                                 f"({exc.strerror or exc}){end}") from None
+        os.close(fd)
+        os.unlink(probe)
+        return
+    above = target.parent
+    while not above.exists() and above != above.parent:
+        above = above.parent
+    if not above.is_dir() or not os.access(above, os.W_OK | os.X_OK):
+        raise FileWriteError(f"{os.fspath(target)}: cannot be made ({os.fspath(above)} is not a writable "
+                             f"folder){end}")
+
+
 def is_inside(path: Path, folder: Path) -> bool:
     """True when ``path`` (resolved) lies within ``folder`` (resolved)."""
     try:

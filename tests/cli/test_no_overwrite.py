@@ -45,6 +45,52 @@ def test_solve_refuses_a_folder_holding_a_result_and_names_the_file(tmp_path, da
     assert snapshot(out) == before
 
 
+@pytest.mark.parametrize("where", ["read-only folder", "under a file"])
+def test_an_output_folder_that_cannot_be_written_is_refused_before_any_work(tmp_path, dataset_file, monkeypatch,
+                                                                           capsys, sim_config, where):
+    """solve before it reads the dataset, calibrate before it connects to a device: a
+    folder the run could not write its files into fails at once, named, with what to do."""
+    if where == "read-only folder":
+        if hasattr(os, "geteuid") and os.geteuid() == 0:
+            pytest.skip("root writes into a read-only folder")
+        out = tmp_path / "locked"
+        out.mkdir()
+        out.chmod(0o500)
+    else:
+        (tmp_path / "a-file").write_text("not a folder\n")
+        out = tmp_path / "a-file" / "run"
+    import spherecal.runner as runner
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the work began")
+
+    monkeypatch.setattr(dataio, "read_dataset", no_work)
+    monkeypatch.setattr(runner, "run_calibrate", no_work)
+    try:
+        for argv in (["solve", str(dataset_file)], ["calibrate", str(sim_config())]):
+            assert main([*argv, "--out", str(out), "--no-report"]) == EXIT_DATA
+            err = capsys.readouterr().err
+            assert f"spherecal: error: {out}" in err and "give another folder with --out" in err
+    finally:
+        if where == "read-only folder":
+            out.chmod(0o700)
+
+
+def test_the_folder_check_writes_where_permissions_do_not_tell(tmp_path):
+    """An existing folder is probed by creating a file in it, which also catches what
+    permission bits do not (root in a folder the kernel will not let anyone write: /sys);
+    the probe leaves nothing behind where it can write."""
+    import pathlib
+
+    safeio.check_output_folder_writable(tmp_path)
+    assert list(tmp_path.iterdir()) == []
+    sysfs = pathlib.Path("/sys")
+    if not sysfs.is_dir():
+        pytest.skip("no /sys on this system")
+    with pytest.raises(FileWriteError, match=r"^/sys: cannot write into this folder \("):
+        safeio.check_output_folder_writable(sysfs)
+
+
 def test_solve_overwrite_replaces_on_request(tmp_path, dataset_file):
     out = tmp_path / "run"
     assert main(["solve", str(dataset_file), "--out", str(out), "--no-report"]) == EXIT_OK
