@@ -931,9 +931,15 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
             )
     for f in r.flagged:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
-    from .report.assess import verdict
+    from .report.assess import advice, verdict
 
-    lines.append(format_verdict(graded or verdict(r)))
+    graded = graded or verdict(r)
+    lines.append(format_verdict(graded))
+    if graded.level in ("red", "amber"):  # what to do, as the report gives it (its headline points here)
+        todo = [a for a in advice(r) if a.level in ("red", "amber")]
+        lines.extend(f"  advice: {a.title}: {a.text}" for a in todo[:4])
+        if len(todo) > 4:
+            lines.append(f"  advice: {len(todo) - 4} more in the report")
     return "\n".join(lines)
 
 

@@ -308,7 +308,13 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
             continue
         fit = circles[i]
         if not fit.converged or fit.rms > opt.max_circle_rms_mm or fit.n_inliers < opt.min_points_per_profile:
-            flags.append(_flag(problem, i, f"points do not lie on a circle (rms {fit.rms:.3f} mm): not the sphere?"))
+            if (fit.converged and fit.n_inliers >= opt.min_points_per_profile and fit.rms <= 2 * opt.max_circle_rms_mm
+                    and fit.radius <= 1.02 * r):
+                # a circle of the sphere's size, its points just too scattered: the sensor's noise, not another object
+                flags.append(_flag(problem, i, f"the points scatter about their circle by {fit.rms:.3f} mm (rms), more "
+                                               f"than max_circle_rms_mm = {opt.max_circle_rms_mm:g} mm allows"))
+            else:
+                flags.append(_flag(problem, i, f"points do not lie on a circle (rms {fit.rms:.3f} mm): not the sphere?"))
             continue
         if fit.radius > 1.02 * r:
             flags.append(_flag(problem, i, f"circle radius {fit.radius:.3f} mm exceeds the sphere radius {r} mm: "
@@ -316,14 +322,17 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
             continue
         fits[i] = fit
     if not fits:
+        todo = (_NOISY_HINT if _dominant_kind(flags) == _NOISY_KIND
+                else "check that the plan puts the sphere in the field of view")
         raise DegenerateDataError(
-            "no profile shows the sphere (every profile was left out: "
-            f"{flags[0].reason if flags else 'none'}): check that the plan puts the sphere in the field of view"
+            f"no profile shows the sphere (every profile was left out: {_left_out_summary(flags) or 'none'}): {todo}"
         )
     _drop_thin_stations_of_fits(problem, fits, flags, opt, "")
     if not fits:
+        todo = _NOISY_HINT if _dominant_kind(flags) == _NOISY_KIND else "add profiles to each sweep"
         raise DegenerateDataError(
-            f"no station has {opt.min_profiles_per_station} usable profiles: add profiles to each sweep{hint}"
+            f"no station has {opt.min_profiles_per_station} usable profiles (left out: {_left_out_summary(flags)}): "
+            f"{todo}{hint}"
         )
 
     # profiles grossly inconsistent with the robot's moves (a pose read at the wrong moment,
@@ -553,17 +562,43 @@ def _after_screening(exc: DegenerateDataError, problem: Problem, left: Problem,
     dropped = sorted(set(problem.station_labels) - set(left.station_labels))
     if not dropped:
         return exc
-    why: dict[str, int] = {}
-    for f in flags:
-        if f.station in dropped:
-            kind = ("too few usable profiles left in the station" if f.reason.startswith("station ")
-                    else f.reason.split(" (")[0].split(":")[0])
-            why[kind] = why.get(kind, 0) + 1
-    reasons = "; ".join(f"{n} x {kind}" for kind, n in sorted(why.items(), key=lambda kv: -kv[1])[:3])
+    reasons = _left_out_summary([f for f in flags if f.station in dropped])
+    todo = ("; " + _NOISY_HINT if _dominant_kind([f for f in flags if f.station in dropped]) == _NOISY_KIND
+            else "")
     return DegenerateDataError(
         f"the screening left out station(s) {', '.join(dropped)} ({reasons}), and the station(s) left "
         f"({', '.join(left.station_labels)}) cannot determine the transform: {exc}. Fix what left them out "
-        "before changing the plan")
+        f"before changing the plan{todo}")
+
+
+#: The screening's reason for a profile of the sphere's size whose points scatter too much
+#: (the sensor's noise), and what to do when it is what left the data out.
+_NOISY_KIND = "the points scatter about their circle"
+_NOISY_HINT = ("the sensor's points scatter more than max_circle_rms_mm allows (its exposure, a dull, dirty or wet "
+               "sphere, ambient light); if that is the noise this sensor gives, raise the calibration setting "
+               "max_circle_rms_mm above it")
+
+
+def _flag_kind(reason: str) -> str:
+    """The kind of a screening reason, without its figures."""
+    if reason.startswith("station "):
+        return "too few usable profiles left in the station"
+    for cut in (" (", ":", " by "):
+        reason = reason.split(cut)[0]
+    return reason
+
+
+def _dominant_kind(flags: list[ObservationFlag]) -> str | None:
+    kinds = [_flag_kind(f.reason) for f in flags if not f.reason.startswith("station ")]
+    return max(set(kinds), key=kinds.count) if kinds else None
+
+
+def _left_out_summary(flags: list[ObservationFlag]) -> str:
+    """``21 x points do not lie on a circle; 9 x too few usable profiles left in the station``."""
+    why: dict[str, int] = {}
+    for f in flags:
+        why[_flag_kind(f.reason)] = why.get(_flag_kind(f.reason), 0) + 1
+    return "; ".join(f"{n} x {kind}" for kind, n in sorted(why.items(), key=lambda kv: -kv[1])[:3])
 
 
 def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> Problem:

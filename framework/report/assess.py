@@ -305,6 +305,10 @@ _FLAG_CAUSES = [
      "and check that no reading was lost or repeated in the sequence"),
     ("points (needs", "the laser line barely touches the sphere",
      "move that station's sweep so the line crosses the sphere near its middle"),
+    ("scatter about their circle", "the sensor's noise above the limit (exposure, a dull, dirty or wet sphere, "
+     "ambient light), the sphere all the same",
+     "check the sensor's exposure and the sphere's surface; if this is the noise the sensor gives, raise the "
+     "calibration setting max_circle_rms_mm above it"),
     ("do not lie on a circle", "the profile is not the sphere (background, holder, reflections)",
      "check what the sensor sees at that pose; mask the background or move the sweep"),
     ("exceeds the sphere radius", "wrong sphere radius or a profile of something else",

@@ -45,6 +45,7 @@ def test_a_red_result_exits_7_names_the_cause_and_writes_no_exports(tmp_path, cl
     assert main(["solve", str(path), "--out", str(out), "--no-report"]) == EXIT_RED
     cap = capsys.readouterr()
     assert "verdict: RED" in cap.out
+    assert "\n  advice: " in cap.out  # what to do, in the terminal too (the headline says "advice below")
     for text in expected:
         assert text in cap.out, (text, cap.out)
     assert "NOT written" in cap.out and "--force" in cap.out

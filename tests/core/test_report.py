@@ -223,6 +223,8 @@ def test_one_weak_rotation_axis_asks_for_a_tilt_about_it(clean_solution):
         ("only 10 points (needs 20): the line barely touches the sphere or misses it", "barely touches the sphere"),
         ("station S4 has only 3 usable profiles (needs 4): add profiles to its sweep", "too few usable profiles"),
         ("points do not lie on a circle (rms 0.800 mm): not the sphere?", "is not the sphere"),
+        ("the points scatter about their circle by 0.540 mm (rms), more than max_circle_rms_mm = 0.5 mm allows",
+         "the sensor's noise above the limit"),
         ("circle radius 25.000 mm exceeds the sphere radius 19.1 mm: wrong sphere radius", "wrong sphere radius"),
         ("inconsistent with the other profiles (chi2 53.8 on 3 dof, about 0.674 mm)", "pose read at the wrong moment"),
     ],

@@ -294,3 +294,20 @@ def test_stations_screened_out_are_named_when_those_left_cannot_determine_the_tr
     text = str(info.value)
     assert text.startswith("the screening left out station(s) S1, S2, S3 (18 x points do not lie on a circle")
     assert "the station(s) left (S4) cannot determine the transform: all 1 station(s) share one orientation" in text
+
+
+def test_a_sensor_noisier_than_the_circle_limit_is_named_as_such():
+    """Every profile is the sphere, its points just scatter more than max_circle_rms_mm:
+    the profiles are flagged as noisy (not "not the sphere?") and the error says to look
+    at the sensor's noise or raise the limit, not to move the plan."""
+    cell = cell_for(3, mounting="eye_in_hand")
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    rng = np.random.default_rng(1)
+    obs = [o.model_copy(update={"profile": o.profile.model_copy(
+        update={"z_mm": o.profile.z_mm + rng.normal(0.0, 0.8, len(o.profile.z_mm))})}) for o in ds.observations]
+    with pytest.raises(DegenerateDataError) as info:
+        solve(ds.model_copy(update={"observations": obs}))
+    text = str(info.value)
+    assert text.startswith(f"no profile shows the sphere (every profile was left out: {len(obs)} x the points "
+                           "scatter about their circle): the sensor's points scatter more than max_circle_rms_mm")
+    assert "raise the calibration setting max_circle_rms_mm" in text and "field of view" not in text
