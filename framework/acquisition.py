@@ -13,7 +13,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Callable, TextIO
+from typing import Callable, Sequence, TextIO
 
 import numpy as np
 
@@ -207,6 +207,23 @@ def move_and_shoot(robot, sensor, target: Target, acq: AcquisitionConfig, log: C
     return take_shot(robot, sensor, acq, log)
 
 
+#: Largest change of any joint between two shots of one station (deg): a station's sweep
+#: is a few short linear moves, so more means the arm reached the shot in another
+#: configuration (a wrist or elbow flipped), with another robot error.
+STATION_JOINT_JUMP_DEG = 90.0
+
+
+def configuration_change(joints_deg, before_deg) -> str | None:
+    """``"joint 4 moved 180.0 deg, joint 6 179.9 deg"`` when a joint of ``joints_deg`` is
+    more than :data:`STATION_JOINT_JUMP_DEG` from ``before_deg`` (the angle's shortest
+    way round), else None."""
+    d = np.abs((np.asarray(joints_deg, float) - np.asarray(before_deg, float) + 180.0) % 360.0 - 180.0)
+    jumped = np.flatnonzero(d > STATION_JOINT_JUMP_DEG)
+    if not len(jumped):
+        return None
+    return ", ".join(f"joint {k + 1} {'moved ' if i == 0 else ''}{d[k]:.1f} deg" for i, k in enumerate(jumped))
+
+
 def acquire(
     robot,
     sensor,
@@ -217,15 +234,30 @@ def acquire(
     on_observation: Callable[[Observation], None] | None = None,
     log: Callable[[str], None] = _LOG,
     progress: Progress | None = None,
+    taken: Sequence[Observation] = (),
 ) -> AcquisitionReport:
     """Take every target not in ``done_targets``; each observation goes to the journal
-    (flushed, fsync'ed by the writer) before the next move."""
+    (flushed, fsync'ed by the writer) before the next move. ``taken``: the journal's
+    observations of a resumed run. A shot whose joints show the arm in another
+    configuration than the station's shot before it (:func:`configuration_change`; on a
+    resume the arm comes from elsewhere and may take the other wrist solution) is kept
+    and said as a warning: its robot error is not its station's."""
     report = AcquisitionReport()
     todo = [t for t in targets if t.index not in done_targets]
     progress = progress or Progress(len(targets))
     progress.update(len(targets) - len(todo), "resumed" if done_targets else "")
+    station_joints = {o.station: o.joints_deg for o in taken if o.joints_deg is not None}
     for n, t in enumerate(todo, start=len(targets) - len(todo) + 1):
         pose, joints, profile, retakes = move_and_shoot(robot, sensor, t, acq, log)
+        before = station_joints.get(t.station)
+        if joints is not None and before is not None and (change := configuration_change(joints, before)):
+            log(f"warning: target {t.index} (station {t.station}) was reached with the arm in another "
+                f"configuration than the station's shot before it ({change}; now "
+                f"{np.round(np.asarray(joints, float), 1).tolist()} deg): its robot error is not the station's. "
+                "The shot is kept; for shots like the others, jog the arm back to the station's configuration "
+                "and take the station again in a new run")
+        if joints is not None:
+            station_joints[t.station] = joints
         report.retakes += retakes
         if profile is None:
             report.skipped.append(f"target {t.index} (station {t.station}): the sensor saw nothing (sphere out of view?)")

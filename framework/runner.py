@@ -486,7 +486,8 @@ def run_calibrate(
                                          first_station=first_station)
                 else:
                     rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,
-                                  Progress(len(targets), progress_stream))
+                                  Progress(len(targets), progress_stream),
+                                  taken=previous.observations if done else ())
         outcome.notes.extend(rep.skipped)
         for s in rep.skipped:
             log(f"skipped {s}")
