@@ -1080,8 +1080,25 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                          verdict_override=outcome.verdict, notes=exports.notes(solution.result),
                          point_distance_mm=cfg.report.point_distance_mm)
         else:
-            log(f"report.html not updated: {result_path} is not the calibration of {calib_journal}")
+            log(f"report.html not updated: {_not_the_calibration(result, result_path, calib_journal, loaded)}")
     return outcome
+
+
+def _not_the_calibration(result, result_path: Path, journal: Path, loaded: LoadedConfig) -> str:
+    """Why ``result`` and the calibration of ``journal`` solved again with ``loaded``'s
+    settings differ: another dataset, or the same one under a configuration that changed
+    since (its robot model, the calibration settings), from the result's provenance."""
+    prov = (result.provenance or {}) if result is not None else {}
+    taken = prov.get("dataset_sha256")
+    if taken is None or taken != sha256_of(journal):
+        return f"{result_path} is not the calibration of {journal}"
+    cfg_then = prov.get("configuration_sha256")
+    changed = (f"{loaded.path} is not the configuration it was calibrated with ({prov.get('configuration_file')})"
+               + " (its robot model or [calibration] settings)" if cfg_then != sha256_of(loaded.path)
+               else "the configuration is the one it was calibrated with, so a file it names (a robot model) or "
+                    "spherecal changed since")
+    return (f"{result_path} is the calibration of {journal}, but solving that journal again with this configuration "
+            f"gives another transform: {changed}; the validation itself used the result as written")
 
 
 def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = _LOG,

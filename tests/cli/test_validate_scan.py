@@ -242,3 +242,29 @@ def test_scan_the_car_door_panel(cfg_path, capsys):
     z = np.asarray(v["z"], dtype=float)
     # a curved panel: its height varies across the scanned area by more than the noise
     assert len(z) > 50_000 and np.ptp(z) > 0.5
+
+
+def test_why_the_report_is_not_updated_names_the_changed_configuration(tmp_path):
+    """validate updates the calibration's report only when solving its journal again gives
+    the result validated. When it does not, the reason says which: another dataset, or
+    the same journal under a configuration that changed since (a calibrated robot model
+    added, other settings), not "not the calibration" of a journal that is its own."""
+    from types import SimpleNamespace
+
+    from spherecal.runner import _not_the_calibration, sha256_of
+
+    journal, cfg_then, cfg_now = tmp_path / "journal.jsonl", tmp_path / "a.toml", tmp_path / "b.toml"
+    journal.write_text("the shots\n")
+    cfg_then.write_text("[robot]\n")
+    cfg_now.write_text("[robot]\ncalibrated_model = 'robot_calibrated.urdf'\n")
+    result = SimpleNamespace(provenance={"dataset_sha256": sha256_of(journal), "configuration_file": str(cfg_then),
+                                         "configuration_sha256": sha256_of(cfg_then)})
+    why = _not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_now))
+    assert why.startswith(f"{tmp_path / 'result.json'} is the calibration of {journal}, but solving that journal "
+                          f"again with this configuration gives another transform: {cfg_now} is not the "
+                          f"configuration it was calibrated with ({cfg_then})")
+    same = _not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_then))
+    assert "the configuration is the one it was calibrated with, so a file it names (a robot model)" in same
+    journal.write_text("other shots\n")
+    assert _not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_now)) == (
+        f"{tmp_path / 'result.json'} is not the calibration of {journal}")
