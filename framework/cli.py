@@ -601,6 +601,10 @@ def cmd_scan(args) -> int:
     path, summary = run_scan(loaded, out_dir=Path(args.out) if args.out else None, log=_RUN_LOG,
                              progress_stream=_progress_stream(), yes=args.yes, ask=_ask)
     _say(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
+    if summary.calibration_doubt:
+        _err(f"{summary.calibration_doubt}: the points were mapped with it (exit 5); re-calibrate, or validate "
+             "again once the cause is fixed")
+        return EXIT_VALIDATION
     return EXIT_OK
 
 

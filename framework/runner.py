@@ -1125,6 +1125,9 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         check_writable_target(ply_path)
     out, result_path, result = _calibrated_setup(loaded, cfg.scan, "no [scan] section: say what to scan", "scanning",
                                                  out_dir)
+    doubt = failed_validation(out, result)
+    if doubt:  # said before anything moves, and again by the exit code
+        log(Notice(f"warning: {doubt}; the scan's points carry that error (scanning all the same)"))
     targets = plan_scan(cfg, result.transform, fov)
     _check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
@@ -1142,4 +1145,24 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
             summary = scan(robot, sensor, targets, result.transform, cfg, writer, log,
                               Progress(len(targets), progress_stream))
     log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in {frame} frame")
+    summary.calibration_doubt = doubt
     return ply_path, summary
+
+
+def failed_validation(out: Path, result) -> str | None:
+    """What is wrong when the latest validation in ``out`` (``validation.json``) is of
+    ``result``'s transform and failed; None when it passed, is of another transform, or
+    there is none."""
+    import json
+
+    path = out / "validation.json"
+    try:
+        latest = json.loads(path.read_text())
+        validated = Pose.model_validate(latest["transform"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if latest.get("passed", True) or not np.allclose(validated.as_matrix(), result.transform.as_matrix(), atol=1e-9):
+        return None
+    failed = [name for name, row in (latest.get("figures") or {}).items() if not row.get("passed", True)]
+    return (f"this calibration failed its latest validation ({path}: {', '.join(failed) or 'a figure'} beyond "
+            "its MPE)")

@@ -50,6 +50,9 @@ class ScanSummary:
     profiles: int = 0
     points: int = 0
     empty_profiles: int = 0
+    #: Why the calibration the points were mapped with is doubtful (its latest validation
+    #: failed), or None.
+    calibration_doubt: str | None = None
 
 
 def scan(robot, sensor, targets: list[Target], X: Pose, cfg: RunConfig, writer: PlyWriter,

@@ -109,6 +109,14 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
         predicted = (R0[k + "ball_b"] @ dt - R0[k + "ball_a"] @ dt) @ u
         assert s["sphere_spacing_error_mm"] == pytest.approx(predicted, abs=0.02)
 
+    # a scan with the calibration that failed: it says so before anything moves, writes
+    # the points all the same, and exits 5 (a doubtful product never exits 0)
+    assert main(["scan", str(cfg_path)]) == EXIT_VALIDATION
+    cap = capsys.readouterr()
+    first = cap.err.index("warning: this calibration failed its latest validation")
+    assert first < cap.err.index("scan: ") and "centre spread" in cap.err[first:].splitlines()[0]
+    assert "the points were mapped with it (exit 5)" in cap.err and (out / "scan.ply").exists()
+
 
 def test_a_rotated_calibration_is_caught(cfg_path):
     """X off by 0.5 deg about the sensor's y. A laser-plane point (0, y, z) is then mapped
