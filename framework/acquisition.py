@@ -121,12 +121,13 @@ def check_first_move(robot, target: Target, acq: AcquisitionConfig) -> list[str]
 
 def describe_plan(targets: list[Target]) -> str:
     """A table of the stations: orientation, number of shots and the extent of the sweep."""
-    lines = [f"{'station':8s} {'shots':>5s}  {'flange quaternion (w, x, y, z)':34s} {'first target (mm)':>28s}"]
+    lines = [f"{'station':8s} {'shots':>5s}  {'flange quaternion (w, x, y, z), base':38s} "
+             f"{'first target (mm, base)':>28s}"]
     for label in dict.fromkeys(t.station for t in targets):
         ts = [t for t in targets if t.station == label]
         q = ", ".join(f"{v:+.4f}" for v in ts[0].pose.quaternion_wxyz)
         p = ", ".join(f"{v:.1f}" for v in ts[0].pose.translation_mm)
-        lines.append(f"{label:8s} {len(ts):5d}  {q:34s} {p:>28s}")
+        lines.append(f"{label:8s} {len(ts):5d}  {q:38s} {p:>28s}")
     return "\n".join(lines)
 
 

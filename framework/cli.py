@@ -780,7 +780,7 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
                    "and say so)")
     k.set_defaults(func=cmd_compare)
 
-    g = sub.add_parser("plugins", parents=[common], help="list installed robots and sensors with their configuration fields")
+    g = sub.add_parser("plugins", parents=[common], help="list installed robots, sensors and exporters with their configuration fields")
     g.set_defaults(func=cmd_plugins)
 
     o = sub.add_parser("completion", parents=[common], help="print a shell completion script (bash or zsh)",

@@ -503,7 +503,10 @@ def read_toml(path, what: str = "configuration") -> dict:
     try:
         return tomllib.loads(raw.decode("utf-8").removeprefix("\ufeff"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        hint = ""
+        if raw.lstrip().startswith(b"{") and what == "configuration":  # a dataset (JSON Lines) given for a configuration
+            hint = "; it looks like a dataset (JSON Lines): solve it with `spherecal solve FILE`"
+        raise ConfigError(f"{path}: not valid TOML: {exc}{hint}") from None
     except RecursionError:
         raise ConfigError(f"{path}: not a {what}: nested too deeply") from None
 

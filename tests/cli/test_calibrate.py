@@ -190,6 +190,14 @@ def test_bad_configurations_name_the_path(sim_config, capsys, replace, message):
     assert str(cfg) in err
 
 
+def test_a_dataset_given_to_calibrate_points_at_solve(tmp_path, capsys):
+    path = tmp_path / "shots.jsonl"
+    path.write_text('{"format": "spherecal-dataset", "version": 1}\n')
+    assert main(["calibrate", str(path), "--dry-run"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert f"{path}: not valid TOML" in err and "it looks like a dataset (JSON Lines): solve it with `spherecal solve" in err
+
+
 def test_missing_configuration_file(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "nope.toml")]) == EXIT_USAGE
     assert "nope.toml: cannot read the configuration" in capsys.readouterr().err
