@@ -210,9 +210,28 @@ def solve(
         raise InputError(
             f"robot_error_model = {opt.robot_error_model!r} (--robot-error-model) needs the arm's joints: this dataset "
             f"lacks {missing}; use 'station' (the robot's error shared within each station) or 'auto'")
+    # the joints must describe the poses they came with: else the kinematic model would
+    # take the robot's error from joints of another moment (or in other units)
+    joint_flags, joints_note = [], None
+    if problem.q_rad is not None and kinematics is not None:
+        check = joints_against_poses(problem, kinematics, opt)
+        if check.disqualified:
+            if opt.robot_error_model != "auto" or opt.identify_kinematics:
+                raise InputError(f"{check.text}; fix the joints, or solve with robot_error_model = 'station' "
+                                 "(--robot-error-model station)")
+            joints_note = f"{check.text}: the joints were not used (the station robot error model was)"
+            say(f"warning: {joints_note}")
+            problem = replace(problem, q_rad=None)
+        else:
+            joint_flags = [_flag(problem, int(i), reason) for i, reason in check.shots.items()]
     joints_known = problem.q_rad is not None
     # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
     table_keep, table_flags, pairs, moved = screen_table(problem)
+    for f in joint_flags:
+        i = int(np.flatnonzero(problem.obs_index == f.index)[0])
+        if table_keep[i]:
+            table_keep[i] = False
+            table_flags.append(f)
     for f in table_flags:
         say(f"observation {f.index}: {f.reason}")
     if not table_keep.any():
@@ -231,7 +250,7 @@ def solve(
 
     solution = attempt(table_keep, table_flags)
     if not pairs:
-        return _size_moved_rows(solution, problem, moved)
+        return _with_joints_note(_size_moved_rows(solution, problem, moved), joints_note)
     # two rows of a station that disagree, nothing within it telling which is wrong: the
     # solution of the other observations may tell; the row that agrees with it is used
     ref = solution.refined
@@ -239,7 +258,7 @@ def solve(
     settled = settle_pairs(problem, pairs, ref.R, ref.t, ref.centre, np.hypot(noise_mm, opt.pose_translation_noise_mm),
                            opt.profile_outlier_chi2)
     if not settled:
-        return _size_moved_rows(solution, problem, moved)
+        return _with_joints_note(_size_moved_rows(solution, problem, moved), joints_note)
     keep, flags = table_keep.copy(), list(table_flags)
     for good, bad, chi_good, chi_bad in settled:
         keep[good] = True
@@ -252,7 +271,72 @@ def solve(
             f"observation {g} where it was seen (chi2 {chi_good:.1f}, 3 dof) and this one not (chi2 {chi_bad:.3g})")})
                  if f.index == b else f for f in flags]
         say(f"observation {g} agrees with the solution of the others and is used; observation {b} is left out")
-    return _size_moved_rows(attempt(keep, flags), problem, moved)
+    return _with_joints_note(_size_moved_rows(attempt(keep, flags), problem, moved), joints_note)
+
+
+#: Where the robot's model may put the flange for a shot's joints, relative to the pose
+#: reported with them: a station's median difference within the larger of these and 4 x
+#: the stated robot accuracy (a calibrated model differs from the controller's nominal one
+#: by about the arm's accuracy), and each shot within these of its station's median (the
+#: poses' read noise is a few hundredths of a millimetre).
+JOINT_POSE_STATION_MM, JOINT_POSE_STATION_DEG = 3.0, 0.3
+JOINT_POSE_SHOT_MM, JOINT_POSE_SHOT_DEG = 1.0, 0.1
+
+
+@dataclass
+class JointPoseCheck:
+    """:func:`joints_against_poses`: ``disqualified`` when most shots' joints do not
+    describe their poses (``text`` says how far off, and the likely causes); else
+    ``shots`` maps the row of each shot that disagrees to the reason it is left out."""
+
+    disqualified: bool
+    text: str
+    shots: dict[int, str]
+
+
+def joints_against_poses(problem: Problem, kinematics: ArmKinematics, opt: CalibrationOptions) -> JointPoseCheck:
+    """Compare each shot's reported ``base_from_flange`` with the flange pose the robot's
+    model gives for the shot's joints (a pose computed from the joints agrees with itself).
+    The difference is taken per station (its median: a calibrated model's offset from the
+    nominal one changes little over a sweep) and per shot (off its station's median:
+    joints of another moment move by the sweep's step)."""
+    T = kinematics.chain.flange_matrices(problem.q_rad)
+    e = T[:, :3, 3] - problem.t0  # mm, base
+    rv = np.degrees(np.array([geo.rotvec_from_matrix(Ri @ R0.T) for Ri, R0 in zip(T[:, :3, :3], problem.R0)]))
+    tol_mm = max(JOINT_POSE_STATION_MM, 4.0 * opt.robot_accuracy_mm)
+    tol_deg = max(JOINT_POSE_STATION_DEG, 4.0 * opt.robot_accuracy_deg)
+    bad = np.zeros(len(e), dtype=bool)
+    shots: dict[int, str] = {}
+    for k in np.unique(problem.station_of):
+        rows = np.flatnonzero(problem.station_of == k)
+        e_k, rv_k = median(e[rows], axis=0), median(rv[rows], axis=0)
+        if np.linalg.norm(e_k) > tol_mm or np.linalg.norm(rv_k) > tol_deg:
+            bad[rows] = True
+            continue
+        for i in rows:
+            d_mm, d_deg = float(np.linalg.norm(e[i] - e_k)), float(np.linalg.norm(rv[i] - rv_k))
+            if d_mm > JOINT_POSE_SHOT_MM or d_deg > JOINT_POSE_SHOT_DEG:
+                bad[i] = True
+                shots[i] = (f"its joints put the flange {float(np.linalg.norm(e[i])):.2f} mm and "
+                            f"{float(np.linalg.norm(rv[i])):.3f} deg from the pose given with them ({d_mm:.2f} mm, "
+                            f"{d_deg:.3f} deg off its station's other shots): joints read at another moment than "
+                            "the pose?")
+    d_all, a_all = np.linalg.norm(e, axis=1), np.linalg.norm(rv, axis=1)
+    text = (f"the joint readings do not match the reported flange poses: for {int(bad.sum())} of {len(bad)} shots "
+            f"the robot's model puts the flange {float(median(d_all[bad])) if bad.any() else 0.0:.3g} mm and "
+            f"{float(median(a_all[bad])) if bad.any() else 0.0:.3f} deg (median) from the pose given (at most "
+            f"{tol_mm:g} mm and {tol_deg:g} deg expected): joints in radians or not in the controller's convention, "
+            "read at another moment than the poses, or another robot's model")
+    return JointPoseCheck(bool(bad.sum() > 0.5 * len(bad)), text, shots)
+
+
+def _with_joints_note(solution: Solution, note: str | None) -> Solution:
+    """The result with the joints' check in its diagnostics (``joints_vs_poses``) when
+    the joints were not used: the verdict says so."""
+    if note is None:
+        return solution
+    diag = {**solution.result.diagnostics, "joints_vs_poses": {"used": False, "reason": note}}
+    return replace(solution, result=solution.result.model_copy(update={"diagnostics": diag}))
 
 
 def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> Solution:

@@ -168,6 +168,10 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         lvl = "amber" if share > th.flagged_fraction_amber else "green"
         reasons.append((lvl, f"{n_flag} of {_n_observations(result)} observations flagged and left out ({share:.0%})"))
 
+    joints = result.diagnostics.get("joints_vs_poses") or {}
+    if joints.get("used") is False:  # the joints did not describe the poses: the robot's error model is the poorer one
+        reasons.append(("amber", str(joints.get("reason", "the joint readings were not used"))))
+
     refinement = result.diagnostics.get("refinement", {})
     if refinement.get("converged") is False:
         reasons.append(("red", f"the refinement did not converge in {refinement.get('iterations')} iterations"))

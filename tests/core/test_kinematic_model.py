@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from spherecal import geometry as geo
+from spherecal.errors import InputError
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
 from spherecal.kinematics import chain_with_errors, corrected_flange_poses, error_parameter_names, flange_error_jacobian
@@ -298,3 +299,49 @@ def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
     ds = simulate_dataset(cell, KIN_PLAN)
     with pytest.raises(Exception, match="identify_kinematics needs joint readings"):
         solve(ds, OPTIONS.model_copy(update={"identify_kinematics": True}))
+
+
+def _with_joints(ds, joints_of):
+    obs = ds.observations
+    return ds.model_copy(update={"observations": [o.model_copy(update={"joints_deg": joints_of(i, o)})
+                                                  for i, o in enumerate(obs)]})
+
+
+def test_joints_that_do_not_describe_the_poses_are_not_used(kin):
+    """Each shot's joints against the pose reported with it, through the robot's model.
+    Joints of another moment (every shot carrying the one before's) or in radians: the
+    kinematic model would take the robot's error from the wrong arm and state an
+    uncertainty 10 times too small, so `auto` does not use them, says why in the verdict
+    (AMBER), and the transform is within its stated uncertainty of the truth; asked for
+    by name, the kinematic model refuses them. One shot whose joints are off is left out."""
+    cell = standard_cell("eye_in_hand", seed=1, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                         fov=reference_fov())
+    ds = simulate_dataset(cell)
+    obs = ds.observations
+    faults = {"stale": lambda i, o: obs[i - 1].joints_deg if i else o.joints_deg,
+              "radians": lambda i, o: tuple(np.radians(o.joints_deg))}
+    X = cell.true_transform
+    for name, joints_of in faults.items():
+        sol = solve(_with_joints(ds, joints_of), OPTIONS, kinematics=kin)
+        assert sol.result.robot_error.model == "station", name
+        reason = sol.result.diagnostics["joints_vs_poses"]["reason"]
+        assert reason.startswith(f"the joint readings do not match the reported flange poses: for {len(obs)} of "
+                                 f"{len(obs)} shots the robot's model puts the flange"), reason
+        from spherecal.report.assess import verdict
+
+        v = verdict(sol.result)
+        assert v.level != "green" and ("amber", reason) in v.reasons
+        e = np.concatenate([geo.rotvec_from_matrix(sol.refined.R @ X.rotation_matrix.T), sol.refined.t - X.translation])
+        assert np.all(np.abs(e) < 4 * np.sqrt(np.diag(sol.refined.covariance)[:6])), (name, e)
+        with pytest.raises(InputError, match="the joint readings do not match the reported flange poses"):
+            solve(_with_joints(ds, joints_of), OPTIONS.model_copy(update={"robot_error_model": "kinematic"}),
+                  kinematics=kin)
+    one = solve(_with_joints(ds, lambda i, o: obs[i - 1].joints_deg if i == 13 else o.joints_deg), OPTIONS,
+                kinematics=kin)
+    assert one.result.robot_error.model == "kinematic"
+    (flag,) = [f for f in one.result.flagged if f.index == obs[13].index]
+    assert "from the pose given with them" in flag.reason and "joints read at another moment" in flag.reason
+    # the joints as taken: nothing flagged for them
+    clean = solve(ds, OPTIONS, kinematics=kin)
+    assert "joints_vs_poses" not in clean.result.diagnostics
+    assert not [f for f in clean.result.flagged if "joints" in f.reason]
