@@ -13,6 +13,11 @@ class DegenerateDataError(SpherecalError):
     """The data cannot determine the unknowns. The message says what to add."""
 
 
+class FitBreakdownError(DegenerateDataError):
+    """The fit broke down numerically: the data fit no sphere seen through their poses
+    (a setting or the data are wrong, not the noise). The message names the usual causes."""
+
+
 class DatasetFileError(SpherecalError):
     """A dataset or result file cannot be read; the message names the file and line."""
 

@@ -14,7 +14,7 @@ from pydantic import ValidationError
 
 from . import dataio
 from .runlog import Notice, progress_log
-from .errors import ConfigError, InputError, SpherecalError
+from .errors import ConfigError, FitBreakdownError, InputError, SpherecalError
 from .estimation import CalibrationOptions, Solution, solve
 from .models import Dataset, Pose
 from .models import SPHERE_FRAME, TRANSFORM_NAME
@@ -643,7 +643,13 @@ def solve_and_write(
     if exports is None:
         exports = make_host().export_plan(None, dataset.mounting, None)
     check_output_targets(out, exports)  # a planted link: refuse before solving, write nothing
-    solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
+    try:
+        solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
+    except FitBreakdownError as exc:
+        cause = _breakdown_cause(dataset, options, fk, log, kinematics)
+        if cause is None:
+            raise
+        raise FitBreakdownError(f"{cause}. ({exc})") from None
     if provenance is not None:
         solution = replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
     graded = assess_solution(solution, dataset, options, fk, log, kinematics=kinematics)
@@ -770,6 +776,44 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
     return path
 
 
+def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kinematics,
+                     what: str = "the fit broke down") -> str | None:
+    """When the fit of ``dataset`` broke down or is absurd (``what``): the dataset read
+    another way that fits, if one does (one solve each, only then): the quaternions read
+    (x, y, z, w) instead of (w, x, y, z), the other mounting. The sentence naming it, or
+    None."""
+    from .report.assess import absurd_ratio, is_absurd
+
+    def fits(ds: Dataset):
+        try:
+            res = solve(ds, options.model_copy(update={"nominal_transform": None}), fk, kinematics=kinematics).result
+        except SpherecalError:
+            return None
+        return None if is_absurd(res) else res
+
+    poses = [o.base_from_flange for o in dataset.observations]
+    if all(p is not None for p in poses):
+        log(f"{what}: trying the quaternions as (x, y, z, w)")
+        swapped = [o.model_copy(update={"base_from_flange": Pose(
+            translation_mm=o.base_from_flange.translation_mm,
+            quaternion_wxyz=np.roll(np.asarray(o.base_from_flange.quaternion_wxyz, float), 1))})
+            for o in dataset.observations]
+        alt = fits(dataset.model_copy(update={"observations": swapped}))
+        if alt is not None:
+            return ("the poses' quaternions are probably written (x, y, z, w): read that way the same data fit, with "
+                    f"residual RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt):.2f} x the expected). spherecal "
+                    "reads base_from_flange quaternions w first, as ABB writes them (docs/conventions.md); convert "
+                    "them, or export them w first")
+    other = _other_mounting(dataset.mounting)
+    log(f"{what}: checking whether the data are {other} data")
+    alt = fits(dataset.model_copy(update={"mounting": other}))
+    if alt is not None:
+        return (f"the dataset's mounting is probably wrong: it says {dataset.mounting}, but solved as {other} the "
+                f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt):.2f} x the "
+                "expected). Check the sensor's mounting and the 'mounting' of the configuration or dataset")
+    return None
+
+
 def _other_mounting(mounting: str) -> str:
     return "eye_to_hand" if mounting == "eye_in_hand" else "eye_in_hand"
 
@@ -798,20 +842,9 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     ratio = result.residuals.rms_mm / expected_rms_mm(result, th)
     causes: list[str] = []
     if is_absurd(result, th):
-        other = _other_mounting(dataset.mounting)
-        log(f"the result is absurd: checking whether the data are {other} data")
-        try:
-            alt = solve(dataset.model_copy(update={"mounting": other}),
-                        options.model_copy(update={"nominal_transform": None}), fk, kinematics=kinematics).result
-        except SpherecalError:
-            alt = None
-        if alt is not None and not is_absurd(alt, th):
-            alt_ratio, here = absurd_ratio(alt, th), absurd_ratio(result, th)
-            causes.append(
-                f"the dataset's mounting is probably wrong: it says {dataset.mounting}, but solved as {other} the "
-                f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({alt_ratio:.2f} x the expected; "
-                f"here {here:.3g} x). Check the sensor's mounting and the 'mounting' of the configuration or dataset"
-            )
+        cause = _breakdown_cause(dataset, options, fk, log, kinematics, f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected)")
+        if cause is not None:
+            causes.append(cause)
     if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
         log("residuals above the expected: checking which sphere radius the data prefer")
         try:

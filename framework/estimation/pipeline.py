@@ -10,7 +10,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from .. import geometry as geo
-from ..errors import DegenerateDataError, InputError
+from ..errors import DegenerateDataError, FitBreakdownError, InputError
 from ..kinematics import ArmKinematics
 from ..models import (
     SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, KinematicParameter, ObservationFlag, Pose, ResidualStats,
@@ -181,6 +181,14 @@ def _flag(problem: Problem, i: int, reason: str, station: str | None = None) -> 
     )
 
 
+#: What a solve that broke down numerically says: the data fit no sphere through these
+#: poses, and the usual reasons, most common first.
+BREAKDOWN_CAUSES = (
+    "quaternions not in (w, x, y, z) order (ABB writes w first; SciPy and ROS write it last), the sphere's "
+    "diameter given as its radius, the mounting (eye_in_hand or eye_to_hand) swapped, or profiles paired with the "
+    "wrong poses")
+
+
 def solve(
     dataset: Dataset,
     options: CalibrationOptions | None = None,
@@ -191,7 +199,18 @@ def solve(
     """Calibrate ``dataset``; see the package docstring for the steps. ``kinematics``
     (the robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) gives flange poses
     from joint readings where a pose is missing, and, with joints on every observation,
-    the kinematic robot error model."""
+    the kinematic robot error model. Data so far from the model that its linear algebra
+    breaks down (a singular matrix) raise :class:`~spherecal.errors.FitBreakdownError` naming the usual
+    causes (:data:`BREAKDOWN_CAUSES`), never a bare NumPy error."""
+    try:
+        return _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinematics)
+    except np.linalg.LinAlgError as exc:
+        raise FitBreakdownError(
+            f"the fit broke down ({exc}): the data fit no sphere seen through these poses. Check, most common "
+            f"first: {BREAKDOWN_CAUSES}") from None
+
+
+def _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinematics) -> Solution:
     opt = options or CalibrationOptions()
     say = progress or (lambda msg: None)
     if kinematics is not None and flange_pose_from_joints is None:

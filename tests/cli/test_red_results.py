@@ -4,10 +4,11 @@ Cases from issue 10: eye-in-hand data labelled eye-to-hand, one station's profil
 shifted 2 mm, radius 19 given for 19.1. (The example cells' AMBER results exit 0:
 tests/cli/test_calibrate.py.)"""
 
+import numpy as np
 import pytest
 
 from spherecal import dataio
-from spherecal.cli import EXIT_OK, EXIT_RED, main
+from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_RED, main
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 
@@ -169,3 +170,41 @@ def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_pat
     for text in ("mounting is probably wrong", "it says eye_to_hand", "solved as eye_in_hand"):
         assert text in causes[0], causes[0]
     assert "Likely cause: the dataset's mounting is probably wrong" in graded.headline
+
+
+def _quaternions_xyzw(ds):
+    """The poses as a tool writing quaternions scalar last would give them, read w first."""
+    obs = [o.model_copy(update={"base_from_flange": o.base_from_flange.model_copy(update={
+        "quaternion_wxyz": np.roll(np.asarray(o.base_from_flange.quaternion_wxyz), -1)})}) for o in ds.observations]
+    return ds.model_copy(update={"observations": obs})
+
+
+@pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
+def test_quaternions_written_scalar_last_are_named(tmp_path, capsys, mounting):
+    """Every pose's quaternion written (x, y, z, w): the fit breaks down or makes no sense;
+    the command names the cause it can show (the data read the other way fit), exits
+    non-zero, and never shows NumPy's error alone."""
+    cell = standard_cell(mounting, seed=3, fov=reference_fov(n_columns=160))
+    ds = _quaternions_xyzw(simulate_dataset(cell, SweepPlan(profiles_per_station=6)))
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, ds)
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    cap = capsys.readouterr()
+    assert code in (EXIT_DATA, EXIT_RED)
+    text = cap.out + cap.err
+    assert "the poses' quaternions are probably written (x, y, z, w): read that way the same data fit" in text
+    assert "internal error" not in text and "LinAlgError" not in text
+
+
+def test_eye_to_hand_data_labelled_eye_in_hand_is_named(tmp_path, capsys):
+    """The reverse of the wrong-mounting case above: there the fit made no sense, here it
+    can break down altogether; either way the mounting is named."""
+    cell = standard_cell("eye_to_hand", seed=3, fov=reference_fov(n_columns=160))
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6)).model_copy(update={"mounting": "eye_in_hand"})
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, ds)
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    text = "".join(capsys.readouterr())
+    assert code in (EXIT_DATA, EXIT_RED)
+    assert "the dataset's mounting is probably wrong: it says eye_in_hand, but solved as eye_to_hand" in text
+    assert "internal error" not in text
