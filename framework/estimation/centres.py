@@ -44,6 +44,11 @@ __all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out
 METRES_RATIO = 200.0
 #: Below this median magnitude (mm) the units check says nothing (too little to compare).
 METRES_MIN_MEDIAN_MM = 20.0
+#: A flange translation this many times farther from the base than the others' median
+#: (and farther than FAR_MIN_MM) is out of any cell's reach: a typo (a digit too many,
+#: micrometres for millimetres).
+FAR_RATIO = 10.0
+FAR_MIN_MM = 5000.0
 #: A circle this much larger than the sphere is not the sphere.
 CIRCLE_RADIUS_SLACK = 1.02
 #: Gross inconsistency between two shots of a station: the distance their centres moved
@@ -111,6 +116,16 @@ def screen_table(problem: Problem) -> tuple[np.ndarray, list[ObservationFlag], l
         flags.append(_flag(problem, i, f"base_from_flange.translation_mm is {mag:.4g} from the base origin while "
                                        f"the other rows' are about {med:.4g}: metres among millimetres? "
                                        "Give every translation in mm"))
+    if n >= 3:
+        mag = np.linalg.norm(problem.t0, axis=1)
+        medians = _medians_of_the_others(mag)
+        for i in np.flatnonzero(keep):
+            others = float(medians[i])
+            if mag[i] > max(FAR_RATIO * others, FAR_MIN_MM):
+                keep[i] = False
+                flags.append(_flag(problem, i, f"base_from_flange.translation_mm is {mag[i]:.4g} mm from the base "
+                                               f"origin while the other rows' are about {others:.4g} mm: out of the "
+                                               "robot's reach, a typo (a digit too many) or other units"))
     if not problem.has_centres:
         return keep, flags, [], []
     kinds, meas, r = problem.kind, problem.centre_meas, problem.radius_mm

@@ -311,3 +311,19 @@ def test_a_sensor_noisier_than_the_circle_limit_is_named_as_such():
     assert text.startswith(f"no profile shows the sphere (every profile was left out: {len(obs)} x the points "
                            "scatter about their circle): the sensor's points scatter more than max_circle_rms_mm")
     assert "raise the calibration setting max_circle_rms_mm" in text and "field of view" not in text
+
+
+def test_a_pose_out_of_any_reach_is_left_out_as_a_typo():
+    """One of the poses 900 m from the base (a digit too many): left out and named, the
+    others solved as without it (it made the whole solve refuse, blaming the plan)."""
+    cell = cell_for(3, mounting="eye_in_hand")
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    bad = ds.observations[7]
+    t = np.array(bad.base_from_flange.translation_mm)
+    t[0] = 9e5
+    typo = with_pose(ds, bad.index, Pose(translation_mm=t, quaternion_wxyz=bad.base_from_flange.quaternion_wxyz))
+    result = solve(typo).result
+    (flag,) = [f for f in result.flagged if f.index == bad.index]
+    assert flag.reason.startswith("base_from_flange.translation_mm is 9e+05 mm from the base origin")
+    assert "out of the robot's reach" in flag.reason
+    assert_close_to_truth(cell, result)
