@@ -203,11 +203,23 @@ def solve(
     breaks down (a singular matrix) raise :class:`~spherecal.errors.FitBreakdownError` naming the usual
     causes (:data:`BREAKDOWN_CAUSES`), never a bare NumPy error."""
     try:
-        return _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinematics)
+        solution = _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinematics)
     except np.linalg.LinAlgError as exc:
         raise FitBreakdownError(
             f"the fit broke down ({exc}): the data fit no sphere seen through these poses. Check, most common "
             f"first: {BREAKDOWN_CAUSES}") from None
+    nominal = options.nominal_transform if options is not None else None
+    if nominal is None:
+        return solution
+    # how far the result lies from the rough transform the user gave (the verdict judges it)
+    X = solution.result.transform
+    turn = geo.rotvec_from_matrix(nominal.rotation_matrix.T @ X.rotation_matrix)  # in the sensor frame
+    angle = float(np.degrees(np.linalg.norm(turn)))
+    about_z = bool(angle > 90.0 and abs(turn[2]) > 0.95 * np.linalg.norm(turn))
+    diag = {**solution.result.diagnostics, "nominal_transform": {
+        "rotation_deg": angle, "translation_mm": float(np.linalg.norm(X.translation - nominal.translation)),
+        "half_turn_about_sensor_z": about_z}}
+    return replace(solution, result=solution.result.model_copy(update={"diagnostics": diag}))
 
 
 def _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinematics) -> Solution:

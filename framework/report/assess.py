@@ -63,6 +63,11 @@ class Thresholds(BaseModel):
         2.5, gt=1, description="a rotation axis whose 1-sigma exceeds this many times the best axis is weak"
     )
     stray_fraction_info: float = Field(0.002, ge=0, le=1, description="share of points rejected as strays worth a note")
+    nominal_rotation_amber_deg: float = Field(
+        10.0, gt=0, description="the result this far from the nominal transform given (a rough one): amber, deg")
+    nominal_rotation_red_deg: float = Field(45.0, gt=0, description="... and this far: red, deg")
+    nominal_translation_amber_mm: float = Field(50.0, gt=0, description="the same for the translation: amber, mm")
+    nominal_translation_red_mm: float = Field(200.0, gt=0, description="... and red, mm")
     pose_noise_factor: float = Field(
         2.0, gt=1, description="estimated pose noise above this many times the repeatability is worth advice"
     )
@@ -167,6 +172,19 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         share = n_flag / max(_n_observations(result), 1)
         lvl = "amber" if share > th.flagged_fraction_amber else "green"
         reasons.append((lvl, f"{n_flag} of {_n_observations(result)} observations flagged and left out ({share:.0%})"))
+
+    nominal = result.diagnostics.get("nominal_transform") or {}
+    if nominal:
+        angle, dist = float(nominal.get("rotation_deg", 0.0)), float(nominal.get("translation_mm", 0.0))
+        if angle > th.nominal_rotation_amber_deg or dist > th.nominal_translation_amber_mm:
+            lvl = ("red" if angle > th.nominal_rotation_red_deg or dist > th.nominal_translation_red_mm else "amber")
+            text = (f"the result is {angle:.1f} deg and {dist:.1f} mm from the nominal transform given (amber above "
+                    f"{th.nominal_rotation_amber_deg:g} deg or {th.nominal_translation_amber_mm:g} mm)")
+            if nominal.get("half_turn_about_sensor_z"):
+                text += (": turned about the sensor's z axis. A sensor whose y axis runs the other way (its profile "
+                         "points mirrored, y -> -y) fits such data exactly as one turned half a turn does; check the "
+                         "sign of the sensor's y, or the nominal")
+            reasons.append((lvl, text))
 
     joints = result.diagnostics.get("joints_vs_poses") or {}
     if joints.get("used") is False:  # the joints did not describe the poses: the robot's error model is the poorer one

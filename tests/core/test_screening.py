@@ -327,3 +327,25 @@ def test_a_pose_out_of_any_reach_is_left_out_as_a_typo():
     assert flag.reason.startswith("base_from_flange.translation_mm is 9e+05 mm from the base origin")
     assert "out of the robot's reach" in flag.reason
     assert_close_to_truth(cell, result)
+
+
+def test_a_result_far_from_the_nominal_transform_is_red_and_a_mirrored_sensor_is_named():
+    """A sensor whose y runs the other way (profile y negated) fits the data exactly as one
+    turned half a turn about its z: without a nominal nothing can tell, with one given the
+    result is 180 deg from it and the verdict is RED naming the mirror. A nominal 5 deg and
+    20 mm off (a rough one, as meant) changes nothing."""
+    from spherecal.report.assess import verdict
+
+    cell = cell_for(3, mounting="eye_in_hand")
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    X = cell.true_transform
+    mirrored = ds.model_copy(update={"observations": [o.model_copy(update={"profile": o.profile.model_copy(
+        update={"y_mm": -o.profile.y_mm})}) for o in ds.observations]})
+    v = verdict(solve(mirrored, CalibrationOptions(nominal_transform=X)).result)
+    assert v.level == "red"
+    (text,) = [t for lvl, t in v.reasons if "from the nominal transform given" in t]
+    assert text.startswith("the result is 180.0 deg and ") and "its profile points mirrored, y -> -y" in text
+    rough = Pose.from_rt(X.rotation_matrix @ geo.matrix_from_rotvec(np.radians([5.0, 0.0, 0.0])),
+                         X.translation + [20.0, 0.0, 0.0])
+    v = verdict(solve(ds, CalibrationOptions(nominal_transform=rough)).result)
+    assert not [t for _, t in v.reasons if "nominal" in t] and v.level == "green"
