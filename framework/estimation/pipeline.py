@@ -181,6 +181,11 @@ def _flag(problem: Problem, i: int, reason: str, station: str | None = None) -> 
     )
 
 
+#: The orientation read noise the stations show (within-station scatter) replaces the
+#: assumed one when it is more than this many times larger (``estimate_pose_noise``).
+ROTATION_NOISE_SEEN_FACTOR = 2.0
+
+
 #: What a solve that broke down numerically says: the data fit no sphere through these
 #: poses, and the usual reasons, most common first.
 BREAKDOWN_CAUSES = (
@@ -494,7 +499,16 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         sigma = float(np.sqrt(num / den))
     else:
         sigma = DEFAULT_POINT_NOISE_MM  # no profile: the points' noise enters only the point-error budget
-    noise = NoiseAssumptions(max(sigma, 1e-7), opt.pose_translation_noise_mm, opt.pose_rotation_noise_deg)
+    # the orientation readings' noise: what the stations show when it is more than assumed
+    # (a station's shots share one orientation, so their scatter is the read noise alone;
+    # assumed 10 times too small, the station scales ran off and took the translation with them)
+    rotation_noise_deg = opt.pose_rotation_noise_deg
+    seen = float(ori.diagnostics.get("rotation_noise_seen_deg", 0.0))
+    if opt.estimate_pose_noise and seen > ROTATION_NOISE_SEEN_FACTOR * rotation_noise_deg:
+        say(f"the orientation readings scatter by {seen:.4f} deg per axis within the stations, more than the "
+            f"assumed pose_rotation_noise_deg = {rotation_noise_deg:g}: {seen:.4f} deg is used")
+        rotation_noise_deg = seen
+    noise = NoiseAssumptions(max(sigma, 1e-7), opt.pose_translation_noise_mm, rotation_noise_deg)
 
     clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
                                for j, p in enumerate(sub.profiles)])
