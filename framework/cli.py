@@ -204,7 +204,8 @@ def cmd_calibrate(args) -> int:
         report=not args.no_report, force=args.force, yes=args.yes, ask=_ask, operator=args.operator,
     )
     if outcome.finished:
-        _say(f"{out} holds a finished run: nothing to resume; its result, exports and report were left as they are")
+        _say(f"{out} holds a finished run ({out / 'result.json'}): nothing to resume; its result, exports and "
+             "report were left as they are")
         return EXIT_OK
     if outcome.solution is None:
         return EXIT_OK
@@ -238,7 +239,7 @@ def _finish(out: Path, graded, written: bool, force: str = "--force", report: bo
         where = f"report in {out}" if report else "no report either: --no-report"
         _say(f"the result is RED: result.json and the exports were NOT written ({where}); fix the cause "
               f"and run again, or give {force} to write them anyway")
-    _err("the result is RED (exit 7): see the verdict above")
+    _err("the result is RED (exit 7): see the verdict" + ("" if _session.json else " above"))
     return EXIT_RED
 
 

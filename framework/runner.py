@@ -381,8 +381,7 @@ def run_calibrate(
     outcome = Outcome()
 
     if resume and (out / RESULT_NAME).exists():
-        outcome.finished = True
-        log(f"{out} holds a finished run ({out / RESULT_NAME}); nothing to resume and nothing was rewritten")
+        outcome.finished = True  # (the command says so, once)
         return outcome
     if cfg.replay is not None:
         path = loaded.resolve(cfg.replay)

@@ -133,7 +133,9 @@ def test_resume_of_a_finished_run_rewrites_nothing(tmp_path, dataset_file, capsy
     assert "result.json" in before and "report.html" in before
     capsys.readouterr()
     assert main(["calibrate", str(cfg), "--resume"]) == EXIT_OK
-    assert "finished run" in capsys.readouterr().out
+    cap = capsys.readouterr()
+    assert f"holds a finished run ({out / 'result.json'}): nothing to resume" in cap.out
+    assert (cap.out + cap.err).count("finished run") == 1  # said once
     log = before.pop("run.log")[0]
     after = snapshot(out)
     # only the record of runs grows (appended, never rewritten): it says what the command did
