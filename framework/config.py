@@ -378,10 +378,14 @@ class RunConfig(_Section):
 def _format_errors(exc: ValidationError, where: str) -> str:
     lines = []
     for err in exc.errors():
-        path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        loc, given = err["loc"], err.get("input")
         msg = err["msg"]
         if err["type"] == "extra_forbidden":
             msg = "unknown key (a typo?)"
+        elif err["type"] == "missing" and loc and isinstance(loc[-1], int) and isinstance(given, (list, tuple)):
+            # a list one value short (two coordinates for x, y, z): said of the list, not as a missing key
+            msg, loc = f"{len(given)} values given ({list(given)}); value {loc[-1] + 1} is missing", loc[:-1]
+        path = ".".join(str(p) for p in loc) or "(top level)"
         lines.append(f"  {where}: {path}: {msg}")
     return "\n".join(lines)
 

@@ -175,6 +175,8 @@ def test_interrupt_keeps_the_journal(sim_config, monkeypatch, capsys):
         ({r'^mounting = "eye_in_hand"': "mounting = 'eye_in_hand'\nreplay = 'x.jsonl'"}, "exactly one of [acquisition]"),
         ({r"^quaternion_wxyz = .*$": "quaternion_wxyz = [1.0, 1.0, 0.0, 0.0]"}, "nominal_transform.quaternion_wxyz"),
         ({r"^\[sphere\]": "[sphere"}, "not valid TOML"),
+        ({r"^sphere_centre_mm = .*$": "sphere_centre_mm = [1000.0, 0.0]"},
+         "acquisition.sphere_centre_mm: 2 values given ([1000.0, 0.0]); value 3 is missing"),
         ({r"^\[acquisition\]$": "[acquisition]\nreference_flange_quaternion_wxyz = [0, 0, 2, 0]"},
          "acquisition.reference_flange_quaternion_wxyz: Value error, quaternion [0.0, 0.0, 2.0, 0.0] has norm 2.000000"),
         ({r"^\[calibration\]$": "[calibration]\nnominal_transform = {translation_mm = [0, 0, 0], quaternion_wxyz = [1, 0, 0, 0]}"},
