@@ -263,7 +263,7 @@ def _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinemati
     joints_known = problem.q_rad is not None
     # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
     table_keep, table_flags, pairs, moved = screen_table(problem)
-    for f in joint_flags:
+    for f in joint_flags + _copied_profiles(problem):
         i = int(np.flatnonzero(problem.obs_index == f.index)[0])
         if table_keep[i]:
             table_keep[i] = False
@@ -364,6 +364,25 @@ def joints_against_poses(problem: Problem, kinematics: ArmKinematics, opt: Calib
             f"{tol_mm:g} mm and {tol_deg:g} deg expected): joints in radians or not in the controller's convention, "
             "read at another moment than the poses, or another robot's model")
     return JointPoseCheck(bool(bad.sum() > 0.5 * len(bad)), text, shots)
+
+
+def _copied_profiles(problem: Problem) -> list[ObservationFlag]:
+    """Profiles equal point for point to an earlier observation's: no sensor measures the
+    same points twice to the last digit, so the shot was written twice (a file appended to
+    itself, a repeated line under a new index). Counted twice, it would shrink the stated
+    uncertainty; each copy after the first is flagged."""
+    first: dict[bytes, int] = {}
+    flags = []
+    for i, pts in enumerate(problem.profiles):
+        if problem.kinds[i] != KIND_PROFILE or len(pts) == 0:
+            continue
+        key = np.ascontiguousarray(pts, dtype=float).tobytes()
+        if key in first:
+            flags.append(_flag(problem, i, f"its profile is observation {int(problem.obs_index[first[key]])}'s, "
+                                           "point for point: the same shot written twice?"))
+        else:
+            first[key] = i
+    return flags
 
 
 def _with_joints_note(solution: Solution, note: str | None) -> Solution:

@@ -371,3 +371,18 @@ def test_orientation_readings_noisier_than_assumed_are_taken_as_the_stations_sho
     rot, trans = errors(cell, result)  # (0.16 deg with this noise: within its stated uncertainty, and said)
     assert rot < 3 * np.linalg.norm(result.std_rotation_deg) and trans < 3 * np.linalg.norm(result.std_translation_mm)
     assert trans < 0.3, trans
+
+
+def test_a_shot_written_twice_is_counted_once():
+    """The same profile under a second index (a file appended to itself, a line repeated):
+    no sensor gives the same points twice, so the copy is flagged and left out, and the
+    result is the one without it (counted twice, it shrank the stated uncertainty)."""
+    cell = cell_for(3, mounting="eye_in_hand")
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    copy = ds.observations[5].model_copy(update={"index": 1000})
+    doubled = ds.model_copy(update={"observations": [*ds.observations, copy]})
+    once, twice = solve(ds).result, solve(doubled).result
+    (flag,) = twice.flagged
+    assert flag.index == 1000 and flag.reason.startswith(f"its profile is observation {ds.observations[5].index}'s")
+    assert np.allclose(twice.transform.as_matrix(), once.transform.as_matrix(), atol=1e-9)
+    assert np.allclose(twice.std_translation_mm, once.std_translation_mm, rtol=1e-6)
