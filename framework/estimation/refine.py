@@ -677,6 +677,9 @@ def _reml_search(evaluate, x0, lower, upper, max_iterations: int = 60):
 #: no longer the linearisation's (seen with 0.02 deg of orientation read noise in
 #: eye-to-hand: steps of 1-2.5 % of a sd cut to 1/256, fifty times over, "not converged").
 STALLED_STEP_SHARE = 0.05
+#: ... after this many cut steps in a row (a step cut once near the end of a normal
+#: convergence leaves the tolerance to end it, as before).
+STALLED_CUT_STEPS = 3
 
 
 #: Grid points per free station scale where the covariance is averaged over the scales'
@@ -980,6 +983,7 @@ def refine(
         lin = None
         near = False  # scales are re-estimated only near a solution, where the linearisation holds
         first_small = False  # the pass's first step was already below the tolerance
+        cut_steps = 0  # Gauss-Newton steps in a row that the line search had to cut
         converged = False  # (of this pass: an earlier pass's convergence says nothing of this one)
         if m_centres:
             centre_cov_frozen = None
@@ -1088,10 +1092,11 @@ def refine(
             small = np.abs(frac * step[:3]).max() < tolerance and np.abs(frac * step[3:]).max() < tolerance * 1e3
             if any_random:
                 small = small and step_delta < tolerance * 1e3
-            if not small and frac < 1.0:
-                # Gauss-Newton stalled (its step raised the cost and was cut): converged when the
-                # whole step is a sliver of each parameter's standard deviation (the cost's
-                # curvature there is not the linearisation's, and the steps would go on shrinking)
+            cut_steps = cut_steps + 1 if frac < 1.0 else 0
+            if not small and cut_steps >= STALLED_CUT_STEPS:
+                # Gauss-Newton stalled (its steps raise the cost and are cut, again and again):
+                # converged when the whole step is a sliver of each parameter's standard
+                # deviation (the cost's curvature there is not the linearisation's)
                 sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:n_par], 0.0))
                 small = bool(np.all(np.abs(step) <= STALLED_STEP_SHARE * sd))
             if it == 1:
