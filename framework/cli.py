@@ -212,8 +212,10 @@ def cmd_calibrate(args) -> int:
     _say(summary(outcome.solution, outcome.verdict))
     _result_json(outcome.solution.result, outcome.verdict, outcome.exports_written)
     if loaded.config.validation is not None and outcome.verdict.level != "red":
-        folder = f" -o {_shell_word(str(args.out))}" if args.out else ""  # (the run validate is to check)
-        _say(f"acceptance test: spherecal validate {_shell_word(str(args.config))}{folder} (its figures then join "
+        from shlex import quote  # (a command to copy: paths quoted where they need it)
+
+        folder = f" -o {quote(str(args.out))}" if args.out else ""  # (the run validate is to check)
+        _say(f"acceptance test: spherecal validate {quote(str(args.config))}{folder} (its figures then join "
              "this verdict, in the terminal and the report)")
     from . import dataio
 
@@ -241,13 +243,6 @@ def _finish(out: Path, graded, written: bool, force: str = "--force", report: bo
               f"and run again, or give {force} to write them anyway")
     _err("the result is RED (exit 7): see the verdict" + ("" if _session.json else " above"))
     return EXIT_RED
-
-
-def _shell_word(text: str) -> str:
-    """``text`` as one word of a shell command to copy (quoted where it needs to be)."""
-    import shlex
-
-    return shlex.quote(text)
 
 
 def cmd_solve(args) -> int:

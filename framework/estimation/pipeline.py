@@ -710,9 +710,9 @@ def _after_screening(exc: DegenerateDataError, problem: Problem, left: Problem,
     dropped = sorted(set(problem.station_labels) - set(left.station_labels))
     if not dropped:
         return exc
-    reasons = _left_out_summary([f for f in flags if f.station in dropped])
-    todo = ("; " + _NOISY_HINT if _dominant_kind([f for f in flags if f.station in dropped]) == _NOISY_KIND
-            else "")
+    theirs = [f for f in flags if f.station in dropped]
+    reasons = _left_out_summary(theirs)
+    todo = "; " + _NOISY_HINT if _dominant_kind(theirs) == _NOISY_KIND else ""
     return DegenerateDataError(
         f"the screening left out station(s) {', '.join(dropped)} ({reasons}), and the station(s) left "
         f"({', '.join(left.station_labels)}) cannot determine the transform: {exc}. Fix what left them out "
@@ -745,7 +745,8 @@ def _left_out_summary(flags: list[ObservationFlag]) -> str:
     """``21 x points do not lie on a circle; 9 x too few usable profiles left in the station``."""
     why: dict[str, int] = {}
     for f in flags:
-        why[_flag_kind(f.reason)] = why.get(_flag_kind(f.reason), 0) + 1
+        kind = _flag_kind(f.reason)
+        why[kind] = why.get(kind, 0) + 1
     return "; ".join(f"{n} x {kind}" for kind, n in sorted(why.items(), key=lambda kv: -kv[1])[:3])
 
 
