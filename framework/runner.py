@@ -790,14 +790,9 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
             return None
         return None if is_absurd(res) else res
 
-    poses = [o.base_from_flange for o in dataset.observations]
-    if all(p is not None for p in poses):
+    if all(o.base_from_flange is not None for o in dataset.observations):
         log(f"{what}: trying the quaternions as (x, y, z, w)")
-        swapped = [o.model_copy(update={"base_from_flange": Pose(
-            translation_mm=o.base_from_flange.translation_mm,
-            quaternion_wxyz=np.roll(np.asarray(o.base_from_flange.quaternion_wxyz, float), 1))})
-            for o in dataset.observations]
-        alt = fits(dataset.model_copy(update={"observations": swapped}))
+        alt = fits(_quaternions_read_xyzw(dataset))
         if alt is not None:
             return ("the poses' quaternions are probably written (x, y, z, w): read that way the same data fit, with "
                     f"residual RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt):.2f} x the expected). spherecal "
@@ -810,6 +805,39 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
         return (f"the dataset's mounting is probably wrong: it says {dataset.mounting}, but solved as {other} the "
                 f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt):.2f} x the "
                 "expected). Check the sensor's mounting and the 'mounting' of the configuration or dataset")
+    return _station_quaternions_xyzw(dataset, options, fk, log, kinematics, what,
+                                     lambda res: not is_absurd(res))
+
+
+def _quaternions_read_xyzw(dataset: Dataset, station: str | None = None) -> Dataset:
+    """``dataset`` with its poses' quaternions (or one station's) taken as written
+    (x, y, z, w): the w-first reading of a pose written scalar last, undone."""
+    return dataset.model_copy(update={"observations": [
+        o.model_copy(update={"base_from_flange": Pose(
+            translation_mm=o.base_from_flange.translation_mm,
+            quaternion_wxyz=np.roll(np.asarray(o.base_from_flange.quaternion_wxyz, float), 1))})
+        if station is None or o.station == station else o for o in dataset.observations]})
+
+
+def _station_quaternions_xyzw(dataset: Dataset, options: CalibrationOptions, fk, log, kinematics, what: str,
+                              good: Callable) -> str | None:
+    """The station whose quaternions, read (x, y, z, w), make the result ``good`` (one
+    solve a station, only for a result that failed): a station's poses exported by
+    another tool. The sentence naming it, or None."""
+    if any(o.base_from_flange is None for o in dataset.observations):
+        return None
+    labels = list(dict.fromkeys(o.station for o in dataset.observations))
+    log(f"{what}: trying each station's quaternions as (x, y, z, w)")
+    for label in labels:
+        try:
+            alt = solve(_quaternions_read_xyzw(dataset, label), options.model_copy(update={"nominal_transform": None}),
+                        fk, kinematics=kinematics).result
+        except SpherecalError:
+            continue
+        if good(alt):
+            return (f"station {label}'s quaternions are probably written (x, y, z, w): read that way the stations fit "
+                    f"together (residual RMS {alt.residuals.rms_mm:.4f} mm). spherecal reads base_from_flange "
+                    "quaternions w first, as ABB writes them (docs/conventions.md): convert that station's poses")
     return None
 
 
@@ -861,6 +889,14 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     re = result.robot_error
     if not causes and re is not None and len(dataset.observations) and re.station_translation_mm > 0.1:
         causes.extend(_odd_station(solution, dataset, options, fk, log, th, kinematics))
+        if not causes:
+            spread = re.station_translation_mm
+            cause = _station_quaternions_xyzw(
+                dataset, options, fk, log, kinematics, f"the stations disagree by {spread:.3f} mm",
+                lambda alt: verdict(alt, th).level != "red" and alt.robot_error is not None
+                and alt.robot_error.station_translation_mm < spread / 3)
+            if cause is not None:
+                causes.append(cause)
     if causes:
         v.reasons.extend(("red", "likely cause: " + c) for c in causes)
         v.headline = f"{v.headline} Likely cause: {causes[0].split(':')[0]}."

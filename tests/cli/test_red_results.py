@@ -208,3 +208,21 @@ def test_eye_to_hand_data_labelled_eye_in_hand_is_named(tmp_path, capsys):
     assert code in (EXIT_DATA, EXIT_RED)
     assert "the dataset's mounting is probably wrong: it says eye_in_hand, but solved as eye_to_hand" in text
     assert "internal error" not in text
+
+
+@pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
+def test_one_station_s_quaternions_written_scalar_last_are_named(tmp_path, capsys, mounting):
+    """Station S2's poses written (x, y, z, w), the others w first (poses gathered from two
+    tools): the fit breaks down (eye-in-hand) or the stations disagree (eye-to-hand, RED);
+    either way the station is named, found by reading its quaternions the other way."""
+    cell = standard_cell(mounting, seed=0, fov=reference_fov(n_columns=160))
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    obs = [o.model_copy(update={"base_from_flange": o.base_from_flange.model_copy(update={
+        "quaternion_wxyz": np.roll(np.asarray(o.base_from_flange.quaternion_wxyz), -1)})}) if o.station == "S2" else o
+        for o in ds.observations]
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, ds.model_copy(update={"observations": obs}))
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    text = "".join(capsys.readouterr())
+    assert code in (EXIT_DATA, EXIT_RED)
+    assert "station S2's quaternions are probably written (x, y, z, w): read that way the stations fit together" in text
