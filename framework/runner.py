@@ -784,11 +784,8 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
     from .report.assess import absurd_ratio, is_absurd
 
     def fits(ds: Dataset):
-        try:
-            res = solve(ds, options.model_copy(update={"nominal_transform": None}), fk, kinematics=kinematics).result
-        except SpherecalError:
-            return None
-        return None if is_absurd(res) else res
+        res = _solved_other_way(ds, options, fk, kinematics)
+        return None if res is None or is_absurd(res) else res
 
     if all(o.base_from_flange is not None for o in dataset.observations):
         log(f"{what}: trying the quaternions as (x, y, z, w)")
@@ -807,6 +804,16 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
                 "expected). Check the sensor's mounting and the 'mounting' of the configuration or dataset")
     return _station_quaternions_xyzw(dataset, options, fk, log, kinematics, what,
                                      lambda res: not is_absurd(res))
+
+
+def _solved_other_way(dataset: Dataset, options: CalibrationOptions, fk, kinematics):
+    """The result of ``dataset`` (read another way than given), without the nominal
+    transform (it was given for the data as first read); None when it cannot be solved."""
+    try:
+        return solve(dataset, options.model_copy(update={"nominal_transform": None}), fk,
+                     kinematics=kinematics).result
+    except SpherecalError:
+        return None
 
 
 def _quaternions_read_xyzw(dataset: Dataset, station: str | None = None) -> Dataset:
@@ -829,12 +836,8 @@ def _station_quaternions_xyzw(dataset: Dataset, options: CalibrationOptions, fk,
     labels = list(dict.fromkeys(o.station for o in dataset.observations))
     log(f"{what}: trying each station's quaternions as (x, y, z, w)")
     for label in labels:
-        try:
-            alt = solve(_quaternions_read_xyzw(dataset, label), options.model_copy(update={"nominal_transform": None}),
-                        fk, kinematics=kinematics).result
-        except SpherecalError:
-            continue
-        if good(alt):
+        alt = _solved_other_way(_quaternions_read_xyzw(dataset, label), options, fk, kinematics)
+        if alt is not None and good(alt):
             return (f"station {label}'s quaternions are probably written (x, y, z, w): read that way the stations fit "
                     f"together (residual RMS {alt.residuals.rms_mm:.4f} mm). spherecal reads base_from_flange "
                     "quaternions w first, as ABB writes them (docs/conventions.md): convert that station's poses")
@@ -868,8 +871,10 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     result = solution.result
     ratio = result.residuals.rms_mm / expected_rms_mm(result, th)
     causes: list[str] = []
-    if is_absurd(result, th):
-        cause = _breakdown_cause(dataset, options, fk, log, kinematics, f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected)")
+    absurd = is_absurd(result, th)
+    if absurd:
+        cause = _breakdown_cause(dataset, options, fk, log, kinematics,
+                                 f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected)")
         if cause is not None:
             causes.append(cause)
     if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
@@ -889,7 +894,7 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     re = result.robot_error
     if not causes and re is not None and len(dataset.observations) and re.station_translation_mm > 0.1:
         causes.extend(_odd_station(solution, dataset, options, fk, log, th, kinematics))
-        if not causes:
+        if not causes and not absurd:  # (an absurd result has had its stations read the other way already)
             spread = re.station_translation_mm
             cause = _station_quaternions_xyzw(
                 dataset, options, fk, log, kinematics, f"the stations disagree by {spread:.3f} mm",
