@@ -54,16 +54,16 @@ from pathlib import Path
 
 import numpy as np
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.problem import build_problem
 from spherecal.estimation.refine import NoiseAssumptions, cramer_rao_bound
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell
-from spherecal.validation import points_in_object_frame
+from spherecal.motion.validation import points_in_object_frame
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/reference_sensor.py
 from reference_sensor import reference_fov  # noqa: E402 (after the path) the reference sensor's field of view

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.centres import circles_from_profiles
 from spherecal.plugins.host import PluginHost

@@ -17,7 +17,7 @@ parameters: the simulated arm's error, with what the data cannot see absorbed as
 transform and sphere absorb it); transform errors against the truth; median solve time.
 
 With ``--plan planner`` the calibration stations are the kinematic planner's
-(``spherecal.kinplan``, for the example cells' nominal transform and sphere) instead of the
+(``spherecal.motion.kinematic_plan``, for the example cells' nominal transform and sphere) instead of the
 hand-written spread.
 
 Run:  python benchmarks/bench_kinematic.py [--seeds 30] [--mounting both] [--sag] [--plan planner]
@@ -32,14 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
-from spherecal.kinematics import chain_with_errors, corrected_flange_poses, error_tilt_basis, flange_error_jacobian
-from spherecal.models import Pose
+from spherecal.core.kinematics import chain_with_errors, corrected_flange_poses, error_tilt_basis, flange_error_jacobian
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
-from spherecal.validation import points_in_object_frame
+from spherecal.motion.validation import points_in_object_frame
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # tests/reference_sensor.py
 from reference_sensor import reference_fov  # noqa: E402 (after the path) the reference sensor's field of view
@@ -61,14 +61,14 @@ REACH = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (30.0, 40.0)}
 
 
 def planned(mode: str, kin) -> SweepPlan:
-    """The kinematic planner's 20 stations (spherecal.kinplan) for the example cell of
+    """The kinematic planner's 20 stations (spherecal.motion.kinematic_plan) for the example cell of
     ``mode`` (its nominal transform and rough sphere), 8 profiles each."""
     import re
     import tempfile
     from pathlib import Path
 
     from spherecal.config import load_config
-    from spherecal.kinplan import plan_kinematic_stations
+    from spherecal.motion.kinematic_plan import plan_kinematic_stations
 
     text = (Path(__file__).resolve().parents[1] / "examples" / f"sim-{mode.replace('_', '-')}.toml").read_text()
     text = re.sub(r"(?m)^profiles_per_station = .*$", "profiles_per_station = 8\nstation_offsets_mm = "
@@ -78,7 +78,7 @@ def planned(mode: str, kin) -> SweepPlan:
         path.write_text(text + "\n[acquisition.kinematic_plan]\nstations = 20\n" if "[acquisition.kinematic_plan]"
                         not in text else text)
         from spherecal.plugins.host import PluginHost
-        from spherecal.runner import configured_for_sensor
+        from spherecal.app.runner import configured_for_sensor
 
         loaded, _ = configured_for_sensor(load_config(path), PluginHost())  # the sweep's standoff: the sensor's
         return plan_kinematic_stations(loaded.config, kin).sweep

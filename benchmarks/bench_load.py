@@ -1,4 +1,4 @@
-"""How fast a dataset file loads and saves (spherecal.dataio).
+"""How fast a dataset file loads and saves (spherecal.io.dataset).
 
 Builds a dataset of 1,000 profiles of 1,000 points (an arc of a 19.05 mm sphere with
 10 um noise, every value at full double precision, the worst case for parsing; and the
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spherecal import dataio
-from spherecal.models import Dataset, Observation, Pose, Profile
+from spherecal.io import dataset as dataio
+from spherecal.core.models import Dataset, Observation, Pose, Profile
 
 
 def make_dataset(n_profiles: int, n_points: int, resolution_mm: float | None, seed: int = 0) -> Dataset:

@@ -1,4 +1,4 @@
-"""Throughput of profile mapping (spherecal.mapping) on ONE core.
+"""Throughput of profile mapping (spherecal.core.mapping) on ONE core.
 
 Maps n profiles of m points (y, z) into base with one transform per profile and reports
 the median over repeats of: points per second, the ratio to a plain copy of the same
@@ -22,8 +22,8 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from spherecal import geometry as geo  # noqa: E402
-from spherecal.mapping import NUMBA_AVAILABLE, map_profiles  # noqa: E402
+from spherecal.core import geometry as geo  # noqa: E402
+from spherecal.core.mapping import NUMBA_AVAILABLE, map_profiles  # noqa: E402
 
 PROFILER_RATE_PTS_PER_S = 3200 * 16000.0
 TARGET_PTS_PER_S = 100e6

@@ -21,7 +21,7 @@ linear solver shows about 10. Then ``spherecal solve --no-report`` is timed end 
 Python's cache of compiled modules as an install has it, beside the floor of importing
 NumPy and pydantic alone.
 
-The mapping figures: :func:`spherecal.mapping.map_profiles` with the NumPy backend (the
+The mapping figures: :func:`spherecal.core.mapping.map_profiles` with the NumPy backend (the
 default install has no numba) on 2,000 profiles x 3,200 points, median of ``--repeats``,
 in million points per second and as a fraction of the speed of a plain copy of the same
 output (``np.copyto``, the memory-bound limit). The targets (issue 13): at least 100 M
@@ -80,7 +80,7 @@ def dataset_file(cache: Path, per_station: int, columns: int) -> Path:
     path = cache / f"scale-{per_station}x4-{columns}col-seed{SEED}.jsonl"
     if path.exists():
         return path
-    from spherecal import dataio
+    from spherecal.io import dataset as dataio
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -100,7 +100,7 @@ def child(path: str, mode: str) -> None:
     import resource
 
     _pin_one_cpu()
-    from spherecal import dataio
+    from spherecal.io import dataset as dataio
     from spherecal.estimation import CalibrationOptions, solve
 
     ds = dataio.read_dataset(path)
@@ -212,8 +212,8 @@ def report_time(cache: Path) -> None:
 def mapping_table(repeats: int) -> None:
     import numpy as np
 
-    from spherecal import geometry as geo
-    from spherecal.mapping import map_profiles
+    from spherecal.core import geometry as geo
+    from spherecal.core.mapping import map_profiles
 
     def median_s(fn) -> tuple[float, float]:
         """Median wall and median CPU seconds of one call."""

@@ -16,14 +16,14 @@ from pathlib import Path
 #: fixtures and harnesses (plugins.testing), the hooks (plugins.hookspecs), the exporters
 #: and the geometry helpers.
 API_MODULES = (
-    "spherecal.models",
-    "spherecal.devices",
+    "spherecal.core.models",
+    "spherecal.devices.contract",
     "spherecal.sim",
-    "spherecal.planning",
+    "spherecal.motion.planning",
     "spherecal.plugins.testing",
     "spherecal.plugins.hookspecs",
-    "spherecal.exporters",
-    "spherecal.geometry",
+    "spherecal.io.exporters",
+    "spherecal.core.geometry",
 )
 
 

@@ -5,3 +5,7 @@ Conventions (frames, transform direction, units, quaternion order) are stated on
 """
 
 __version__ = "0.1.0"
+
+from spherecal import _moved
+
+_moved.install()

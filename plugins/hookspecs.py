@@ -38,7 +38,7 @@ from . import hookspec
 if TYPE_CHECKING:  # pragma: no cover - imports for the annotations only
     from pathlib import Path
 
-    from spherecal.models import CalibrationResult, Dataset, Observation
+    from spherecal.core.models import CalibrationResult, Dataset, Observation
 
     from .host import DeviceRegistry, ExporterRegistry
 
@@ -49,18 +49,18 @@ def spherecal_register_devices(registry: "DeviceRegistry") -> None:
 
     :param registry: the host's device registry. Call
         ``registry.add_robot(RobotType(...))`` and ``registry.add_sensor(SensorType(...))``
-        (both from :mod:`spherecal.devices`) once per type.
+        (both from :mod:`spherecal.devices.contract`) once per type.
     :return: nothing; the return value is ignored.
 
     Called once per plugin, while the host is being built, after every plugin has been
     loaded and checked and before any configuration is validated.
 
     A type name must be unique across all installed plugins: registering a name another
-    plugin already registered is a :class:`~spherecal.errors.PluginError` naming both
+    plugin already registered is a :class:`~spherecal.core.errors.PluginError` naming both
     plugins. Each type's ``config_model`` must be a pydantic model with
     ``extra="forbid"`` and without a field called ``type`` (``type`` selects the device in
     a configuration section). An exception raised here is reported as a
-    :class:`~spherecal.errors.PluginError` naming the plugin; the host is then not built.
+    :class:`~spherecal.core.errors.PluginError` naming the plugin; the host is then not built.
 
     No spec flags: every plugin's implementation is called.
     """
@@ -71,7 +71,7 @@ def spherecal_register_exporters(registry: "ExporterRegistry") -> None:
     """Add the exporters this plugin provides.
 
     :param registry: the host's exporter registry. Call
-        ``registry.add_exporter(Exporter(...))`` (:class:`spherecal.exporters.Exporter`)
+        ``registry.add_exporter(Exporter(...))`` (:class:`spherecal.io.exporters.Exporter`)
         once per exporter: its name, the files it writes (templates such as
         ``"{module_name}.mod"``), a pure ``write(result, settings)`` returning their text,
         its settings model (validated from ``[export.<name>]``), the mounting modes and
@@ -84,7 +84,7 @@ def spherecal_register_exporters(registry: "ExporterRegistry") -> None:
     plugins, lower case letters, digits and underscores, and not ``run``; its
     ``settings_model`` must be a pydantic model with ``extra="forbid"``; its file-name
     templates may use only ``{transform_name}``, ``{mounting}`` and the settings' fields.
-    Anything else is a :class:`~spherecal.errors.PluginError` naming the plugin; the host
+    Anything else is a :class:`~spherecal.core.errors.PluginError` naming the plugin; the host
     is then not built.
 
     Which exporters run is the user's choice (``[export] run``, default every one that
@@ -100,7 +100,7 @@ def spherecal_observation_taken(observation: "Observation", robot_type: "str | N
                                 sensor_type: "str | None") -> None:
     """Be told about each observation as soon as it has been acquired.
 
-    :param observation: the new :class:`spherecal.models.Observation`: the flange pose as
+    :param observation: the new :class:`spherecal.core.models.Observation`: the flange pose as
         the robot reported it (``base_from_flange``, quaternion (w, x, y, z)), the joints
         if any (degrees, controller convention) and the profile (y, z in mm, sensor frame).
         It is frozen; do not try to change it.
@@ -111,7 +111,7 @@ def spherecal_observation_taken(observation: "Observation", robot_type: "str | N
     Called by the acquisition once per shot that produced a profile, in acquisition order,
     while the robot stands at that pose. Keep it quick (it holds up the acquisition). Use
     it for live display, logging or an external record of the acquisition. An exception
-    raised here stops the acquisition with a :class:`~spherecal.errors.PluginError` naming
+    raised here stops the acquisition with a :class:`~spherecal.core.errors.PluginError` naming
     the plugin.
 
     No spec flags: every plugin's implementation is called.
@@ -122,7 +122,7 @@ def spherecal_observation_taken(observation: "Observation", robot_type: "str | N
 def spherecal_acquisition_finished(dataset: "Dataset", robot_type: "str | None", sensor_type: "str | None") -> None:
     """Be told that an acquisition is complete, before the calibration runs.
 
-    :param dataset: the complete :class:`spherecal.models.Dataset` (mounting mode, sphere
+    :param dataset: the complete :class:`spherecal.core.models.Dataset` (mounting mode, sphere
         radius in mm, every observation in order, provenance).
     :param robot_type: the run's robot type name, None when not known.
     :param sensor_type: the run's sensor type name, None when not known.
@@ -130,7 +130,7 @@ def spherecal_acquisition_finished(dataset: "Dataset", robot_type: "str | None",
 
     Called once per acquisition, after the last observation and before the dataset is
     written or calibrated. Not called when the acquisition fails. An exception raised here
-    is a :class:`~spherecal.errors.PluginError` naming the plugin.
+    is a :class:`~spherecal.core.errors.PluginError` naming the plugin.
 
     No spec flags: every plugin's implementation is called.
     """
@@ -147,11 +147,11 @@ def spherecal_calibration_finished(
 ) -> None:
     """Be told the result of a calibration, once its files are written.
 
-    :param result: the :class:`spherecal.models.CalibrationResult`: ``transform`` is
+    :param result: the :class:`spherecal.core.models.CalibrationResult`: ``transform`` is
         ``flange_from_sensor`` (eye-in-hand) or ``base_from_sensor`` (eye-to-hand) as its
         ``transform_name`` says, quaternion (w, x, y, z), mm; with uncertainties and
         residuals.
-    :param dataset: the :class:`spherecal.models.Dataset` it was estimated from.
+    :param dataset: the :class:`spherecal.core.models.Dataset` it was estimated from.
     :param out_dir: the run's output folder (a :class:`pathlib.Path`), holding
         ``result.json``, the exports and ``report.html``; a plugin may write files of its
         own there (choose names no exporter uses, and do not overwrite). None when the
@@ -168,7 +168,7 @@ def spherecal_calibration_finished(
     the result, the exports and the report are written. For a file format every run
     should have, register an exporter instead (``spherecal_register_exporters``): the user
     can then choose it and set it up in ``[export]``. An exception raised here is a
-    :class:`~spherecal.errors.PluginError` naming the plugin.
+    :class:`~spherecal.core.errors.PluginError` naming the plugin.
 
     No spec flags: every plugin's implementation is called. An implementation may take any
     subset of the arguments, so one written for ``(result, dataset)`` keeps working.

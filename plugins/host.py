@@ -21,10 +21,10 @@ built-ins still load, and third-party ones can still be enabled by name (``enabl
 
 Errors
 ------
-Everything that can go wrong with a plugin is a :class:`~spherecal.errors.PluginError`
+Everything that can go wrong with a plugin is a :class:`~spherecal.core.errors.PluginError`
 naming the plugin (an import error, a misspelled hook, an exception in a hook, a bad or
 duplicate device type); a host either builds completely or raises. A bad configuration
-section is a :class:`~spherecal.errors.ConfigError` listing every problem with its
+section is a :class:`~spherecal.core.errors.ConfigError` listing every problem with its
 dotted path (``robot.workspace.max_x_mm: ...``).
 """
 
@@ -43,9 +43,9 @@ import pluggy
 from pydantic import BaseModel, ValidationError
 from pydantic_core import PydanticUndefined
 
-from spherecal.devices import RESERVED_OPTION_NAMES, DeviceContext, Robot, RobotType, Sensor, SensorType
-from spherecal.errors import ConfigError, PluginError, SpherecalError
-from spherecal.exporters import MOUNTINGS, TEMPLATE_FIELDS, Exporter, ExportPlan, SelectedExporter
+from spherecal.devices.contract import RESERVED_OPTION_NAMES, DeviceContext, Robot, RobotType, Sensor, SensorType
+from spherecal.core.errors import ConfigError, PluginError, SpherecalError
+from spherecal.io.exporters import MOUNTINGS, TEMPLATE_FIELDS, Exporter, ExportPlan, SelectedExporter
 
 from . import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
 from . import hookspecs as _hookspec_module
@@ -149,11 +149,11 @@ class DeviceRegistry:
 
     # used by plugins -------------------------------------------------------------------
     def add_robot(self, robot_type: RobotType) -> None:
-        """Register a :class:`~spherecal.devices.RobotType`. Its name must be new."""
+        """Register a :class:`~spherecal.devices.contract.RobotType`. Its name must be new."""
         self._add("robot", robot_type, RobotType, self._robots)
 
     def add_sensor(self, sensor_type: SensorType) -> None:
-        """Register a :class:`~spherecal.devices.SensorType`. Its name must be new."""
+        """Register a :class:`~spherecal.devices.contract.SensorType`. Its name must be new."""
         self._add("sensor", sensor_type, SensorType, self._sensors)
 
     # used by the host ------------------------------------------------------------------
@@ -205,7 +205,7 @@ class DeviceRegistry:
         if not isinstance(item, cls):
             raise PluginError(
                 f"plugin '{plugin}' passed {type(item).__name__} to {method}(); "
-                f"expected a spherecal.devices.{cls.__name__}"
+                f"expected a spherecal.devices.contract.{cls.__name__}"
             )
         name = item.name
         if not isinstance(name, str) or not _TYPE_NAME_RE.match(name):
@@ -275,12 +275,12 @@ class ExporterRegistry:
         self.not_loaded: tuple[str, ...] = ()
 
     def add_exporter(self, exporter: Exporter) -> None:
-        """Register a :class:`~spherecal.exporters.Exporter`. Its name must be new."""
+        """Register a :class:`~spherecal.io.exporters.Exporter`. Its name must be new."""
         plugin = self._current_plugin or "<unknown plugin>"
         where = f"plugin '{plugin}'"
         if not isinstance(exporter, Exporter):
             raise PluginError(f"{where} passed {type(exporter).__name__} to registry.add_exporter(); "
-                              "expected a spherecal.exporters.Exporter")
+                              "expected a spherecal.io.exporters.Exporter")
         name = exporter.name
         if not isinstance(name, str) or not _TYPE_NAME_RE.match(name) or name == EXPORT_RUN_KEY:
             raise PluginError(f"{where} registered an exporter named {name!r}; an exporter name must be lower case "
@@ -762,7 +762,7 @@ class PluginHost:
         :raises ConfigError: unknown type or invalid settings.
         :raises DeviceError: (and other spherecal errors) as the factory raised them.
         :raises PluginError: the factory raised anything else or returned something that
-            is not a :class:`~spherecal.devices.Robot`.
+            is not a :class:`~spherecal.devices.contract.Robot`.
         """
         type_name = self._type_of("robot", section, path)
         config = self.validate_robot_config(type_name, section, path, base_dir)
@@ -801,7 +801,7 @@ class PluginHost:
 
     def robot_kinematics(self, section: Mapping[str, Any], path: str = "robot", base_dir=None) -> Callable | None:
         """Forward kinematics of the configured robot, ``joints_deg -> base_from_flange``
-        (a :class:`~spherecal.models.Pose`, quaternion (w, x, y, z), mm), or None when the
+        (a :class:`~spherecal.core.models.Pose`, quaternion (w, x, y, z), mm), or None when the
         robot type has none. For ``spherecal.estimation.calibrate(..., flange_pose_from_joints=)``."""
         type_name = self._type_of("robot", section, path)
         config = self.validate_robot_config(type_name, section, path, base_dir)
@@ -815,7 +815,7 @@ class PluginHost:
         return flange_pose_from_joints
 
     def arm_kinematics(self, section: Mapping[str, Any], path: str = "robot", base_dir=None):
-        """The configured robot's :class:`~spherecal.kinematics.ArmKinematics` (its
+        """The configured robot's :class:`~spherecal.core.kinematics.ArmKinematics` (its
         nominal geometry, inverse kinematics and joint convention), or None when the
         robot type does not describe its arm."""
         type_name = self._type_of("robot", section, path)
@@ -836,7 +836,7 @@ class PluginHost:
         :param robot_type: the run's robot type, None when not known (then every exporter
             for the mounting applies).
         :param path: where the section sits in the configuration, for messages.
-        :return: an :class:`~spherecal.exporters.ExportPlan`: the robot's own exporters
+        :return: an :class:`~spherecal.io.exporters.ExportPlan`: the robot's own exporters
             first, then the others by name; ``left_out`` says why an exporter that would
             have run by default did not (its required settings are missing).
         :raises ConfigError: an unknown exporter (listed or with a settings table), one

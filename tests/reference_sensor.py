@@ -2,7 +2,7 @@
 
 The simulator knows no sensor: a cell is given the field of view of the sensor it
 simulates. The tests' cells use the nxSensor-I's, read from its sensor type through the
-plugin host as a run reads it (``spherecal.runner.sensor_field_of_view``); the reference
+plugin host as a run reads it (``spherecal.app.runner.sensor_field_of_view``); the reference
 results under tests/core/data were made with it. This module is the one place the tests
 name it. (It is importable from every test folder: pytest puts tests/ on the path for
 tests/conftest.py. Outside pytest, put it there yourself: ``PYTHONPATH=tests``.)
@@ -27,7 +27,7 @@ def _declared():
 
 
 def reference_fov(**update):
-    """The reference sensor's declared :class:`~spherecal.devices.SensorFieldOfView`,
+    """The reference sensor's declared :class:`~spherecal.devices.contract.SensorFieldOfView`,
     with the fields in ``update`` replaced (``reference_fov(n_columns=160)``)."""
     fov = _declared()
     return fov.model_copy(update=update) if update else fov

@@ -17,8 +17,8 @@ import sys
 
 import numpy as np
 
-from spherecal.devices import DeviceContext
-from spherecal.models import Dataset, Observation, Pose
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.models import Dataset, Observation, Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import plan_stations, standard_cell
 
@@ -28,7 +28,7 @@ SENSOR_SECTION = {"type": "example_profiler", "min_points": 20}
 
 def nominal_guess(true: Pose, rng: np.random.Generator) -> Pose:
     """What a user would put in the configuration: the truth off by a few mm and a degree."""
-    from spherecal.geometry import matrix_from_rotvec
+    from spherecal.core.geometry import matrix_from_rotvec
 
     R = matrix_from_rotvec(np.radians(rng.normal(0.0, 0.7, 3))) @ true.rotation_matrix
     return Pose.from_rt(R, true.translation + rng.normal(0.0, 2.0, 3))

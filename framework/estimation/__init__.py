@@ -13,6 +13,6 @@ Centre observations (a circle fitted on board, a sphere centre from a table) joi
 step beside the profiles; :mod:`.centres` checks a typed table row by row.
 """
 
-from .pipeline import CalibrationOptions, Solution, calibrate, solve
+from spherecal.estimation.pipeline import CalibrationOptions, Solution, calibrate, solve
 
 __all__ = ["CalibrationOptions", "Solution", "calibrate", "solve"]

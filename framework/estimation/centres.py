@@ -4,7 +4,7 @@ A table typed by hand (a published experiment, an integrator's log) has typos. W
 typo does and what catches it, naming the row (the observation index):
 
 - a quaternion that is not unit beyond rounding: refused when the file is read
-  (:class:`spherecal.models.Pose`, norm within 1e-3);
+  (:class:`spherecal.core.models.Pose`, norm within 1e-3);
 - a translation in metres among millimetres (robot pose, sphere centre or circle): the
   row's magnitude is hundreds of times below the other rows' (:func:`screen_table`);
 - a circle larger than the sphere: not the sphere, or the radius in other units;
@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models import ObservationFlag
-from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, unknown_variances
-from .robust import median
+from spherecal.core.models import ObservationFlag
+from spherecal.estimation.problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, unknown_variances
+from spherecal.estimation.robust import median
 
 __all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out_sizes", "with_leave_one_out_size",
            "within_station_noise", "circles_from_profiles"]
@@ -288,7 +288,7 @@ def settle_pairs(problem: Problem, pairs: list[tuple[int, int]], R, t, centre, n
     ``problem``). A row's chi^2 (3 dof) is that of its centre residual under its given
     covariance, else ``noise_mm`` per axis; ``limit`` is the chi^2 above which a row
     disagrees."""
-    from .twostep import centre_residuals
+    from spherecal.estimation.twostep import centre_residuals
 
     e = centre_residuals(problem, R, t, centre)
     out = []
@@ -314,7 +314,7 @@ def leave_one_out_sizes(problem: Problem, rows, R, t, centre, used: np.ndarray) 
     (a boolean mask), so the robot's error common to the station does not count. A 2 mm
     typo in one coordinate reads about 2 mm, a sign flipped in a pose's 150 mm component
     about 300 mm."""
-    from .twostep import centre_residuals
+    from spherecal.estimation.twostep import centre_residuals
 
     e = centre_residuals(problem, R, t, centre)
     out = {}
@@ -339,8 +339,8 @@ def circles_from_profiles(dataset, min_points: int = 20, max_rms_mm: float = 0.5
     standard deviations left to the estimator. Profiles with fewer than ``min_points``
     points or a poor fit (rms above ``max_rms_mm``) are dropped, as such a sensor would
     report nothing. Other observations are kept as they are."""
-    from ..models import Circle, Dataset
-    from .circle import fit_circle
+    from spherecal.core.models import Circle, Dataset
+    from spherecal.estimation.circle import fit_circle
 
     out = []
     for o in dataset.observations:

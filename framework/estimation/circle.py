@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .blocks import BLOCK_POINTS, profile_blocks
+from spherecal.estimation.blocks import BLOCK_POINTS, profile_blocks
 
 
 @dataclass(frozen=True)

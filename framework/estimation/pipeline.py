@@ -9,25 +9,25 @@ from typing import Callable, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .. import geometry as geo
-from ..errors import DegenerateDataError, FitBreakdownError, InputError
-from ..kinematics import ArmKinematics
-from ..models import (
+from spherecal.core import geometry as geo
+from spherecal.core.errors import DegenerateDataError, FitBreakdownError, InputError
+from spherecal.core.kinematics import ArmKinematics
+from spherecal.core.models import (
     SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, KinematicParameter, ObservationFlag, Pose, ResidualStats,
     RobotErrorSummary,
 )
-from .circle import CircleFit, fit_circles
-from .prediction import point_error_budget
-from .problem import (
+from spherecal.estimation.circle import CircleFit, fit_circles
+from spherecal.estimation.prediction import point_error_budget
+from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, build_problem,
     derived_station_rotation_tolerance_deg, fill_unknown, screen_station_orientations,
 )
-from .refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
-from .centres import (
+from spherecal.estimation.refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
+from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
-from .robust import median, percentile
-from .twostep import CentreShot, TwoStepResult, two_step
+from spherecal.estimation.robust import median, percentile
+from spherecal.estimation.twostep import CentreShot, TwoStepResult, two_step
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
 CHI2_3DOF_1E4 = 21.108
@@ -202,10 +202,10 @@ def solve(
     kinematics: ArmKinematics | None = None,
 ) -> Solution:
     """Calibrate ``dataset``; see the package docstring for the steps. ``kinematics``
-    (the robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) gives flange poses
+    (the robot plugin's :class:`~spherecal.core.kinematics.ArmKinematics`) gives flange poses
     from joint readings where a pose is missing, and, with joints on every observation,
     the kinematic robot error model. Data so far from the model that its linear algebra
-    breaks down (a singular matrix) raise :class:`~spherecal.errors.FitBreakdownError` naming the usual
+    breaks down (a singular matrix) raise :class:`~spherecal.core.errors.FitBreakdownError` naming the usual
     causes (:data:`BREAKDOWN_CAUSES`), never a bare NumPy error."""
     try:
         solution = _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinematics)

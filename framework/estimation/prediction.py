@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import geometry as geo
-from .problem import Problem
-from .refine import NoiseAssumptions, RefineResult, _pose_cov
+from spherecal.core import geometry as geo
+from spherecal.estimation.problem import Problem
+from spherecal.estimation.refine import NoiseAssumptions, RefineResult, _pose_cov
 
 
 def _jacobians(problem: Problem, R: np.ndarray, t: np.ndarray, p: np.ndarray):

@@ -14,10 +14,10 @@ from typing import Callable
 
 import numpy as np
 
-from .. import geometry as geo
-from ..errors import DegenerateDataError, InputError, SpherecalError
-from ..models import Dataset, ObservationFlag, Pose
-from .robust import median
+from spherecal.core import geometry as geo
+from spherecal.core.errors import DegenerateDataError, InputError, SpherecalError
+from spherecal.core.models import Dataset, ObservationFlag, Pose
+from spherecal.estimation.robust import median
 
 
 #: Kinds of shot in :attr:`Problem.kind`.

@@ -23,12 +23,12 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import geometry as geo
-from ..kinematics import (
+from spherecal.core import geometry as geo
+from spherecal.core.kinematics import (
     SerialChain, chain_with_errors, error_parameter_names, flange_corrections, flange_error_jacobian,
 )
-from .blocks import BLOCK_POINTS, profile_blocks
-from .problem import (
+from spherecal.estimation.blocks import BLOCK_POINTS, profile_blocks
+from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, sphere_frame_from_base, unknown_variances,
 )
 
@@ -440,7 +440,7 @@ class KinematicEffects:
     """Systematic robot error as the arm's geometric error (needs each shot's joints).
 
     The flange pose of shot i is off by ``K(q_i) kappa``: ``kappa`` (6 per joint, see
-    :mod:`spherecal.kinematics`) are the arm's joint zero offsets, joint origin
+    :mod:`spherecal.core.kinematics`) are the arm's joint zero offsets, joint origin
     displacements and axis tilts, ``K`` their first-order effect on the flange pose at the
     shot's joints, applied exactly through the chain. Unlike a per-station offset, this
     ties the error of every shot to every other through the arm's geometry, including its

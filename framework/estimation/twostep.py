@@ -28,11 +28,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import geometry as geo
-from ..errors import DegenerateDataError
-from ..mapping import map_profile_list
-from .circle import CircleFit, half_chord_depth
-from .problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
+from spherecal.core import geometry as geo
+from spherecal.core.errors import DegenerateDataError
+from spherecal.core.mapping import map_profile_list
+from spherecal.estimation.circle import CircleFit, half_chord_depth
+from spherecal.estimation.problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
 #: Relative singular value under which a direction counts as not excited.
 RANK_TOLERANCE = 0.05

@@ -1,6 +1,6 @@
 """Is this calibration good, and what to do when it is not.
 
-:func:`verdict` grades a :class:`~spherecal.models.CalibrationResult` green, amber or
+:func:`verdict` grades a :class:`~spherecal.core.models.CalibrationResult` green, amber or
 red; :func:`advice` turns its diagnostics into things to do. Both read only the result,
 so they work on a result file as well as on a fresh solution. The limits are
 :class:`Thresholds` (mm and degrees); the defaults suit an IRB 2400-sized robot with a
@@ -20,8 +20,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from ..estimation.robust import median
-from ..models import CalibrationResult
+from spherecal.estimation.robust import median
+from spherecal.core.models import CalibrationResult
 
 #: The distance from the sensor (mm, along its line of sight) of the point whose
 #: uncertainty the report gives when ``[report] point_distance_mm`` is not set.

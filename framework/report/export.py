@@ -1,4 +1,4 @@
-"""The core's exports of a :class:`~spherecal.models.CalibrationResult`, brand-free, and
+"""The core's exports of a :class:`~spherecal.core.models.CalibrationResult`, brand-free, and
 the built-in plugin that registers them as exporters.
 
 Every export is a pure function returning text, and every one has a reader here that
@@ -16,7 +16,7 @@ URDF/xacro joint (ROS 2)        :func:`ros_urdf_joint`                 :func:`re
 JSON result                     :func:`json_text`                      :func:`read_json`
 ==============================  =====================================  ===========================
 
-As exporters (:class:`spherecal.exporters.Exporter`) they are :data:`MATRIX_EXPORTER`
+As exporters (:class:`spherecal.io.exporters.Exporter`) they are :data:`MATRIX_EXPORTER`
 (``matrix``), :data:`XYZ_QUATERNION_EXPORTER` (``xyz_quaternion``) and
 :data:`ROS2_EXPORTER` (``ros2``, settings :class:`Ros2ExportSettings`), together
 :data:`CORE_EXPORTERS`; this module is the built-in plugin ``core_exports`` that
@@ -38,10 +38,10 @@ import re
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from ..errors import InputError
-from ..exporters import ExportNote, Exporter, red_warning, write_exports
-from ..models import CalibrationResult, Pose
-from ..plugins import hookimpl
+from spherecal.core.errors import InputError
+from spherecal.io.exporters import ExportNote, Exporter, red_warning, write_exports
+from spherecal.core.models import CalibrationResult, Pose
+from spherecal.plugins import hookimpl
 
 __all__ = [
     "MM_DECIMALS",
@@ -125,7 +125,7 @@ def uncertainty_sentence(result: CalibrationResult) -> str:
 
 
 def warning_lines(result: CalibrationResult, prefix: str) -> str:
-    """The RED warning (:func:`~spherecal.exporters.red_warning`) as one comment line
+    """The RED warning (:func:`~spherecal.io.exporters.red_warning`) as one comment line
     starting with ``prefix`` and ending in a line break, or "" for a result not rated RED."""
     warning = red_warning(result)
     return f"{prefix}{warning}\n" if warning else ""

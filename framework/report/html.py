@@ -27,17 +27,17 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .. import __version__
-from .. import geometry as geo
-from ..errors import InputError
-from ..estimation.blocks import BLOCK_POINTS, profile_blocks
-from ..estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
-from ..exporters import ExportNote
-from ..mapping import map_profile_list
-from ..models import SPHERE_FRAME, CalibrationResult
-from . import export
-from .. import safeio
-from .assess import POINT_DISTANCE_MM, Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
+from spherecal import __version__
+from spherecal.core import geometry as geo
+from spherecal.core.errors import InputError
+from spherecal.estimation.blocks import BLOCK_POINTS, profile_blocks
+from spherecal.estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
+from spherecal.io.exporters import ExportNote
+from spherecal.core.mapping import map_profile_list
+from spherecal.core.models import SPHERE_FRAME, CalibrationResult
+from spherecal.report import export
+from spherecal.io import files as safeio
+from spherecal.report.assess import POINT_DISTANCE_MM, Thresholds, Verdict, advice, expected_rms_mm, inconsistent_stations, verdict
 
 __all__ = ["write_report", "mapped_points", "FIGURE_NAMES"]
 
@@ -110,7 +110,7 @@ def mapped_points(solution) -> list[np.ndarray]:
     """Each used profile's points mapped into the sphere frame through ``A_i X``:
     ``p = R_A_i (R p_sensor + t) + t_A_i`` with p_sensor = (0, y, z); ``A_i`` is
     ``base_from_flange_i`` (eye-in-hand) or ``flange_from_base_i`` (eye-to-hand). mm.
-    (:func:`spherecal.mapping.map_profile_list`, the scan's mapping.)"""
+    (:func:`spherecal.core.mapping.map_profile_list`, the scan's mapping.)"""
     prob, ref = solution.problem, solution.refined
     points, _ = map_profile_list(prob.R_A @ ref.R, prob.R_A @ np.asarray(ref.t, dtype=float) + prob.t_A,
                                  prob.profiles)
@@ -946,7 +946,7 @@ def write_report(
     if not filename.endswith(".html") or Path(filename).name != filename:
         raise InputError(f"filename {filename!r} must be a plain file name ending in .html")
     if isinstance(notes, (str, bytes)) or not all(isinstance(n, ExportNote) for n in notes):
-        raise InputError("notes must be a sequence of spherecal.exporters.ExportNote")
+        raise InputError("notes must be a sequence of spherecal.io.exporters.ExportNote")
     if validation is not None and not isinstance(validation, Mapping):
         raise InputError(f"validation must be a mapping of acceptance figures, got {type(validation).__name__}")
     if validation_positions is not None and (isinstance(validation_positions, (str, bytes, Mapping)) or not all(

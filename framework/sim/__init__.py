@@ -7,7 +7,7 @@ should not build the simulated cell's modules."""
 
 from __future__ import annotations
 
-from ..lazy import lazy_attributes
+from spherecal.core.lazy import lazy_attributes
 
 
 #: name -> the module that defines it
@@ -22,10 +22,10 @@ _WHERE = {
     "SimulatedCell": ".cell",
     "arm_layout": ".cell",
     "standard_cell": ".cell",
-    "SweepPlan": "..planning",  # re-exported: the simulated acquisition plans with them
-    "plan_stations": "..planning",
-    "simulate_centre_dataset": ".planner",
-    "simulate_dataset": ".planner",
+    "SweepPlan": "spherecal.motion.planning",  # re-exported: the simulated acquisition plans with them
+    "plan_stations": "spherecal.motion.planning",
+    "simulate_centre_dataset": ".datasets",
+    "simulate_dataset": ".datasets",
     "RobotErrorModel": ".robot_error",
     "SimulatedArm": ".robot_error",
 }

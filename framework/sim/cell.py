@@ -2,7 +2,7 @@
 
 The laser line sensor is modelled as a fan of rays in its x = 0 plane from an apex on
 its z axis, chosen so that the fan's width matches the sensor's declared field of view
-(:class:`~spherecal.devices.SensorFieldOfView`, which the sensor type declares: the
+(:class:`~spherecal.devices.contract.SensorFieldOfView`, which the sensor type declares: the
 simulator knows no sensor of its own; a line 28 mm wide at z = +40 mm and 48 mm at
 z = -60 mm, for example, puts the apex at z = +180 mm); the sensor looks towards -z. Each ray returns its first hit on the sphere, so only the side the sensor can
 see is measured; hits outside the measuring range are dropped. Gaussian noise
@@ -19,11 +19,11 @@ from typing import NamedTuple
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .. import geometry as geo
-from ..devices import SensorFieldOfView
-from ..models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
-from .objects import BallBar, SceneObject, Sphere
-from .robot_error import RobotErrorModel, SimulatedArm
+from spherecal.core import geometry as geo
+from spherecal.devices.contract import SensorFieldOfView
+from spherecal.core.models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
+from spherecal.sim.objects import BallBar, SceneObject, Sphere
+from spherecal.sim.robot_error import RobotErrorModel, SimulatedArm
 
 
 def _field_of_view(fov, who: str) -> SensorFieldOfView:
@@ -34,10 +34,10 @@ def _field_of_view(fov, who: str) -> SensorFieldOfView:
     if fov is None:
         raise TypeError(
             f"{who}: fov is required: the field of view of the sensor the cell simulates, a "
-            "spherecal.devices.SensorFieldOfView (a sensor type declares its own: "
+            "spherecal.devices.contract.SensorFieldOfView (a sensor type declares its own: "
             "PluginHost().registry.sensor_type(name).field_of_view); the simulator knows no sensor's"
         )
-    raise TypeError(f"{who}: fov must be a spherecal.devices.SensorFieldOfView, got {type(fov).__name__}")
+    raise TypeError(f"{who}: fov must be a spherecal.devices.contract.SensorFieldOfView, got {type(fov).__name__}")
 
 
 class NoiseModel(BaseModel):
@@ -111,7 +111,7 @@ class SimulatedCell:
 
     def attach_arm(self, kinematics) -> SimulatedArm:
         """Give the cell a robot arm described by a plugin's
-        :class:`~spherecal.kinematics.ArmKinematics`. Its true geometry carries
+        :class:`~spherecal.core.kinematics.ArmKinematics`. Its true geometry carries
         ``robot_error`` (drawn once, from the cell's seed unless the model has its own);
         simulated controllers and :func:`~spherecal.sim.simulate_dataset` then move the
         flange to where the true geometry puts it and report the nominal model's pose."""
@@ -338,8 +338,8 @@ LAYOUT_SHRINK = (1.0, 0.9, 0.8, 0.7, 0.6)
 def _reaches_default_plan(arm, cell: "SimulatedCell") -> bool:
     """Whether the arm's inverse kinematics reaches every target of the default plan on
     ``cell``, each from the last one's joints (the first from a few seeds)."""
-    from ..errors import InputError
-    from ..planning import plan_stations
+    from spherecal.core.errors import InputError
+    from spherecal.motion.planning import plan_stations
 
     targets = [p for _, poses in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm,
                                               cell.sphere_radius_mm, field_of_view=cell.fov) for p in poses]
@@ -356,7 +356,7 @@ def _reaches_default_plan(arm, cell: "SimulatedCell") -> bool:
 
 
 #: The arm the standard cell is drawn for (an IRB 2400-class arm): its reach
-#: (:func:`spherecal.kinematics.chain_reach_mm` within its joint limits) and its shoulder
+#: (:func:`spherecal.core.kinematics.chain_reach_mm` within its joint limits) and its shoulder
 #: (the second joint's origin at zero joints), base frame, mm.
 REFERENCE_REACH_MM = 1556.7908961103235
 REFERENCE_SHOULDER_MM = (100.0, 0.0, 615.0)
@@ -364,11 +364,11 @@ REFERENCE_SHOULDER_MM = (100.0, 0.0, 615.0)
 
 def arm_layout(kinematics) -> tuple[float, np.ndarray]:
     """(reach in mm, shoulder position in base, mm) of a robot plugin's arm
-    (:class:`~spherecal.kinematics.ArmKinematics`), for laying a cell out for it: its
-    ``reach_mm`` when it has one, else :func:`~spherecal.kinematics.chain_reach_mm` of
+    (:class:`~spherecal.core.kinematics.ArmKinematics`), for laying a cell out for it: its
+    ``reach_mm`` when it has one, else :func:`~spherecal.core.kinematics.chain_reach_mm` of
     its chain within ``model_joint_limits_rad()`` when it has them; the shoulder is the
     second joint's origin at zero joints (the first's for a one-joint arm)."""
-    from ..kinematics import chain_reach_mm
+    from spherecal.core.kinematics import chain_reach_mm
 
     chain = kinematics.chain
     reach = getattr(kinematics, "reach_mm", None)
@@ -410,11 +410,11 @@ def standard_cell(
     kinematics reaches every target of the default plan (an arm with a long wrist, such as
     a UR5, reaches less of its sphere of reach with a tilted flange).
 
-    ``arm`` (a robot plugin's :class:`~spherecal.kinematics.ArmKinematics`) also attaches
+    ``arm`` (a robot plugin's :class:`~spherecal.core.kinematics.ArmKinematics`) also attaches
     a simulated arm, with ``robot_error`` in its true geometry when given.
 
     ``fov`` is required: the field of view of the sensor the cell simulates, as its sensor
-    type declares it (:attr:`spherecal.devices.SensorType.field_of_view`); a TypeError
+    type declares it (:attr:`spherecal.devices.contract.SensorType.field_of_view`); a TypeError
     without one (the simulator knows no sensor's)."""
     fov = _field_of_view(fov, "standard_cell")
     if arm is not None and reach_mm is None:

@@ -1,5 +1,5 @@
 """A simulated robot controller that serves the spherecal line protocol
-(:mod:`spherecal.lineproto`) over a real link, brand-free, in one of three flavours
+(:mod:`spherecal.devices.line_protocol`) over a real link, brand-free, in one of three flavours
 (``SimulatedControllerSettings.transport``):
 
 * ``tcp``: a serial server's line carried over TCP on 127.0.0.1 (``socket://``), as a
@@ -12,7 +12,7 @@
   session, in which no target is staged.
 
 :class:`SimulatedController` is the controller logic (one request line in, one reply line
-out) on a robot plugin's kinematics (:class:`~spherecal.kinematics.ArmKinematics` plus
+out) on a robot plugin's kinematics (:class:`~spherecal.core.kinematics.ArmKinematics` plus
 ``check_joint_limits(joints_deg, what)``); :class:`ControllerServer` runs it in a thread
 behind a transport and injects faults at runtime through :class:`Faults` (reply delay,
 dropped requests or replies, truncated replies, corrupted bytes, the connection closed
@@ -47,14 +47,14 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from .. import geometry as geo
-from .. import lineproto as P
-from ..errors import DeviceError, InputError
-from ..models import Pose
-from .settings import SimulatedControllerSettings
+from spherecal.core import geometry as geo
+from spherecal.devices import line_protocol as P
+from spherecal.core.errors import DeviceError, InputError
+from spherecal.core.models import Pose
+from spherecal.sim.settings import SimulatedControllerSettings
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .cell import SimulatedCell
+    from spherecal.sim.cell import SimulatedCell
 
 _POLL_S = 0.02
 

@@ -29,7 +29,7 @@ from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..models import Pose
+from spherecal.core.models import Pose
 
 ObjectFrame = Literal["base", "flange"]
 _FRAMES = ("base", "flange")

@@ -7,7 +7,7 @@ reports the pose of its nominal model at the actual joints. So the reported pose
 (nearly) the commanded one, and the flange is off by 0.5-2 mm and 0.05-0.15 deg by an
 amount that changes slowly over the joint space (see ``shared/reference/method.md``,
 "Robot error"). :class:`SimulatedArm` does exactly that on the geometry a robot plugin
-describes (:class:`~spherecal.kinematics.ArmKinematics`); it knows no robot brand.
+describes (:class:`~spherecal.core.kinematics.ArmKinematics`); it knows no robot brand.
 
 The error of a particular arm is drawn once from :class:`RobotErrorModel` (magnitudes
 uniform in the given ranges, signs and directions random) and stays fixed: it is the
@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .. import geometry as geo
-from ..kinematics import ArmKinematics, SerialChain
-from ..models import Pose
+from spherecal.core import geometry as geo
+from spherecal.core.kinematics import ArmKinematics, SerialChain
+from spherecal.core.models import Pose
 
 
 def _range(lo_default: float, hi_default: float, what: str):

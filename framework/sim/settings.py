@@ -9,7 +9,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from ..models import Pose
+from spherecal.core.models import Pose
 
 
 class SimulatedControllerSettings(BaseModel):

@@ -8,10 +8,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.errors import InputError
-from spherecal.linelink import LineLinkSettings
-from spherecal.linelink import WorkspaceBox as CoreWorkspaceBox
-from spherecal.models import Pose
+from spherecal.core.errors import InputError
+from spherecal.devices.line_robot import LineLinkSettings
+from spherecal.devices.line_robot import WorkspaceBox as CoreWorkspaceBox
+from spherecal.core.models import Pose
 from spherecal.sim.settings import SimulatedControllerSettings as CoreSimulatedControllerSettings
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
@@ -62,7 +62,7 @@ class AbbIrb2400Config(LineLinkSettings):
     """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod`` with a link
     module, talking the spherecal line protocol over a serial line (``SpherecalSerial.mod``)
     or, on an IRC5, over TCP (``SpherecalSocket.mod``; see docs/robot-abb-irb2400.md). The
-    link and motion settings are the core's (:class:`spherecal.linelink.LineLinkSettings`,
+    link and motion settings are the core's (:class:`spherecal.devices.line_robot.LineLinkSettings`,
     which also checks a ``socket://host:port`` port)."""
 
     port: str = Field(

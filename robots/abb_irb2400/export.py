@@ -16,9 +16,9 @@ import re
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from spherecal.errors import InputError
-from spherecal.exporters import ExportNote, Exporter, red_warning
-from spherecal.models import CalibrationResult
+from spherecal.core.errors import InputError
+from spherecal.io.exporters import ExportNote, Exporter, red_warning
+from spherecal.core.models import CalibrationResult
 from spherecal.report.export import MM_DECIMALS, QUAT_DECIMALS, check_result, fixed, frames_of, rounded_quaternion_wxyz
 
 __all__ = [

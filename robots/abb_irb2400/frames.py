@@ -24,9 +24,9 @@ from __future__ import annotations
 import math
 import re
 
-from spherecal.devices import ControllerFrame
-from spherecal.errors import InputError
-from spherecal.models import Pose
+from spherecal.devices.contract import ControllerFrame
+from spherecal.core.errors import InputError
+from spherecal.core.models import Pose
 
 #: Longest text read (a module with a few declarations fits).
 MAX_TEXT = 100_000

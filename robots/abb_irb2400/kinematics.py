@@ -35,11 +35,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from spherecal import geometry as geo
-from spherecal.errors import ConfigError, InputError
-from spherecal.kinematics import SerialChain
-from spherecal.models import Pose
-from spherecal.urdf import IkNotConverged, chain_from_urdf, chain_inverse_kinematics
+from spherecal.core import geometry as geo
+from spherecal.core.errors import ConfigError, InputError
+from spherecal.core.kinematics import SerialChain
+from spherecal.core.models import Pose
+from spherecal.core.urdf import IkNotConverged, chain_from_urdf, chain_inverse_kinematics
 
 JOINT_COUNT = 6
 #: Largest position error (mm) an IK solution may show under forward kinematics.
@@ -175,7 +175,7 @@ class Irb2400Kinematics:
 
     @property
     def chain(self) -> SerialChain:
-        """The nominal geometry as a brand-free :class:`~spherecal.kinematics.SerialChain`
+        """The nominal geometry as a brand-free :class:`~spherecal.core.kinematics.SerialChain`
         (model joint convention, rad; see ``model_joints_rad``): each joint placed at its
         ``offset_mm`` with no rotation, turning about its own x, y or z axis; tool0 turned
         by ``tool0_rotvec_deg`` on joint 6."""
@@ -233,7 +233,7 @@ class Irb2400Kinematics:
 
     def model_joint_limits_rad(self) -> np.ndarray:
         """(6, 2) lower and upper limits in the serial model's convention (rad), for a URDF
-        (``spherecal.urdf.chain_to_urdf(..., joint_limits_rad=)``). With ``j23_coupled`` the
+        (``spherecal.core.urdf.chain_to_urdf(..., joint_limits_rad=)``). With ``j23_coupled`` the
         controller limits axis 3 relative to the horizontal, which no fixed range of the
         model's joint 3 expresses: its range here is the widest the controller can reach,
         ``lower_3 - upper_2 .. upper_3 - lower_2``; the controller still checks its own."""
@@ -487,7 +487,7 @@ def calibrated_kinematics_for(
     """The IRB 2400 kinematics with the calibrated geometry of a URDF file (joints
     ``joint_1`` .. ``joint_6`` in the serial model's convention, links ``base_link`` and
     ``tool0``, metres). Cached per file and modification time. Raises
-    :class:`~spherecal.errors.InputError` naming the file."""
+    :class:`~spherecal.core.errors.InputError` naming the file."""
     from pathlib import Path
 
     p = Path(path)

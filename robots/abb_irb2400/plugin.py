@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spherecal.devices import DeviceContext, RobotType
-from spherecal.models import Pose
+from spherecal.devices.contract import DeviceContext, RobotType
+from spherecal.core.models import Pose
 from spherecal.plugins import hookimpl
 
 from .config import AbbIrb2400Config

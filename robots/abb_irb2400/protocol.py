@@ -1,11 +1,11 @@
 """The spherecal line protocol as the IRB 2400's RAPID server (SpherecalServer.mod) speaks
-it. The protocol is brand-free and lives in :mod:`spherecal.lineproto` (the built-in
+it. The protocol is brand-free and lives in :mod:`spherecal.devices.line_protocol` (the built-in
 ``urdf`` robot type speaks it too); this module re-exports it under the name the IRB 2400
 plugin and its tests have always used. See docs/line-protocol.md and
 docs/robot-abb-irb2400.md.
 """
 
-from spherecal.lineproto import (  # noqa: F401 - re-exported
+from spherecal.devices.line_protocol import (  # noqa: F401 - re-exported
     MAX_LINE_CHARS,
     SEQ_MODULUS,
     PROTOCOL_VERSION,

@@ -12,11 +12,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.errors import InputError
-from spherecal.linelink import LineLinkSettings, WorkspaceBox
-from spherecal.lineproto import MAX_JOINTS
+from spherecal.core.errors import InputError
+from spherecal.devices.line_robot import LineLinkSettings, WorkspaceBox
+from spherecal.devices.line_protocol import MAX_JOINTS
 from spherecal.sim.settings import SimulatedControllerSettings
-from spherecal.urdf import read_urdf_chain
+from spherecal.core.urdf import read_urdf_chain
 
 from .kinematics import JointMap, UrdfKinematics
 
@@ -63,7 +63,7 @@ class UrdfRobotConfig(LineLinkSettings):
     """Any revolute arm described by a URDF, whose controller runs a small server speaking
     the spherecal line protocol over a serial line or TCP (docs/robot-urdf.md,
     docs/line-protocol.md). The link and motion settings are the core's
-    (:class:`spherecal.linelink.LineLinkSettings`)."""
+    (:class:`spherecal.devices.line_robot.LineLinkSettings`)."""
 
     urdf: Path = Field(
         description="the robot's URDF file (metres, radians). A relative path resolves against the configuration "
@@ -139,7 +139,7 @@ class UrdfRobotConfig(LineLinkSettings):
 
     def kinematics(self) -> UrdfKinematics:
         """The arm's kinematics as configured (cached per file, its modification time and
-        the settings that shape them). Raises :class:`~spherecal.errors.InputError` naming
+        the settings that shape them). Raises :class:`~spherecal.core.errors.InputError` naming
         the file and the link, joint or setting at fault."""
         p = Path(self.urdf)
         try:

@@ -1,7 +1,7 @@
 """The built-in ``urdf`` robot type: any revolute arm from its URDF, registered through the
 ``spherecal`` entry-point group exactly as a third-party plugin would be.
 
-A real run connects a :class:`UrdfRobot` (the core's :class:`~spherecal.linelink.LineRobot`:
+A real run connects a :class:`UrdfRobot` (the core's :class:`~spherecal.devices.line_robot.LineRobot`:
 the spherecal line protocol over a serial line or TCP (``socket://host:port``), with the
 speed, workspace and reachability checks before anything moves) to ``config.port``: the
 controller runs a small server that speaks the protocol (docs/line-protocol.md). A
@@ -21,10 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from spherecal.devices import DeviceContext, RobotType
-from spherecal.errors import DeviceError
-from spherecal.linelink import LineRobot
-from spherecal.models import Pose
+from spherecal.devices.contract import DeviceContext, RobotType
+from spherecal.core.errors import DeviceError
+from spherecal.devices.line_robot import LineRobot
+from spherecal.core.models import Pose
 from spherecal.plugins import hookimpl
 
 from .config import UrdfRobotConfig
@@ -39,7 +39,7 @@ DESCRIPTION = (
 
 
 class UrdfRobot(LineRobot):
-    """A connected arm described by a URDF (implements :class:`spherecal.devices.Robot`).
+    """A connected arm described by a URDF (implements :class:`spherecal.devices.contract.Robot`).
     Poses are ``base_from_flange`` (the flange link in the base link), mm, quaternion
     (w, x, y, z); joints are degrees in the controller's order and convention."""
 

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from spherecal.errors import DeviceError
+from spherecal.core.errors import DeviceError
 
 
 class CounterMismatch(DeviceError):

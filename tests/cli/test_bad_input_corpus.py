@@ -19,7 +19,7 @@ from typing import Callable
 
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DATA, EXIT_USAGE, main
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov

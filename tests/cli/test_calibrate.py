@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_DATA, EXIT_DEVICE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, main
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 
 
 def check_against_truth(out, k=5.0):
@@ -121,7 +121,7 @@ def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path, capsys):
 
 
 def test_resume_refuses_a_journal_taken_with_another_plan(sim_config, monkeypatch, capsys):
-    import spherecal.acquisition as acq
+    import spherecal.motion.acquisition as acq
 
     real = acq.take_shot
     calls = {"n": 0}
@@ -143,7 +143,7 @@ def test_resume_refuses_a_journal_taken_with_another_plan(sim_config, monkeypatc
 
 
 def test_interrupt_keeps_the_journal(sim_config, monkeypatch, capsys):
-    import spherecal.acquisition as acq
+    import spherecal.motion.acquisition as acq
 
     calls = {"n": 0}
     real = acq.take_shot
@@ -208,8 +208,8 @@ def test_missing_configuration_file(tmp_path, capsys):
 @pytest.mark.parametrize("fail_at, resume_advised", [(1, False), (4, True)], ids=["first-shot", "fourth-shot"])
 def test_a_device_failure_advises_resume_only_when_shots_were_taken(sim_config, monkeypatch, capsys,
                                                                     fail_at, resume_advised):
-    import spherecal.acquisition as acq
-    from spherecal.errors import DeviceError
+    import spherecal.motion.acquisition as acq
+    from spherecal.core.errors import DeviceError
 
     calls = {"n": 0}
     real = acq.take_shot

@@ -7,15 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_VALIDATION, EXIT_OK, main
 from spherecal.config import load_config
-from spherecal.kinplan import plan_kinematic_stations
+from spherecal.motion.kinematic_plan import plan_kinematic_stations
 from spherecal.plugins.host import PluginHost
-from spherecal.ply import read_ply
-from spherecal.runner import calibration_options, configured_for_sensor, make_cell, open_devices, solve_and_write
+from spherecal.io.ply import read_ply
+from spherecal.app.runner import calibration_options, configured_for_sensor, make_cell, open_devices, solve_and_write
 from spherecal.sim import simulate_dataset
-from spherecal.urdf import read_urdf_chain
+from spherecal.core.urdf import read_urdf_chain
 
 #: The eye-in-hand example with identify_kinematics (the planner's stations, kept off the
 #: sphere's edge), a plate to scan and short validation sweeps of the sphere and ball bar.
@@ -53,8 +53,8 @@ def _check_the_red_mark(solution, kinematics, out, red_out):
     comment; a result not rated RED carries no such mark."""
     from dataclasses import replace
 
-    from spherecal.exporters import RED_WARNING
-    from spherecal.runner import write_calibrated_urdf
+    from spherecal.io.exporters import RED_WARNING
+    from spherecal.app.runner import write_calibrated_urdf
 
     assert RED_WARNING not in (out / "robot_calibrated.urdf").read_text()
     verdict = {"level": "red", "headline": "forced", "written_with_force": True}

@@ -6,13 +6,13 @@ import sys
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
-from spherecal.acquisition import acquire_manual, check_targets, plan_targets
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
+from spherecal.motion.acquisition import acquire_manual, check_targets, plan_targets
 from spherecal.cli import EXIT_DATA, EXIT_OK, build_parser, main
 from spherecal.config import AcquisitionConfig, WorkspaceConfig, load_config
-from spherecal.devices import DeviceContext
-from spherecal.models import Pose
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import plan_stations, standard_cell
 
@@ -112,7 +112,7 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
     every target is reachable by the IRB 2400 within its joint limits (checked with the
     plugin's kinematics, no controller needed)."""
     host = PluginHost()
-    from spherecal.runner import configured_for_sensor
+    from spherecal.app.runner import configured_for_sensor
 
     loaded, _ = configured_for_sensor(load_config(EXAMPLES / "irb2400-nxsensor-eye-in-hand.toml"), host)
     cfg = loaded.config

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_DATA, EXIT_DRIFT, EXIT_OK, EXIT_USAGE, main
 from spherecal.estimation import calibrate
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 
@@ -146,7 +146,7 @@ def test_the_reserved_option_names_hold_every_option_of_compare_and_validate():
     """A robot type's frame_option is refused when it is one of RESERVED_OPTION_NAMES: that
     list must hold every option the two commands have."""
     from spherecal.cli import build_parser
-    from spherecal.devices import RESERVED_OPTION_NAMES
+    from spherecal.devices.contract import RESERVED_OPTION_NAMES
 
     parser = build_parser({})
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")

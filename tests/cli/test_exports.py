@@ -5,7 +5,9 @@ the robot type."""
 
 import pytest
 
-from spherecal import dataio, runner
+from spherecal.io import dataset as dataio
+
+from spherecal.app import runner
 from spherecal.cli import EXIT_OK, EXIT_USAGE, main
 from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex

@@ -9,12 +9,12 @@ import pytest
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from spherecal.config import load_config
-from spherecal.devices import SensorFieldOfView, SensorType
-from spherecal.errors import ConfigError
-from spherecal.planning import SweepPlan, plan_stations, sphere_centres_in_sensor, with_standoff
+from spherecal.devices.contract import SensorFieldOfView, SensorType
+from spherecal.core.errors import ConfigError
+from spherecal.motion.planning import SweepPlan, plan_stations, sphere_centres_in_sensor, with_standoff
 from spherecal.plugins import hookimpl
 from spherecal.plugins.host import PluginHost
-from spherecal.runner import configured_for_sensor, make_cell, sensor_field_of_view
+from spherecal.app.runner import configured_for_sensor, make_cell, sensor_field_of_view
 from spherecal.sensors.nxsensor_i.plugin import FIELD_OF_VIEW as NXSENSOR_FOV
 
 #: A third-party profiler's field of view, unlike the nxSensor-I's.
@@ -74,7 +74,7 @@ def test_a_third_party_sensor_is_simulated_and_planned_with_its_declared_field_o
     cell = make_cell(loaded.config, field_of_view=fov)
     assert cell.fov == SMALL
     # every point the simulated sensor measures lies in the declared range and line width
-    from spherecal.acquisition import plan_targets
+    from spherecal.motion.acquisition import plan_targets
 
     seen = 0
     for target in plan_targets(loaded.config)[:40]:
@@ -97,10 +97,10 @@ def test_simulation_fov_overrides_fields_of_the_declared_one(sim_config):
 
 
 def test_a_sensor_without_a_field_of_view_must_be_given_one_in_the_toml(sim_config, monkeypatch):
-    import spherecal.runner
+    import spherecal.app.runner
 
     host = host_with_profiler(None)
-    monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: host)  # the run's plugins
+    monkeypatch.setattr(spherecal.app.runner, "make_host", lambda enable=None: host)  # the run's plugins
     loaded = config_with(sim_config)
     assert sensor_field_of_view(loaded.config, host) is None
     with pytest.raises(ConfigError, match=r"simulation.fov: sensor type 'acme_profiler' declares no field of view; "
@@ -157,14 +157,14 @@ def test_the_fan_matches_the_declared_widths_and_the_standoff_moves_the_sweep():
 
 
 def _identity():
-    from spherecal.models import Pose
+    from spherecal.core.models import Pose
 
     return Pose.identity()
 
 
 def test_a_cell_built_without_a_sensor_must_be_given_a_field_of_view():
     import spherecal.sim as sim
-    from spherecal.models import Pose
+    from spherecal.core.models import Pose
     from spherecal.sim import SimulatedCell, standard_cell
 
     assert not hasattr(sim, "REFERENCE_FIELD_OF_VIEW")  # the simulator holds no sensor's numbers
@@ -172,7 +172,7 @@ def test_a_cell_built_without_a_sensor_must_be_given_a_field_of_view():
         standard_cell("eye_in_hand", seed=0)
     with pytest.raises(TypeError, match=r"SimulatedCell: fov is required"):
         SimulatedCell("eye_in_hand", Pose.identity(), (0.0, 0.0, 0.0), 10.0, None)
-    with pytest.raises(TypeError, match=r"standard_cell: fov must be a spherecal.devices.SensorFieldOfView, got dict"):
+    with pytest.raises(TypeError, match=r"standard_cell: fov must be a spherecal.devices.contract.SensorFieldOfView, got dict"):
         standard_cell("eye_in_hand", fov={"z_near_mm": 40.0})
     assert standard_cell("eye_in_hand", fov=SMALL).fov is SMALL
 
@@ -250,11 +250,11 @@ WIDE = SensorFieldOfView(z_near_mm=60.0, z_far_mm=-60.0, width_near_mm=40.0, wid
 
 
 def test_simulate_takes_the_sensor_type_by_name(tmp_path, monkeypatch, capsys):
-    import spherecal.runner
-    from spherecal import dataio
+    import spherecal.app.runner
+    from spherecal.io import dataset as dataio
     from spherecal.cli import EXIT_OK, EXIT_USAGE, main
 
-    monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: host_with_profiler(WIDE))
+    monkeypatch.setattr(spherecal.app.runner, "make_host", lambda enable=None: host_with_profiler(WIDE))
     out = tmp_path / "acme.jsonl"
     assert main(["simulate", str(out), "--sensor", "acme_profiler", "--profiles", "4"]) == EXIT_OK
     ds = dataio.read_dataset(out)
@@ -294,19 +294,19 @@ def test_simulate_options_that_clash_with_a_configuration_are_refused(tmp_path, 
 
 
 def test_simulate_without_a_name_uses_the_only_sensor_type_with_a_field_of_view(tmp_path, monkeypatch):
-    import spherecal.runner
-    from spherecal import dataio
+    import spherecal.app.runner
+    from spherecal.io import dataset as dataio
     from spherecal.cli import EXIT_OK, main
 
     only = PluginHost(autoload=False)  # the built-ins: one sensor type, the nxSensor-I
-    monkeypatch.setattr(spherecal.runner, "make_host", lambda enable=None: only)
+    monkeypatch.setattr(spherecal.app.runner, "make_host", lambda enable=None: only)
     assert main(["simulate", str(tmp_path / "d.jsonl"), "--profiles", "4"]) == EXIT_OK
     assert dataio.read_dataset(tmp_path / "d.jsonl").provenance["fov"] == NXSENSOR_FOV.model_dump()
 
 
 def test_the_default_validation_views_are_sized_to_the_field_of_view():
     from spherecal.config import FlatConfig, ValidationConfig
-    from spherecal.planning import site_offset_mm
+    from spherecal.motion.planning import site_offset_mm
 
     spheres = ValidationConfig().sphere_positions
     flat = FlatConfig(centre_mm=(0.0, 0.0, 0.0)).positions

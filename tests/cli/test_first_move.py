@@ -9,16 +9,16 @@ import re
 
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DATA, main
 from spherecal.config import WorkspaceConfig, load_config
-from spherecal.devices import DeviceContext
-from spherecal.errors import InputError
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.errors import InputError
 from spherecal.estimation import calibrate
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
-from spherecal.runner import make_cell
+from spherecal.app.runner import make_cell
 from spherecal.sim import SweepPlan, simulate_dataset
 from spherecal.sim.cell import standard_cell
 from reference_sensor import reference_fov

@@ -4,9 +4,9 @@ before are kept, and the run resumes once there is space again."""
 
 import errno
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DATA, EXIT_OK, main
-from spherecal.errors import FileWriteError
+from spherecal.core.errors import FileWriteError
 from reference_sensor import reference_fov
 
 

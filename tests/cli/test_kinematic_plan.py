@@ -6,11 +6,11 @@ import re
 import numpy as np
 import pytest
 
-from spherecal.acquisition import plan_targets
+from spherecal.motion.acquisition import plan_targets
 from spherecal.cli import EXIT_DATA, EXIT_OK, main
 from spherecal.config import load_config
-from spherecal.errors import ConfigError, InputError
-from spherecal.kinplan import plan_kinematic_stations, uses_planner
+from spherecal.core.errors import ConfigError, InputError
+from spherecal.motion.kinematic_plan import plan_kinematic_stations, uses_planner
 from spherecal.plugins.host import PluginHost
 
 IDENTIFY = {r"^\[calibration\]$": "[calibration]\nidentify_kinematics = true"}
@@ -92,7 +92,7 @@ TOO_FEW = [(0, 0, 0), (30, 0, 0), (0, 30, 0)]
 def for_run(path):
     """The configuration at ``path`` as a run sees it (standoffs from the sensor's field of view)."""
     from spherecal.plugins.host import PluginHost
-    from spherecal.runner import configured_for_sensor
+    from spherecal.app.runner import configured_for_sensor
 
     return configured_for_sensor(load_config(path), PluginHost())[0]
 
@@ -162,7 +162,7 @@ def test_the_identification_is_checked_again_from_where_the_arm_stands(sim_confi
     flipped keeps that configuration through the plan and sees its geometry from other
     joints. Once connected, the check runs again from the arm's joints (the dry run shows
     it), and from a flipped wrist it gives another condition number."""
-    from spherecal.kinplan import check_plan_identifies_kinematics
+    from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics
 
     path = sim_config(**IDENTIFY)
     assert main(["calibrate", str(path), "--dry-run"]) == EXIT_OK

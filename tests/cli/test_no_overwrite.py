@@ -8,11 +8,11 @@ import os
 import numpy as np
 import pytest
 
-from spherecal import dataio, safeio
+from spherecal.io import dataset as dataio, files as safeio
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
-from spherecal.errors import FileWriteError, InputError
-from spherecal.models import Observation, Pose, Profile
-from spherecal.ply import PlyWriter
+from spherecal.core.errors import FileWriteError, InputError
+from spherecal.core.models import Observation, Pose, Profile
+from spherecal.io.ply import PlyWriter
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 
@@ -59,7 +59,7 @@ def test_an_output_folder_that_cannot_be_written_is_refused_before_any_work(tmp_
     else:
         (tmp_path / "a-file").write_text("not a folder\n")
         out = tmp_path / "a-file" / "run"
-    import spherecal.runner as runner
+    import spherecal.app.runner as runner
 
     def no_work(*args, **kwargs):
         raise AssertionError("the work began")
@@ -215,7 +215,7 @@ def test_a_full_disk_names_the_journal_and_says_resume(tmp_path, monkeypatch):
 
 
 def test_a_full_disk_in_calibrate_says_resume(tmp_path, monkeypatch, dataset_file, capsys):
-    from spherecal import runner
+    from spherecal.app import runner
 
     def full(*a, **k):
         raise FileWriteError(f"{tmp_path}/out/journal.jsonl: cannot write (No space left on device)")

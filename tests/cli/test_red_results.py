@@ -7,7 +7,7 @@ tests/cli/test_calibrate.py.)"""
 import numpy as np
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_RED, main
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
@@ -79,7 +79,7 @@ def exported_text_files(out):
 
 
 def assert_every_export_warns(out, red):
-    from spherecal.exporters import RED_WARNING
+    from spherecal.io.exporters import RED_WARNING
     from spherecal.report import export as X
 
     files = exported_text_files(out)
@@ -135,7 +135,7 @@ def test_the_terminal_verdict_lists_the_reasons_of_an_amber_one_too():
     """'see the checks below' is followed by them in the terminal, not only in the report:
     amber and red reasons (red first), never the green ones."""
     from spherecal.report.assess import Verdict
-    from spherecal.runner import format_verdict
+    from spherecal.app.runner import format_verdict
 
     amber = Verdict("amber", "Usable with care: see the checks and the advice below.",
                     [("green", "residuals fine"), ("amber", "rotation 1-sigma 0.06 deg")])
@@ -153,7 +153,7 @@ def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_pat
     Centre rows with joints keep the two kinematic solves short."""
     from spherecal.estimation import CalibrationOptions
     from spherecal.plugins.host import PluginHost
-    from spherecal.runner import solve_and_write
+    from spherecal.app.runner import solve_and_write
     from spherecal.sim import NoiseModel, RobotErrorModel, simulate_centre_dataset
 
     kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DATA, EXIT_DRIFT, EXIT_OK, EXIT_PIPE, build_parser, main
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
@@ -63,7 +63,7 @@ def test_run_log_names_what_ran_its_input_and_what_was_measured(solved, dataset_
     text = (out / "run.log").read_text()
     assert "spherecal" in text and " solve, started " in text and "exit code 0 (success)" in text
     assert f"command line: spherecal solve {dataset_path} -o {out} --json" in text
-    from spherecal.runner import sha256_of
+    from spherecal.app.runner import sha256_of
 
     assert f"dataset: {dataset_path} (sha256 {sha256_of(dataset_path)})" in text
     assert '"fit_radius":false' in text  # the options it ran with
@@ -127,7 +127,7 @@ def test_a_dataset_cut_off_mid_line_is_one_warning_line_and_is_in_run_log(datase
 
 
 def test_no_handler_is_left_installed_and_an_application_can_route_the_messages(dataset_path, tmp_path):
-    probe = ("import logging, spherecal, spherecal.cli, spherecal.runner, spherecal.validation; "
+    probe = ("import logging, spherecal, spherecal.cli, spherecal.app.runner, spherecal.motion.validation; "
              "lg = logging.getLogger('spherecal'); print(len(lg.handlers), lg.level)")
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert proc.stdout.split() == ["0", "0"], proc.stderr  # nothing installed on import, no level set
@@ -137,7 +137,7 @@ def test_no_handler_is_left_installed_and_an_application_can_route_the_messages(
     assert root.handlers == before and root.level == logging.NOTSET  # main() leaves nothing behind
     # an application embedding spherecal routes the runner's messages with its own handler
     from spherecal.estimation import CalibrationOptions
-    from spherecal.runner import solve_and_write
+    from spherecal.app.runner import solve_and_write
 
     seen = []
 
@@ -187,7 +187,7 @@ def test_json_on_an_error_still_prints_one_summary(tmp_path, capsys):
 
 def test_validate_json(sim_config, capsys):
     from spherecal.config import load_config
-    from spherecal.runner import make_cell
+    from spherecal.app.runner import make_cell
 
     cfg = sim_config("sim-eye-in-hand.toml", exact_arm=True)
     out = cfg.parent / "out"
@@ -208,8 +208,8 @@ def test_validate_json(sim_config, capsys):
 
 def test_scan_records_the_result_it_used_with_out(sim_config, capsys):
     from spherecal.config import load_config
-    from spherecal.ply import read_ply_header
-    from spherecal.runner import make_cell
+    from spherecal.io.ply import read_ply_header
+    from spherecal.app.runner import make_cell
 
     cfg = sim_config("sim-eye-in-hand.toml", exact_arm=True, **{r"^passes = 2$": "passes = 1"})
     other = cfg.parent / "other-run"
@@ -260,7 +260,7 @@ def write_result_with(out, cfg_path, transform):
     other fields are genuine)."""
     from spherecal.config import load_config
     from spherecal.estimation import calibrate
-    from spherecal.runner import make_cell
+    from spherecal.app.runner import make_cell
 
     result = calibrate(simulate_dataset(make_cell(load_config(cfg_path).config), SweepPlan(profiles_per_station=6)))
     out.mkdir(parents=True, exist_ok=True)

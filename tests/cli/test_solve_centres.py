@@ -4,8 +4,8 @@ with profiles, end to end with the report."""
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_OK, main
 from spherecal.estimation.centres import circles_from_profiles
 from spherecal.sim import NoiseModel, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell

@@ -4,11 +4,11 @@ rotation tolerance, through the CLI against the simulator's truth."""
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
 from spherecal.config import load_config
-from spherecal.models import Observation, Pose
+from spherecal.core.models import Observation, Pose
 from spherecal.robots.abb_irb2400.kinematics import kinematics_for
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov

@@ -17,8 +17,8 @@ from reference_sensor import reference_fov
 
 HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 #: What `solve` (a dataset file, no configuration, no devices) has no use for.
-RUN_ONLY = ("spherecal.config", "spherecal.acquisition", "spherecal.kinplan", "spherecal.metrology",
-            "spherecal.validation", "spherecal.scanning", "spherecal.sensors.nxsensor_i.driver", "usb",
+RUN_ONLY = ("spherecal.config", "spherecal.motion.acquisition", "spherecal.motion.kinematic_plan", "spherecal.core.metrology",
+            "spherecal.motion.validation", "spherecal.motion.scanning", "spherecal.sensors.nxsensor_i.driver", "usb",
             "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
             "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree",  # (the simulated world, URDF)
             "spherecal.robots.abb_irb2400.frames",  # (reading a tooldata line: compare and validate)
@@ -45,7 +45,7 @@ def test_help_and_plugins_do_not_import_plotting_scipy_spatial_or_pinocchio(argv
 
 
 def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(tmp_path):
-    from spherecal import dataio
+    from spherecal.io import dataset as dataio
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     path = tmp_path / "small.jsonl"
@@ -72,7 +72,7 @@ def test_the_program_holds_the_garbage_collector_off_for_its_imports_only(tmp_pa
     """The ``spherecal`` program (``cli.console``) keeps Python's cyclic garbage
     collector off while a command imports its modules, and on from before the data is
     read; ``cli.main``, the library's entry, leaves the collector as it found it."""
-    from spherecal import dataio
+    from spherecal.io import dataset as dataio
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 
     path = tmp_path / "small.jsonl"

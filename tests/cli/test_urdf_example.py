@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from spherecal import dataio
-from spherecal import geometry as geo
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_OK, main
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

@@ -8,7 +8,7 @@ import pytest
 
 from spherecal.cli import EXIT_OK, EXIT_USAGE, EXIT_VALIDATION, main
 from spherecal.config import load_config
-from spherecal.runner import make_cell
+from spherecal.app.runner import make_cell
 
 
 @pytest.fixture

@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, EXIT_VALIDATION, main
 from spherecal.config import load_config
-from spherecal.models import Pose
-from spherecal.ply import read_ply, read_ply_header
-from spherecal.runner import make_cell, sensor_field_of_view
+from spherecal.core.models import Pose
+from spherecal.io.ply import read_ply, read_ply_header
+from spherecal.app.runner import make_cell, sensor_field_of_view
 
 
 def fov_of(cfg):
@@ -63,7 +63,7 @@ def test_validate_with_the_true_calibration_passes(cfg_path, capsys):
 
 def noise_spread(cfg, X, seeds=10):
     """RMS of P_S and SD over simulated validations with the true calibration."""
-    from spherecal.validation import Measured, evaluate, plan_validation
+    from spherecal.motion.validation import Measured, evaluate, plan_validation
 
     ps, sd = [], []
     for seed in range(100, 100 + seeds):
@@ -93,7 +93,7 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
     assert "FAILED" in capsys.readouterr().out
     v = json.loads((out / "validation.json").read_text())
 
-    from spherecal.validation import plan_validation
+    from spherecal.motion.validation import plan_validation
 
     sweeps = plan_validation(cfg, true, fov_of(cfg))
     R0 = {s.label + s.kind: s.targets[0].pose.rotation_matrix for s in sweeps}
@@ -133,7 +133,7 @@ def test_a_rotated_calibration_is_caught(cfg_path):
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_VALIDATION
     v = json.loads((out / "validation.json").read_text())
 
-    from spherecal.validation import plan_validation
+    from spherecal.motion.validation import plan_validation
 
     shifts = []
     for sweep in [s for s in plan_validation(cfg, true, fov_of(cfg)) if s.kind == "sphere"]:
@@ -259,7 +259,7 @@ def test_why_the_report_is_not_updated_names_the_changed_configuration(tmp_path)
     added, other settings), not "not the calibration" of a journal that is its own."""
     from types import SimpleNamespace
 
-    from spherecal.runner import _not_the_calibration, sha256_of
+    from spherecal.app.runner import _not_the_calibration, sha256_of
 
     journal, cfg_then, cfg_now = tmp_path / "journal.jsonl", tmp_path / "a.toml", tmp_path / "b.toml"
     journal.write_text("the shots\n")

@@ -1,6 +1,6 @@
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 
 
 @pytest.fixture(params=["eye_in_hand", "eye_to_hand"])

@@ -17,21 +17,21 @@ def test_the_api_reference_builds_and_documents_what_a_plugin_author_uses(tmp_pa
     out = build_api.build(tmp_path / "api")
     pages = {p.relative_to(out).as_posix(): p.read_text(encoding="utf-8") for p in out.rglob("*.html")}
     expected = {
-        "spherecal/models.html": ["Pose", "Profile", "Observation", "Dataset"],
-        "spherecal/devices.html": ["Robot", "Sensor", "RobotType", "SensorType", "SensorFieldOfView",
+        "spherecal/core/models.html": ["Pose", "Profile", "Observation", "Dataset"],
+        "spherecal/devices/contract.html": ["Robot", "Sensor", "RobotType", "SensorType", "SensorFieldOfView",
                                    "DeviceContext"],
         "spherecal/sim.html": ["SimulatedCell", "standard_cell", "NoiseModel"],
-        "spherecal/planning.html": ["SweepPlan", "plan_stations", "with_standoff"],
+        "spherecal/motion/planning.html": ["SweepPlan", "plan_stations", "with_standoff"],
         "spherecal/plugins/testing.html": ["spherecal_cell", "make_cell", "RobotHarness", "SensorHarness",
                                            "acquire_dataset"],
         "spherecal/plugins/hookspecs.html": ["spherecal_register_devices", "spherecal_register_exporters"],
-        "spherecal/exporters.html": ["Exporter"],
-        "spherecal/geometry.html": ["matrix_from_rotvec"],
+        "spherecal/io/exporters.html": ["Exporter"],
+        "spherecal/core/geometry.html": ["matrix_from_rotvec"],
     }
     for page, names in expected.items():
         assert page in pages, sorted(pages)
         for name in names:
             assert re.search(rf'id="{re.escape(name)}"|>{re.escape(name)}<', pages[page]), f"{name} not in {page}"
     # docstrings, not only names: the Robot protocol's contract and a fixture's parameters are there
-    assert "base_from_flange" in pages["spherecal/devices.html"] and "check_target" in pages["spherecal/devices.html"]
+    assert "base_from_flange" in pages["spherecal/devices/contract.html"] and "check_target" in pages["spherecal/devices/contract.html"]
     assert "true_transform" in pages["spherecal/plugins/testing.html"]

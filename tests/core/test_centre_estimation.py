@@ -10,12 +10,12 @@ import re
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.dataio import read_dataset, write_dataset
-from spherecal.errors import DatasetFileError, DegenerateDataError
+from spherecal.core import geometry as geo
+from spherecal.io.dataset import read_dataset, write_dataset
+from spherecal.core.errors import DatasetFileError, DegenerateDataError
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.centres import circles_from_profiles
-from spherecal.models import Circle, Dataset, Pose
+from spherecal.core.models import Circle, Dataset, Pose
 from spherecal.sim import NoiseModel, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 

@@ -1,5 +1,5 @@
 """Robot.check_target: a robot plugin's pre-motion check of each planned target joins
-the plan check (documented in spherecal.devices.Robot, docs/writing-a-robot-plugin.md and
+the plan check (documented in spherecal.devices.contract.Robot, docs/writing-a-robot-plugin.md and
 docs/cli.md): every target at fault is listed, nothing is moved, and a robot without the
 method is checked against the configured limits only."""
 
@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from spherecal.acquisition import Target, check_targets
+from spherecal.motion.acquisition import Target, check_targets
 from spherecal.config import AcquisitionConfig
-from spherecal.devices import Robot
-from spherecal.errors import DeviceError
-from spherecal.models import Pose
+from spherecal.devices.contract import Robot
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose
 
 
 class ReachLimitedRobot:

@@ -1,12 +1,12 @@
-"""spherecal.compare: the difference between two calibrations, its significance, drift."""
+"""spherecal.report.compare: the difference between two calibrations, its significance, drift."""
 
 import math
 
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.compare import (
+from spherecal.core import geometry as geo
+from spherecal.report.compare import (
     TransformEstimate,
     chi2_isf_6,
     chi2_sf_6,
@@ -14,9 +14,9 @@ from spherecal.compare import (
     covariance_from_std,
     parse_xyz_quat,
 )
-from spherecal.errors import ConfigError, InputError
+from spherecal.core.errors import ConfigError, InputError
 from spherecal.estimation import calibrate
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 

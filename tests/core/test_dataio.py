@@ -11,8 +11,8 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal.dataio import (
+from spherecal.io import dataset as dataio
+from spherecal.io.dataset import (
     DATASET_VERSION,
     DatasetWriter,
     TruncatedFileWarning,
@@ -22,8 +22,8 @@ from spherecal.dataio import (
     write_dataset,
     write_result,
 )
-from spherecal.errors import DatasetFileError, InputError
-from spherecal.models import (
+from spherecal.core.errors import DatasetFileError, InputError
+from spherecal.core.models import (
     CalibrationResult,
     Dataset,
     Observation,
@@ -88,7 +88,7 @@ def json_normalised(value):
 def test_a_dataset_into_a_missing_folder_names_the_file_asked_for(tmp_path):
     """The write goes through a temporary file beside the target: a failure names the
     file the caller asked for and why, never the temporary name."""
-    from spherecal.errors import FileWriteError
+    from spherecal.core.errors import FileWriteError
 
     ds = simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()), SweepPlan(profiles_per_station=4))
     target = tmp_path / "missing" / "d.jsonl"

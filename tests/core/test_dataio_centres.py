@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from spherecal.dataio import DatasetWriter, read_dataset, read_dataset_header, write_dataset
-from spherecal.errors import DatasetFileError, InputError
-from spherecal.models import Circle, Dataset, Observation, Pose, Profile
+from spherecal.io.dataset import DatasetWriter, read_dataset, read_dataset_header, write_dataset
+from spherecal.core.errors import DatasetFileError, InputError
+from spherecal.core.models import Circle, Dataset, Observation, Pose, Profile
 
 T0 = datetime(2026, 3, 4, 5, 6, 7, tzinfo=timezone.utc)
 

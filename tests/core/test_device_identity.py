@@ -1,6 +1,6 @@
-"""spherecal.devices.device_identity: what a device says it is, never a reason to stop."""
+"""spherecal.devices.contract.device_identity: what a device says it is, never a reason to stop."""
 
-from spherecal.devices import device_identity
+from spherecal.devices.contract import device_identity
 
 
 class _Says:

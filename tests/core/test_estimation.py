@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.errors import DegenerateDataError, InputError
+from spherecal.core import geometry as geo
+from spherecal.core.errors import DegenerateDataError, InputError
 from spherecal.estimation import CalibrationOptions, calibrate, solve
 from spherecal.estimation.circle import fit_circle
 from spherecal.estimation.problem import build_problem
 from spherecal.estimation.twostep import two_step
-from spherecal.models import Dataset, Observation, Pose, Profile
+from spherecal.core.models import Dataset, Observation, Pose, Profile
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 

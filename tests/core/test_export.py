@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spherecal.dataio import read_result
-from spherecal.errors import InputError
+from spherecal.io.dataset import read_result
+from spherecal.core.errors import InputError
 from spherecal.estimation import solve
-from spherecal.exporters import write_exports
+from spherecal.io.exporters import write_exports
 from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
@@ -31,7 +31,7 @@ def result(results, mounting):
 
 
 def _R_from_wxyz(q):
-    """Independent of spherecal.geometry: SciPy wants (x, y, z, w)."""
+    """Independent of spherecal.core.geometry: SciPy wants (x, y, z, w)."""
     w, x, y, z = q
     return Rotation.from_quat([x, y, z, w]).as_matrix()
 

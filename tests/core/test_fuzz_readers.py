@@ -15,10 +15,10 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from spherecal import dataio  # noqa: E402
+from spherecal.io import dataset as dataio  # noqa: E402
 from spherecal.config import load_config  # noqa: E402
-from spherecal.errors import ConfigError, DatasetFileError, DeviceError, InputError  # noqa: E402
-from spherecal.models import Observation, Pose, Profile  # noqa: E402
+from spherecal.core.errors import ConfigError, DatasetFileError, DeviceError, InputError  # noqa: E402
+from spherecal.core.models import Observation, Pose, Profile  # noqa: E402
 from spherecal.robots.abb_irb2400 import protocol  # noqa: E402
 from spherecal.sensors.nxsensor_i import wire  # noqa: E402
 

@@ -9,16 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.errors import InputError
+from spherecal.core import geometry as geo
+from spherecal.core.errors import InputError
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
-from spherecal.kinematics import chain_with_errors, corrected_flange_poses, error_parameter_names, flange_error_jacobian
-from spherecal.models import Pose
+from spherecal.core.kinematics import chain_with_errors, corrected_flange_poses, error_parameter_names, flange_error_jacobian
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
-from spherecal.urdf import read_urdf_chain
-from spherecal.validation import points_in_object_frame
+from spherecal.core.urdf import read_urdf_chain
+from spherecal.motion.validation import points_in_object_frame
 from reference_sensor import reference_fov
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -174,7 +174,7 @@ def planned_config(tmp_path, mounting, profiles_per_station=5):
     path = tmp_path / f"{mounting}.toml"
     path.write_text(text)
     from spherecal.plugins.host import PluginHost
-    from spherecal.runner import configured_for_sensor
+    from spherecal.app.runner import configured_for_sensor
 
     return configured_for_sensor(load_config(path), PluginHost())[0].config  # as a run: the sensor's standoff
 
@@ -195,8 +195,8 @@ def test_planned_stations_calibrate_the_arm(kin, mounting, tmp_path):
     the identifiability check, and calibrate the simulated arm (robot error on): the sphere
     seen from fresh stations, mapped through the identified model, scatters at most 0.05 mm
     RMS, a fraction of what the nominal model gives."""
-    from spherecal.acquisition import check_targets, plan_targets
-    from spherecal.kinplan import MAX_IDENTIFICATION_CONDITION, check_plan_identifies_kinematics, \
+    from spherecal.motion.acquisition import check_targets, plan_targets
+    from spherecal.motion.kinematic_plan import MAX_IDENTIFICATION_CONDITION, check_plan_identifies_kinematics, \
         plan_kinematic_stations, uses_planner
 
     cfg = planned_config(tmp_path, mounting)
@@ -269,7 +269,7 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
 
 
 def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
-    from spherecal.runner import write_calibrated_urdf
+    from spherecal.app.runner import write_calibrated_urdf
 
     cell = standard_cell("eye_in_hand", seed=5, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
                          fov=reference_fov())
@@ -288,7 +288,7 @@ def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
     assert all(p.std > 0 for p in params if p.identified)
     # result.json reads back (validate and scan read it): the transform's and sphere's
     # covariance, the identified parameters with their spreads
-    from spherecal import dataio
+    from spherecal.io import dataset as dataio
 
     dataio.write_result(tmp_path / "result.json", sol.result)
     back = dataio.read_result(tmp_path / "result.json")

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal import mapping
-from spherecal.mapping import frame_from_sensor_stack, map_profile_list, map_profiles, rt_from_poses
-from spherecal.models import Pose
+from spherecal.core import geometry as geo
+from spherecal.core import mapping
+from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, map_profiles, rt_from_poses
+from spherecal.core.models import Pose
 
 BACKENDS = ["numpy"] + (["numba"] if mapping.NUMBA_AVAILABLE else [])
 

@@ -4,10 +4,10 @@ and the simulated cell with a true and a deliberately wrong calibration."""
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.errors import InputError
-from spherecal.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
-from spherecal.metrology import (
+from spherecal.core import geometry as geo
+from spherecal.core.errors import InputError
+from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
+from spherecal.core.metrology import (
     MaximumPermissibleErrors,
     acceptance_report,
     fit_plane,
@@ -16,7 +16,7 @@ from spherecal.metrology import (
     probing_errors,
     sphere_spacing_error,
 )
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.sim.cell import NoiseModel, standard_cell
 from spherecal.sim.objects import BallBar, FlatPlate
 from reference_sensor import reference_fov

@@ -7,8 +7,8 @@ import pytest
 from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
-from spherecal import geometry as geo
-from spherecal.models import Dataset, Observation, Pose, Profile
+from spherecal.core import geometry as geo
+from spherecal.core.models import Dataset, Observation, Pose, Profile
 
 
 def random_pose(rng) -> Pose:

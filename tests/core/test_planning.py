@@ -1,4 +1,4 @@
-"""Planning real motion lives next to acquisition (spherecal.planning), not in the
+"""Planning real motion lives next to acquisition (spherecal.motion.planning), not in the
 simulated world: the planner and the kinematic planner import nothing of spherecal.sim,
 and the simulated acquisition plans with the very same functions."""
 
@@ -12,7 +12,7 @@ import pytest
 from reference_sensor import reference_fov
 
 
-@pytest.mark.parametrize("module", ["spherecal.planning", "spherecal.kinplan"])
+@pytest.mark.parametrize("module", ["spherecal.motion.planning", "spherecal.motion.kinematic_plan"])
 def test_the_planners_of_real_motion_load_no_simulated_world(module):
     code = (f"import sys, {module}; "
             "print(sorted(m for m in sys.modules if m == 'spherecal.sim' or m.startswith('spherecal.sim.')))")
@@ -21,7 +21,8 @@ def test_the_planners_of_real_motion_load_no_simulated_world(module):
 
 
 def test_the_simulated_acquisition_plans_with_the_planner_of_real_motion():
-    from spherecal import planning, sim
+    from spherecal.motion import planning
+    from spherecal import sim
     from spherecal.sim import simulate_dataset, standard_cell
 
     assert sim.SweepPlan is planning.SweepPlan and sim.plan_stations is planning.plan_stations

@@ -6,8 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from spherecal.errors import InputError
-from spherecal.ply import COUNT_WIDTH, PlyWriter, read_ply, read_ply_header, recover_ply
+from spherecal.core.errors import InputError
+from spherecal.io.ply import COUNT_WIDTH, PlyWriter, read_ply, read_ply_header, recover_ply
 
 
 def _chunks(rng, sizes, dtype=np.float32):
@@ -85,7 +85,7 @@ def test_header_count_field_is_fixed_width_and_patched_in_place(tmp_path):
 _INTERRUPTED = """
 import os, sys
 import numpy as np
-from spherecal.ply import PlyWriter
+from spherecal.io.ply import PlyWriter
 w = PlyWriter(sys.argv[1], format=sys.argv[2], dtype=np.float64)
 for i in range(3):
     w.write(np.full((1000, 3), float(i)))

@@ -93,7 +93,7 @@ def test_station_model_on_centres_converges_with_systematic_robot_error(mounting
     """Two of the five solves of ``bench_centres.py --robot-error-model station --world
     systematic`` that hit the iteration cap: they converge, and the answer is as near
     the truth as the arm's geometric error allows (0.5-2 mm at the flange)."""
-    from spherecal import geometry as geo
+    from spherecal.core import geometry as geo
     from spherecal.estimation.centres import circles_from_profiles
     from spherecal.plugins.host import PluginHost
     from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, simulate_dataset, standard_cell

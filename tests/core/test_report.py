@@ -6,10 +6,10 @@ import re
 import numpy as np
 import pytest
 
-from spherecal.errors import InputError
+from spherecal.core.errors import InputError
 from spherecal.estimation import solve
-from spherecal.exporters import ExportNote
-from spherecal.models import ObservationFlag, Pose
+from spherecal.io.exporters import ExportNote
+from spherecal.core.models import ObservationFlag, Pose
 from spherecal.report.assess import Thresholds, advice, calibration_std, inconsistent_stations, verdict
 from spherecal.report.html import FIGURE_NAMES, mapped_points, write_report
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
@@ -143,7 +143,7 @@ def test_report_rejects_what_is_not_a_solution(clean_solution, tmp_path):
         write_report(clean_solution, tmp_path, filename="../x.html")
     with pytest.raises(InputError, match="validation must be a mapping"):
         write_report(clean_solution, tmp_path, validation=[1, 2])
-    with pytest.raises(InputError, match="notes must be a sequence of spherecal.exporters.ExportNote"):
+    with pytest.raises(InputError, match="notes must be a sequence of spherecal.io.exporters.ExportNote"):
         write_report(clean_solution, tmp_path, notes=["On a controller ..."])
 
 

@@ -11,7 +11,7 @@ from matplotlib.text import Text
 
 from spherecal.estimation import solve
 from spherecal.estimation.centres import circles_from_profiles
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.report import html as rh
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov

@@ -12,13 +12,13 @@ import subprocess
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal.errors import DatasetFileError, InputError
+from spherecal.io import dataset as dataio
+from spherecal.core.errors import DatasetFileError, InputError
 from spherecal.estimation import solve
-from spherecal.models import correlation_matrix
+from spherecal.core.models import correlation_matrix
 from spherecal.report.assess import Verdict, verdict, with_validation
 from spherecal.report.html import point_uncertainty, write_report
-from spherecal.runner import traceability
+from spherecal.app.runner import traceability
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 

@@ -7,17 +7,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.refine import NoiseAssumptions
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
-from spherecal.kinematics import SerialChain
-from spherecal.models import Pose
+from spherecal.core.kinematics import SerialChain
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.report.assess import robot_error_dominates, verdict
 from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
-from spherecal.validation import points_in_object_frame
+from spherecal.motion.validation import points_in_object_frame
 from reference_sensor import reference_fov
 
 NOISE = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02)

@@ -1,4 +1,4 @@
-"""The rotation conversions of :mod:`spherecal.geometry` are written in NumPy (SciPy's
+"""The rotation conversions of :mod:`spherecal.core.geometry` are written in NumPy (SciPy's
 ``scipy.spatial`` takes 0.3-0.4 s to import, paid by every command that reads a pose).
 They are checked here against SciPy's ``Rotation``, an independent implementation, over
 random rotations, tiny and half-turn angles and stacks. Quaternion order: ours (w, x,
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 
 
 @pytest.fixture(scope="module")

@@ -7,11 +7,11 @@ import re
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.errors import DegenerateDataError
+from spherecal.core import geometry as geo
+from spherecal.core.errors import DegenerateDataError
 from spherecal.estimation import CalibrationOptions, pipeline, solve
 from spherecal.estimation.problem import derived_station_rotation_tolerance_deg
-from spherecal.models import Dataset, Observation, Pose, Profile
+from spherecal.core.models import Dataset, Observation, Pose, Profile
 from spherecal.sim import NoiseModel, SweepPlan, plan_stations, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
-from spherecal.models import Pose
+from spherecal.core import geometry as geo
+from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
+from spherecal.core.models import Pose
 from spherecal.sim.cell import NoiseModel, standard_cell
 from spherecal.sim.objects import BallBar, CarDoorPanel, FlatPlate, SceneObject, Sphere
 from reference_sensor import reference_fov

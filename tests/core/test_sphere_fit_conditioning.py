@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 from spherecal.estimation.twostep import fit_sphere_fixed_radius
 
 

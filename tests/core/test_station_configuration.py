@@ -5,10 +5,10 @@ other wrist solution) is kept and said as a warning, its joints named."""
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal.acquisition import Target, acquire, configuration_change
+from spherecal.io import dataset as dataio
+from spherecal.motion.acquisition import Target, acquire, configuration_change
 from spherecal.config import AcquisitionConfig
-from spherecal.models import Observation, Pose, Profile
+from spherecal.core.models import Observation, Pose, Profile
 
 WRIST = [10.4, 39.6, 47.3, -178.2, -46.1, 144.3]
 FLIPPED = [10.4, 39.6, 47.3, 1.8, 46.1, -35.7]  # the same flange pose, the other wrist solution

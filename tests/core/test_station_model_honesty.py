@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from reference_sensor import reference_fov
 
-from spherecal import geometry as geo
+from spherecal.core import geometry as geo
 from spherecal.estimation import CalibrationOptions, solve
 from spherecal.estimation.refine import (
     _neg2_reml_derivatives,

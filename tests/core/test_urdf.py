@@ -1,4 +1,4 @@
-"""A serial chain to URDF and back (spherecal.urdf): the round trip reproduces flange
+"""A serial chain to URDF and back (spherecal.core.urdf): the round trip reproduces flange
 poses to 1e-9 mm, Pinocchio reads the written file directly, URDFs written by others
 (fixed joints in between, rotated and tilted axes, a UR5 from example-robot-data) read
 as the same kinematics, and bad files are refused with the file and the link or joint
@@ -13,11 +13,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from spherecal.errors import InputError
-from spherecal.kinematics import SerialChain
+from spherecal.core.errors import InputError
+from spherecal.core.kinematics import SerialChain
 from spherecal.plugins.host import PluginHost
 from spherecal.sim.robot_error import RobotErrorModel, perturbed_chain
-from spherecal.urdf import (
+from spherecal.core.urdf import (
     chain_from_urdf,
     chain_inverse_kinematics,
     chain_to_urdf,

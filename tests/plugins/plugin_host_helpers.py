@@ -6,7 +6,7 @@ import types
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.devices import RobotType, SensorType
+from spherecal.devices.contract import RobotType, SensorType
 from spherecal.plugins import hookimpl
 
 
@@ -27,7 +27,7 @@ class ToyRobot:
         self.config = config
 
     def read_flange_pose(self):
-        from spherecal.models import Pose
+        from spherecal.core.models import Pose
 
         return Pose.identity()
 

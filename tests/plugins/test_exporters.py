@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.errors import ConfigError, InputError, PluginError
-from spherecal.exporters import ExportNote, Exporter, write_exports
-from spherecal.models import CalibrationResult, Pose
+from spherecal.core.errors import ConfigError, InputError, PluginError
+from spherecal.io.exporters import ExportNote, Exporter, write_exports
+from spherecal.core.models import CalibrationResult, Pose
 from spherecal.plugins.host import PluginHost
 
 from plugin_host_helpers import make_plugin

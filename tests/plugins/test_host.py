@@ -9,9 +9,9 @@ import re
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.devices import DeviceContext, RobotType
-from spherecal.errors import ConfigError, DeviceError, PluginError
-from spherecal.models import Observation, Pose, Profile
+from spherecal.devices.contract import DeviceContext, RobotType
+from spherecal.core.errors import ConfigError, DeviceError, PluginError
+from spherecal.core.models import Observation, Pose, Profile
 from spherecal.plugins import hookimpl
 from spherecal.plugins.host import DISABLE_AUTOLOAD_ENV, PluginHost, autoload_disabled
 

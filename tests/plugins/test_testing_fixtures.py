@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spherecal.errors import DeviceError
-from spherecal.models import Pose, Profile
-from spherecal.planning import SweepPlan
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose, Profile
+from spherecal.motion.planning import SweepPlan
 from spherecal.plugins.testing import RobotHarness, SensorHarness, acquire_dataset, pose_error
 from reference_sensor import reference_fov
 
@@ -180,7 +180,7 @@ def test_acquire_dataset_takes_one_observation_per_target(spherecal_cell, sphere
 
 
 def test_pose_error_is_exact_for_small_and_large_angles():
-    from spherecal.geometry import matrix_from_rotvec
+    from spherecal.core.geometry import matrix_from_rotvec
 
     a = Pose.from_rt(matrix_from_rotvec([0.3, -0.2, 0.1]), [1.0, 2.0, 3.0])
     for angle_deg in (1e-7, 0.01, 90.0, 179.0):
@@ -228,7 +228,7 @@ def test_cell_fixture_takes_the_sphere_and_the_true_transform(spherecal_cell, sp
     assert spherecal_cell.true_transform is OWN_TRUTH and spherecal_cell.seed == 4
     # the stations are planned around that truth: mid-sweep, the sphere's centre is where the plan
     # puts it in the sensor frame (the sweep's point plus the station's offset), to rounding
-    from spherecal.planning import SweepPlan, sphere_centres_in_sensor, with_standoff
+    from spherecal.motion.planning import SweepPlan, sphere_centres_in_sensor, with_standoff
 
     plan = with_standoff(SweepPlan(), spherecal_cell.fov)
     planned = sphere_centres_in_sensor(plan, spherecal_cell.sphere_radius_mm)
@@ -240,7 +240,7 @@ def test_cell_fixture_takes_the_sphere_and_the_true_transform(spherecal_cell, sp
 
 
 def _small_fov():
-    from spherecal.devices import SensorFieldOfView
+    from spherecal.devices.contract import SensorFieldOfView
 
     return SensorFieldOfView(z_near_mm=15.0, z_far_mm=-15.0, width_near_mm=18.0, width_far_mm=26.0, n_columns=200)
 
@@ -280,7 +280,7 @@ def test_cell_fixture_takes_a_whole_cell(spherecal_cell):
 @pytest.mark.parametrize("param, message", [
     ({"sphere_centre": (1, 2, 3)}, r"unknown parameter\(s\) \['sphere_centre'\]; known: .*'sphere_centre_mm'"),
     ({"cell": "eye_in_hand"}, "'cell' takes a spherecal.sim.SimulatedCell and no other key"),
-    ({"true_transform": [1, 2, 3]}, "true_transform must be a spherecal.models.Pose, got list"),
+    ({"true_transform": [1, 2, 3]}, "true_transform must be a spherecal.core.models.Pose, got list"),
 ])
 def test_cell_fixture_parameters_are_checked(param, message):
     from spherecal.plugins.testing import make_cell
@@ -327,7 +327,7 @@ def make_quiet(cell, noise):
 
 
 def _stations(cell):
-    from spherecal.planning import plan_stations
+    from spherecal.motion.planning import plan_stations
 
     return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm,
                          field_of_view=cell.fov)
@@ -378,7 +378,7 @@ class RecordingRobot(CellRobot):
 
 
 def _expected_stations(cell, plan):
-    from spherecal.planning import plan_stations
+    from spherecal.motion.planning import plan_stations
 
     return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
                          field_of_view=cell.fov)
@@ -390,7 +390,7 @@ def _same(a, b) -> bool:
 
 
 def test_robot_harness_takes_the_cells_plan():
-    from spherecal.planning import SweepPlan
+    from spherecal.motion.planning import SweepPlan
     from spherecal.sim import standard_cell
 
     cell = standard_cell("eye_to_hand", seed=4, fov=reference_fov())
@@ -408,7 +408,7 @@ def test_robot_harness_takes_the_cells_plan():
     assert _same(SensorHarness(cell, plan=plan).stations, harness.stations)
     with pytest.raises(TypeError, match=r"RobotHarness: give stations or plan .*not both"):
         RobotHarness(cell, harness.stations, plan=plan)
-    with pytest.raises(TypeError, match=r"plan must be a spherecal.planning.SweepPlan, got dict"):
+    with pytest.raises(TypeError, match=r"plan must be a spherecal.motion.planning.SweepPlan, got dict"):
         RobotHarness(cell, plan=OWN_PLAN_KW)
 
 
@@ -424,7 +424,7 @@ def test_cell_fixture_takes_the_cells_plan(spherecal_cell, spherecal_stations, s
     # a whole cell takes one too, and a plan that is not a SweepPlan is refused
     whole = make_cell({"cell": _whole_cell(), "plan": OWN_PLAN})
     assert whole is _whole_cell() and _same(RobotHarness(whole).stations, _expected_stations(whole, OWN_PLAN))
-    with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.planning.SweepPlan, got dict"):
+    with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.motion.planning.SweepPlan, got dict"):
         make_cell({"plan": OWN_PLAN_KW})
 
 
@@ -432,7 +432,7 @@ def test_the_default_field_of_view_is_the_only_declared_or_the_built_in_one(monk
     from pydantic import BaseModel, ConfigDict
 
     import spherecal.plugins.host as host_module
-    from spherecal.devices import SensorFieldOfView, SensorType
+    from spherecal.devices.contract import SensorFieldOfView, SensorType
     from spherecal.plugins import hookimpl
     from spherecal.plugins.testing import default_field_of_view, make_cell
 

@@ -78,7 +78,7 @@ def _finish(proc: subprocess.Popen, timeout=120) -> subprocess.CompletedProcess:
 DISCOVER = """
 import json
 from spherecal.plugins.host import PluginHost
-from spherecal.errors import ConfigError
+from spherecal.core.errors import ConfigError
 host = PluginHost()
 out = {"plugins": {i.name: [i.source, i.distribution] for i in host.plugins},
        "robots": sorted(host.registry.robots), "sensors": sorted(host.registry.sensors)}

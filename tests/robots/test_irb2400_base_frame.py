@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from spherecal.cli import EXIT_DEVICE, main
-from spherecal.devices import DeviceContext
-from spherecal.errors import DeviceError
-from spherecal.models import Pose
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400 import protocol as P
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config, SimulatedControllerSettings

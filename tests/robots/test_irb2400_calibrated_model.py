@@ -8,17 +8,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spherecal import geometry as geo
-from spherecal.devices import DeviceContext
-from spherecal.errors import ConfigError
-from spherecal.models import Pose
+from spherecal.core import geometry as geo
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.errors import ConfigError
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
 from spherecal.robots.abb_irb2400.kinematics import CalibratedIrb2400Kinematics, UnreachableError, kinematics_for
 from spherecal.sim.cell import standard_cell
 from spherecal.sim.robot_error import RobotErrorModel, SimulatedArm
-from spherecal.urdf import chain_to_urdf, fold_zero_offsets, write_urdf
+from spherecal.core.urdf import chain_to_urdf, fold_zero_offsets, write_urdf
 from reference_sensor import reference_fov
 
 #: Controller joints (deg) of a few targets around the standard cell's sphere, away

@@ -10,9 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from spherecal.devices import Robot
-from spherecal.errors import DeviceError, InputError
-from spherecal.models import Pose
+from spherecal.devices.contract import Robot
+from spherecal.core.errors import DeviceError, InputError
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import protocol as P
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config, SimulatedControllerSettings
 from spherecal.robots.abb_irb2400.driver import AbbIrb2400Robot

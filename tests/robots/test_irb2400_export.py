@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spherecal.errors import ConfigError, InputError
+from spherecal.core.errors import ConfigError, InputError
 from spherecal.estimation import solve
-from spherecal.exporters import write_exports
+from spherecal.io.exporters import write_exports
 from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex
 from spherecal.report.html import write_report
@@ -44,7 +44,7 @@ def host():
 
 
 def _R_from_wxyz(q):
-    """Independent of spherecal.geometry: SciPy wants (x, y, z, w)."""
+    """Independent of spherecal.core.geometry: SciPy wants (x, y, z, w)."""
     w, x, y, z = q
     return Rotation.from_quat([x, y, z, w]).as_matrix()
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from spherecal.errors import InputError
-from spherecal.models import Pose
+from spherecal.core.errors import InputError
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400.frames import read_frame
 from reference_sensor import reference_fov
 

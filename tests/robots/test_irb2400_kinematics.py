@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400.kinematics import (
     Irb2400Geometry,
     Irb2400Kinematics,

@@ -12,7 +12,7 @@ inside the tests only, to show that the tests below fail against it.
 import numpy as np
 import pytest
 
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import protocol as P
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config, SimulatedControllerSettings
 from spherecal.robots.abb_irb2400.driver import AbbIrb2400Robot

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from spherecal.devices import DeviceContext, Robot, RobotType
-from spherecal.errors import ConfigError, DeviceError
+from spherecal.devices.contract import DeviceContext, Robot, RobotType
+from spherecal.core.errors import ConfigError, DeviceError
 from spherecal.plugins.testing import RobotHarness
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spherecal.models import Pose
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import protocol as P
 
 
@@ -65,7 +65,7 @@ def test_replies_round_trip_with_the_stated_precision():
 
 
 def _rotvec(R):
-    from spherecal.geometry import rotvec_from_matrix
+    from spherecal.core.geometry import rotvec_from_matrix
 
     return rotvec_from_matrix(R)
 

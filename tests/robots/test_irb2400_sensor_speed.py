@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from spherecal import geometry as geo
-from spherecal.models import Pose
+from spherecal.core import geometry as geo
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import protocol as P
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config, SimulatedControllerSettings
 from spherecal.robots.abb_irb2400.driver import AbbIrb2400Robot
@@ -95,7 +95,7 @@ def test_the_framework_hands_the_sensor_position_to_the_robot(tmp_path):
     from pathlib import Path
 
     from spherecal.config import load_config
-    from spherecal.runner import tool_point_mm
+    from spherecal.app.runner import tool_point_mm
 
     examples = Path(__file__).resolve().parents[2] / "examples"
     eih = load_config(examples / "sim-eye-in-hand.toml").config

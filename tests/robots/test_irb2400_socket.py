@@ -13,10 +13,10 @@ import threading
 import numpy as np
 import pytest
 
-from spherecal import dataio
+from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DEVICE, EXIT_OK, main
-from spherecal.errors import DeviceError
-from spherecal.models import Pose
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import protocol as P
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config, SimulatedControllerSettings
 from spherecal.robots.abb_irb2400.driver import AbbIrb2400Robot

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import serial.serialposix
 
-from spherecal.errors import DeviceError
+from spherecal.core.errors import DeviceError
 from spherecal.robots.abb_irb2400 import driver as driver_module
 from spherecal.robots.abb_irb2400 import protocol as P
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config, SimulatedControllerSettings
@@ -81,7 +81,7 @@ def test_a_stale_reply_waiting_before_open_is_flushed(server, monkeypatch):
 def without_the_session_handshake(monkeypatch):
     """The driver of protocol version 2: no PING opens the session, so the first reply
     that carries the request's seq is taken."""
-    from spherecal import linelink
+    from spherecal.devices import line_robot as linelink
 
     real = linelink.LineRobot.__init__
 

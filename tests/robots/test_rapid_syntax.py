@@ -33,7 +33,7 @@ def exported_modules(tmp_path_factory):
     write (its plugin's and the core's exporters, with their default settings), for a
     result of each mounting mode."""
     from spherecal.estimation import solve
-    from spherecal.exporters import write_exports
+    from spherecal.io.exporters import write_exports
     from spherecal.plugins.host import PluginHost
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 

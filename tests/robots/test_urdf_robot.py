@@ -13,13 +13,13 @@ from importlib import metadata
 import numpy as np
 import pytest
 
-from spherecal.devices import DeviceContext
-from spherecal.errors import ConfigError, DeviceError, InputError
-from spherecal.kinematics import chain_with_errors
-from spherecal.models import Pose
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.errors import ConfigError, DeviceError, InputError
+from spherecal.core.kinematics import chain_with_errors
+from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
 from spherecal.sim import NoiseModel, RobotErrorModel, plan_stations, simulate_dataset, standard_cell
-from spherecal.urdf import chain_to_urdf
+from spherecal.core.urdf import chain_to_urdf
 from reference_sensor import reference_fov
 
 #: The IRB 2400's parallel linkage as a joint map: q3_model = q3_controller - q2_controller.
@@ -75,7 +75,7 @@ def test_ur5_kinematics_and_limits_come_from_its_urdf(ur5_kin):
 
 
 def test_ur5_inverse_kinematics_returns_the_joints_nearest_the_seed(ur5_kin):
-    from spherecal.urdf import chain_jacobian
+    from spherecal.core.urdf import chain_jacobian
 
     rng = np.random.default_rng(4)
     n_checked = 0
@@ -140,7 +140,7 @@ def test_nothing_moves_when_a_check_fails(host, ur5_urdf, ur5_kin):
         robot.move_linear(target, 50.0)
         assert ctl.moves == 1
     # the controller refuses an out-of-reach target on its own too (ERR 5, nothing moves)
-    from spherecal import lineproto as P
+    from spherecal.devices import line_protocol as P
 
     reply = P.decode_reply(ctl.handle(P.target_request(1, far)))
     assert reply.kind == "OK"
@@ -158,7 +158,7 @@ def test_the_ur5_over_a_socket_server(host, ur5_urdf):
     socket server's sessions (a target staged over one connection is refused over the
     next) and a controller that closes the connection after serving a MOVL and before
     its reply (the robot says so at once and sends nothing again)."""
-    from spherecal import lineproto as P
+    from spherecal.devices import line_protocol as P
     from spherecal.robots.urdf_robot.plugin import UrdfRobot
     from spherecal.sim.controller import start_controller
 
@@ -264,7 +264,7 @@ def test_calibrated_model_reads_back_through_the_urdf_type(host, irb, tmp_path):
     examples/sim-kinematic-eye-in-hand.toml writes it) reads back through the urdf type
     and reproduces the calibrated flange poses of controller joints."""
     from spherecal.estimation import CalibrationOptions, solve
-    from spherecal.runner import write_calibrated_urdf
+    from spherecal.app.runner import write_calibrated_urdf
     from spherecal.sim import SweepPlan
 
     rng = np.random.default_rng(7)

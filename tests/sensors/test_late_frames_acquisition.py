@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spherecal import dataio
-from spherecal import geometry as geo
-from spherecal.acquisition import Progress, acquire, plan_targets
+from spherecal.io import dataset as dataio
+from spherecal.core import geometry as geo
+from spherecal.motion.acquisition import Progress, acquire, plan_targets
 from spherecal.config import load_config
 from spherecal.estimation import solve
-from spherecal.runner import calibration_options, configured_for_sensor, make_cell, make_host, open_devices
+from spherecal.app.runner import calibration_options, configured_for_sensor, make_cell, make_host, open_devices
 from spherecal.sensors.nxsensor_i import SimulatedNxSensorBackend
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "sim-eye-in-hand.toml"

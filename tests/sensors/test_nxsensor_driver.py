@@ -5,9 +5,9 @@ import pytest
 import usb.core
 import usb.util
 
-from spherecal.devices import Sensor
-from spherecal.errors import DeviceError
-from spherecal.models import Pose, Profile
+from spherecal.devices.contract import Sensor
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose, Profile
 from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend, WireConfig
 from spherecal.sim import NoiseModel, plan_stations, standard_cell
 from reference_sensor import reference_fov

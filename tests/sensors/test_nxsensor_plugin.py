@@ -5,8 +5,8 @@ import pytest
 import usb.backend.libusb0
 import usb.backend.libusb1
 import usb.backend.openusb
-from spherecal.devices import DeviceContext
-from spherecal.errors import ConfigError, DeviceError
+from spherecal.devices.contract import DeviceContext
+from spherecal.core.errors import ConfigError, DeviceError
 from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend
 from spherecal.sensors.nxsensor_i.plugin import create_sensor
 

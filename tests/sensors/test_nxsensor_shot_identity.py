@@ -8,7 +8,7 @@ between shots and checks every profile against that record."""
 import numpy as np
 import pytest
 
-from spherecal.errors import DeviceError
+from spherecal.core.errors import DeviceError
 from spherecal.sensors.nxsensor_i import NxSensorConfig, NxSensorDriver, SimulatedNxSensorBackend, WireConfig
 from spherecal.sensors.nxsensor_i.shots import CounterMismatch, FrameCounter
 from spherecal.sim import plan_stations, standard_cell

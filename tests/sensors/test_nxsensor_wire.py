@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from spherecal.errors import DeviceError, InputError
+from spherecal.core.errors import DeviceError, InputError
 from spherecal.sensors.nxsensor_i.wire import (
     Command,
     ControlSetup,

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from spherecal.devices import DeviceContext, RobotType
-from spherecal.errors import DeviceError
-from spherecal.models import Pose
+from spherecal.devices.contract import DeviceContext, RobotType
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose
 from spherecal.plugins import hookimpl
 
 TYPE_NAME = "example_cartesian"
@@ -63,7 +63,7 @@ class CartesianConfig(BaseModel):
 
 
 class ExampleCartesianRobot:
-    """The :class:`spherecal.devices.Robot` of ``example_cartesian`` on a simulated cell."""
+    """The :class:`spherecal.devices.contract.Robot` of ``example_cartesian`` on a simulated cell."""
 
     def __init__(self, config: CartesianConfig, cell) -> None:
         self.config = config

@@ -2,7 +2,7 @@
 
 It reads profiles from a :class:`spherecal.sim.SimulatedCell`
 (``cell.measure_profile()``: points (y, z) in mm in the sensor's laser plane, z positive
-towards the sensor) and hands them on as :class:`spherecal.models.Profile`, or None
+towards the sensor) and hands them on as :class:`spherecal.core.models.Profile`, or None
 when too few points are valid.
 """
 
@@ -13,9 +13,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.devices import DeviceContext, SensorFieldOfView, SensorType
-from spherecal.errors import DeviceError
-from spherecal.models import Profile
+from spherecal.devices.contract import DeviceContext, SensorFieldOfView, SensorType
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Profile
 from spherecal.plugins import hookimpl
 
 TYPE_NAME = "example_profiler"
@@ -47,7 +47,7 @@ class ProfilerConfig(BaseModel):
 
 
 class ExampleProfiler:
-    """The :class:`spherecal.devices.Sensor` of ``example_profiler`` on a simulated cell."""
+    """The :class:`spherecal.devices.contract.Sensor` of ``example_profiler`` on a simulated cell."""
 
     def __init__(self, config: ProfilerConfig, cell) -> None:
         self.config = config

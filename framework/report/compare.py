@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from . import geometry as geo
-from .devices import ControllerFrame
-from .errors import ConfigError, InputError, SpherecalError
-from .models import TRANSFORM_NAME, CalibrationResult, Pose
+from spherecal.core import geometry as geo
+from spherecal.devices.contract import ControllerFrame
+from spherecal.core.errors import ConfigError, InputError, SpherecalError
+from spherecal.core.models import TRANSFORM_NAME, CalibrationResult, Pose
 
 #: Defaults of the drift thresholds (the verdict's amber limits on a 1-sigma).
 THRESHOLD_MM = 0.1
@@ -119,7 +119,7 @@ def looks_like_numbers(text: str) -> bool:
 def read_controller_frame(text: str, what: str = "--controller-frame", host=None, robot_type: str | None = None
                           ) -> ControllerFrame:
     """The frame in ``text`` as a robot controller writes it, read by the installed robot
-    plugin that knows the syntax (:attr:`spherecal.devices.RobotType.read_frame`; only
+    plugin that knows the syntax (:attr:`spherecal.devices.contract.RobotType.read_frame`; only
     ``robot_type``'s when given). :class:`ConfigError` naming ``what`` when no plugin reads
     it, or the reader's message (the component at fault) when it is malformed."""
     if host is None:
@@ -135,7 +135,7 @@ def read_controller_frame(text: str, what: str = "--controller-frame", host=None
             raise ConfigError(f"{what}: {exc}") from None
         if frame is not None:
             if not isinstance(frame, ControllerFrame) or frame.transform_name not in TRANSFORM_NAME.values():
-                from .errors import PluginError
+                from spherecal.core.errors import PluginError
 
                 raise PluginError(f"robot type {t.name!r}: read_frame returned {frame!r:.100}, not a ControllerFrame "
                                   f"of {' or '.join(TRANSFORM_NAME.values())}")
@@ -165,7 +165,7 @@ def read_transform_argument(text: str, what: str = "--transform", host=None, rob
     if path.is_dir() or _is_result_file(path):
         result, where = read_result_operand(path)
         return TransformEstimate.of_result(result, str(where), uncertainty)
-    from .safeio import read_input
+    from spherecal.io.files import read_input
 
     raw = read_input(path, InputError, "a transform file", 1 << 20)
     try:
@@ -196,7 +196,7 @@ def _is_result_file(path: Path) -> bool:
 
 def read_result_operand(path: str | os.PathLike) -> tuple[CalibrationResult, Path]:
     """A calibration result: a ``result.json`` or a run folder holding one."""
-    from . import dataio
+    from spherecal.io import dataset as dataio
 
     p = Path(path).expanduser()
     if p.is_dir():

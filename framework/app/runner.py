@@ -12,18 +12,18 @@ from typing import TYPE_CHECKING, Callable, Iterator
 import numpy as np
 from pydantic import ValidationError
 
-from . import dataio
-from .runlog import Notice, progress_log
-from .errors import ConfigError, FitBreakdownError, InputError, SpherecalError
-from .estimation import CalibrationOptions, Solution, solve
-from .models import Dataset, Pose
-from .models import SPHERE_FRAME, TRANSFORM_NAME
-from .report.assess import Verdict
+from spherecal.io import dataset as dataio
+from spherecal.io.runlog import Notice, progress_log
+from spherecal.core.errors import ConfigError, FitBreakdownError, InputError, SpherecalError
+from spherecal.estimation import CalibrationOptions, Solution, solve
+from spherecal.core.models import Dataset, Pose
+from spherecal.core.models import SPHERE_FRAME, TRANSFORM_NAME
+from spherecal.report.assess import Verdict
 
 if TYPE_CHECKING:
-    from .config import LoadedConfig, ReportConfig, RunConfig
-    from .devices import SensorFieldOfView
-    from .sim import SimulatedCell
+    from spherecal.config import LoadedConfig, ReportConfig, RunConfig
+    from spherecal.devices.contract import SensorFieldOfView
+    from spherecal.sim import SimulatedCell
 
 # The acquisition, the configuration file's models, the planners, the devices and the
 # simulated world are imported by the functions that use them: `spherecal solve` (a
@@ -35,7 +35,7 @@ RESULT_NAME = "result.json"
 #: The identified robot model written next to the result (:func:`write_calibrated_urdf`).
 CALIBRATED_URDF_NAME = "robot_calibrated.urdf"
 #: What a calibration writes into its folder besides its exporters' files (an
-#: :class:`~spherecal.exporters.ExportPlan` gives theirs).
+#: :class:`~spherecal.io.exporters.ExportPlan` gives theirs).
 OUTPUT_PATTERNS = (RESULT_NAME, "report.html", "report_*.png", CALIBRATED_URDF_NAME)
 
 
@@ -51,7 +51,7 @@ def existing_outputs(out: Path, patterns: tuple[str, ...] = ()) -> list[Path]:
 def check_output_folder(out: Path, what: str, how: str, exports=None) -> None:
     """Refuse (InputError naming the file) to write a calibration into ``out`` when that
     would replace a file already there: ``what`` is the command, ``how`` how to proceed,
-    ``exports`` the run's :class:`~spherecal.exporters.ExportPlan` (its files count too)."""
+    ``exports`` the run's :class:`~spherecal.io.exporters.ExportPlan` (its files count too)."""
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} is not a folder: give an output folder")
     check_output_targets(out, exports)  # a planted link is named as a link, before anything else
@@ -67,8 +67,8 @@ def check_output_targets(out: Path, exports=None) -> None:
     """Refuse (InputError naming it) before anything is written into ``out`` when a file
     a calibration would write there exists as a symbolic link or as anything but a
     regular file: the run then writes nothing at all, instead of stopping half-way at the
-    first link (:func:`spherecal.safeio.check_writable_target`)."""
-    from .safeio import check_writable_target
+    first link (:func:`spherecal.io.files.check_writable_target`)."""
+    from spherecal.io.files import check_writable_target
 
     for path in existing_outputs(out, exports.file_patterns() if exports is not None else ()):
         check_writable_target(path)
@@ -76,12 +76,12 @@ def check_output_targets(out: Path, exports=None) -> None:
 
 def sensor_field_of_view(cfg: RunConfig, host) -> SensorFieldOfView | None:
     """The field of view of the run's sensor: its sensor type's declared one
-    (:attr:`spherecal.devices.SensorType.field_of_view`), with the fields the
+    (:attr:`spherecal.devices.contract.SensorType.field_of_view`), with the fields the
     configuration's ``[simulation.fov]`` gives over it in a simulated run. None when the
     sensor type declares none and the configuration does not give it whole.
     :class:`ConfigError` naming ``simulation.fov`` when the two together are not a field
     of view."""
-    from .devices import SensorFieldOfView
+    from spherecal.devices.contract import SensorFieldOfView
 
     declared = host.registry.sensor_type(cfg.sensor["type"]).field_of_view
     given = cfg.simulation.fov.model_dump(exclude_none=True) if cfg.simulation and cfg.simulation.fov else {}
@@ -101,12 +101,12 @@ def for_sensor(cfg: RunConfig, field_of_view: SensorFieldOfView | None) -> RunCo
     """``cfg`` with the settings it leaves to the sensor set from ``field_of_view``: the
     calibration sweep's (``[acquisition.sweep]`` ``standoff_z_mm``, the sensor's
     ``sweep_standoff_z_mm``; ``station_offsets_mm`` and ``lateral_amplitude_mm``, sized
-    to the field of view: :func:`spherecal.planning.with_standoff`) and the scan's
+    to the field of view: :func:`spherecal.motion.planning.with_standoff`) and the scan's
     (``[scan] standoff_z_mm``, the middle of the measuring range). Unchanged without a
     field of view (the planner then asks for them)."""
     if field_of_view is None:
         return cfg
-    from .planning import with_standoff
+    from spherecal.motion.planning import with_standoff
 
     update = {}
     acq = cfg.acquisition
@@ -122,7 +122,7 @@ def for_sensor(cfg: RunConfig, field_of_view: SensorFieldOfView | None) -> RunCo
 def configured_for_sensor(loaded: LoadedConfig, host) -> tuple[LoadedConfig, SensorFieldOfView | None]:
     """The configuration with the standoffs it leaves to the sensor set
     (:func:`for_sensor`), and the sensor's field of view (:func:`sensor_field_of_view`)."""
-    from .config import LoadedConfig
+    from spherecal.config import LoadedConfig
 
     fov = sensor_field_of_view(loaded.config, host)
     return LoadedConfig(for_sensor(loaded.config, fov), loaded.path), fov
@@ -130,14 +130,14 @@ def configured_for_sensor(loaded: LoadedConfig, host) -> tuple[LoadedConfig, Sen
 
 def make_cell(cfg: RunConfig, arm=None, field_of_view: SensorFieldOfView | None = None) -> SimulatedCell | None:
     """The simulated cell of a simulated run, or None for hardware. ``arm`` (the robot
-    type's :class:`~spherecal.kinematics.ArmKinematics`, when it describes its arm) lays
+    type's :class:`~spherecal.core.kinematics.ArmKinematics`, when it describes its arm) lays
     the standard cell out for the arm's reach (:func:`spherecal.sim.standard_cell`); the
     configuration's ``[simulation] sphere_centre_mm`` and ``true_transform`` override it.
     An arm with a calibrated model (kinematics that keep their ``nominal`` one) is laid out
     as its nominal arm: giving the robot its calibrated model must not move the world.
     ``field_of_view`` is the simulated sensor's (default: :func:`sensor_field_of_view` with
     the installed plugins); :class:`ConfigError` naming ``simulation.fov`` when there is none."""
-    from .sim import BallBar, CarDoorPanel, FlatPlate, standard_cell
+    from spherecal.sim import BallBar, CarDoorPanel, FlatPlate, standard_cell
 
     sim = cfg.simulation
     if sim is None:
@@ -221,7 +221,7 @@ def tool_point_mm(cfg: RunConfig) -> tuple[float, float, float] | None:
 @contextlib.contextmanager
 def open_devices(loaded: LoadedConfig, host, cell: SimulatedCell | None, log: Callable[[str], None]) -> Iterator:
     """Robot and sensor from the configuration, closed on the way out whatever happens."""
-    from .devices import DeviceContext
+    from spherecal.devices.contract import DeviceContext
 
     cfg = loaded.config
     context = DeviceContext(cell=cell, log=log, tool_point_mm=tool_point_mm(cfg))
@@ -255,7 +255,7 @@ def _check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = f
     """Raise before any motion when a target breaks the configured limits (or, with
     ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
     stands to the first target not in ``done``, breaks either)."""
-    from .acquisition import check_first_move, check_targets
+    from spherecal.motion.acquisition import check_first_move, check_targets
 
     problems = check_targets(targets, acq, robot)
     todo = [t for t in targets if t.index not in done]
@@ -272,7 +272,7 @@ def _check_identification_from_here(robot, targets, cfg, arm, planned, log) -> N
     assumed zero joints; an arm that starts in another wrist or elbow configuration keeps
     it, and sees the arm's geometry from other joints). Raises before anything moves when
     the plan no longer identifies the arm from here."""
-    from .kinplan import check_plan_identifies_kinematics
+    from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics
 
     if not cfg.calibration.identify_kinematics or arm is None:
         return
@@ -366,9 +366,9 @@ def run_calibrate(
     recorded dataset), solve, write the result, exports and report. A RED result's
     ``result.json`` and exports are written only with ``force`` (its report always).
     ``operator`` (``--operator``) overrides the configuration's ``[report] operator``."""
-    from .acquisition import Progress, acquire, acquire_manual, describe_plan, plan_targets
-    from .devices import device_identity
-    from .kinplan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
+    from spherecal.motion.acquisition import Progress, acquire, acquire_manual, describe_plan, plan_targets
+    from spherecal.devices.contract import device_identity
+    from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 
     out = Path(out_dir) if out_dir is not None else loaded.output_dir
     host = make_host()
@@ -536,7 +536,7 @@ def solve_robot_type(dataset: Dataset, robot_type: str | None = None, robot_conf
 def read_robot_section(path: Path) -> dict:
     """A robot section from a TOML file: its ``[robot]`` table (a spherecal configuration)
     or, without one, the whole file (the plugin's settings, ``type`` optional)."""
-    from .config import read_toml
+    from spherecal.config import read_toml
 
     data = read_toml(path, "robot configuration")
     section = data.get("robot", data)
@@ -553,7 +553,7 @@ def solve_kinematics(
     host=None,
 ) -> tuple[Callable | None, Dataset, object | None]:
     """Forward kinematics for ``spherecal solve``, the dataset to solve, and the robot's
-    :class:`~spherecal.kinematics.ArmKinematics` when its plugin describes the arm (for
+    :class:`~spherecal.core.kinematics.ArmKinematics` when its plugin describes the arm (for
     the kinematic robot error model; None otherwise).
 
     The robot type is ``robot_type`` (``--robot``), else the ``type`` in ``robot_config``
@@ -634,10 +634,10 @@ def solve_and_write(
     ``result.json`` and exports are written only with ``force``; its report is written
     (it says why). Returns the solution, its verdict and whether the result and exports
     were written. ``kinematics``: the robot's arm model, for the kinematic robot error
-    model. ``exports``: the run's :class:`~spherecal.exporters.ExportPlan` (None: every
+    model. ``exports``: the run's :class:`~spherecal.io.exporters.ExportPlan` (None: every
     installed exporter for the mounting, with default settings); ``provenance``: the
     result's (:func:`traceability`); ``report_settings``: the configuration's ``[report]``."""
-    from .exporters import write_exports
+    from spherecal.io.exporters import write_exports
 
     if exports is None:
         exports = make_host().export_plan(None, dataset.mounting, None)
@@ -665,7 +665,7 @@ def solve_and_write(
             log(f"calibrated robot model: {urdf}")
     if report:
         try:
-            from .report.html import write_report
+            from spherecal.report.html import write_report
         except ImportError:  # pragma: no cover
             write_report = None
         if write_report is not None:
@@ -693,7 +693,7 @@ def traceability(dataset: Dataset, dataset_path: Path | None, loaded: LoadedConf
     the dataset and of the configuration it was calibrated from."""
     from datetime import datetime, timezone
 
-    from . import __version__
+    from spherecal import __version__
 
     prov = dataset.provenance
     cfg = loaded.config if loaded is not None else None
@@ -751,10 +751,10 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
     ke = ref.diagnostics.get("kinematic_effects")
     if kinematics is None or not ke or not any(ke["identified"]):
         return None
-    from . import safeio
-    from .exporters import red_warning
-    from .kinematics import chain_with_errors
-    from .urdf import chain_to_urdf
+    from spherecal.io import files as safeio
+    from spherecal.io.exporters import red_warning
+    from spherecal.core.kinematics import chain_with_errors
+    from spherecal.core.urdf import chain_to_urdf
 
     kappa = np.where(ke["identified"], ref.kinematic_errors, 0.0)
     limits = getattr(kinematics, "model_joint_limits_rad", None)
@@ -781,7 +781,7 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
     another way that fits, if one does (one solve each, only then): the quaternions read
     (x, y, z, w) instead of (w, x, y, z), the other mounting. The sentence naming it, or
     None."""
-    from .report.assess import absurd_ratio, is_absurd
+    from spherecal.report.assess import absurd_ratio, is_absurd
 
     def fits(ds: Dataset):
         res = _solved_other_way(ds, options, fk, kinematics)
@@ -862,7 +862,7 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     as given to :func:`solve`) is passed to every such solve: without it a solve that
     identifies the arm's geometry or uses the kinematic error model refuses to run, and
     the check would say nothing."""
-    from .report.assess import Thresholds, absurd_ratio, expected_rms_mm, is_absurd, verdict
+    from spherecal.report.assess import Thresholds, absurd_ratio, expected_rms_mm, is_absurd, verdict
 
     th = Thresholds()
     v = verdict(solution.result, th)
@@ -912,7 +912,7 @@ def _odd_station(solution: Solution, dataset: Dataset, options: CalibrationOptio
                  kinematics=None) -> list[str]:
     """The station whose leaving out makes the others agree, when there is one: each
     station left out in turn (one solve each)."""
-    from .report.assess import verdict
+    from spherecal.report.assess import verdict
 
     result = solution.result
     labels = list(solution.problem.station_labels)
@@ -963,7 +963,7 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
     ]
     re = r.robot_error
     if re is not None:
-        from .estimation.pipeline import POINT_ERROR_PARTS
+        from spherecal.estimation.pipeline import POINT_ERROR_PARTS
 
         rot = ", ".join(f"{v:.4f}" for v in re.std_rotation_deg_robot_frame)
         trans = ", ".join(f"{v:.4f}" for v in re.std_translation_mm_robot_frame)
@@ -1005,7 +1005,7 @@ def summary(solution: Solution, graded: "Verdict | None" = None) -> str:
             )
     for f in r.flagged:
         lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
-    from .report.assess import advice, verdict
+    from spherecal.report.assess import advice, verdict
 
     graded = graded or verdict(r)
     lines.append(format_verdict(graded))
@@ -1032,7 +1032,7 @@ def truth_check(solution: Solution, dataset: Dataset) -> str | None:
     prov = dataset.provenance
     if "true_transform" not in prov:
         return None
-    from . import geometry as geo
+    from spherecal.core import geometry as geo
 
     true = Pose.model_validate(prov["true_transform"])
     X = solution.result.transform
@@ -1069,11 +1069,11 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                  transform=None):
     """``spherecal validate``: scan the artefacts at new views with the calibrated
     system, compute the acceptance figures, compare with the MPEs. ``transform`` (a
-    :class:`~spherecal.compare.TransformEstimate`): validate that transform, one spherecal
+    :class:`~spherecal.report.compare.TransformEstimate`): validate that transform, one spherecal
     did not compute (the controller's current tool or work object, a pose file), instead
     of the calibration's ``result.json``; the report is then left alone."""
-    from .acquisition import Progress
-    from .validation import evaluate, measure, plan_validation
+    from spherecal.motion.acquisition import Progress
+    from spherecal.motion.validation import evaluate, measure, plan_validation
 
     host = make_host()
     loaded, fov = configured_for_sensor(loaded, host)
@@ -1111,7 +1111,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                                   provenance={"source": "spherecal validate", "result": source,
                                               "transform": X.model_dump()},
                                   fsync=True) as writer:
-            from .models import Observation
+            from spherecal.core.models import Observation
 
             def record(sweep, target, pose, profile):
                 writer.append(Observation(index=writer.next_index, station=f"{sweep.label}-{sweep.kind}",
@@ -1120,8 +1120,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 
             measured = measure(robot, sensor, sweeps, cfg, log, Progress(len(targets), progress_stream), record)
     outcome = evaluate(cfg, X, measured)
-    from .report.assess import Verdict, verdict, with_validation
-    from .validation import position_rows
+    from spherecal.report.assess import Verdict, verdict, with_validation
+    from spherecal.motion.validation import position_rows
 
     own = verdict(result) if result is not None else Verdict(
         "green", "A transform spherecal did not compute: only its validation is graded.")
@@ -1135,7 +1135,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                        "figures": outcome.table(), "positions": position_rows(outcome),
                        "report": outcome.report.model_dump(), "centres_mm": outcome.centres_mm},
                       indent=2, default=float)
-    from . import safeio
+    from spherecal.io import files as safeio
 
     safeio.write_text(out / f"validation-{stamp}.json", text)
     safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
@@ -1145,7 +1145,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
         solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
                          host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
         if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
-            from .report.html import write_report
+            from spherecal.report.html import write_report
 
             # the result as written (its provenance: the calibration's identity and hashes)
             solution = replace(solution, result=result)
@@ -1177,9 +1177,9 @@ def _not_the_calibration(result, result_path: Path, journal: Path, loaded: Loade
 def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = _LOG,
              progress_stream=None, yes: bool = False, ask: Callable[[str], str] = input):
     """``spherecal scan``: sweep the object, stream its points to a PLY file."""
-    from .acquisition import Progress
-    from .ply import PlyWriter
-    from .scanning import plan_scan, scan
+    from spherecal.motion.acquisition import Progress
+    from spherecal.io.ply import PlyWriter
+    from spherecal.motion.scanning import plan_scan, scan
 
     host = make_host()
     loaded, fov = configured_for_sensor(loaded, host)
@@ -1188,7 +1188,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         out = Path(out_dir) if out_dir is not None else loaded.output_dir
         given = Path(cfg.scan.ply).expanduser()
         ply_path = given if given.is_absolute() else out / given
-        from .safeio import check_writable_target, is_inside
+        from spherecal.io.files import check_writable_target, is_inside
 
         check_writable_target(ply_path)  # a link is named as a link, wherever it points
         if not cfg.scan.ply_outside_output_dir and (given.is_absolute() or not is_inside(ply_path, out)):

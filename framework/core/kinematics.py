@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .models import Pose
+from spherecal.core.models import Pose
 
 
 def _axis_angle_matrices(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -122,7 +122,7 @@ class ArmKinematics(Protocol):
 
     def joints_from_flange_pose(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
         """Controller joints (deg) that reach the pose, nearest the seed; raises an
-        :class:`~spherecal.errors.InputError` when out of reach."""
+        :class:`~spherecal.core.errors.InputError` when out of reach."""
 
 
 # --- geometric error parameters ------------------------------------------------------------

@@ -1,6 +1,6 @@
 """What the core expects of an exporter, and how the selected exporters' files are written.
 
-An exporter turns a :class:`~spherecal.models.CalibrationResult` into the files some
+An exporter turns a :class:`~spherecal.core.models.CalibrationResult` into the files some
 controller or tool loads. The core knows no robot brand: every export, the core's own
 included, is an :class:`Exporter` that a plugin registers through the
 ``spherecal_register_exporters`` hook (:mod:`spherecal.plugins.hookspecs`); the core's
@@ -13,7 +13,7 @@ it declared, and :func:`write_exports` here, at the edge, writes them. Which exp
 and with which settings comes from the ``[export]`` section of the configuration
 (:meth:`spherecal.plugins.host.PluginHost.export_plan`, docs/configuration.md).
 
-``result.json`` (the result itself, :func:`spherecal.dataio.write_result`) is always
+``result.json`` (the result itself, :func:`spherecal.io.dataset.write_result`) is always
 written with the exports: ``spherecal validate`` and ``scan`` read it.
 """
 
@@ -27,9 +27,9 @@ from typing import Callable, Mapping, Sequence
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from . import safeio
-from .errors import InputError, PluginError, SpherecalError
-from .models import CalibrationResult, MountingMode
+from spherecal.io import files as safeio
+from spherecal.core.errors import InputError, PluginError, SpherecalError
+from spherecal.core.models import CalibrationResult, MountingMode
 
 __all__ = [
     "MOUNTINGS",
@@ -102,8 +102,8 @@ class Exporter:
         name in the output folder (no folder part, not one of :data:`RESERVED_FILE_NAMES`).
     :param write: ``write(result, settings) -> {file name: text or bytes}``, one entry per
         resolved file name, nothing else; pure (no I/O). ``settings`` is an instance of
-        ``settings_model``. A :class:`~spherecal.errors.SpherecalError` it raises passes
-        through; anything else is a :class:`~spherecal.errors.PluginError` naming the plugin.
+        ``settings_model``. A :class:`~spherecal.core.errors.SpherecalError` it raises passes
+        through; anything else is a :class:`~spherecal.core.errors.PluginError` naming the plugin.
     :param settings_model: a pydantic model with ``extra="forbid"`` (a typo is an error)
         validating ``[export.<name>]``; a field without a default is a setting the user
         must give, and a run that selects the exporter without it stops before anything
@@ -220,7 +220,7 @@ class SelectedExporter:
         note = self.exporter.note(result, self.settings)
         if note is not None and not isinstance(note, ExportNote):
             raise PluginError(f"plugin '{self.plugin}': exporter '{self.name}' note returned a "
-                              f"{type(note).__name__}; expected spherecal.exporters.ExportNote or None")
+                              f"{type(note).__name__}; expected spherecal.io.exporters.ExportNote or None")
         return note
 
 
@@ -287,7 +287,7 @@ def write_exports(
             safeio.write_bytes(paths[fname], content)
         else:
             safeio.write_text(paths[fname], content)
-    from .dataio import write_result
+    from spherecal.io.dataset import write_result
 
     write_result(paths["result.json"], result, overwrite=True)
     return paths

@@ -3,7 +3,7 @@ a pipe, and a failed write (a full disk) names the file.
 
 A planted link (``report.html -> ~/.bashrc``) would otherwise redirect the write to
 wherever it points; :func:`open_for_write` opens with ``O_NOFOLLOW`` and refuses an
-existing path that is not a regular file, with an :class:`~spherecal.errors.InputError`
+existing path that is not a regular file, with an :class:`~spherecal.core.errors.InputError`
 naming the path. Every writer of the report, its figures, the exports and PLY files
 goes through here (the dataset and result writers write a new temporary file and
 rename it into place, which replaces a link instead of following it).
@@ -17,7 +17,7 @@ import stat
 from pathlib import Path
 from typing import BinaryIO
 
-from .errors import FileWriteError, InputError
+from spherecal.core.errors import FileWriteError, InputError
 
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
 
@@ -87,7 +87,7 @@ def append_text(path: str | os.PathLike, text: str) -> None:
 
 
 def check_output_folder_writable(folder: str | os.PathLike, hint: str = "") -> None:
-    """Raise :class:`~spherecal.errors.FileWriteError` naming ``folder`` when the files of
+    """Raise :class:`~spherecal.core.errors.FileWriteError` naming ``folder`` when the files of
     a run could not be written into it: the check a command makes before it reads,
     solves or moves anything, so that it does not fail with the work done. An existing
     folder is probed by creating and removing a file in it (what permissions alone do not

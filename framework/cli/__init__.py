@@ -1,5 +1,5 @@
 """The ``spherecal`` command line. It parses arguments, loads the configuration and
-calls :mod:`spherecal.runner`; nothing else.
+calls :mod:`spherecal.app.runner`; nothing else.
 
 Exit codes (scripts may rely on them; docs/cli.md):
   0  success
@@ -30,9 +30,9 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import __version__
-from .runlog import progress_log
-from .errors import FileWriteError, ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
+from spherecal import __version__
+from spherecal.io.runlog import progress_log
+from spherecal.core.errors import FileWriteError, ConfigError, DatasetFileError, DegenerateDataError, DeviceError, InputError, PluginError
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -109,7 +109,7 @@ class _Discard:
 def _run_folder(out: Path) -> None:
     """The command's output folder: run.log goes there, and the files written in it are
     listed in the --json summary."""
-    from .safeio import check_output_folder_writable
+    from spherecal.io.files import check_output_folder_writable
 
     check_output_folder_writable(out, "give another folder with --out")  # before any work
     _session.out_dir = out
@@ -186,8 +186,8 @@ def _err(msg: str) -> None:
 
 
 def cmd_calibrate(args) -> int:
-    from .config import load_config
-    from .runner import run_calibrate, summary, truth_check
+    from spherecal.config import load_config
+    from spherecal.app.runner import run_calibrate, summary, truth_check
 
     _imports_done()
     loaded = load_config(args.config)
@@ -195,7 +195,7 @@ def cmd_calibrate(args) -> int:
     _run_folder(out)
     _log.debug("configuration %s", loaded.path)
     if _session.record is not None:
-        from .runlog import describe_file, file_text_for_record
+        from spherecal.io.runlog import describe_file, file_text_for_record
 
         _session.record.note(f"configuration: {describe_file(loaded.path)}\n" + file_text_for_record(loaded.path))
     outcome = run_calibrate(
@@ -217,7 +217,7 @@ def cmd_calibrate(args) -> int:
         folder = f" -o {quote(str(args.out))}" if args.out else ""  # (the run validate is to check)
         _say(f"acceptance test: spherecal validate {quote(str(args.config))}{folder} (its figures then join "
              "this verdict, in the terminal and the report)")
-    from . import dataio
+    from spherecal.io import dataset as dataio
 
     journal = outcome.files.get("journal")
     if journal is not None:
@@ -246,10 +246,10 @@ def _finish(out: Path, graded, written: bool, force: str = "--force", report: bo
 
 
 def cmd_solve(args) -> int:
-    from . import dataio
-    from .estimation import CalibrationOptions
-    from .models import Pose
-    from .runner import (make_host, provenance_type, solve_and_write, solve_kinematics, solve_robot_type, summary,
+    from spherecal.io import dataset as dataio
+    from spherecal.estimation import CalibrationOptions
+    from spherecal.core.models import Pose
+    from spherecal.app.runner import (make_host, provenance_type, solve_and_write, solve_kinematics, solve_robot_type, summary,
                          truth_check)
 
     _imports_done()
@@ -257,14 +257,14 @@ def cmd_solve(args) -> int:
     _run_folder(out)
     dataset = dataio.read_dataset(args.dataset)  # checks the file first (a device, a pipe, a size limit)
     if _session.record is not None:
-        from .runlog import describe_file
+        from spherecal.io.runlog import describe_file
 
         _session.record.note(f"dataset: {describe_file(args.dataset)}")
     if not dataset.observations:
         raise InputError(f"{args.dataset}: the dataset holds no observations (only its header): nothing to solve")
     nominal = None
     if args.nominal is not None:
-        from .compare import parse_xyz_quat
+        from spherecal.report.compare import parse_xyz_quat
 
         nominal = parse_xyz_quat(args.nominal, "--nominal")
     robot_config = Path(args.robot_config) if args.robot_config else None
@@ -285,11 +285,11 @@ def cmd_solve(args) -> int:
                           "observation")
     _log.debug("options: %s", options.model_dump_json(exclude={"nominal_transform"}))
     if not args.overwrite:
-        from .runner import check_output_folder
+        from spherecal.app.runner import check_output_folder
 
         check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
                             "exports and report", exports)
-    from .runner import traceability
+    from spherecal.app.runner import traceability
 
     solution, graded, written = solve_and_write(dataset, options, out, fk, log=_RUN_LOG,
                                                 report=not args.no_report, force=args.force, kinematics=arm,
@@ -365,10 +365,10 @@ class _FrameAction(argparse.Action):
 
 def _installed_frame_options() -> dict[str, list[str]]:
     """The installed robot types' names for ``--controller-frame``
-    (:attr:`spherecal.devices.RobotType.frame_option`): ``{option: [robot type, ...]}``.
+    (:attr:`spherecal.devices.contract.RobotType.frame_option`): ``{option: [robot type, ...]}``.
     Empty when the plugin host cannot be built: the command that needs it reports why."""
     try:
-        from .runner import make_host
+        from spherecal.app.runner import make_host
 
         host = make_host()
     except Exception:  # noqa: BLE001 - reported by the command itself, with its exit code
@@ -412,7 +412,7 @@ def _simulated_sensor_fov(name: str | None):
     registered as ``name`` (``--sensor``), or, without one, of the only installed sensor
     type that declares one. :class:`ConfigError` naming ``--sensor`` (with the known
     types) for an unknown name, a type that declares none, or a choice to make."""
-    from .runner import make_host
+    from spherecal.app.runner import make_host
 
     sensors = make_host().registry.sensors
     with_fov = sorted(n for n, t in sensors.items() if t.field_of_view is not None)
@@ -443,15 +443,15 @@ def _flag(name: str) -> str:
 
 
 def cmd_simulate(args) -> int:
-    from . import dataio
-    from .sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
+    from spherecal.io import dataset as dataio
+    from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 
     _imports_done()
     if args.config:
-        from .config import load_config
-        from .runner import configured_for_sensor, make_cell, make_host, robot_arm
+        from spherecal.config import load_config
+        from spherecal.app.runner import configured_for_sensor, make_cell, make_host, robot_arm
 
-        from .kinplan import plan_kinematic_stations, uses_planner
+        from spherecal.motion.kinematic_plan import plan_kinematic_stations, uses_planner
 
         # the configuration gives the cell and the plan: an option that would change them is refused, never ignored
         clash = [_flag(name) for name in ("sensor", *_SIMULATE_DEFAULTS) if name != "seed"
@@ -499,22 +499,22 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from .config import load_config
-    from .runner import run_validate
+    from spherecal.config import load_config
+    from spherecal.app.runner import run_validate
 
     _imports_done()
     loaded = load_config(args.config)
     _run_folder(Path(args.out) if args.out else loaded.output_dir)
     if _session.record is not None:
-        from .runlog import describe_file, file_text_for_record
+        from spherecal.io.runlog import describe_file, file_text_for_record
 
         _session.record.note(f"configuration: {describe_file(loaded.path)}\n" + file_text_for_record(loaded.path))
     given = _given_transform(args, robot_type=loaded.config.robot["type"])
     outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None, log=_RUN_LOG,
                            progress_stream=_progress_stream(), report=not args.no_report, yes=args.yes, ask=_ask,
                            transform=given)
-    from .runner import format_verdict
-    from .validation import format_outcome, position_rows
+    from spherecal.app.runner import format_verdict
+    from spherecal.motion.validation import format_outcome, position_rows
 
     _say(format_outcome(outcome))
     _say("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
@@ -531,7 +531,7 @@ def cmd_validate(args) -> int:
 def _given_transform(args, robot_type: str | None = None):
     """The transform of --transform or --controller-frame (None when neither is given), with the
     covariance of --std-mm/--std-deg."""
-    from . import compare as cmp
+    from spherecal.report import compare as cmp
 
     frames = args.controller_frame or []
     if len(frames) + (args.transform is not None) > 1:
@@ -559,7 +559,7 @@ def _given_transform(args, robot_type: str | None = None):
 
 
 def cmd_compare(args) -> int:
-    from . import compare as cmp
+    from spherecal.report import compare as cmp
 
     _imports_done()
     result, where = cmp.read_result_operand(args.a)
@@ -588,8 +588,8 @@ def cmd_compare(args) -> int:
 
 
 def cmd_scan(args) -> int:
-    from .config import load_config
-    from .runner import run_scan
+    from spherecal.config import load_config
+    from spherecal.app.runner import run_scan
 
     _imports_done()
     loaded = load_config(args.config)
@@ -605,14 +605,14 @@ def cmd_scan(args) -> int:
 
 
 def cmd_plugins(args) -> int:
-    from .runner import make_host
+    from spherecal.app.runner import make_host
 
     _say(make_host().format_description())
     return EXIT_OK
 
 
 def cmd_completion(args) -> int:
-    from .completion import completion_script
+    from spherecal.cli.completion import completion_script
 
     _say(completion_script(build_parser(), args.shell))
     return EXIT_OK
@@ -791,7 +791,7 @@ def build_parser(frame_options: dict[str, list[str]] | None = None) -> argparse.
 def _journal_holds_shots(folder: Path | None) -> bool:
     """Does the calibration journal in ``folder`` hold at least one shot? (Read a line at
     a time, at most until the first observation.)"""
-    from .runner import JOURNAL_NAME
+    from spherecal.app.runner import JOURNAL_NAME
 
     if folder is None or not (folder / JOURNAL_NAME).is_file():
         return False
@@ -853,7 +853,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(_installed_frame_options() if {"compare", "validate"} & set(argv) else {})
     args = parser.parse_args(argv)
     args._argv = argv
-    from .runlog import RunRecord
+    from spherecal.io.runlog import RunRecord
 
     _session = _Session(json=args.json, quiet=args.quiet, record=RunRecord())
     _session.summary.update(schema=JSON_SCHEMA, spherecal=__version__, command=args.command)
@@ -919,7 +919,7 @@ def _close_record(args, code: int, started: float) -> None:
     out = _session.out_dir
     files = _files_written()
     record = _session.record
-    from .runlog import RUN_LOG_NAME
+    from spherecal.io.runlog import RUN_LOG_NAME
 
     # the record goes into a folder this run made, wrote into, or that keeps a record already: a
     # folder refused as someone else's (it holds their result) is left untouched
@@ -947,7 +947,7 @@ def _logging(args):
     """For one command: logger ``spherecal`` at DEBUG, a console handler on standard
     error (INFO; DEBUG with -v; WARNING with -q) and the run's record (everything).
     spherecal's own Python warnings (a dataset file cut off mid-line:
-    :class:`~spherecal.dataio.TruncatedFileWarning`) become a ``warning:`` line on that
+    :class:`~spherecal.io.dataset.TruncatedFileWarning`) become a ``warning:`` line on that
     logger, once each however often the file is read, so that they reach run.log too;
     other warnings are shown as Python shows them."""
     import warnings
@@ -1032,6 +1032,3 @@ def _internal(args, exc: BaseException) -> int:
         _session.record.note("".join(traceback.format_exception(exc)), "spherecal.cli")
     return EXIT_INTERNAL
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -30,7 +30,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from .models import Pose
+from spherecal.core.models import Pose
 
 Backend = Literal["auto", "numba", "numpy"]
 
@@ -94,7 +94,7 @@ def frame_from_sensor_stack(
 @lru_cache(maxsize=None)
 def _numba_kernels():
     """Compile (or load from numba's cache) the two loops; imported lazily to keep
-    ``import spherecal.mapping`` light."""
+    ``import spherecal.core.mapping`` light."""
     import numba
 
     @numba.njit(cache=True, nogil=True, boundscheck=False)

@@ -23,7 +23,7 @@ from pydantic import (
     model_validator,
 )
 
-from . import geometry as geo
+from spherecal.core import geometry as geo
 
 MountingMode = Literal["eye_in_hand", "eye_to_hand"]
 

@@ -2,7 +2,7 @@
 
 URDF is how ROS, MoveIt and Pinocchio describe a robot: links joined by joints, each
 joint placed by an ``<origin xyz rpy>`` on its parent link and turning about an
-``<axis xyz>`` in its own frame. That is exactly :class:`~spherecal.kinematics.SerialChain`
+``<axis xyz>`` in its own frame. That is exactly :class:`~spherecal.core.kinematics.SerialChain`
 (``placements[i]`` is joint i's origin, ``axes[i]`` its axis, ``flange_placement`` a
 fixed joint to the flange link), except for the unit: **URDF is in metres**, a
 SerialChain in millimetres. Both functions here convert.
@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .kinematics import SerialChain
+from spherecal.core.errors import InputError
+from spherecal.core.kinematics import SerialChain
 
 #: Millimetres per metre (divide to write, multiply to read: both correctly rounded for round numbers).
 _MM_PER_M = 1000.0
@@ -149,7 +149,7 @@ def chain_to_urdf(
     file that these are not the robot's limits. ``joint_velocity_limits_rad_s``: (n,)
     speeds; None writes 0 (unknown), as the effort always is. ``comment`` is added to
     the header comment (say where the geometry came from); ``warning``, when given, is
-    its first line (a RED result's, :func:`spherecal.exporters.red_warning`)."""
+    its first line (a RED result's, :func:`spherecal.io.exporters.red_warning`)."""
     if not isinstance(chain, SerialChain):
         raise InputError(f"chain_to_urdf: expected a SerialChain, got {type(chain).__name__}")
     n = chain.n_joints
@@ -176,7 +176,7 @@ def chain_to_urdf(
             raise InputError(f"chain_to_urdf: joint_velocity_limits_rad_s must be {n} values >= 0")
 
     header = [
-        f"{robot_name}: a revolute serial chain written by spherecal (spherecal.urdf.chain_to_urdf).",
+        f"{robot_name}: a revolute serial chain written by spherecal (spherecal.core.urdf.chain_to_urdf).",
         "Units: metres and radians, as every URDF (spherecal itself works in millimetres).",
         f"Joints {names[0]} .. {names[-1]}, base link {base_link}, flange frame {flange_link} "
         f"(fixed joint {names[-1]}-{flange_link}).",
@@ -257,7 +257,7 @@ def read_urdf_chain(path_or_text, base_link: str, flange_link: str, joint_names=
     Placements are converted to mm; fixed joints on the way fold into the next revolute
     joint's placement or into the flange placement. ``joint_names``, when given, must be
     the chain's revolute joints in order from base to flange. Raises
-    :class:`~spherecal.errors.InputError` naming the file and the link or joint at fault:
+    :class:`~spherecal.core.errors.InputError` naming the file and the link or joint at fault:
     a file that is not URDF, a missing link, a flange link not downstream of the base
     link, a joint on the way that is not revolute (prismatic, planar, floating...)."""
     import pinocchio as pin
@@ -359,7 +359,7 @@ def read_urdf_chain(path_or_text, base_link: str, flange_link: str, joint_names=
 
 def chain_from_urdf(path_or_text, base_link: str = "base_link", flange_link: str = "tool0",
                     joint_names=None) -> SerialChain:
-    """The :class:`~spherecal.kinematics.SerialChain` (mm) from ``base_link`` to
+    """The :class:`~spherecal.core.kinematics.SerialChain` (mm) from ``base_link`` to
     ``flange_link`` of a URDF; see :func:`read_urdf_chain`."""
     return read_urdf_chain(path_or_text, base_link, flange_link, joint_names).chain
 

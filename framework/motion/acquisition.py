@@ -1,9 +1,9 @@
 """Acquisition: plan the stations, check every target before any motion, then move,
 read, and append each observation to the journal the moment it is taken.
 
-Devices are reached only through the :class:`spherecal.devices.Robot` and
-:class:`spherecal.devices.Sensor` interfaces; the journal is a
-:class:`spherecal.dataio.DatasetWriter` (one flushed, fsync'ed line per observation), so
+Devices are reached only through the :class:`spherecal.devices.contract.Robot` and
+:class:`spherecal.devices.contract.Sensor` interfaces; the journal is a
+:class:`spherecal.io.dataset.DatasetWriter` (one flushed, fsync'ed line per observation), so
 a run killed at any point loses nothing already taken and resumes where it stopped.
 """
 
@@ -17,13 +17,13 @@ from typing import Callable, Sequence, TextIO
 
 import numpy as np
 
-from . import geometry as geo
-from .runlog import progress_log
-from .config import AcquisitionConfig, RunConfig
-from .dataio import DatasetWriter
-from .errors import DeviceError, InputError, SpherecalError
-from .models import Observation, Pose, Profile
-from .planning import SweepPlan, plan_stations
+from spherecal.core import geometry as geo
+from spherecal.io.runlog import progress_log
+from spherecal.config import AcquisitionConfig, RunConfig
+from spherecal.io.dataset import DatasetWriter
+from spherecal.core.errors import DeviceError, InputError, SpherecalError
+from spherecal.core.models import Observation, Pose, Profile
+from spherecal.motion.planning import SweepPlan, plan_stations
 
 _LOG = progress_log("acquisition")  # the default ``log``: logger spherecal.acquisition
 
@@ -51,7 +51,7 @@ def targets_from_poses(poses: list[Pose], station: str, first_index: int, approa
 def plan_targets(cfg: RunConfig, sweep: SweepPlan | None = None) -> list[Target]:
     """The planned shots, in order, from the configuration's nominal transform and the
     rough sphere position; ``sweep`` replaces ``acquisition.sweep`` (the kinematic
-    planner's stations, :mod:`spherecal.kinplan`)."""
+    planner's stations, :mod:`spherecal.motion.kinematic_plan`)."""
     acq = cfg.acquisition
     if acq is None:
         raise InputError("no [acquisition] section: nothing to plan")

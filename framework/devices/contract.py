@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .models import Pose, Profile
-from .runlog import progress_log
+from spherecal.core.models import Pose, Profile
+from spherecal.io.runlog import progress_log
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .kinematics import ArmKinematics
-    from .sim.cell import SimulatedCell
+    from spherecal.core.kinematics import ArmKinematics
+    from spherecal.sim.cell import SimulatedCell
 
 _LOG = progress_log("devices")  # the default ``log``: logger spherecal.devices
 
@@ -32,7 +32,7 @@ class Robot(Protocol):
     Besides the four methods below a robot may have ``check_target(base_from_flange,
     speed_mm_s) -> None``: a pre-motion check of one planned target against the robot's
     own limits (reach, joint limits, workspace, speed) that moves nothing and raises a
-    :class:`~spherecal.errors.SpherecalError` naming the limit. A robot that has it joins
+    :class:`~spherecal.core.errors.SpherecalError` naming the limit. A robot that has it joins
     the plan check: ``calibrate`` (``--dry-run`` too), ``validate`` and ``scan`` call it for
     every target of an automatic plan before the first motion, and refuse the whole plan, listing
     each target at fault, when one fails. Without it only the configured limits
@@ -100,7 +100,7 @@ class RobotType:
     the forward kinematics ``joints_deg -> base_from_flange`` (or None when the robot
     only reports poses); the core uses it for observations that carry joints only.
     ``arm_kinematics(config)`` describes the arm's nominal geometry as an
-    :class:`~spherecal.kinematics.ArmKinematics` (or None when unknown); the simulated
+    :class:`~spherecal.core.kinematics.ArmKinematics` (or None when unknown); the simulated
     cell uses it to give a simulated arm a real arm's geometric error."""
 
     name: str
@@ -112,7 +112,7 @@ class RobotType:
     #: ``read_frame(text) -> ControllerFrame | None``: reads a frame as this robot's
     #: controller writes it (a tool or work-object data line), for ``compare
     #: --controller-frame`` and ``validate --controller-frame``. Returns None when the text
-    #: is not in its controller's syntax; raises :class:`~spherecal.errors.InputError`
+    #: is not in its controller's syntax; raises :class:`~spherecal.core.errors.InputError`
     #: naming the field at fault when it is but is malformed. None: this robot type reads
     #: no such text.
     read_frame: Callable[[str], "ControllerFrame | None"] | None = None

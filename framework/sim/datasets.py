@@ -1,4 +1,4 @@
-"""Simulated acquisition: the planned stations (:mod:`spherecal.planning`, with the cell's
+"""Simulated acquisition: the planned stations (:mod:`spherecal.motion.planning`, with the cell's
 true transform) measured on a :class:`~spherecal.sim.cell.SimulatedCell`."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from ..models import Circle, Dataset, Observation, Profile
-from ..planning import SweepPlan, plan_stations, with_standoff
-from .cell import SimulatedCell
+from spherecal.core.models import Circle, Dataset, Observation, Profile
+from spherecal.motion.planning import SweepPlan, plan_stations, with_standoff
+from spherecal.sim.cell import SimulatedCell
 
 
 def _truth(cell: SimulatedCell, plan: SweepPlan, source: str) -> dict:

@@ -1,6 +1,6 @@
-"""A robot behind the spherecal line protocol (:mod:`spherecal.lineproto`), PC side, brand-free.
+"""A robot behind the spherecal line protocol (:mod:`spherecal.devices.line_protocol`), PC side, brand-free.
 
-:class:`LineRobot` implements :class:`spherecal.devices.Robot` over one of two links,
+:class:`LineRobot` implements :class:`spherecal.devices.contract.Robot` over one of two links,
 chosen by the port: a serial line, opened with ``serial.serial_for_url`` (a device such as
 ``/dev/ttyS0`` or ``COM1``, a pseudo-terminal, or another pyserial URL such as
 ``rfc2217://``), or a TCP connection when the port is ``socket://host:port``
@@ -13,7 +13,7 @@ The link. Every exchange is one request and one reply carrying the same sequence
 number. Replies whose seq does not match the request (late replies of an earlier
 attempt) are discarded; a corrupted line (checksum or syntax) or a timeout makes the
 robot resend the request with a fresh seq, up to ``retries`` times, then raise
-:class:`~spherecal.errors.DeviceError` saying what went wrong; this is the same code on
+:class:`~spherecal.core.errors.DeviceError` saying what went wrong; this is the same code on
 both links. A lost link raises DeviceError at once (over TCP: the controller closed the
 connection, or it broke), and the robot never reconnects by itself: it must be created
 again, which opens a new connection (on a socket server, a new session in which no
@@ -39,7 +39,7 @@ The configuration is a plugin's model derived from :class:`LineLinkSettings`; it
 ``workspace`` must be set by the time the robot moves (:class:`LineRobot` takes a
 ``workspace`` argument when the plugin derives it). The kinematics must have ``flange_pose_from_joints(joints_deg,
 check_limits)`` and ``joints_from_flange_pose(pose, seed_joints_deg)``, raising an
-:class:`~spherecal.errors.InputError` when a pose is out of reach.
+:class:`~spherecal.core.errors.InputError` when a pose is out of reach.
 """
 
 from __future__ import annotations
@@ -55,11 +55,11 @@ from typing import Callable, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from . import lineproto as P
-from .errors import DeviceError, InputError
-from .geometry import matrix_from_rotvec as _matrix_from_rotvec
-from .geometry import rotvec_from_matrix as _rotvec
-from .models import Pose
+from spherecal.devices import line_protocol as P
+from spherecal.core.errors import DeviceError, InputError
+from spherecal.core.geometry import matrix_from_rotvec as _matrix_from_rotvec
+from spherecal.core.geometry import rotvec_from_matrix as _rotvec
+from spherecal.core.models import Pose
 
 #: Longest single blocking read, s (the overall deadline is checked between reads).
 _POLL_S = 0.05
@@ -290,7 +290,7 @@ class FrameOffset:
 
 class LineRobot:
     """A connected robot speaking the spherecal line protocol (implements
-    :class:`spherecal.devices.Robot`).
+    :class:`spherecal.devices.contract.Robot`).
 
     Poses are ``base_from_flange``, mm, quaternion (w, x, y, z). Joints are degrees in
     the controller convention. ``name`` names the robot in every message;

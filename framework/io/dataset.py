@@ -36,9 +36,9 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from . import __version__
-from .errors import DatasetFileError, FileWriteError, InputError
-from .models import CalibrationResult, Dataset, MountingMode, Observation, Pose
+from spherecal import __version__
+from spherecal.core.errors import DatasetFileError, FileWriteError, InputError
+from spherecal.core.models import CalibrationResult, Dataset, MountingMode, Observation, Pose
 
 try:  # optional accelerator: parses full-precision floats about 7x faster than json
     import orjson as _orjson
@@ -544,7 +544,7 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     if start == len(data) or _NOT_BLANK.search(data, start) is None:
         raise DatasetFileError(f"{name}: the file holds no data (only a byte order mark or blank space); "
                                "expected a spherecal dataset (header line first)")
-    from .safeio import text_encoding_problem
+    from spherecal.io.files import text_encoding_problem
 
     problem = text_encoding_problem(data)
     if problem:
@@ -647,7 +647,7 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
 
 
 def _read_bytes(path: str | os.PathLike) -> bytes:
-    from .safeio import read_input
+    from spherecal.io.files import read_input
 
     return read_input(path, DatasetFileError, "a spherecal file")
 
@@ -655,7 +655,7 @@ def _read_bytes(path: str | os.PathLike) -> bytes:
 def read_dataset(path: str | os.PathLike) -> Dataset:
     """Load a dataset file (JSON Lines, docs/file-formats.md).
 
-    Every observation is validated with the rules of :mod:`spherecal.models`. An
+    Every observation is validated with the rules of :mod:`spherecal.core.models`. An
     incomplete last line (an interrupted write) is dropped with a
     :class:`TruncatedFileWarning`; any other problem raises :class:`DatasetFileError`
     naming the file, the line, the observation index and the field.
@@ -674,7 +674,7 @@ def read_dataset_header(path: str | os.PathLike) -> DatasetHeader:
     """Read and check only line 1 of a dataset file (format, version, mounting, radius,
     provenance, creation time)."""
     name = os.fspath(path)
-    from .safeio import check_input
+    from spherecal.io.files import check_input
 
     check_input(path, DatasetFileError, "a dataset file")
     try:
@@ -1041,7 +1041,7 @@ def read_result(path: str | os.PathLike) -> CalibrationResult:
     data = _read_bytes(path)
     if not data.removeprefix(b"\xef\xbb\xbf").strip():
         raise DatasetFileError(f"{name}: the file holds no data; expected a spherecal result (one JSON document)")
-    from .safeio import text_encoding_problem
+    from spherecal.io.files import text_encoding_problem
 
     problem = text_encoding_problem(data)
     if problem:

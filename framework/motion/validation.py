@@ -11,24 +11,24 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from . import geometry as geo
-from .runlog import progress_log
-from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
-from .config import RunConfig, SweepSite
-from .errors import ConfigError, DegenerateDataError
-from .mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
-from .metrology import (
+from spherecal.core import geometry as geo
+from spherecal.io.runlog import progress_log
+from spherecal.motion.acquisition import Progress, Target, move_and_shoot, targets_from_poses
+from spherecal.config import RunConfig, SweepSite
+from spherecal.core.errors import ConfigError, DegenerateDataError
+from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
+from spherecal.core.metrology import (
     AcceptanceReport,
     acceptance_report,
     flatness_error,
     probing_errors,
     sphere_spacing_error,
 )
-from .models import SPHERE_FRAME, Pose
-from .planning import SweepPlan, plan_stations, site_offset_mm
+from spherecal.core.models import SPHERE_FRAME, Pose
+from spherecal.motion.planning import SweepPlan, plan_stations, site_offset_mm
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .devices import SensorFieldOfView
+    from spherecal.devices.contract import SensorFieldOfView
 
 _LOG = progress_log("validation")  # the default ``log``: logger spherecal.validation
 

@@ -1,6 +1,6 @@
 """The spherecal line protocol between the PC and a robot controller, brand-free.
 
-Pure functions only: no I/O (the link is :mod:`spherecal.linelink`). Robot plugins speak
+Pure functions only: no I/O (the link is :mod:`spherecal.devices.line_robot`). Robot plugins speak
 it to the small server their controller runs (the built-in ``urdf`` robot type does; a
 plugin may use it for its own robot). The full description, with examples, is in
 ``docs/line-protocol.md``; in short:
@@ -39,8 +39,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import DeviceError
-from .models import Pose
+from spherecal.core.errors import DeviceError
+from spherecal.core.models import Pose
 
 #: Characters in a line before its LF (many controller languages' strings hold at most 80).
 MAX_LINE_CHARS = 80

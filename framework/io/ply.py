@@ -30,8 +30,8 @@ from typing import Literal
 
 import numpy as np
 
-from . import safeio
-from .errors import InputError
+from spherecal.io import files as safeio
+from spherecal.core.errors import InputError
 
 PlyFormat = Literal["binary_little_endian", "ascii"]
 #: Width of the vertex-count field in the header.
@@ -130,7 +130,7 @@ class PlyWriter:
             if self.update_header_every_chunk:
                 self._patch_count()
         except OSError as exc:  # a full disk: name the file; what was counted is in it
-            from .errors import FileWriteError
+            from spherecal.core.errors import FileWriteError
 
             raise FileWriteError(f"{self.path}: cannot write ({exc.strerror or exc}); the points before are kept "
                                  "(recover_ply restores a consistent count)") from None

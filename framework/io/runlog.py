@@ -88,7 +88,7 @@ class RunRecord(logging.Handler):
         exist (a run that stopped before making it)."""
         if not folder.is_dir():
             return None
-        from .safeio import append_text
+        from spherecal.io.files import append_text
 
         path = folder / RUN_LOG_NAME
         append_text(path, "\n".join(self.lines) + "\n")

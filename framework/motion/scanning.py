@@ -10,15 +10,15 @@ from typing import Callable
 
 import numpy as np
 
-from . import geometry as geo
-from .runlog import progress_log
-from .acquisition import Progress, Target, move_and_shoot, targets_from_poses
-from .config import RunConfig
-from .errors import ConfigError
-from .mapping import frame_from_sensor_stack, map_profile_list
-from .models import SPHERE_FRAME, Pose
-from .ply import PlyWriter
-from .planning import SweepPlan, plan_stations, site_offset_mm
+from spherecal.core import geometry as geo
+from spherecal.io.runlog import progress_log
+from spherecal.motion.acquisition import Progress, Target, move_and_shoot, targets_from_poses
+from spherecal.config import RunConfig
+from spherecal.core.errors import ConfigError
+from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list
+from spherecal.core.models import SPHERE_FRAME, Pose
+from spherecal.io.ply import PlyWriter
+from spherecal.motion.planning import SweepPlan, plan_stations, site_offset_mm
 
 _LOG = progress_log("scan")  # the default ``log``: logger spherecal.scan
 

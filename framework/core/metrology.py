@@ -28,7 +28,7 @@ from typing import Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .errors import InputError
+from spherecal.core.errors import InputError
 
 #: The outlier allowance of VDI/VDE 2634 part 2.
 MAX_OUTLIER_FRACTION = 0.003

@@ -1,8 +1,8 @@
 """Planning real motion: the stations of a calibration sweep (pure-translation sweeps across
 the sphere at several orientations), as flange targets.
 
-The calibration (:mod:`spherecal.acquisition`), validation (:mod:`spherecal.validation`),
-scan (:mod:`spherecal.scanning`) and the kinematic planner (:mod:`spherecal.kinplan`) plan
+The calibration (:mod:`spherecal.motion.acquisition`), validation (:mod:`spherecal.motion.validation`),
+scan (:mod:`spherecal.motion.scanning`) and the kinematic planner (:mod:`spherecal.motion.kinematic_plan`) plan
 with it from a nominal transform (the configuration's) and a rough sphere position; the
 simulated acquisition (:mod:`spherecal.sim`) plans with the cell's true transform.
 """
@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from . import geometry as geo
-from .errors import ConfigError
-from .models import MountingMode, Pose
+from spherecal.core import geometry as geo
+from spherecal.core.errors import ConfigError
+from spherecal.core.models import MountingMode, Pose
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .devices import SensorFieldOfView
+    from spherecal.devices.contract import SensorFieldOfView
 
 #: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell: the
 #: reference orientation of a plan's stations. 180 deg
@@ -83,7 +83,7 @@ _NEEDS = {
 def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None") -> SweepPlan:
     """``plan`` fitted to the sensor: the settings it leaves to the sensor set from
     ``field_of_view``, each only where the plan does not give its own: the standoff
-    (:attr:`~spherecal.devices.SensorFieldOfView.sweep_standoff_z_mm`), the stations'
+    (:attr:`~spherecal.devices.contract.SensorFieldOfView.sweep_standoff_z_mm`), the stations'
     offsets (:data:`STATION_OFFSETS_PERCENT` of the line's width at the standoff and of
     the measuring range) and the wander (:data:`LATERAL_AMPLITUDE_PERCENT` of the range).
     :class:`ConfigError` naming the first setting missing when there is no field of view

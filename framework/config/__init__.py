@@ -18,14 +18,14 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from .errors import ConfigError
-from .estimation import CalibrationOptions
-from .kinplan import KinematicPlanSettings
-from .metrology import MaximumPermissibleErrors
-from .models import MountingMode, Pose
-from .planning import SweepPlan
-from .report.assess import POINT_DISTANCE_MM
-from .sim import NoiseModel, RobotErrorModel
+from spherecal.core.errors import ConfigError
+from spherecal.estimation import CalibrationOptions
+from spherecal.motion.kinematic_plan import KinematicPlanSettings
+from spherecal.core.metrology import MaximumPermissibleErrors
+from spherecal.core.models import MountingMode, Pose
+from spherecal.motion.planning import SweepPlan
+from spherecal.report.assess import POINT_DISTANCE_MM
+from spherecal.sim import NoiseModel, RobotErrorModel
 
 #: Largest magnitude of any number in a configuration file: beyond it the value is a
 #: typing or units error (and would overflow the computations).
@@ -266,7 +266,7 @@ class ScanConfig(_Section):
 
 class FieldOfViewOverride(_Section):
     """``[simulation.fov]``: fields of the simulated sensor's field of view that replace
-    its sensor type's declared ones (:class:`spherecal.devices.SensorFieldOfView`); a
+    its sensor type's declared ones (:class:`spherecal.devices.contract.SensorFieldOfView`); a
     sensor type that declares none needs the four geometric fields here."""
 
     z_near_mm: float | None = Field(None, description="near end of the measuring range (z, mm)")
@@ -498,7 +498,7 @@ def read_toml(path, what: str = "configuration") -> dict:
     """The TOML file at ``path`` as a dict, read with the input checks (a regular file of
     bounded size, a text encoding TOML allows); :class:`ConfigError` naming the file and
     ``what`` it should have been otherwise."""
-    from .safeio import read_input, text_encoding_problem
+    from spherecal.io.files import read_input, text_encoding_problem
 
     raw = read_input(path, ConfigError, f"the {what}", MAX_CONFIG_BYTES)
     problem = text_encoding_problem(raw)

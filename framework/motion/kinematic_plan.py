@@ -1,12 +1,12 @@
 """Station planning for kinematic calibration, and the check that a plan identifies the
 arm's geometry before anything moves.
 
-Brand-free: the arm is reached only through :class:`~spherecal.kinematics.ArmKinematics`
+Brand-free: the arm is reached only through :class:`~spherecal.core.kinematics.ArmKinematics`
 (its chain, its joint convention and its inverse kinematics, which refuses poses out of
 reach or beyond a joint limit), the workspace through the configuration's box.
 
 **The planner.** A station is a short pure-translation sweep over the sphere
-(:func:`spherecal.planning.plan_stations`) at one orientation: the sensor (eye-in-hand)
+(:func:`spherecal.motion.planning.plan_stations`) at one orientation: the sensor (eye-in-hand)
 or the flange (eye-to-hand) turned from the reference orientation by a tilt of the view
 axis (up to ``max_tilt_deg``, in every direction) and a turn about it (up to
 ``max_turn_deg``). The candidates are ``candidates`` such orientations, spread evenly
@@ -38,15 +38,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from . import geometry as geo
-from .errors import ConfigError, InputError, SpherecalError
-from .estimation.refine import design_identifiability, plan_design
-from .kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
-from .models import MountingMode, Pose
-from .planning import SweepPlan, station_flange_poses, with_standoff
+from spherecal.core import geometry as geo
+from spherecal.core.errors import ConfigError, InputError, SpherecalError
+from spherecal.estimation.refine import design_identifiability, plan_design
+from spherecal.core.kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
+from spherecal.core.models import MountingMode, Pose
+from spherecal.motion.planning import SweepPlan, station_flange_poses, with_standoff
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .config import RunConfig
+    from spherecal.config import RunConfig
 
 #: With identify_kinematics a plan must identify at least this many geometric parameters
 #: per joint on average: a revolute arm seen through one sphere has 3 per joint
@@ -238,7 +238,7 @@ def _sweep_joints_rad(chain, q_mid: np.ndarray, R: np.ndarray, t: np.ndarray, it
     """Model joints (rad) of every shot of short sweeps, (C, n, joints): Newton steps on
     ``chain`` from each sweep's middle-shot joints ``q_mid`` (C, joints) to the flange
     poses ``R`` (C, n, 3, 3), ``t`` (C, n, 3) mm, all shots at once (the joint columns of
-    :func:`~spherecal.kinematics.flange_error_jacobian` are the arm's Jacobian)."""
+    :func:`~spherecal.core.kinematics.flange_error_jacobian` are the arm's Jacobian)."""
     C, n = t.shape[:2]
     Q = np.repeat(q_mid[:, None, :], n, axis=1).reshape(C * n, -1)
     Rt, tt = R.reshape(-1, 3, 3), t.reshape(-1, 3)
