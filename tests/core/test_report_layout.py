@@ -13,6 +13,7 @@ from spherecal.estimation import solve
 from spherecal.estimation.centres import circles_from_profiles
 from spherecal.core.models import Pose
 from spherecal.report import html as rh
+from spherecal.report.html import figures as rf
 from spherecal.sim import NoiseModel, SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 
@@ -22,13 +23,13 @@ PLAN = SweepPlan(profiles_per_station=6)
 def _figures(solution, tmp_path, monkeypatch) -> dict:
     """Every figure of the report on ``solution``, drawn as the report draws it."""
     drawn = {}
-    png = rh._png
+    png = rf._png
 
     def keep(fig):
         drawn[fig.axes[0].get_title() or fig.get_suptitle()] = fig
         return png(fig)
 
-    monkeypatch.setattr(rh, "_png", keep)
+    monkeypatch.setattr(rf, "_png", keep)
     rh.write_report(solution, tmp_path)
     return drawn
 
@@ -97,7 +98,7 @@ def test_nothing_is_cut_off_with_millimetre_residuals_and_flags(tmp_path, monkey
 def test_nothing_is_cut_off_with_bands_and_rotated_indices(tmp_path, monkeypatch):
     """Beyond MAX_BOXES (bands) and beyond 40 profiles (observation numbers turned on
     their side)."""
-    monkeypatch.setattr(rh, "MAX_BOXES", 5)
+    monkeypatch.setattr(rf, "MAX_BOXES", 5)
     solution = solve(simulate_dataset(standard_cell("eye_in_hand", seed=7, fov=reference_fov()),
                                       SweepPlan(profiles_per_station=12)))
     assert solution.problem.n_profiles > 40
@@ -126,7 +127,7 @@ def test_nothing_is_cut_off_with_long_station_names_and_a_flagged_last_observati
                                                                       o.base_from_flange.translation + [0, 3.0, 0])})
     solution = solve(ds.model_copy(update={"observations": obs}))
     assert [f.index for f in solution.result.flagged] == [obs[last].index]
-    assert len(solution.problem.station_labels[0]) > rh.MAX_LABEL_CHARS
+    assert len(solution.problem.station_labels[0]) > rf.MAX_LABEL_CHARS
     _check(solution, tmp_path, monkeypatch, expected=6)
     html = (tmp_path / "report.html").read_text(encoding="utf-8")
     assert solution.problem.station_labels[0] in html  # whole in the report's tables

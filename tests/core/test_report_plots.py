@@ -12,6 +12,7 @@ import pytest
 
 from spherecal.estimation import solve
 from spherecal.report import html as rh
+from spherecal.report.html import data as rd, figures as rf
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 
@@ -66,9 +67,9 @@ def test_subsampling_draws_fewer_points_but_computes_the_same(solution, monkeypa
     y, z, res = rh.profile_points_and_residuals(solution)
     assert len(y) == len(z) == len(res) == sum(len(r) for r in solution.refined.residuals)
     assert np.ptp(y) > 30 and np.ptp(z) > 30  # positions along the line and depths of a real sweep
-    full = rh._fig_along_line(solution, solution.result)
-    monkeypatch.setattr(rh, "MAX_POINTS_PLOTTED", 500)
-    small = rh._fig_along_line(solution, solution.result)
+    full = rf._fig_along_line(solution, solution.result)
+    monkeypatch.setattr(rf, "MAX_POINTS_PLOTTED", 500)
+    small = rf._fig_along_line(solution, solution.result)
     assert _scatter_count(full) == [len(res), len(res)] and _scatter_count(small) == [500, 500]
     for a, b in zip(full.axes, small.axes):  # the per-bin mean and RMS: every point, both times
         assert len(a.lines) == len(b.lines) >= 3
@@ -79,7 +80,7 @@ def test_subsampling_draws_fewer_points_but_computes_the_same(solution, monkeypa
     # the lines are the binned statistics of all points
     b = rh.binned_residuals(y, res)
     np.testing.assert_array_equal(full.axes[0].lines[0].get_ydata(), b["mean_mm"])
-    sphere = rh._fig_on_sphere(solution, solution.result)
+    sphere = rf._fig_on_sphere(solution, solution.result)
     assert _scatter_count(sphere)[0] == 500  # (the colour bar adds its own artists)
 
 
@@ -100,7 +101,7 @@ def test_the_interactive_view_is_inline_and_offline(report, solution):
     data = json.loads(re.search(r'<script type="application/json" id="view3d-data">(.*?)</script>', section,
                                 re.S).group(1))
     n = len(data["residuals"])
-    assert n == min(rh.MAX_POINTS_INTERACTIVE, data["total"]) and len(data["points"]) == 3 * n
+    assert n == min(rd.MAX_POINTS_INTERACTIVE, data["total"]) and len(data["points"]) == 3 * n
     p = np.reshape(data["points"], (-1, 3))
     assert np.all(np.abs(np.linalg.norm(p, axis=1) - data["radius_mm"]) < 0.5)  # on the fitted sphere
     # nothing is fetched: no URL, no external script or stylesheet anywhere in the report
@@ -136,14 +137,14 @@ def test_the_3d_and_per_profile_figures_draw_a_bounded_number_of_artists(solutio
     MAX_POINTS_PLOTTED points in all; the per-profile boxes are three collections, their
     statistics from every point; at most MAX_TICK_LABELS observation indices."""
     prob = solution.problem
-    monkeypatch.setattr(rh, "MAX_POINTS_PLOTTED", 300)
-    monkeypatch.setattr(rh, "MAX_TICK_LABELS", 7)
-    sphere = rh._fig_sphere(solution, solution.result, rh._station_colours(list(prob.station_labels)))
+    monkeypatch.setattr(rf, "MAX_POINTS_PLOTTED", 300)
+    monkeypatch.setattr(rf, "MAX_TICK_LABELS", 7)
+    sphere = rf._fig_sphere(solution, solution.result, rf._station_colours(list(prob.station_labels)))
     for ax in sphere.axes:
         counts = [len(c._offsets3d[0]) for c in ax.collections if hasattr(c, "_offsets3d")]
         counts = [n for n in counts if n > 1]  # (the centre's '+' is one point)
         assert len(counts) == len(prob.station_labels) and sum(counts) <= 300
-    per_profile = rh._fig_per_profile(solution, solution.result, rh._station_colours(list(prob.station_labels)))
+    per_profile = rf._fig_per_profile(solution, solution.result, rf._station_colours(list(prob.station_labels)))
     ax = per_profile.axes[0]
     assert len(ax.collections) == 3  # boxes, whiskers with caps, medians
     boxes = ax.collections[0].get_paths()
@@ -162,11 +163,11 @@ def test_beyond_max_boxes_the_per_profile_figure_draws_bands_of_the_same_statist
     line, not one box each; the bands are drawn from each profile's percentiles of every
     point."""
     prob = solution.problem
-    monkeypatch.setattr(rh, "MAX_BOXES", 5)
+    monkeypatch.setattr(rf, "MAX_BOXES", 5)
     drawn = []
-    bands = rh._bands
-    monkeypatch.setattr(rh, "_bands", lambda ax, x, q, colours: (drawn.append((x, q)), bands(ax, x, q, colours)))
-    fig = rh._fig_per_profile(solution, solution.result, rh._station_colours(list(prob.station_labels)))
+    bands = rf._bands
+    monkeypatch.setattr(rf, "_bands", lambda ax, x, q, colours: (drawn.append((x, q)), bands(ax, x, q, colours)))
+    fig = rf._fig_per_profile(solution, solution.result, rf._station_colours(list(prob.station_labels)))
     ax = fig.axes[0]
     assert len(ax.collections) == 2 * len(prob.station_labels)  # two bands a station, no box a profile
     assert len(ax.lines) >= len(prob.station_labels)  # the medians (and the zero line)

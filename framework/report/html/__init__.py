@@ -1,0 +1,26 @@
+"""A self-contained HTML report of a calibration (imports matplotlib): :func:`write_report`.
+
+The report is one HTML file that opens offline: the CSS is inlined and the figures (PNG,
+drawn with matplotlib's Agg renderer, no pyplot state touched) are embedded as base64
+data URIs; the same PNGs are saved next to the HTML file. It shows, top to bottom: the
+verdict, the transform with its direction and uncertainties, what to do when something is
+off, residual plots, a 3-D view of the sphere with the mapped points, the uncertainty,
+station and flagged-observation tables, an optional validation table and the estimator's
+details. See docs/results.md for a tour.
+
+- :mod:`.data`: what the report shows, computed from the solution (no matplotlib);
+- :mod:`.figures`: the figures, and the limits on what they draw (``MAX_POINTS_PLOTTED``,
+  ``MAX_BOXES``, ...);
+- :mod:`.sections`: the HTML of each part, and the page template (``report.html``,
+  ``report.css``, the interactive view's ``view3d.js``);
+- :mod:`.page`: :func:`write_report`, which assembles and writes them.
+"""
+
+from spherecal.report.html.data import (binned_residuals, interactive_points, mapped_centres, mapped_points,
+                                        plot_sample, point_uncertainty, profile_points_and_residuals,
+                                        row_percentiles, sphere_directions)
+from spherecal.report.html.figures import FIGURE_NAMES
+from spherecal.report.html.page import write_report
+
+__all__ = ["write_report", "mapped_points", "FIGURE_NAMES", "binned_residuals", "interactive_points", "mapped_centres",
+           "plot_sample", "point_uncertainty", "profile_points_and_residuals", "row_percentiles", "sphere_directions"]
