@@ -144,9 +144,9 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
 
     # what the calibration determines: relative to the robot's own frame (the error the
     # robot shares over every station is its accuracy, reported apart, not graded here)
-    re = result.robot_error
+    err = result.robot_error
     std_rot, std_tr = calibration_std(result)
-    rel = " relative to the robot's frame" if re else ""
+    rel = " relative to the robot's frame" if err else ""
     rot = max(std_rot)
     lvl = "red" if rot > th.rotation_std_red_deg else "amber" if rot > th.rotation_std_amber_deg else "green"
     reasons.append((lvl, f"largest rotation uncertainty{rel} {rot:.4f} deg (1-sigma; amber above "
@@ -158,14 +158,14 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
                          f"{th.translation_std_amber_mm}, red above {th.translation_std_red_mm})"))
 
     robot_dominates = robot_error_dominates(result, th)
-    if re is not None:
-        parts = re.point_error_parts_rms_mm
+    if err is not None:
+        parts = err.point_error_parts_rms_mm
         robot = parts.get("robot_station_to_station_mm", 0.0)
         share = robot**2 / max(sum(v**2 for v in parts.values()), 1e-300)
         lvl = "amber" if robot_dominates else "green"
-        reasons.append((lvl, f"a point measured at a new pose: expected error {re.point_error_k2_mm:.3f} mm (k = 2); "
+        reasons.append((lvl, f"a point measured at a new pose: expected error {err.point_error_k2_mm:.3f} mm (k = 2); "
                              f"the robot's systematic error is {share:.0%} of it ({robot:.3f} mm RMS; stations disagree by "
-                             f"{re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg per axis)"))
+                             f"{err.station_translation_mm:.3f} mm and {err.station_rotation_deg:.4f} deg per axis)"))
 
     n_flag = len(result.flagged)
     if n_flag:
@@ -287,20 +287,20 @@ def calibration_std(result: CalibrationResult) -> tuple[tuple[float, ...], tuple
     determines: relative to the robot's own frame when the result has a robot error
     model (the error the robot shares over every station is its accuracy, not the
     calibration's), else the reported ones."""
-    re = result.robot_error
-    if re is None:
+    err = result.robot_error
+    if err is None:
         return tuple(result.std_rotation_deg), tuple(result.std_translation_mm)
-    return tuple(re.std_rotation_deg_robot_frame), tuple(re.std_translation_mm_robot_frame)
+    return tuple(err.std_rotation_deg_robot_frame), tuple(err.std_translation_mm_robot_frame)
 
 
 def robot_error_dominates(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
     """True when the robot's systematic (station-to-station) error is the larger share of
     the expected point error and above the floor: the cell is not clean."""
     th = thresholds or Thresholds()
-    re = result.robot_error
-    if re is None:
+    err = result.robot_error
+    if err is None:
         return False
-    parts = re.point_error_parts_rms_mm
+    parts = err.point_error_parts_rms_mm
     robot = parts.get("robot_station_to_station_mm", 0.0)
     share = robot**2 / max(sum(v**2 for v in parts.values()), 1e-300)
     return share > th.robot_error_share_amber and robot > th.robot_error_floor_mm
@@ -354,30 +354,39 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
     """What to do, from the diagnostics of ``result``; worst first. An empty list means
     nothing calls for action."""
     th = thresholds or Thresholds()
-    out: list[Advice] = []
-    a = result.transform_name.split("_from_")[0]
-    diag = result.diagnostics
-    noise = diag.get("noise", {}) or {}
-    cons = diag.get("station_consistency", {}) or {}
+    bad_stations = inconsistent_stations(result, th)
+    out = [*_robot_error_advice(result, th), *_residual_advice(result, th, bad_stations),
+           *_station_advice(result, bad_stations), *_uncertainty_advice(result, th), *_flagged_advice(result, th),
+           *_stray_point_advice(result, th), *_estimator_advice(result, th)]
+    out.sort(key=lambda adv: -_RANK[adv.level])
+    return out
 
+
+def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
+    """The robot's own geometric error, when it limits the calibration."""
+    out: list[Advice] = []
     if robot_error_dominates(result, th):
-        re = result.robot_error
+        err = result.robot_error
         out.append(Advice(
             "robot_error_dominates", "amber", "The robot's own geometric error limits this calibration",
-            f"The stations disagree by about {re.station_translation_mm:.3f} mm and {re.station_rotation_deg:.4f} deg "
+            f"The stations disagree by about {err.station_translation_mm:.3f} mm and {err.station_rotation_deg:.4f} deg "
             "per axis, more than the noise explains: the robot's flange is not where its controller says, by an "
             "amount that changes with the joints. The result allows for it (its uncertainty includes it) and is "
-            f"as good as this robot allows; expect {re.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a "
+            f"as good as this robot allows; expect {err.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a "
             "new pose like these. To do better: calibrate the robot's kinematics (or use its absolute-accuracy "
             "option), keep the stations' orientations close to those the cell will work in, and give the robot's "
             "known accuracy (calibration.robot_accuracy_mm / robot_accuracy_deg) if it is better than the "
-            f"assumed {re.common_translation_mm:g} mm / {re.common_rotation_deg:g} deg.",
+            f"assumed {err.common_translation_mm:g} mm / {err.common_rotation_deg:g} deg.",
         ))
+    return out
 
-    # residuals
+
+def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: dict[str, float]) -> list[Advice]:
+    """Residuals larger than expected at every station alike, and robot poses that scatter."""
+    out: list[Advice] = []
+    noise = result.diagnostics.get("noise", {}) or {}
     exp = expected_rms_mm(result, th)
     ratio = result.residuals.rms_mm / exp
-    bad_stations = inconsistent_stations(result, th)
     if ratio > th.residual_ratio_amber and not bad_stations:
         lvl: Level = "red" if ratio > th.residual_ratio_red else "amber"
         out.append(Advice(
@@ -399,8 +408,13 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             "decimals of the quaternion (3 decimals is about 0.1 deg), read them with tool0 and wobj0, and let "
             "the robot warm up. A wrong sphere radius looks the same: check it too.",
         ))
+    return out
 
-    # stations
+
+def _station_advice(result: CalibrationResult, bad_stations: dict[str, float]) -> list[Advice]:
+    """Stations whose sphere centre does not move as the robot says it moved."""
+    out: list[Advice] = []
+    cons = result.diagnostics.get("station_consistency", {}) or {}
     if bad_stations:
         typical = float(median([float(v["rms_mm"]) for v in cons.values()]))
         listing = ", ".join(f"{k} ({v:.3f} mm)" for k, v in sorted(bad_stations.items()))
@@ -411,7 +425,13 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             "robot settled (use a fine point and WaitRob \\InPos before reading), or a reading paired with "
             "the wrong profile. Re-acquire that station, or drop it if the others suffice.",
         ))
+    return out
 
+
+def _uncertainty_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
+    """A rotation axis, every rotation axis or the translation poorly determined."""
+    out: list[Advice] = []
+    a = result.transform_name.split("_from_")[0]
     # uncertainty per rotation axis: one weak axis calls for a tilt about it; all axes
     # alike call for more data (and smaller residuals) overall
     std_r = list(calibration_std(result)[0])
@@ -443,8 +463,12 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             "orientation: add stations with larger tilts (20-45 deg) about different axes, and more profiles "
             "per sweep.",
         ))
+    return out
 
-    # flagged observations
+
+def _flagged_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
+    """The observations left out, grouped by their likely cause."""
+    out: list[Advice] = []
     if result.flagged:
         groups: dict[str, list] = {}
         for f in result.flagged:
@@ -459,8 +483,12 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             f"{len(result.flagged)} observation(s) left out",
             " ".join(parts) + " The result was computed without them.",
         ))
+    return out
 
-    # stray points
+
+def _stray_point_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
+    """Points off the sphere, left out."""
+    out: list[Advice] = []
     n_rej = result.residuals.n_points_rejected
     n_all = n_rej + result.residuals.n_points_used
     if n_all and n_rej / n_all > th.stray_fraction_info:
@@ -470,8 +498,13 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             "(reflections, the sphere's edge, the stand or background). A few are normal; many suggest a too "
             "long exposure, a shiny or dirty sphere, or something else in the field of view.",
         ))
+    return out
 
-    # start vs refinement, convergence
+
+def _estimator_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
+    """The two-step start far from the refined result, or a refinement that did not converge."""
+    out: list[Advice] = []
+    diag = result.diagnostics
     tsr = diag.get("two_step_vs_refined", {}) or {}
     if tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm:
         out.append(Advice(
@@ -486,5 +519,4 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
             "The estimate may be wrong. Check the dataset (units in mm, one orientation per station) and add "
             "stations with different tilts.",
         ))
-    out.sort(key=lambda adv: -_RANK[adv.level])
     return out
