@@ -1,4 +1,4 @@
-"""The report's figures are laid out with fixed margins (no layout engine: it took a
+"""The report's figures are laid out with fixed margins (no layout engine: one takes a
 sixth of the report's time on 1 M points): every label, title, legend and annotation
 must still lie inside its figure, whatever the data put on the axes: tiny and large
 residuals, flagged observations, bands beyond MAX_BOXES, centre observations, both

@@ -30,7 +30,7 @@ def report(solution, tmp_path_factory):
     return path, path.read_text(encoding="utf-8")
 
 
-def test_the_new_figures_are_in_the_report_and_saved_for_print(report):
+def test_the_residuals_along_the_line_and_on_the_sphere_are_in_the_report_and_saved(report):
     path, text = report
     for key in ("residuals_along_line", "residuals_on_sphere"):
         png = path.parent / f"report_{key}.png"

@@ -48,8 +48,8 @@ def _png(fig: Figure) -> bytes:
     """The figure as PNG, laid out by the margins its maker gave (:func:`_margins`)."""
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    # zlib's fastest level: the encoding took a tenth of the report at level 6 (the
-    # default), for files 4 % smaller
+    # zlib's fastest level: at level 6 (the default) the encoding takes a tenth of the
+    # report's time, for files only 4 % smaller
     fig.savefig(buf, format="png", dpi=_DPI, pil_kwargs={"compress_level": 1})
     return buf.getvalue()
 
@@ -149,7 +149,7 @@ def _fig_per_profile(solution, result, colours) -> Figure:
 
 def _boxes(ax, positions, samples, colours, width: float = 0.6) -> None:
     """Box plots of ``samples`` at ``positions`` (box: quartiles, whiskers: 1-99 %, a
-    black median), drawn as three collections (one artist per box took seconds); beyond
+    black median), drawn as three collections (one artist per box takes seconds); beyond
     :data:`MAX_BOXES`, as bands (:func:`_bands`). The statistics are every point's."""
     from matplotlib.collections import LineCollection, PolyCollection
 
@@ -286,7 +286,7 @@ def _fig_sphere(solution, result, colours, pts: list[np.ndarray] | None = None) 
         ax.plot_wireframe(sx, sy, sz, color="#9aa0a6", lw=0.4, alpha=0.6)
         ax.scatter([c[0]], [c[1]], [c[2]], color="black", s=20, marker="+")
         seen = set()
-        for label, q in drawn.items():  # one scatter per station (one per profile took seconds)
+        for label, q in drawn.items():  # one scatter per station (one per profile takes seconds)
             ax.scatter(q[:, 0], q[:, 1], q[:, 2], s=1.5, color=colours[label], depthshade=False,
                        label=f"station {_short(label)}")
             seen.add(label)
@@ -342,7 +342,7 @@ def _fig_along_line(solution, result) -> Figure:
         if j == 0:
             legend = ax.legend(fontsize=7, loc="upper right")
             legend.legend_handles[0].set_sizes([12.0])
-    # (two lines: on one, the title was wider than the figure)
+    # (two lines: on one, the title is wider than the figure)
     fig.suptitle("Residuals against position along the line and against depth\n(all "
                  f"{res.size} points in the lines; residual RMS {result.residuals.rms_mm:.4f} mm"
                  + (f"; {outside} beyond +/-{lim:.3f} mm drawn at the edge" if outside else "") + ")", fontsize=10)
