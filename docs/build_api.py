@@ -1,6 +1,7 @@
-"""Build the API reference of the classes and functions a plugin author uses, from their
-docstrings, into a folder of HTML pages (offline: pdoc, a test dependency, renders the
-installed package; nothing is fetched).
+"""Build the API reference of the plugin API (``spherecal.plugins``: what a plugin author
+may rely on) and the modules behind its names, from their docstrings, into a folder of
+HTML pages (offline: pdoc, a test dependency, renders the installed package; nothing is
+fetched).
 
     python docs/build_api.py out/api      # then open out/api/index.html
 
@@ -11,19 +12,33 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-#: The modules of the reference: poses and data (models), the device protocols and
-#: descriptions (devices), the simulated world (sim), the planner (planning), the pytest
-#: fixtures and harnesses (plugins.testing), the hooks (plugins.hookspecs), the exporters
-#: and the geometry helpers.
+#: The modules of the reference: the plugin API (``spherecal.plugins``, with its hooks,
+#: registries, host and pytest fixtures), then the modules behind its names: poses and
+#: data (models), errors, the device protocols and descriptions (devices.contract), robot
+#: safety (devices.motion_safety), the value objects (field of view, workspace box),
+#: kinematics and URDF, the geometry helpers, the line protocol both ends, the exporters
+#: and their formatting helpers, the simulated world (sim) and the planner (planning).
 API_MODULES = (
+    "spherecal.plugins",
+    "spherecal.plugins.registry",
+    "spherecal.plugins.host",
+    "spherecal.plugins.testing",
     "spherecal.core.models",
+    "spherecal.core.errors",
     "spherecal.devices.contract",
+    "spherecal.devices.motion_safety",
+    "spherecal.core.field_of_view",
+    "spherecal.core.workspace",
+    "spherecal.core.kinematics",
+    "spherecal.core.urdf",
+    "spherecal.core.geometry",
+    "spherecal.devices.line_protocol",
+    "spherecal.devices.line_robot",
+    "spherecal.sim.controller",
+    "spherecal.io.exporters",
+    "spherecal.report.export",
     "spherecal.sim",
     "spherecal.motion.planning",
-    "spherecal.plugins.testing",
-    "spherecal.plugins.hookspecs",
-    "spherecal.io.exporters",
-    "spherecal.core.geometry",
 )
 
 

@@ -1,27 +1,188 @@
-"""The plugin host: hook specifications, the plugin manager facade, device registries
-and the pytest fixtures for plugin authors.
+"""The plugin API: everything a robot, sensor or exporter plugin may rely on, and only that.
 
-- :mod:`spherecal.plugins.hookspecs`: every hook a plugin can implement (the module is
-  ``hookspecs``, plural, because ``hookspec`` here is the marker);
-- :mod:`spherecal.plugins.host`: :class:`~spherecal.plugins.host.PluginHost`, built per
-  run: loads plugins from the ``"spherecal"`` entry points, keeps the robot and sensor
-  registry, validates configuration sections and creates devices;
-- :mod:`spherecal.plugins.testing`: pytest fixtures for plugin authors.
+A plugin imports from ``spherecal.plugins`` alone (the built-in plugins in
+``spherecal.robots`` and ``spherecal.sensors`` do, and a test holds them to it); the
+modules behind these names may move between releases, these names stay. What it holds:
+
+- the markers :data:`hookimpl` and :data:`hookspec`, the hooks (:mod:`.hookspecs`, the
+  module: ``spherecal.plugins.hookspecs``) and the registries a plugin adds to
+  (:class:`DeviceRegistry`, :class:`ExporterRegistry`);
+- the devices' contract: :class:`Robot`, :class:`Sensor`, :class:`RobotType`,
+  :class:`SensorType`, :class:`DeviceContext`, :class:`ControllerFrame`,
+  :func:`device_identity`, and the value objects :class:`SensorFieldOfView` and
+  :class:`WorkspaceBox`;
+- robot safety whatever the protocol: :class:`MotionSafety` (speed at the tool point,
+  workspace box, reach along the path, the first move from where the arm stands, the
+  controller's frame), :class:`MotionLimits`, :class:`FrameOffset`;
+- kinematics: :class:`ArmKinematics`, :class:`SerialChain`, the URDF chain
+  (:func:`read_urdf_chain`, :func:`chain_from_urdf`, :func:`chain_inverse_kinematics`)
+  and the rotation helpers (:func:`matrix_from_rotvec`, ...);
+- the spherecal line protocol, both ends: :mod:`line_protocol` (the module), the PC side
+  (:class:`LineRobot`, :class:`LineLinkSettings`, :class:`TcpLink`) and the simulated
+  controller's server (:class:`SimulatedController`, :class:`ControllerServer`,
+  :class:`SimulatedControllerSettings`, :func:`start_controller`);
+- exporters: the contract (:class:`Exporter`, :class:`ExportNote`, :func:`red_warning`)
+  and the formatting helpers of the core's exports (:func:`fixed`, :data:`MM_DECIMALS`, ...);
+- the errors and data models plugins use (:class:`Pose`, :class:`Profile`,
+  :class:`Dataset`, :class:`CalibrationResult`, :class:`DeviceError`, ...), the
+  ``base_dir`` validation-context key (:data:`BASE_DIR_CONTEXT_KEY`), the host
+  (:class:`PluginHost`, for a plugin's tests), the simulated cell and planner a plugin's
+  tests run on, and :func:`lazy_attributes` (names a package defines on first use).
+
+Importing this package is cheap: every name but the markers and constants loads on first
+use (PEP 562), so that ``spherecal --help`` and ``spherecal plugins`` load nothing a
+command does not use. :mod:`spherecal.plugins.testing` holds the pytest fixtures for
+plugin authors (a ``pytest11`` entry point: no import needed).
 
 A plugin module marks its hook implementations with :data:`hookimpl`::
 
-    from spherecal.plugins import hookimpl
+    from spherecal.plugins import RobotType, hookimpl
 
     @hookimpl
     def spherecal_register_devices(registry):
         registry.add_robot(RobotType(...))
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 import pluggy
+
+from spherecal.core.lazy import lazy_attributes
 
 PROJECT_NAME = "spherecal"
 #: Entry-point group that built-in and third-party plugins are registered under.
 ENTRY_POINT_GROUP = "spherecal"
+#: Key of the pydantic validation context that gives the folder a configuration's
+#: relative paths resolve against (the configuration file's folder): the host validates
+#: a device's section with ``context={BASE_DIR_CONTEXT_KEY: folder}`` when it knows it.
+BASE_DIR_CONTEXT_KEY = "base_dir"
 
 hookspec = pluggy.HookspecMarker(PROJECT_NAME)
 hookimpl = pluggy.HookimplMarker(PROJECT_NAME)
+
+#: name -> the module that defines it (loaded on first use)
+_WHERE = {
+    # the host and the registries
+    "PluginHost": ".host",
+    "DeviceRegistry": ".registry",
+    "ExporterRegistry": ".registry",
+    "DISABLE_AUTOLOAD_ENV": ".registry",
+    "EXPORT_RUN_KEY": ".registry",
+    "TYPE_KEY": ".registry",
+    # the devices' contract and its value objects
+    "ControllerFrame": "spherecal.devices.contract",
+    "DeviceContext": "spherecal.devices.contract",
+    "IDENTITY_KEYS": "spherecal.devices.contract",
+    "RESERVED_OPTION_NAMES": "spherecal.devices.contract",
+    "Robot": "spherecal.devices.contract",
+    "RobotType": "spherecal.devices.contract",
+    "Sensor": "spherecal.devices.contract",
+    "SensorType": "spherecal.devices.contract",
+    "device_identity": "spherecal.devices.contract",
+    "SensorFieldOfView": "spherecal.core.field_of_view",
+    "WorkspaceBox": "spherecal.core.workspace",
+    # robot safety, whatever the protocol
+    "FrameOffset": "spherecal.devices.motion_safety",
+    "MIN_SPEED_MM_S": "spherecal.devices.motion_safety",
+    "MotionLimits": "spherecal.devices.motion_safety",
+    "MotionSafety": "spherecal.devices.motion_safety",
+    # kinematics and rotations
+    "ArmKinematics": "spherecal.core.kinematics",
+    "SerialChain": "spherecal.core.kinematics",
+    "chain_reach_mm": "spherecal.core.kinematics",
+    "IkNotConverged": "spherecal.core.urdf",
+    "UrdfChain": "spherecal.core.urdf",
+    "chain_from_urdf": "spherecal.core.urdf",
+    "chain_inverse_kinematics": "spherecal.core.urdf",
+    "chain_to_urdf": "spherecal.core.urdf",
+    "read_urdf_chain": "spherecal.core.urdf",
+    "write_urdf": "spherecal.core.urdf",
+    "check_rotation_matrix": "spherecal.core.geometry",
+    "matrix_from_quat_wxyz": "spherecal.core.geometry",
+    "matrix_from_rotvec": "spherecal.core.geometry",
+    "quat_wxyz_from_matrix": "spherecal.core.geometry",
+    "quat_wxyz_from_xyzw": "spherecal.core.geometry",
+    "quat_xyzw_from_wxyz": "spherecal.core.geometry",
+    "rotation_angle_deg": "spherecal.core.geometry",
+    "rotvec_from_matrix": "spherecal.core.geometry",
+    # the line protocol: the PC side and the simulated controller's server
+    "LineLinkSettings": "spherecal.devices.line_robot",
+    "LineRobot": "spherecal.devices.line_robot",
+    "LinkSettings": "spherecal.devices.line_robot",
+    "TcpLink": "spherecal.devices.line_robot",
+    "initial_seq": "spherecal.devices.line_robot",
+    "link_transport": "spherecal.devices.line_robot",
+    "ControllerServer": "spherecal.sim.controller",
+    "Faults": "spherecal.sim.controller",
+    "SimulatedController": "spherecal.sim.controller",
+    "start_controller": "spherecal.sim.controller",
+    "SimulatedControllerSettings": "spherecal.sim.settings",
+    # exporters: the contract and the formatting helpers of the core's exports
+    "ExportNote": "spherecal.io.exporters",
+    "Exporter": "spherecal.io.exporters",
+    "MOUNTINGS": "spherecal.io.exporters",
+    "NoSettings": "spherecal.io.exporters",
+    "RED_WARNING": "spherecal.io.exporters",
+    "TEMPLATE_FIELDS": "spherecal.io.exporters",
+    "red_warning": "spherecal.io.exporters",
+    "MATRIX_DECIMALS": "spherecal.report.export",
+    "METRE_DECIMALS": "spherecal.report.export",
+    "MM_DECIMALS": "spherecal.report.export",
+    "QUAT_DECIMALS": "spherecal.report.export",
+    "check_result": "spherecal.report.export",
+    "fixed": "spherecal.report.export",
+    "frames_of": "spherecal.report.export",
+    "inverse_name": "spherecal.report.export",
+    "rounded_quaternion_wxyz": "spherecal.report.export",
+    "uncertainty_sentence": "spherecal.report.export",
+    # errors
+    "ConfigError": "spherecal.core.errors",
+    "DatasetFileError": "spherecal.core.errors",
+    "DegenerateDataError": "spherecal.core.errors",
+    "DeviceError": "spherecal.core.errors",
+    "FileWriteError": "spherecal.core.errors",
+    "FitBreakdownError": "spherecal.core.errors",
+    "InputError": "spherecal.core.errors",
+    "PluginError": "spherecal.core.errors",
+    "SpherecalError": "spherecal.core.errors",
+    # data models
+    "CalibrationResult": "spherecal.core.models",
+    "Circle": "spherecal.core.models",
+    "Dataset": "spherecal.core.models",
+    "MountingMode": "spherecal.core.models",
+    "Observation": "spherecal.core.models",
+    "Pose": "spherecal.core.models",
+    "Profile": "spherecal.core.models",
+    "TRANSFORM_NAME": "spherecal.core.models",
+    # the simulated cell and the planner a plugin's tests run on
+    "SimulatedCell": "spherecal.sim.cell",
+    "standard_cell": "spherecal.sim.cell",
+    "SweepPlan": "spherecal.motion.planning",
+    "plan_stations": "spherecal.motion.planning",
+}
+#: modules of the API, by the name they go by here (loaded on first use)
+_MODULES = {
+    "hookspecs": "spherecal.plugins.hookspecs",
+    "line_protocol": "spherecal.devices.line_protocol",
+}
+
+__all__ = sorted(["BASE_DIR_CONTEXT_KEY", "ENTRY_POINT_GROUP", "PROJECT_NAME", "hookimpl", "hookspec",
+                  "lazy_attributes", *_WHERE, *_MODULES])
+
+_name_getattr, _name_dir = lazy_attributes(__name__, _WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULES.get(name)
+    if module is None:
+        return _name_getattr(name)
+    value = importlib.import_module(module)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(_name_dir()) | set(_MODULES))

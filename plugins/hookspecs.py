@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # pragma: no cover - imports for the annotations only
 
     from spherecal.core.models import CalibrationResult, Dataset, Observation
 
-    from .host import DeviceRegistry, ExporterRegistry
+    from .registry import DeviceRegistry, ExporterRegistry
 
 
 @hookspec
@@ -49,7 +49,7 @@ def spherecal_register_devices(registry: "DeviceRegistry") -> None:
 
     :param registry: the host's device registry. Call
         ``registry.add_robot(RobotType(...))`` and ``registry.add_sensor(SensorType(...))``
-        (both from :mod:`spherecal.devices.contract`) once per type.
+        (both from :mod:`spherecal.plugins`) once per type.
     :return: nothing; the return value is ignored.
 
     Called once per plugin, while the host is being built, after every plugin has been
@@ -71,7 +71,7 @@ def spherecal_register_exporters(registry: "ExporterRegistry") -> None:
     """Add the exporters this plugin provides.
 
     :param registry: the host's exporter registry. Call
-        ``registry.add_exporter(Exporter(...))`` (:class:`spherecal.io.exporters.Exporter`)
+        ``registry.add_exporter(Exporter(...))`` (:class:`spherecal.plugins.Exporter`)
         once per exporter: its name, the files it writes (templates such as
         ``"{module_name}.mod"``), a pure ``write(result, settings)`` returning their text,
         its settings model (validated from ``[export.<name>]``), the mounting modes and

@@ -8,7 +8,7 @@ fixture name starts with ``spherecal_``.)
 Fixtures
 --------
 ``spherecal_cell``
-    A seeded :func:`spherecal.sim.standard_cell`, eye-in-hand by default. Choose the
+    A seeded :func:`spherecal.plugins.standard_cell`, eye-in-hand by default. Choose the
     mounting (or more) by indirect parametrisation::
 
         @pytest.mark.parametrize("spherecal_cell", ["eye_in_hand", "eye_to_hand"], indirect=True)
@@ -20,35 +20,35 @@ Fixtures
     sensor, where that arm reaches the default plan) or its size (``{"reach_mm": 900.0,
     "shoulder_mm": (0, 0, 90)}``). The dict may also set the cell's truth and sensor:
     ``sphere_centre_mm`` (mm; base in eye-in-hand, flange in eye-to-hand),
-    ``true_transform`` (a :class:`~spherecal.core.models.Pose`) and ``fov`` (your sensor's
-    :class:`~spherecal.devices.contract.SensorFieldOfView`, e.g.
+    ``true_transform`` (a :class:`~spherecal.plugins.Pose`) and ``fov`` (your sensor's
+    :class:`~spherecal.plugins.SensorFieldOfView`, e.g.
     ``host.registry.sensor_type(name).field_of_view``; without it, that of the only
     installed, else the only built-in, sensor type that declares one,
     :func:`default_field_of_view`); or the parameter is a whole
-    :class:`~spherecal.sim.SimulatedCell` (also ``{"cell": cell}``), used as it is. Either
-    dict may carry ``plan``, the cell's own :class:`~spherecal.motion.planning.SweepPlan` (e.g. a
+    :class:`~spherecal.plugins.SimulatedCell` (also ``{"cell": cell}``), used as it is. Either
+    dict may carry ``plan``, the cell's own :class:`~spherecal.plugins.SweepPlan` (e.g. a
     configuration's ``[acquisition.sweep]``, or one your arm reaches):
     ``spherecal_stations`` and the harnesses use its stations.
     To use one cell in every test of a plugin, override the fixture in the plugin's own
     ``conftest.py`` (a fixture of the same name there wins; docs/plugins.md).
 ``spherecal_host``
-    A fresh :class:`spherecal.plugins.host.PluginHost` (built-ins and installed plugins).
+    A fresh :class:`spherecal.plugins.PluginHost` (built-ins and installed plugins).
 ``spherecal_context``
-    A :class:`spherecal.devices.contract.DeviceContext` whose ``cell`` is ``spherecal_cell``: pass it
+    A :class:`spherecal.plugins.DeviceContext` whose ``cell`` is ``spherecal_cell``: pass it
     to ``host.create_robot`` / ``host.create_sensor`` to get the simulated devices.
 ``spherecal_stations``
     Planned flange targets for the cell, ``[(label, [base_from_flange, ...]), ...]``, from
-    :func:`spherecal.motion.planning.plan_stations` with the cell's true transform, of the cell's
+    :func:`spherecal.plugins.plan_stations` with the cell's true transform, of the cell's
     plan (``plan`` above) or the default one (:func:`planned_stations`).
 ``spherecal_robot_harness`` / ``spherecal_sensor_harness``
     :class:`RobotHarness` / :class:`SensorHarness` bound to the cell and stations:
     ``spherecal_robot_harness.check(robot)`` checks that a robot honours the
-    :class:`~spherecal.devices.contract.Robot` protocol against the cell (moves land where
+    :class:`~spherecal.plugins.Robot` protocol against the cell (moves land where
     commanded, reported poses agree within the cell's noise, limits are enforced,
     ``close()`` twice is fine); ``spherecal_sensor_harness.check(sensor)`` that profiles
     match the cell's ideal profile within the noise and that an empty view gives None.
     Built by hand, a harness takes ``stations`` or ``plan`` (a
-    :class:`~spherecal.motion.planning.SweepPlan`, planned on the cell):
+    :class:`~spherecal.plugins.SweepPlan`, planned on the cell):
     ``RobotHarness(cell, plan=loaded.config.acquisition.sweep)``.
 
 :func:`acquire_dataset` runs a complete acquisition with a robot and a sensor.
@@ -138,15 +138,15 @@ def acquire_dataset(
 
 def planned_stations(cell: "SimulatedCell", plan: "SweepPlan | None" = None):
     """Flange targets ``[(label, [base_from_flange, ...]), ...]`` of ``plan`` on ``cell``
-    (:func:`spherecal.motion.planning.plan_stations` with the cell's truth, fitted to its field
+    (:func:`spherecal.plugins.plan_stations` with the cell's truth, fitted to its field
     of view); without ``plan``, the one given to ``spherecal_cell`` with the cell
-    (:func:`make_cell`), else the default :class:`~spherecal.motion.planning.SweepPlan`."""
+    (:func:`make_cell`), else the default :class:`~spherecal.plugins.SweepPlan`."""
     from spherecal.motion.planning import SweepPlan, plan_stations
 
     if plan is None:
         plan = _CELL_PLANS.get(cell)
     if plan is not None and not isinstance(plan, SweepPlan):
-        raise TypeError(f"plan must be a spherecal.motion.planning.SweepPlan, got {type(plan).__name__}")
+        raise TypeError(f"plan must be a spherecal.plugins.SweepPlan, got {type(plan).__name__}")
     return plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan,
                          field_of_view=cell.fov)
 
@@ -192,7 +192,7 @@ class RobotHarness:
 
     It moves through ``stations`` (``[(label, [base_from_flange, ...]), ...]``), or, when
     they are not given, through the stations of ``plan`` (a
-    :class:`~spherecal.motion.planning.SweepPlan`: the cell's own plan, e.g. a configuration's
+    :class:`~spherecal.plugins.SweepPlan`: the cell's own plan, e.g. a configuration's
     ``[acquisition.sweep]`` or one your arm reaches) planned on the cell
     (:func:`planned_stations`; without either, the plan given to ``spherecal_cell``, else
     the default plan). A TypeError for both."""
@@ -220,7 +220,7 @@ class RobotHarness:
     ) -> RobotReport:
         """Assert that ``robot`` honours the Robot protocol on ``self.cell``.
 
-        - it is a :class:`spherecal.devices.contract.Robot`;
+        - it is a :class:`spherecal.plugins.Robot`;
         - after ``move_linear(target, speed)`` the cell's flange is at the target (within
           ``move_tolerance_mm`` / ``_deg``): the move landed where commanded;
         - ``read_flange_pose()`` agrees with the target within six standard deviations of
@@ -230,7 +230,7 @@ class RobotHarness:
           from them agrees with the target within ``kinematics_tolerance_mm`` (default:
           the reported-pose bound, six standard deviations of the cell's pose noise, plus
           :data:`JOINT_ROUNDING_MM` for joints a protocol carries rounded);
-        - a non-positive speed is refused with a :class:`~spherecal.core.errors.SpherecalError`
+        - a non-positive speed is refused with a :class:`~spherecal.plugins.SpherecalError`
           before the robot moves;
         - ``close()`` can be called twice (when ``check_close``; the robot is closed after).
 
@@ -241,7 +241,7 @@ class RobotHarness:
         from spherecal.core.errors import SpherecalError
 
         assert isinstance(robot, Robot), (
-            f"{type(robot).__name__} is not a spherecal.devices.contract.Robot: it needs read_flange_pose, "
+            f"{type(robot).__name__} is not a spherecal.plugins.Robot: it needs read_flange_pose, "
             f"read_joints_deg, move_linear and close"
         )
         noise = self.cell.noise
@@ -340,8 +340,8 @@ class SensorHarness:
     def check(self, sensor: "Sensor", *, check_close: bool = True) -> SensorReport:
         """Assert that ``sensor`` honours the Sensor protocol on ``self.cell``.
 
-        - it is a :class:`spherecal.devices.contract.Sensor`;
-        - at each checked pose, ``read_profile()`` returns a :class:`~spherecal.core.models.Profile`
+        - it is a :class:`spherecal.plugins.Sensor`;
+        - at each checked pose, ``read_profile()`` returns a :class:`~spherecal.plugins.Profile`
           whose points (y, z in mm, sensor frame) lie on the circle where the laser plane
           cuts the sphere, within six standard deviations of the cell's point noise plus
           ``extra_tolerance_mm`` (a share ``max_outlier_fraction`` may lie further off);
@@ -357,7 +357,7 @@ class SensorHarness:
         from spherecal.core.models import Pose, Profile
 
         assert isinstance(sensor, Sensor), (
-            f"{type(sensor).__name__} is not a spherecal.devices.contract.Sensor: it needs read_profile and close"
+            f"{type(sensor).__name__} is not a spherecal.plugins.Sensor: it needs read_profile and close"
         )
         cell = self.cell
         tol = 6 * cell.noise.point_noise_mm + self.extra_tolerance_mm
@@ -371,7 +371,7 @@ class SensorHarness:
                 assert profile is None, f"read_profile() returned points where the sensor sees nothing ({where})"
                 continue
             assert isinstance(profile, Profile), (
-                f"read_profile() returned {type(profile).__name__} ({where}); expected a spherecal.core.models.Profile"
+                f"read_profile() returned {type(profile).__name__} ({where}); expected a spherecal.plugins.Profile"
             )
             c = cell.sphere_centre_in_sensor(pose)
             rho = np.sqrt(cell.sphere_radius_mm**2 - c[0] ** 2)
@@ -425,7 +425,7 @@ class SensorHarness:
 # ---------------------------------------------------------------------------------------
 # Fixtures
 # ---------------------------------------------------------------------------------------
-#: Keys of a ``spherecal_cell`` parameter besides :func:`spherecal.sim.standard_cell`'s.
+#: Keys of a ``spherecal_cell`` parameter besides :func:`spherecal.plugins.standard_cell`'s.
 CELL_PARAMETERS = ("cell", "sphere_centre_mm", "true_transform", "fov", "plan")
 
 #: The plan given with a cell (``make_cell``'s ``plan`` key), for :func:`planned_stations`.
@@ -434,7 +434,7 @@ _CELL_PLANS: "weakref.WeakKeyDictionary[SimulatedCell, SweepPlan]" = weakref.Wea
 
 def default_field_of_view() -> "SensorFieldOfView":
     """The field of view a ``spherecal_cell`` measures with when its parameter gives no
-    ``fov``, read through a :class:`~spherecal.plugins.host.PluginHost` as a run reads
+    ``fov``, read through a :class:`~spherecal.plugins.PluginHost` as a run reads
     it: that of the only installed sensor type that declares one; with several (yours
     beside a built-in one, say), that of the only built-in sensor type that declares one,
     so that installing a sensor plugin does not change the cells of other tests. A
@@ -459,14 +459,14 @@ def default_field_of_view() -> "SensorFieldOfView":
 
 def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     """The cell of a ``spherecal_cell`` parameter (module docstring): a mounting name, a
-    :class:`~spherecal.sim.SimulatedCell` (used as it is), or a dict of
-    :func:`~spherecal.sim.standard_cell` arguments (``seed`` defaults to 0) with any of
+    :class:`~spherecal.plugins.SimulatedCell` (used as it is), or a dict of
+    :func:`~spherecal.plugins.standard_cell` arguments (``seed`` defaults to 0) with any of
     ``sphere_centre_mm`` (the true sphere centre, base in eye-in-hand, flange in
-    eye-to-hand, mm), ``true_transform`` (a :class:`~spherecal.core.models.Pose`:
+    eye-to-hand, mm), ``true_transform`` (a :class:`~spherecal.plugins.Pose`:
     ``flange_from_sensor`` in eye-in-hand, ``base_from_sensor`` in eye-to-hand), ``fov``
-    (a :class:`~spherecal.devices.contract.SensorFieldOfView`, your sensor's; default
+    (a :class:`~spherecal.plugins.SensorFieldOfView`, your sensor's; default
     :func:`default_field_of_view`) or ``cell`` (a whole cell, alone), and ``plan`` (a
-    :class:`~spherecal.motion.planning.SweepPlan`, the cell's own plan: ``spherecal_stations``
+    :class:`~spherecal.plugins.SweepPlan`, the cell's own plan: ``spherecal_stations``
     and the harnesses plan with it, :func:`planned_stations`). A key that is none of these
     is a TypeError naming it."""
     import inspect
@@ -484,10 +484,10 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     kwargs = dict(param)
     plan = kwargs.pop("plan", None)
     if plan is not None and not isinstance(plan, SweepPlan):
-        raise TypeError(f"spherecal_cell: plan must be a spherecal.motion.planning.SweepPlan, got {type(plan).__name__}")
+        raise TypeError(f"spherecal_cell: plan must be a spherecal.plugins.SweepPlan, got {type(plan).__name__}")
     if "cell" in kwargs:
         if len(kwargs) > 1 or not isinstance(kwargs["cell"], SimulatedCell):
-            raise TypeError("spherecal_cell: 'cell' takes a spherecal.sim.SimulatedCell and no other key (but "
+            raise TypeError("spherecal_cell: 'cell' takes a spherecal.plugins.SimulatedCell and no other key (but "
                             f"'plan'), got {sorted(param)}")
         return _with_plan(kwargs["cell"], plan)
     known = set(inspect.signature(standard_cell).parameters) | set(CELL_PARAMETERS)
@@ -497,7 +497,7 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     centre = kwargs.pop("sphere_centre_mm", None)
     true = kwargs.pop("true_transform", None)
     if true is not None and not isinstance(true, Pose):
-        raise TypeError(f"spherecal_cell: true_transform must be a spherecal.core.models.Pose, got {type(true).__name__}")
+        raise TypeError(f"spherecal_cell: true_transform must be a spherecal.plugins.Pose, got {type(true).__name__}")
     kwargs.setdefault("seed", 0)
     if kwargs.get("fov") is None:
         kwargs["fov"] = default_field_of_view()
@@ -518,7 +518,7 @@ def _with_plan(cell: "SimulatedCell", plan: "SweepPlan | None") -> "SimulatedCel
 @pytest.fixture
 def spherecal_cell(request) -> "SimulatedCell":
     """A seeded standard cell (default eye-in-hand, seed 0); parametrise indirectly with a
-    mounting name, a whole :class:`~spherecal.sim.SimulatedCell`, or a dict of
+    mounting name, a whole :class:`~spherecal.plugins.SimulatedCell`, or a dict of
     ``standard_cell`` arguments plus ``sphere_centre_mm``, ``true_transform`` and ``fov``
     (:func:`make_cell`). Override it in your own ``conftest.py`` for a cell of your own
     in every test (docs/plugins.md)."""

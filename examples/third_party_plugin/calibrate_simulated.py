@@ -7,6 +7,9 @@ Steps: build a plugin host (it finds ``example_cartesian`` and ``example_profile
 through their entry points), validate both configuration sections, create the simulated
 robot and sensor on one cell, plan stations from a nominal transform, acquire, calibrate,
 and compare with the cell's true transform. ``--json`` prints the numbers as JSON.
+
+Everything but the calibration itself comes from the plugin API, ``spherecal.plugins``;
+the calibration is the library's ``spherecal.estimation.calibrate``.
 """
 
 from __future__ import annotations
@@ -17,10 +20,17 @@ import sys
 
 import numpy as np
 
-from spherecal.devices.contract import DeviceContext
-from spherecal.core.models import Dataset, Observation, Pose
-from spherecal.plugins.host import PluginHost
-from spherecal.sim import plan_stations, standard_cell
+from spherecal.estimation import calibrate
+from spherecal.plugins import (
+    Dataset,
+    DeviceContext,
+    Observation,
+    PluginHost,
+    Pose,
+    matrix_from_rotvec,
+    plan_stations,
+    standard_cell,
+)
 
 ROBOT_SECTION = {"type": "example_cartesian", "max_speed_mm_s": 200.0, "workspace": {"max_z_mm": 1400.0}}
 SENSOR_SECTION = {"type": "example_profiler", "min_points": 20}
@@ -28,8 +38,6 @@ SENSOR_SECTION = {"type": "example_profiler", "min_points": 20}
 
 def nominal_guess(true: Pose, rng: np.random.Generator) -> Pose:
     """What a user would put in the configuration: the truth off by a few mm and a degree."""
-    from spherecal.core.geometry import matrix_from_rotvec
-
     R = matrix_from_rotvec(np.radians(rng.normal(0.0, 0.7, 3))) @ true.rotation_matrix
     return Pose.from_rt(R, true.translation + rng.normal(0.0, 2.0, 3))
 
@@ -94,8 +102,6 @@ def main(argv: list[str] | None = None) -> int:
         "stations": sorted({o.station for o in dataset.observations}),
     }
     if not args.acquire_only:
-        from spherecal.estimation import calibrate
-
         result = calibrate(dataset)
         host.calibration_finished(result=result, dataset=dataset)
         true = cell.true_transform

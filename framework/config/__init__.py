@@ -23,6 +23,7 @@ from spherecal.estimation import CalibrationOptions
 from spherecal.motion.kinematic_plan import KinematicPlanSettings
 from spherecal.core.metrology import MaximumPermissibleErrors
 from spherecal.core.models import MountingMode, Pose
+from spherecal.core.workspace import WorkspaceBox
 from spherecal.motion.planning import SweepPlan
 from spherecal.report.assess import POINT_DISTANCE_MM
 from spherecal.sim import NoiseModel, RobotErrorModel
@@ -80,35 +81,9 @@ class SphereConfig(_Section):
         return v
 
 
-class WorkspaceConfig(_Section):
-    """Box in the base frame (mm) every planned flange position must lie in."""
-
-    min_mm: Vec3 = Field(description="lower corner (x, y, z), base, mm")
-    max_mm: Vec3 = Field(description="upper corner (x, y, z), base, mm")
-
-    @model_validator(mode="after")
-    def _ordered(self):
-        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
-            if not lo < hi:
-                raise ValueError(f"min_mm {axis} = {lo} must be below max_mm {axis} = {hi}")
-        return self
-
-    def contains(self, p) -> bool:
-        return all(lo <= v <= hi for v, lo, hi in zip(p, self.min_mm, self.max_mm))
-
-    def fraction_outside(self, a, b) -> float:
-        """The fraction (0..1) of the straight segment from point ``a`` to point ``b``
-        (mm, base) that lies outside the box. A box is convex: 0 when both ends are in it."""
-        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        s0, s1 = 0.0, 1.0
-        for lo, hi, p, d in zip(self.min_mm, self.max_mm, a, b - a):
-            if d == 0.0:
-                if not lo <= p <= hi:
-                    return 1.0
-                continue
-            t0, t1 = sorted(((lo - p) / d, (hi - p) / d))
-            s0, s1 = max(s0, t0), min(s1, t1)
-        return 1.0 if s1 < s0 else 1.0 - (s1 - s0)
+#: The box every planned flange position must lie in (base frame, mm): the one workspace
+#: box of spherecal, also a robot plugin's.
+WorkspaceConfig = WorkspaceBox
 
 
 class AcquisitionConfig(_Section):

@@ -3,7 +3,9 @@
 The core talks to devices only through these interfaces; it never imports a plugin.
 A plugin registers a :class:`RobotType` or :class:`SensorType` (a name, a pydantic
 configuration model and a factory) through the ``spherecal_register_devices`` hook, one
-of the hooks in :mod:`spherecal.plugins.hookspecs`.
+of the hooks in :mod:`spherecal.plugins.hookspecs`. Plugins import these names from
+:mod:`spherecal.plugins`; :class:`SensorFieldOfView` is a value object of
+:mod:`spherecal.core.field_of_view`, re-exported here.
 """
 
 from __future__ import annotations
@@ -12,14 +14,17 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel
 
+from spherecal.core.field_of_view import SensorFieldOfView
 from spherecal.core.models import Pose, Profile
 from spherecal.io.runlog import progress_log
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.kinematics import ArmKinematics
-    from spherecal.sim.cell import SimulatedCell
+
+__all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "Robot", "RobotType",
+           "Sensor", "SensorFieldOfView", "SensorType", "device_identity"]
 
 _LOG = progress_log("devices")  # the default ``log``: logger spherecal.devices
 
@@ -77,11 +82,12 @@ class Sensor(Protocol):
 class DeviceContext:
     """What the host hands a device factory besides its own configuration.
 
-    ``cell`` is set when the run is simulated: simulated devices are views of this one
-    cell (the robot moves its flange, the sensor measures the sphere from there), so
-    they stay consistent without knowing about each other."""
+    ``cell`` is set when the run is simulated: a :class:`spherecal.sim.SimulatedCell`, of
+    which simulated devices are views (the robot moves its flange, the sensor measures the
+    sphere from there), so they stay consistent without knowing about each other. (The
+    simulator sits above the devices' layer, so the annotation does not name its class.)"""
 
-    cell: "SimulatedCell | None" = None
+    cell: Any = None
     log: Callable[[str], None] = _LOG
     extras: dict[str, Any] = field(default_factory=dict)
     #: The point the flange carries whose speed a move's ``speed_mm_s`` limits, flange
@@ -129,67 +135,6 @@ RESERVED_OPTION_NAMES = frozenset({
     "help", "version", "debug", "out", "no-report", "yes", "transform", "controller-frame", "std-mm", "std-deg",
     "threshold-mm", "threshold-deg", "significance", "uncertainty", "fail-on-drift", "json", "verbose", "quiet",
 })
-
-
-class SensorFieldOfView(BaseModel):
-    """The field of view of a laser line sensor, in its own frame (mm): the laser plane is
-    its x = 0 plane, the line spans y, and it measures along z, looking towards -z (the
-    near end has the larger z). The line's width grows linearly from ``width_near_mm`` at
-    ``z_near_mm`` to ``width_far_mm`` at ``z_far_mm`` (a fan from an apex on the z axis).
-
-    A sensor type declares its own (:attr:`SensorType.field_of_view`); the simulated cell
-    measures with it and the planner puts the sphere at :attr:`sweep_standoff_z_mm`. A
-    configuration's ``[simulation.fov]`` overrides any of its fields."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    z_near_mm: float = Field(description="near end of the measuring range (z, mm)")
-    z_far_mm: float = Field(description="far end of the measuring range (z, mm), below z_near_mm")
-    width_near_mm: float = Field(gt=0, description="line width at the near end, mm")
-    width_far_mm: float = Field(gt=0, description="line width at the far end, mm, more than width_near_mm")
-    n_columns: int = Field(640, ge=16, le=100_000, description="points across the full line (simulation)")
-    standoff_z_mm: float | None = Field(
-        None, description="z of the sphere centre in a calibration sweep, mm (default: the middle of the range)")
-
-    @model_validator(mode="after")
-    def _a_fan(self):
-        if not self.z_far_mm < self.z_near_mm:
-            raise ValueError(f"z_far_mm ({self.z_far_mm}) must be below z_near_mm ({self.z_near_mm}): the sensor "
-                             "looks towards -z")
-        if not self.width_far_mm > self.width_near_mm:
-            raise ValueError(f"width_far_mm ({self.width_far_mm}) must exceed width_near_mm ({self.width_near_mm}): "
-                             "the line widens away from the sensor")
-        if self.standoff_z_mm is not None and not self.z_far_mm <= self.standoff_z_mm <= self.z_near_mm:
-            raise ValueError(f"standoff_z_mm ({self.standoff_z_mm}) must lie in the measuring range "
-                             f"[{self.z_far_mm}, {self.z_near_mm}]")
-        return self
-
-    @property
-    def middle_z_mm(self) -> float:
-        """The middle of the measuring range (z, mm): where a flat surface is swept."""
-        return (self.z_near_mm + self.z_far_mm) / 2
-
-    @property
-    def sweep_standoff_z_mm(self) -> float:
-        """z of the sphere centre in a sweep (mm): ``standoff_z_mm``, else the middle."""
-        return self.middle_z_mm if self.standoff_z_mm is None else self.standoff_z_mm
-
-    def width_at_mm(self, z_mm: float) -> float:
-        """The line's width at sensor-frame z ``z_mm`` (mm), on the straight line through
-        the two declared widths."""
-        return self.width_near_mm + (self.width_far_mm - self.width_near_mm) * (self.z_near_mm - z_mm) / (
-            self.z_near_mm - self.z_far_mm)
-
-    @property
-    def apex_z_mm(self) -> float:
-        """z of the fan's apex, where the line width extrapolates to zero."""
-        slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
-        return self.z_near_mm + self.width_near_mm / 2 / slope
-
-    @property
-    def half_angle_rad(self) -> float:
-        slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
-        return float(np.arctan(slope))
 
 
 @dataclass(frozen=True)

@@ -27,39 +27,43 @@ on its way (a late reply after the PC program was killed, on a serial line) come
 that PONG and is never taken for a reply of this session, whatever seq it carries. No
 request but PING is sent before the session is open.
 
-Safety. Speed, workspace box (the target and the start, where the arm stands: both ends
-in a box, the whole straight path is) and reachability (the target, and
-``path_check_samples`` points along the straight line to it, through the kinematics'
-inverse, within the joint limits, from the joints read now) are checked before anything
-is sent (:meth:`LineRobot.check_move` runs the same checks without moving); a move's flange and reorientation speeds
-keep the tool point (the sensor or the sphere the flange carries) within the move's
-speed.
+Safety is protocol-free and :class:`LineRobot` inherits it
+(:class:`~spherecal.devices.motion_safety.MotionSafety`): speed, workspace box (the target
+and the start, where the arm stands: both ends in a box, the whole straight path is) and
+reachability (the target, and ``path_check_samples`` points along the straight line to
+it, through the kinematics' inverse, within the joint limits, from the joints read now)
+are checked before anything is sent (``check_move`` runs the same checks without
+moving); a move's flange and reorientation speeds keep the tool point (the sensor or the
+sphere the flange carries) within the move's speed; ``controller_frame_offset`` compares
+the controller's pose (GETP) with the kinematics' pose of the joints it reports (GETJ).
 
 The configuration is a plugin's model derived from :class:`LineLinkSettings`; its
 ``workspace`` must be set by the time the robot moves (:class:`LineRobot` takes a
-``workspace`` argument when the plugin derives it). The kinematics must have ``flange_pose_from_joints(joints_deg,
-check_limits)`` and ``joints_from_flange_pose(pose, seed_joints_deg)``, raising an
-:class:`~spherecal.core.errors.InputError` when a pose is out of reach.
+``workspace`` argument when the plugin derives it). The kinematics must have
+``flange_pose_from_joints(joints_deg, check_limits)`` and ``joints_from_flange_pose(pose,
+seed_joints_deg)``, raising an :class:`~spherecal.core.errors.InputError` when a pose is
+out of reach.
 """
 
 from __future__ import annotations
 
-import math
 import secrets
 import select
 import socket
 import time
-from dataclasses import dataclass
 from typing import Callable, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from spherecal.devices import line_protocol as P
-from spherecal.core.errors import DeviceError, InputError
-from spherecal.core.geometry import matrix_from_rotvec as _matrix_from_rotvec
-from spherecal.core.geometry import rotvec_from_matrix as _rotvec
+from spherecal.core.errors import DeviceError
 from spherecal.core.models import Pose
+from spherecal.core.workspace import WorkspaceBox
+from spherecal.devices import line_protocol as P
+from spherecal.devices.motion_safety import MIN_SPEED_MM_S, FrameOffset, MotionLimits, MotionSafety
+
+__all__ = ["MIN_SPEED_MM_S", "SOCKET_SCHEME", "ControllerClosedError", "FrameOffset", "LineLinkSettings", "LineRobot",
+           "LinkSettings", "TcpLink", "WorkspaceBox", "initial_seq", "link_transport", "parse_socket_url"]
 
 #: Longest single blocking read, s (the overall deadline is checked between reads).
 _POLL_S = 0.05
@@ -70,12 +74,6 @@ _POLL_S = 0.05
 _MIN_WRITE_TIMEOUT_S = 2.0
 #: Bytes kept while waiting for an LF before the buffer is treated as garbage.
 _MAX_PENDING = 4 * P.MAX_LINE_CHARS
-#: Slowest speed sent (mm/s for the flange, deg/s for the reorientation): the line
-#: carries one decimal, and a move that does not translate (or turn) still names one.
-MIN_SPEED_MM_S = 0.1
-
-
-Vec3 = tuple[float, float, float]
 
 #: The scheme of a TCP port: ``socket://host:port``.
 SOCKET_SCHEME = "socket://"
@@ -182,31 +180,9 @@ class TcpLink:
         sock.close()
 
 
-class WorkspaceBox(BaseModel):
-    """Axis-aligned box in the base frame (mm) the flange origin must stay in. Moves
-    whose target lies outside are refused before anything is sent."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    min_mm: Vec3 = Field(description="lower corner (x, y, z) in base, mm")
-    max_mm: Vec3 = Field(description="upper corner (x, y, z) in base, mm")
-
-    @model_validator(mode="after")
-    def _check(self):
-        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
-            if not lo < hi:
-                raise ValueError(f"workspace: min_mm {axis} = {lo} must be below max_mm {axis} = {hi}")
-        return self
-
-    def contains(self, point_mm) -> bool:
-        return all(lo <= p <= hi for p, lo, hi in zip(point_mm, self.min_mm, self.max_mm))
-
-
-class LineLinkSettings(BaseModel):
-    """The settings :class:`LineRobot` reads: the link (serial or TCP), the replies, the pose
-    source and the motion limits. A robot plugin's configuration model derives from it
-    (and gives ``workspace`` a default or a way to derive one). Lengths in mm, angles in
-    degrees, times in seconds."""
+class LinkSettings(BaseModel):
+    """The link part of :class:`LineLinkSettings`: the link (serial or TCP), the replies
+    and the pose source. Times in seconds."""
 
     model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
 
@@ -228,19 +204,9 @@ class LineLinkSettings(BaseModel):
         description="flange pose from the controller (GETP) or from the joint readings (GETJ) through the "
         "plugin's forward kinematics",
     )
-    max_speed_mm_s: float = Field(250.0, gt=0, le=7000, description="largest TCP speed a move may ask for, mm/s")
     move_timeout_extra_s: float = Field(
         5.0, ge=0, le=600, description="time allowed for a move beyond twice distance / speed (acceleration, settling), s"
     )
-    orientation_speed_deg_s: float = Field(
-        100.0, gt=0, le=P.MAX_ORIENTATION_SPEED_DEG_S,
-        description="largest reorientation speed a move asks for, deg/s; each move asks for less when its sensor "
-        "(the tool point) would otherwise exceed the move's speed"
-    )
-    path_check_samples: int = Field(
-        10, ge=0, le=10_000, description="points checked for reachability along a linear move, besides its end"
-    )
-    workspace: WorkspaceBox | None = Field(None, description="allowed flange positions, base, mm")
 
     @field_validator("port", mode="after")
     @classmethod
@@ -257,48 +223,38 @@ class LineLinkSettings(BaseModel):
         return link_transport(self.port)
 
 
+class LineLinkSettings(MotionLimits, LinkSettings):
+    """The settings :class:`LineRobot` reads: the link (:class:`LinkSettings`: serial or
+    TCP, the replies, the pose source) and the motion limits
+    (:class:`~spherecal.devices.motion_safety.MotionLimits`). A robot plugin's
+    configuration model derives from it (and gives ``workspace`` a default or a way to
+    derive one). Lengths in mm, angles in degrees, times in seconds."""
+
+    orientation_speed_deg_s: float = Field(
+        100.0, gt=0, le=P.MAX_ORIENTATION_SPEED_DEG_S,
+        description="largest reorientation speed a move asks for, deg/s; each move asks for less when its sensor "
+        "(the tool point) would otherwise exceed the move's speed"
+    )
+
+
 def initial_seq() -> int:
     """A random sequence number to start a session from (the first request carries the
     next one)."""
     return secrets.randbelow(P.SEQ_MODULUS)
 
 
-@dataclass(frozen=True)
-class FrameOffset:
-    """The controller's pose against a model's pose of the same joints
-    (:meth:`LineRobot.controller_frame_offset`): their distance (mm) and angle (deg), the
-    joints (deg, controller convention) and ``controller_from_model`` (the controller's
-    pose times the inverse of the model's)."""
-
-    offset_mm: float
-    angle_deg: float
-    joints_deg: np.ndarray
-    controller_from_model: Pose
-
-    def within(self, tolerance_mm: float, tolerance_deg: float) -> bool:
-        return self.offset_mm <= tolerance_mm and self.angle_deg <= tolerance_deg
-
-    def joints_text(self) -> str:
-        return ", ".join(f"{v:.2f}" for v in self.joints_deg)
-
-    def frame_text(self) -> str:
-        """``translation [x, y, z] mm, quaternion (w, x, y, z) [...]`` (no "-0.0")."""
-        t = ", ".join(f"{round(v, 1) + 0.0:.1f}" for v in self.controller_from_model.translation_mm)
-        q = ", ".join(f"{round(v, 4) + 0.0:.4f}" for v in self.controller_from_model.quaternion_wxyz)
-        return f"translation [{t}] mm, quaternion (w, x, y, z) [{q}]"
-
-
-class LineRobot:
+class LineRobot(MotionSafety):
     """A connected robot speaking the spherecal line protocol (implements
-    :class:`spherecal.devices.contract.Robot`).
+    :class:`spherecal.devices.contract.Robot`), its moves checked by
+    :class:`~spherecal.devices.motion_safety.MotionSafety`.
 
     Poses are ``base_from_flange``, mm, quaternion (w, x, y, z). Joints are degrees in
     the controller convention. ``name`` names the robot in every message;
     ``server_hint`` says what to check when the controller does not answer, and
     ``socket_hint`` what to check when a ``socket://`` port cannot be opened."""
 
-    #: The robot in messages ("IRB 2400", "urdf robot 'ur5'").
-    name = "robot"
+    #: The speeds a MOVL carries have one decimal.
+    speed_step = 10.0**-P.SPEED_DECIMALS
     #: What to check when no valid reply comes.
     server_hint = "that the controller's spherecal line server is running"
     #: What to check when a socket:// port cannot be opened.
@@ -319,16 +275,8 @@ class LineRobot:
         import serial
 
         self._serial_errors = (serial.SerialException, OSError)
-        self.config = config
-        self.kin = kinematics
-        #: the box the flange must stay in (base frame, mm)
-        self.workspace = workspace if workspace is not None else config.workspace
-        if self.workspace is None:
-            raise InputError(f"{self.name}: no workspace box configured (robot.workspace.min_mm / max_mm)")
+        super().__init__(config, kinematics, workspace=workspace, tool_point_mm=tool_point_mm)
         self.n_joints = int(n_joints)
-        #: the point carried by the flange whose speed every move limits (flange frame, mm):
-        #: the sensor (eye-in-hand) or the sphere (eye-to-hand); None: the flange itself
-        self.tool_point_mm = None if tool_point_mm is None else np.asarray(tool_point_mm, dtype=float).reshape(3)
         self.url = url or config.port
         self._on_close = on_close
         self._seq = initial_seq() if seq_start is None else int(seq_start)
@@ -339,8 +287,6 @@ class LineRobot:
         self._closed = False
         self.stale_replies = 0  #: replies discarded because their seq did not match
         self.resends = 0  #: requests sent again after a timeout or a corrupted line
-        self.last_joints_deg: np.ndarray | None = None
-        self._check_seed: np.ndarray | None = None  # joints of the last target checked
         #: "socket" (TCP, :class:`TcpLink`) or "serial" (pyserial), from the port
         self.transport = link_transport(self.url)
         try:
@@ -383,21 +329,10 @@ class LineRobot:
         ``pose_source`` says (a calibrated model applied on the PC side)."""
         return False
 
-    def controller_frame_offset(self, kinematics) -> "FrameOffset":
-        """How far the controller's pose (``GETP``) lies from ``kinematics``' pose of the
-        joints it reports (``GETJ``), read now (:class:`FrameOffset`). A controller that
-        reports poses in another frame than the robot base (a base frame: a riser, an
-        inverted mount, a multi-robot cell; a user frame) shows it here, as does a model
-        whose geometry or joint convention is not the arm's; nothing moves. A plugin
-        refuses the connection beyond its tolerance (spherecal's workspace and path
-        checks work in the base frame), each in its controller's words."""
-        joints = self.read_joints_deg()
-        reported = P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
-        model = kinematics.flange_pose_from_joints(joints, check_limits=False)
-        return FrameOffset(
-            float(np.linalg.norm(reported.translation - model.translation)),
-            float(np.degrees(np.linalg.norm(_rotvec(model.rotation_matrix.T @ reported.rotation_matrix)))),
-            joints, reported @ model.inverse())
+    def read_controller_pose(self) -> Pose:
+        """The controller's own pose of the flange (GETP), whatever ``pose_source`` says:
+        for :meth:`~spherecal.devices.motion_safety.MotionSafety.controller_frame_offset`."""
+        return P.parse_pose_reply(self._exchange("GETP", P.getp_request, "P"))
 
     # Robot protocol ----------------------------------------------------------------
     def read_joints_deg(self) -> np.ndarray:
@@ -417,7 +352,7 @@ class LineRobot:
     def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
         """Move the flange in a straight line to ``base_from_flange`` at ``speed_mm_s`` and
         return once in position. Limits are checked first; nothing is sent if one fails."""
-        start, target_joints = self._check_move_from_here(base_from_flange, speed_mm_s)
+        start, target_joints = self.check_move_from_here(base_from_flange, speed_mm_s)
         command = self.controller_pose(base_from_flange, target_joints)
         target_seq_holder: list[int] = []
 
@@ -430,32 +365,6 @@ class LineRobot:
         v_tcp, v_ori, duration = self.move_speeds(start, base_from_flange, speed_mm_s)
         timeout = self.config.timeout_s + 2.0 * duration + self.config.move_timeout_extra_s
         self._exchange("MOVL", lambda seq: P.movl_request(seq, v_tcp, target_seq, v_ori), "OK", timeout)
-
-    def move_speeds(self, start: Pose, target: Pose, speed_mm_s: float) -> tuple[float, float, float]:
-        """(flange speed mm/s, reorientation speed deg/s, duration s) of a linear move that
-        keeps the tool point (:attr:`tool_point_mm`; the flange without one) within
-        ``speed_mm_s`` and the reorientation within ``orientation_speed_deg_s``.
-
-        The controller interpolates position and orientation together: over a move of
-        duration T the flange moves d at d/T and turns by theta at theta/T, so a point r
-        off the flange moves at most (d + theta r)/T. T is the least that keeps that
-        within ``speed_mm_s``; v_tcp = d/T and v_ori = theta/T make the controller take
-        exactly T. Checked here, before anything is sent."""
-        distance = float(np.linalg.norm(target.translation - start.translation))
-        angle_deg = float(np.degrees(np.linalg.norm(_rotvec(start.rotation_matrix.T @ target.rotation_matrix))))
-        r = float(np.linalg.norm(self.tool_point_mm)) if self.tool_point_mm is not None else 0.0
-        duration = max((distance + np.radians(angle_deg) * r) / speed_mm_s,
-                       angle_deg / self.config.orientation_speed_deg_s, 1e-6)
-        # rounded down to the decimal the line carries: the controller then takes at least T
-        step = 10.0**-P.SPEED_DECIMALS
-        v_tcp = max(math.floor(min(distance / duration, speed_mm_s) / step + 1e-9) * step, MIN_SPEED_MM_S)
-        v_ori = max(math.floor(min(angle_deg / duration, self.config.orientation_speed_deg_s) / step + 1e-9) * step,
-                    MIN_SPEED_MM_S)
-        duration = max(distance / v_tcp, angle_deg / v_ori)  # what the controller will take
-        peak = (distance + np.radians(angle_deg) * r) / duration
-        if peak > speed_mm_s * (1 + 1e-9) + MIN_SPEED_MM_S:  # pragma: no cover - by construction
-            raise InputError(f"move_linear: the tool point would move at {peak:.1f} mm/s, above {speed_mm_s} mm/s")
-        return v_tcp, v_ori, duration
 
     def close(self) -> None:
         """Close the link (and stop the simulated controller, if any). Idempotent."""
@@ -498,90 +407,9 @@ class LineRobot:
     #: What to do when the server speaks another protocol version.
     version_hint = "update the controller's server to this version (docs/line-protocol.md)"
 
-    # limits ------------------------------------------------------------------------
-    def check_target(self, base_from_flange: Pose, speed_mm_s: float) -> None:
-        """Check a planned target against every limit without sending anything: speed,
-        workspace box, and reachability within the joint limits. The inverse kinematics
-        is seeded as the moves will be: the first check from the arm's joints now (read
-        with GETJ, which moves nothing), each next one from the joints the previous check
-        found. Raises what :meth:`move_linear` would."""
-        self._check_speed(speed_mm_s)
-        self._check_workspace(base_from_flange, "target")
-        seed = self._check_seed
-        if seed is None:
-            seed = self.last_joints_deg if self.last_joints_deg is not None else self.read_joints_deg()
-        try:
-            self._check_seed = self.kin.joints_from_flange_pose(base_from_flange, seed_joints_deg=seed)
-        except InputError as exc:
-            raise type(exc)(f"target: {exc}") from None
-
-    def check_move(self, base_from_flange: Pose, speed_mm_s: float) -> None:
-        """Check the straight move from where the arm stands now to ``base_from_flange``
-        without moving, exactly as :meth:`move_linear` checks it before sending it: the
-        speed, both ends in the workspace box (so the whole straight path: a box is
-        convex), and the target and ``path_check_samples`` points along the path
-        reachable within the joint limits, from the joints read now (GETJ, which moves
-        nothing). Raises what :meth:`move_linear` would."""
-        self._check_move_from_here(base_from_flange, speed_mm_s)
-
-    def _check_move_from_here(self, target: Pose, speed_mm_s: float) -> tuple[Pose, np.ndarray]:
-        """The checks of a move from the arm's current joints; returns (start pose,
-        target joints)."""
-        self._check_open()
-        self._check_speed(speed_mm_s)
-        self._check_workspace(target, "target")
-        start_joints = self.read_joints_deg()
-        start = self.kin.flange_pose_from_joints(start_joints, check_limits=False)
-        self._check_workspace(start, "start", "; the straight path to the target would leave it: jog the arm into "
-                                              "the box first")
-        return start, self._check_path(start, target, start_joints)
-
-    def _check_speed(self, speed_mm_s: float) -> None:
-        limit = self.config.max_speed_mm_s
-        try:
-            speed = float(speed_mm_s)
-        except (TypeError, ValueError):
-            speed = math.nan
-        if not (math.isfinite(speed) and speed > 0):
-            raise InputError(f"move_linear: speed_mm_s must be a positive number, got {speed_mm_s!r}")
-        if speed_mm_s > limit:
-            raise InputError(
-                f"move_linear: speed_mm_s = {speed_mm_s} exceeds the configured max_speed_mm_s = {limit}; "
-                f"ask for a slower move or raise robot.max_speed_mm_s"
-            )
-
-    def _check_workspace(self, pose: Pose, what: str, hint: str = "") -> None:
-        box = self.workspace
-        if not box.contains(pose.translation_mm):
-            t = [round(v, 3) for v in pose.translation_mm]
-            raise InputError(
-                f"move_linear: {what} flange position {t} mm is outside the configured workspace box "
-                f"min_mm={list(box.min_mm)} max_mm={list(box.max_mm)} (base frame){hint}"
-            )
-
-    def _check_path(self, start: Pose, target: Pose, start_joints: np.ndarray) -> np.ndarray:
-        """Check the target and points along the path for reachability; returns the
-        target's joints (the solution nearest the start)."""
-        n = self.config.path_check_samples
-        seed = start_joints
-        target_joints = None
-        R0, R1 = start.rotation_matrix, target.rotation_matrix
-        rv = _rotvec(R0.T @ R1)
-        for s in [1.0, *(np.arange(1, n + 1) / (n + 1))]:  # the target first
-            R = R0 @ _matrix_from_rotvec(s * rv)
-            t = (1 - s) * start.translation + s * target.translation
-            pose = Pose.from_rt(R, t)
-            try:
-                seed = self.kin.joints_from_flange_pose(pose, seed_joints_deg=seed)
-            except InputError as exc:
-                where = "target" if s == 1.0 else f"point {s:.0%} along the linear path"
-                raise type(exc)(f"move_linear: {where}: {exc}") from None
-            if target_joints is None:
-                target_joints = seed
-        return target_joints
-
     # transport ---------------------------------------------------------------------
-    def _check_open(self) -> None:
+    def check_open(self) -> None:
+        """DeviceError when the connection is closed."""
         if self._closed:
             raise DeviceError(f"{self.name} on {self.url}: the connection is closed; create the robot again")
 
@@ -598,7 +426,7 @@ class LineRobot:
 
         ``session``: the token a PING carries; only a PONG echoing it under the seq is
         taken, any other reply is stale. Any other request opens the session first."""
-        self._check_open()
+        self.check_open()
         if session is None and not self._session_open:
             self.ping()
         timeout_s = self.config.timeout_s if timeout_s is None else timeout_s

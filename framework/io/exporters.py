@@ -4,9 +4,9 @@ An exporter turns a :class:`~spherecal.core.models.CalibrationResult` into the f
 controller or tool loads. The core knows no robot brand: every export, the core's own
 included, is an :class:`Exporter` that a plugin registers through the
 ``spherecal_register_exporters`` hook (:mod:`spherecal.plugins.hookspecs`); the core's
-brand-free ones (4x4 matrices, xyz + quaternion, ROS 2) are registered by the built-in
-plugin :mod:`spherecal.report.export`, a robot plugin registers its controller's format
-(docs/results.md lists the built-in robot's).
+brand-free ones (4x4 matrices, xyz + quaternion, ROS 2, :mod:`spherecal.report.export`)
+are registered by the built-in plugin :mod:`spherecal.plugins.core_exports`, a robot
+plugin registers its controller's format (docs/results.md lists the built-in robot's).
 
 An exporter is pure: ``write(result, settings)`` returns the text (or bytes) of each file
 it declared, and :func:`write_exports` here, at the edge, writes them. Which exporters run
@@ -248,23 +248,22 @@ class ExportPlan:
 def write_exports(
     result: CalibrationResult,
     out_dir: str | Path,
-    exporters: ExportPlan | Sequence[SelectedExporter | Exporter] | None = None,
+    exporters: ExportPlan | Sequence[SelectedExporter | Exporter],
     *,
     overwrite: bool = False,
 ) -> dict[str, Path]:
     """Write ``result.json`` and every file of ``exporters`` into ``out_dir`` (created if
     needed); return ``{file name: path}``.
 
-    ``exporters``: an :class:`ExportPlan` (what the runner uses), or exporters (an
-    :class:`Exporter` runs with its default settings); None: every installed exporter
-    that applies to the result's mounting, with its default settings (a
-    :class:`~spherecal.plugins.host.PluginHost` is built to find them).
+    ``exporters``: an :class:`ExportPlan` (what a run uses: the plugin host's
+    :meth:`~spherecal.plugins.host.PluginHost.export_plan`), or exporters (an
+    :class:`Exporter` runs with its default settings).
     Existing files are replaced only with ``overwrite=True``; every file is rendered and
     checked before the first is written, so nothing is written if any would be refused.
     """
     if not isinstance(result, CalibrationResult):
         raise InputError(f"expected a CalibrationResult, got {type(result).__name__}")
-    selected = _selection(exporters, result)
+    selected = _selection(exporters)
     out = Path(out_dir)
     files: dict[str, str | bytes] = {}
     owner: dict[str, str] = {}
@@ -293,11 +292,7 @@ def write_exports(
     return paths
 
 
-def _selection(exporters, result: CalibrationResult) -> tuple[SelectedExporter, ...]:
-    if exporters is None:
-        from spherecal.plugins.host import PluginHost
-
-        return PluginHost().export_plan(None, result.mounting, None).selected
+def _selection(exporters) -> tuple[SelectedExporter, ...]:
     if isinstance(exporters, ExportPlan):
         return exporters.selected
     out = []

@@ -2,9 +2,10 @@
 
 - :mod:`.export`: the core's brand-free exports, the result as 4x4 matrices (both
   directions), xyz + quaternion (w, x, y, z), ROS 2 (static transform command, YAML,
-  launch file, URDF joint) and JSON, each with a reader, and the built-in plugin that
-  registers them as exporters; :func:`write_exports` (:mod:`spherecal.io.exporters`) writes
-  the files of any exporters, a robot plugin's included.
+  launch file, URDF joint) and JSON, each with a reader, and their exporters (the
+  built-in plugin :mod:`spherecal.plugins.core_exports` registers them);
+  :func:`write_exports` (:mod:`spherecal.io.exporters`) writes the files of any
+  exporters, a robot plugin's included.
 - :mod:`.assess`: the green/amber/red verdict and the advice driven by the diagnostics.
 - :mod:`.html`: :func:`write_report`, a self-contained HTML report (imports matplotlib,
   so it is loaded on first use).

@@ -19,8 +19,8 @@ JSON result                     :func:`json_text`                      :func:`re
 As exporters (:class:`spherecal.io.exporters.Exporter`) they are :data:`MATRIX_EXPORTER`
 (``matrix``), :data:`XYZ_QUATERNION_EXPORTER` (``xyz_quaternion``) and
 :data:`ROS2_EXPORTER` (``ros2``, settings :class:`Ros2ExportSettings`), together
-:data:`CORE_EXPORTERS`; this module is the built-in plugin ``core_exports`` that
-registers them (entry point in pyproject.toml). A robot's own controller format comes
+:data:`CORE_EXPORTERS`, which the built-in plugin ``core_exports``
+(:mod:`spherecal.plugins.core_exports`, entry point in pyproject.toml) registers. A robot's own controller format comes
 from its plugin (docs/results.md).
 
 Conventions (docs/conventions.md, docs/results.md): ``A_from_B`` maps points from B to
@@ -41,7 +41,6 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from spherecal.core.errors import InputError
 from spherecal.io.exporters import ExportNote, Exporter, red_warning, write_exports
 from spherecal.core.models import CalibrationResult, Pose
-from spherecal.plugins import hookimpl
 
 __all__ = [
     "MM_DECIMALS",
@@ -612,12 +611,6 @@ ROS2_EXPORTER = Exporter(
     note=_ros2_note,
 )
 
-#: The core's brand-free exporters, registered by this module as the plugin ``core_exports``.
+#: The core's brand-free exporters, registered by the built-in plugin ``core_exports``
+#: (:mod:`spherecal.plugins.core_exports`).
 CORE_EXPORTERS = (MATRIX_EXPORTER, XYZ_QUATERNION_EXPORTER, ROS2_EXPORTER)
-
-
-@hookimpl
-def spherecal_register_exporters(registry) -> None:
-    """The ``core_exports`` plugin's hook: register :data:`CORE_EXPORTERS`."""
-    for exporter in CORE_EXPORTERS:
-        registry.add_exporter(exporter)

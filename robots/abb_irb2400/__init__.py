@@ -10,7 +10,7 @@ needs its configuration model, not its simulated controller.
 
 from __future__ import annotations
 
-from spherecal.core.lazy import lazy_attributes
+from spherecal.plugins import lazy_attributes
 
 
 #: name -> the module that defines it

@@ -6,19 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.core.errors import InputError
-from spherecal.devices.line_robot import LineLinkSettings
-from spherecal.devices.line_robot import WorkspaceBox as CoreWorkspaceBox
-from spherecal.core.models import Pose
-from spherecal.sim.settings import SimulatedControllerSettings as CoreSimulatedControllerSettings
+from spherecal.plugins import BASE_DIR_CONTEXT_KEY, InputError, LineLinkSettings, Pose
+from spherecal.plugins import SimulatedControllerSettings as CoreSimulatedControllerSettings
+from spherecal.plugins import WorkspaceBox as CoreWorkspaceBox
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
-
-#: Key of the validation context that gives the folder relative paths resolve against
-#: (the configuration file's folder, when the host passes it).
-BASE_DIR_CONTEXT_KEY = "base_dir"
 
 Vec3 = tuple[float, float, float]
 
@@ -35,7 +29,7 @@ class WorkspaceBox(CoreWorkspaceBox):
 class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     """The simulated controller used when the run is simulated (a SimulatedCell is
     given): it serves the same protocol over a real link on localhost (the
-    core's settings, :class:`spherecal.sim.controller.SimulatedControllerSettings`, with
+    core's settings, :class:`spherecal.plugins.SimulatedControllerSettings`, with
     the IRB 2400's home joints and its RAPID server's links)."""
 
     transport: Literal["tcp", "pty", "socket"] = Field(
@@ -62,7 +56,7 @@ class AbbIrb2400Config(LineLinkSettings):
     """ABB IRB 2400 on an IRC5 or S4C+ controller running ``SpherecalServer.mod`` with a link
     module, talking the spherecal line protocol over a serial line (``SpherecalSerial.mod``)
     or, on an IRC5, over TCP (``SpherecalSocket.mod``; see docs/robot-abb-irb2400.md). The
-    link and motion settings are the core's (:class:`spherecal.devices.line_robot.LineLinkSettings`,
+    link and motion settings are the core's (:class:`spherecal.plugins.LineLinkSettings`,
     which also checks a ``socket://host:port`` port)."""
 
     port: str = Field(

@@ -4,14 +4,14 @@ Two links, one driver: a serial line (``SpherecalSerial.mod`` on the controller)
 with ``serial.serial_for_url`` (a device such as ``/dev/ttyS0``, ``COM1`` or a
 pseudo-terminal, or another pyserial URL), or a TCP connection to the IRC5 socket server
 (``SpherecalSocket.mod``) when the port is ``socket://host:port`` (the core's
-:class:`~spherecal.devices.line_robot.TcpLink`). Framing, timeouts, resends and the stale-reply
+:class:`~spherecal.plugins.TcpLink`). Framing, timeouts, resends and the stale-reply
 rules below are the same code for both.
 
 Every exchange is one request and one reply carrying the same sequence number.
 Replies whose seq does not match the request (late replies of an earlier attempt) are
 discarded; a corrupted line (checksum or syntax) or a timeout makes the driver resend
 the request with a fresh seq, up to ``retries`` times, then raise
-:class:`~spherecal.core.errors.DeviceError` saying what went wrong. A lost link raises
+:class:`~spherecal.plugins.DeviceError` saying what went wrong. A lost link raises
 DeviceError at once (over TCP: the controller closed the connection, or it broke), and
 the driver never reconnects by itself: the robot must be created again, which starts a
 new connection (and, for the socket server, a new session that has no staged target).
@@ -26,7 +26,7 @@ other request is sent before it (protocol version 3).
 
 Speed, workspace and joint limits (the latter through inverse kinematics) are checked
 before anything is sent. The protocol, the link and the checks are brand-free and live in
-the core (:mod:`spherecal.devices.line_protocol`, :class:`spherecal.devices.line_robot.LineRobot`); this module
+the plugin API (``spherecal.plugins.line_protocol``, :class:`spherecal.plugins.LineRobot`); this module
 adds the IRB 2400's names and its calibrated model.
 
 With a calibrated model (``config.calibrated_model``) the driver applies it on the PC
@@ -44,10 +44,9 @@ from typing import Callable
 
 import numpy as np
 
-from spherecal.devices import line_protocol as lineproto, line_robot as linelink
-from spherecal.core.errors import DeviceError
-from spherecal.devices.line_robot import MIN_SPEED_MM_S, LineRobot  # noqa: F401 - MIN_SPEED_MM_S re-exported
-from spherecal.core.models import Pose
+from spherecal.plugins import MIN_SPEED_MM_S  # noqa: F401 - re-exported
+from spherecal.plugins import DeviceError, LineRobot, Pose, initial_seq
+from spherecal.plugins import line_protocol as lineproto
 
 from .config import AbbIrb2400Config
 from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics
@@ -56,11 +55,11 @@ from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics
 def _initial_seq() -> int:
     """A random sequence number to start a session from (the first request carries the
     next one)."""
-    return linelink.initial_seq()
+    return initial_seq()
 
 
 class AbbIrb2400Robot(LineRobot):
-    """A connected IRB 2400 (implements :class:`spherecal.devices.contract.Robot`).
+    """A connected IRB 2400 (implements :class:`spherecal.plugins.Robot`).
 
     Poses are ``base_from_flange`` (tool0 in wobj0), mm, quaternion (w, x, y, z).
     Joints are degrees in the controller convention (``CJointT()``)."""
@@ -136,7 +135,7 @@ class AbbIrb2400Robot(LineRobot):
         return self.nominal_kin.flange_pose_from_joints(target_joints_deg, check_limits=False)
 
     def identity(self) -> dict[str, str]:
-        """What this robot is (spherecal.devices.contract.device_identity): the model, the serial
+        """What this robot is (spherecal.plugins.device_identity): the model, the serial
         number from the configuration (the protocol does not report it) and the
         controller program it talks to."""
         found = {"manufacturer": "ABB", "model": "IRB 2400",

@@ -16,10 +16,19 @@ import re
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from spherecal.core.errors import InputError
-from spherecal.io.exporters import ExportNote, Exporter, red_warning
-from spherecal.core.models import CalibrationResult
-from spherecal.report.export import MM_DECIMALS, QUAT_DECIMALS, check_result, fixed, frames_of, rounded_quaternion_wxyz
+from spherecal.plugins import (
+    MM_DECIMALS,
+    QUAT_DECIMALS,
+    CalibrationResult,
+    ExportNote,
+    Exporter,
+    InputError,
+    check_result,
+    fixed,
+    frames_of,
+    red_warning,
+    rounded_quaternion_wxyz,
+)
 
 __all__ = [
     "RAPID_MAX_LINE",

@@ -24,9 +24,7 @@ from __future__ import annotations
 import math
 import re
 
-from spherecal.devices.contract import ControllerFrame
-from spherecal.core.errors import InputError
-from spherecal.core.models import Pose
+from spherecal.plugins import ControllerFrame, InputError, Pose
 
 #: Longest text read (a module with a few declarations fits).
 MAX_TEXT = 100_000

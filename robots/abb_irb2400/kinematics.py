@@ -35,11 +35,17 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from spherecal.core import geometry as geo
-from spherecal.core.errors import ConfigError, InputError
-from spherecal.core.kinematics import SerialChain
-from spherecal.core.models import Pose
-from spherecal.core.urdf import IkNotConverged, chain_from_urdf, chain_inverse_kinematics
+from spherecal.plugins import (
+    ConfigError,
+    IkNotConverged,
+    InputError,
+    Pose,
+    SerialChain,
+    chain_from_urdf,
+    chain_inverse_kinematics,
+    matrix_from_rotvec,
+    rotation_angle_deg,
+)
 
 JOINT_COUNT = 6
 #: Largest position error (mm) an IK solution may show under forward kinematics.
@@ -171,11 +177,11 @@ class Irb2400Kinematics:
         self.model = self._build_model()
         self.data = self.model.createData()
         self.tool0_id = self.model.getFrameId("tool0")
-        self._R_j6_from_tool0 = geo.matrix_from_rotvec(np.radians(self.geometry.tool0_rotvec_deg))
+        self._R_j6_from_tool0 = matrix_from_rotvec(np.radians(self.geometry.tool0_rotvec_deg))
 
     @property
     def chain(self) -> SerialChain:
-        """The nominal geometry as a brand-free :class:`~spherecal.core.kinematics.SerialChain`
+        """The nominal geometry as a brand-free :class:`~spherecal.plugins.SerialChain`
         (model joint convention, rad; see ``model_joints_rad``): each joint placed at its
         ``offset_mm`` with no rotation, turning about its own x, y or z axis; tool0 turned
         by ``tool0_rotvec_deg`` on joint 6."""
@@ -195,7 +201,7 @@ class Irb2400Kinematics:
             placement = pin.SE3(np.eye(3), np.asarray(spec.offset_mm, dtype=float))
             parent = model.addJoint(parent, getattr(pin, _JOINT_AXES[spec.axis])(), placement, f"joint_{i}")
             model.appendBodyToJoint(parent, pin.Inertia.Zero(), pin.SE3.Identity())
-        R = geo.matrix_from_rotvec(np.radians(self.geometry.tool0_rotvec_deg))
+        R = matrix_from_rotvec(np.radians(self.geometry.tool0_rotvec_deg))
         model.addFrame(pin.Frame("tool0", parent, 0, pin.SE3(R, np.zeros(3)), pin.FrameType.OP_FRAME))
         return model
 
@@ -233,7 +239,7 @@ class Irb2400Kinematics:
 
     def model_joint_limits_rad(self) -> np.ndarray:
         """(6, 2) lower and upper limits in the serial model's convention (rad), for a URDF
-        (``spherecal.core.urdf.chain_to_urdf(..., joint_limits_rad=)``). With ``j23_coupled`` the
+        (``spherecal.plugins.chain_to_urdf(..., joint_limits_rad=)``). With ``j23_coupled`` the
         controller limits axis 3 relative to the horizontal, which no fixed range of the
         model's joint 3 expresses: its range here is the widest the controller can reach,
         ``lower_3 - upper_2 .. upper_3 - lower_2``; the controller still checks its own."""
@@ -468,7 +474,7 @@ def _calibrated_cached(geometry, j23_coupled: bool, path: str, stamp: tuple[int,
     Tc = chain.flange_matrices(Q)
     Tn = nominal.chain.flange_matrices(Q)
     dist = np.linalg.norm(Tc[:, :3, 3] - Tn[:, :3, 3], axis=1)
-    ang = np.array([geo.rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(Tc, Tn)])
+    ang = np.array([rotation_angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(Tc, Tn)])
     worst = int(np.argmax(dist))
     if dist.max() > CALIBRATED_MAX_DEVIATION_MM or ang.max() > CALIBRATED_MAX_DEVIATION_DEG:
         raise InputError(
@@ -487,7 +493,7 @@ def calibrated_kinematics_for(
     """The IRB 2400 kinematics with the calibrated geometry of a URDF file (joints
     ``joint_1`` .. ``joint_6`` in the serial model's convention, links ``base_link`` and
     ``tool0``, metres). Cached per file and modification time. Raises
-    :class:`~spherecal.core.errors.InputError` naming the file."""
+    :class:`~spherecal.plugins.InputError` naming the file."""
     from pathlib import Path
 
     p = Path(path)

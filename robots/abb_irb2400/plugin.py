@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spherecal.devices.contract import DeviceContext, RobotType
-from spherecal.core.models import Pose
-from spherecal.plugins import hookimpl
+from spherecal.plugins import DeviceContext, Pose, RobotType, hookimpl
 
 from .config import AbbIrb2400Config
 from .driver import AbbIrb2400Robot

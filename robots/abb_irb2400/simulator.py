@@ -11,7 +11,7 @@ link, in one of three flavours (``SimulatedControllerSettings.transport``):
   every accepted connection is a new session, in which no target is staged.
 
 The brand-free controller and its server live in the core
-(:mod:`spherecal.sim.controller`): moves by inverse kinematics from the current joints,
+(:class:`spherecal.plugins.SimulatedController` and its server): moves by inverse kinematics from the current joints,
 the cell's true arm, pose and joint noise, the sessions of a socket server, fault
 injection (the connection closed mid-request among them). :class:`SimulatedIrb2400`
 adds the IRB 2400's kinematics and its RAPID server's read loop:
@@ -31,13 +31,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from spherecal.sim.controller import ControllerServer, Faults, SimulatedController
+from spherecal.plugins import ControllerServer, Faults, SimulatedController
 
 from .config import SimulatedControllerSettings
 from .kinematics import Irb2400Kinematics
 
 if TYPE_CHECKING:  # pragma: no cover
-    from spherecal.sim.cell import SimulatedCell
+    from spherecal.plugins import SimulatedCell
 
 #: The server of a simulated IRB 2400 (the core's, under the name the tests use).
 SimulatorServer = ControllerServer

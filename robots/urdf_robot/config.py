@@ -12,17 +12,20 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.core.errors import InputError
-from spherecal.devices.line_robot import LineLinkSettings, WorkspaceBox
-from spherecal.devices.line_protocol import MAX_JOINTS
-from spherecal.sim.settings import SimulatedControllerSettings
-from spherecal.core.urdf import read_urdf_chain
+from spherecal.plugins import (
+    BASE_DIR_CONTEXT_KEY,
+    InputError,
+    LineLinkSettings,
+    SimulatedControllerSettings,
+    WorkspaceBox,
+    line_protocol,
+    read_urdf_chain,
+)
 
 from .kinematics import JointMap, UrdfKinematics
 
-#: Key of the validation context that gives the folder relative paths resolve against
-#: (the configuration file's folder, when the host passes it).
-BASE_DIR_CONTEXT_KEY = "base_dir"
+#: Most joints the line protocol carries (a ``J`` reply fits one line).
+MAX_JOINTS = line_protocol.MAX_JOINTS
 #: Largest magnitude of a joint-map entry or a joint angle written in the configuration.
 MAX_MAP_ENTRY = 1000.0
 MAX_ANGLE_DEG = 100_000.0
@@ -63,7 +66,7 @@ class UrdfRobotConfig(LineLinkSettings):
     """Any revolute arm described by a URDF, whose controller runs a small server speaking
     the spherecal line protocol over a serial line or TCP (docs/robot-urdf.md,
     docs/line-protocol.md). The link and motion settings are the core's
-    (:class:`spherecal.devices.line_robot.LineLinkSettings`)."""
+    (:class:`spherecal.plugins.LineLinkSettings`)."""
 
     urdf: Path = Field(
         description="the robot's URDF file (metres, radians). A relative path resolves against the configuration "
@@ -139,7 +142,7 @@ class UrdfRobotConfig(LineLinkSettings):
 
     def kinematics(self) -> UrdfKinematics:
         """The arm's kinematics as configured (cached per file, its modification time and
-        the settings that shape them). Raises :class:`~spherecal.core.errors.InputError` naming
+        the settings that shape them). Raises :class:`~spherecal.plugins.InputError` naming
         the file and the link, joint or setting at fault."""
         p = Path(self.urdf)
         try:

@@ -1,7 +1,7 @@
 """Kinematics of any revolute arm described by a URDF, through Pinocchio.
 
 The chain from the base link to the flange link is read with
-:func:`spherecal.core.urdf.read_urdf_chain` (Pinocchio's ``buildModelFromXML``; metres in the
+:func:`spherecal.plugins.read_urdf_chain` (Pinocchio's ``buildModelFromXML``; metres in the
 file, millimetres here; fixed joints on the way folded in). Its joint limits are the
 URDF's.
 
@@ -19,7 +19,7 @@ example: its controller reports axis 3 relative to the horizontal, so
 ``[0, -1, 1, 0, 0, 0]``. Inverse kinematics solves in the model's angles and maps back
 through ``A^-1``.
 
-Inverse kinematics is numerical (:func:`spherecal.core.urdf.chain_inverse_kinematics`, Newton
+Inverse kinematics is numerical (:func:`spherecal.plugins.chain_inverse_kinematics`, Newton
 steps with damped least squares), seeded from the current joints: the solution nearest
 them, as a controller's linear move keeps its configuration. When a direct solve from
 the seed fails, the pose is approached along the straight line from the seed's own pose
@@ -34,11 +34,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spherecal.core import geometry as geo
-from spherecal.core.errors import InputError
-from spherecal.core.kinematics import SerialChain, chain_reach_mm
-from spherecal.core.models import Pose
-from spherecal.core.urdf import IkNotConverged, UrdfChain, chain_inverse_kinematics
+from spherecal.plugins import (
+    IkNotConverged,
+    InputError,
+    Pose,
+    SerialChain,
+    UrdfChain,
+    chain_inverse_kinematics,
+    chain_reach_mm,
+    matrix_from_rotvec,
+    rotvec_from_matrix,
+)
 
 #: Convergence of the numerical inverse kinematics.
 IK_TOLERANCE_MM = 1e-9
@@ -85,7 +91,7 @@ class JointMap:
 
 class UrdfKinematics:
     """Forward and inverse kinematics of the chain of a URDF (implements
-    :class:`spherecal.core.kinematics.ArmKinematics`).
+    :class:`spherecal.plugins.ArmKinematics`).
 
     Joints in and out are degrees in the controller's order and convention; poses are
     ``base_from_flange``, mm, quaternion (w, x, y, z). ``controller_limits_deg`` ((n, 2),
@@ -235,11 +241,11 @@ class UrdfKinematics:
 
     def _continue(self, start: np.ndarray, target: np.ndarray, seed_model: np.ndarray, steps: int):
         """Follow the straight line (position and rotation) from ``start`` to ``target``."""
-        rv = geo.rotvec_from_matrix(start[:3, :3].T @ target[:3, :3])
+        rv = rotvec_from_matrix(start[:3, :3].T @ target[:3, :3])
         q = seed_model
         for s in np.arange(1, steps + 1) / steps:
             T = np.eye(4)
-            T[:3, :3] = start[:3, :3] @ geo.matrix_from_rotvec(s * rv)
+            T[:3, :3] = start[:3, :3] @ matrix_from_rotvec(s * rv)
             T[:3, 3] = (1 - s) * start[:3, 3] + s * target[:3, 3]
             q = self._solve(T, q)
             if q is None:
@@ -269,7 +275,7 @@ class UrdfKinematics:
     # the arm's size --------------------------------------------------------------------
     @property
     def reach_mm(self) -> float:
-        """The arm's reach (:func:`spherecal.core.kinematics.chain_reach_mm` within the URDF's
+        """The arm's reach (:func:`spherecal.plugins.chain_reach_mm` within the URDF's
         limits): the largest distance from the shoulder to the flange."""
         if not hasattr(self, "_reach_mm"):
             self._reach_mm = chain_reach_mm(self._chain, self.model_joint_limits_rad())

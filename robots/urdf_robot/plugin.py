@@ -1,12 +1,12 @@
 """The built-in ``urdf`` robot type: any revolute arm from its URDF, registered through the
 ``spherecal`` entry-point group exactly as a third-party plugin would be.
 
-A real run connects a :class:`UrdfRobot` (the core's :class:`~spherecal.devices.line_robot.LineRobot`:
+A real run connects a :class:`UrdfRobot` (the core's :class:`~spherecal.plugins.LineRobot`:
 the spherecal line protocol over a serial line or TCP (``socket://host:port``), with the
 speed, workspace and reachability checks before anything moves) to ``config.port``: the
 controller runs a small server that speaks the protocol (docs/line-protocol.md). A
 simulated run (``context.cell`` is a SimulatedCell) starts the core's simulated
-controller (:mod:`spherecal.sim.controller`, on ``simulated.transport``) on localhost
+controller (:func:`spherecal.plugins.start_controller`, on ``simulated.transport``) on localhost
 with the URDF's kinematics and that cell, and connects the same robot to it, so the
 simulated path exercises the real protocol; closing the robot stops the simulated
 controller.
@@ -21,11 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spherecal.devices.contract import DeviceContext, RobotType
-from spherecal.core.errors import DeviceError
-from spherecal.devices.line_robot import LineRobot
-from spherecal.core.models import Pose
-from spherecal.plugins import hookimpl
+from spherecal.plugins import DeviceContext, DeviceError, LineRobot, Pose, RobotType, hookimpl
 
 from .config import UrdfRobotConfig
 from .kinematics import UrdfKinematics
@@ -39,7 +35,7 @@ DESCRIPTION = (
 
 
 class UrdfRobot(LineRobot):
-    """A connected arm described by a URDF (implements :class:`spherecal.devices.contract.Robot`).
+    """A connected arm described by a URDF (implements :class:`spherecal.plugins.Robot`).
     Poses are ``base_from_flange`` (the flange link in the base link), mm, quaternion
     (w, x, y, z); joints are degrees in the controller's order and convention."""
 
@@ -84,7 +80,7 @@ def create_robot(config: UrdfRobotConfig, context: DeviceContext) -> UrdfRobot:
     if context.cell is None:
         robot = UrdfRobot(config, kin, tool_point_mm=tool)
     else:
-        from spherecal.sim.controller import start_controller  # (a simulated run only)
+        from spherecal.plugins import start_controller  # (a simulated run only: loads the simulated controller)
 
         server = start_controller(kin, config.simulated, context.cell, kin.n_joints)
         context.log(f"urdf: simulated controller of {config.urdf.name} serving on {server.url}")

@@ -6,7 +6,7 @@ Modules: :mod:`.wire` (the assumed USB wire format, all of it configuration),
 pyusb backend), :mod:`.plugin` (registration). See ``docs/sensor-nxsensor-i.md``.
 """
 
-from spherecal.core.lazy import lazy_attributes
+from spherecal.plugins import lazy_attributes
 
 from .config import NxSensorConfig
 from .wire import Frame, FrameFormatError, WireConfig

@@ -6,10 +6,10 @@ code runs against libusb and real hardware or against
 :class:`~spherecal.sensors.nxsensor_i.simbackend.SimulatedNxSensorBackend`.
 
 Profiles are (y, z) in mm in the sensor frame's x = 0 plane, z positive towards the
-sensor (``docs/conventions.md``). Implements the :class:`spherecal.devices.contract.Sensor`
+sensor (``docs/conventions.md``). Implements the :class:`spherecal.plugins.Sensor`
 protocol (``read_profile``, ``close``) and adds streaming (:meth:`NxSensorDriver.stream`).
 
-Failures become :class:`spherecal.core.errors.DeviceError` naming the device (USB
+Failures become :class:`spherecal.plugins.DeviceError` naming the device (USB
 vendor:product id, serial number) and the operation. Recovery, up to
 ``config.retries`` times per operation: after a timeout or a corrupt frame the request
 is repeated (with the IN endpoint's halt cleared); a stalled endpoint is cleared; a
@@ -31,8 +31,7 @@ from dataclasses import dataclass
 import usb.core
 import usb.util
 
-from spherecal.core.errors import DeviceError
-from spherecal.core.models import Profile
+from spherecal.plugins import DeviceError, Profile
 
 from .config import NxSensorConfig
 from .shots import CounterMismatch, FrameCounter, Shot
@@ -114,7 +113,7 @@ class NxSensorDriver:
         return f"nxSensor-I (USB {self.wire.usb_id}{serial})"
 
     def identity(self) -> dict[str, str]:
-        """What this unit says it is (spherecal.devices.contract.device_identity): its USB
+        """What this unit says it is (spherecal.plugins.device_identity): its USB
         manufacturer, product and serial number strings; a string it cannot give is left
         out."""
         found: dict[str, str] = {}

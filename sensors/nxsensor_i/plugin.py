@@ -11,9 +11,7 @@ from __future__ import annotations
 import importlib.util
 from typing import TYPE_CHECKING
 
-from spherecal.devices.contract import DeviceContext, SensorFieldOfView, SensorType
-from spherecal.core.errors import DeviceError
-from spherecal.plugins import hookimpl
+from spherecal.plugins import DeviceContext, DeviceError, SensorFieldOfView, SensorType, hookimpl
 
 from .config import NxSensorConfig
 
@@ -39,7 +37,7 @@ FIELD_OF_VIEW = SensorFieldOfView(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=
 
 def create_sensor(config: NxSensorConfig, context: DeviceContext) -> NxSensorDriver:
     """Factory: a connected :class:`NxSensorDriver`. Raises
-    :class:`spherecal.core.errors.DeviceError` when no USB backend is available or the device
+    :class:`spherecal.plugins.DeviceError` when no USB backend is available or the device
     is not found (the message says which vid:pid was looked for and what to check)."""
     try:
         from .driver import NxSensorDriver

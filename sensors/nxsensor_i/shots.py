@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from spherecal.core.errors import DeviceError
+from spherecal.plugins import DeviceError
 
 
 class CounterMismatch(DeviceError):

@@ -6,7 +6,7 @@ returns an ordinary ``usb.core.Device`` and the real driver talks to it through
 unchanged pyusb calls (descriptors, configuration, interface claiming, bulk and control
 transfers, clear halt, reset). The device speaks the wire format of
 :mod:`spherecal.sensors.nxsensor_i.wire` (the project's assumption, not NextWare's
-documentation) and measures with a :class:`spherecal.sim.SimulatedCell`: each profile is
+documentation) and measures with a :class:`spherecal.plugins.SimulatedCell`: each profile is
 ``cell.measure_profile()`` at the simulated robot's current pose, quantised to counts,
 with invalid records for the columns that saw nothing.
 

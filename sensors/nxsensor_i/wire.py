@@ -42,7 +42,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from spherecal.core.errors import DeviceError, InputError
+from spherecal.plugins import DeviceError, InputError
 
 HeaderField = Literal["magic", "frame_counter", "timestamp_us", "point_count", "flags", "pad"]
 IntType = Literal["u8", "u16", "u32", "i8", "i16", "i32"]

@@ -170,6 +170,7 @@ def test_writers_refuse_a_planted_symbolic_link(tmp_path):
 def test_the_report_and_exports_refuse_a_link(tmp_path, dataset_file):
     from spherecal.estimation import solve
     from spherecal.report.export import write_exports
+    from spherecal.plugins.host import PluginHost
     from spherecal.report.html import write_report
 
     victim = tmp_path / "victim.txt"
@@ -182,7 +183,7 @@ def test_the_report_and_exports_refuse_a_link(tmp_path, dataset_file):
         write_report(sol, out)
     (out / "SpherecalSensor.mod").symlink_to(victim)
     with pytest.raises(InputError, match="SpherecalSensor.mod is a symbolic link"):
-        write_exports(sol.result, out, overwrite=True)
+        write_exports(sol.result, out, PluginHost().export_plan(None, sol.result.mounting, None), overwrite=True)
     assert not (out / "result.json").exists()  # nothing written when one is refused
     assert victim.read_text() == "precious\n"
 

@@ -1,5 +1,6 @@
-"""The API reference (docs/build_api.py) builds offline from the docstrings and holds the
-public classes a plugin author uses, each with its documentation."""
+"""The API reference (docs/build_api.py) builds offline from the docstrings: its first page
+is the plugin API, ``spherecal.plugins``, holding every name a plugin may rely on with
+its documentation, and the modules behind those names have pages of their own."""
 
 from __future__ import annotations
 
@@ -7,31 +8,51 @@ import importlib.util
 import re
 from pathlib import Path
 
+import spherecal.plugins
+
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
-def test_the_api_reference_builds_and_documents_what_a_plugin_author_uses(tmp_path):
+def _has(page: str, name: str) -> bool:
+    return bool(re.search(rf'id="{re.escape(name)}"|>{re.escape(name)}<', page))
+
+
+def test_the_api_reference_documents_the_plugin_api(tmp_path):
     spec = importlib.util.spec_from_file_location("build_api", DOCS / "build_api.py")
     build_api = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(build_api)
+    assert build_api.API_MODULES[0] == "spherecal.plugins"
     out = build_api.build(tmp_path / "api")
     pages = {p.relative_to(out).as_posix(): p.read_text(encoding="utf-8") for p in out.rglob("*.html")}
+    api = pages["spherecal/plugins.html"]
+    # every name of the plugin API, on its page
+    missing = [name for name in spherecal.plugins.__all__ if not _has(api, name)]
+    assert not missing, f"not on spherecal/plugins.html: {missing}"
+    # with its documentation, not only its name: the contract, the safety checks, the hooks' registries
+    for text in ("base_from_flange", "check_target", "path_check_samples", "registry.add_robot",
+                 "robot safety whatever the protocol", "plugin API"):
+        assert text in api, text
     expected = {
         "spherecal/core/models.html": ["Pose", "Profile", "Observation", "Dataset"],
         "spherecal/devices/contract.html": ["Robot", "Sensor", "RobotType", "SensorType", "SensorFieldOfView",
-                                   "DeviceContext"],
+                                            "DeviceContext"],
+        "spherecal/devices/motion_safety.html": ["MotionSafety", "MotionLimits", "FrameOffset"],
+        "spherecal/core/field_of_view.html": ["SensorFieldOfView"],
+        "spherecal/core/workspace.html": ["WorkspaceBox"],
+        "spherecal/devices/line_robot.html": ["LineRobot", "LineLinkSettings", "TcpLink"],
         "spherecal/sim.html": ["SimulatedCell", "standard_cell", "NoiseModel"],
         "spherecal/motion/planning.html": ["SweepPlan", "plan_stations", "with_standoff"],
         "spherecal/plugins/testing.html": ["spherecal_cell", "make_cell", "RobotHarness", "SensorHarness",
                                            "acquire_dataset"],
         "spherecal/plugins/hookspecs.html": ["spherecal_register_devices", "spherecal_register_exporters"],
+        "spherecal/plugins/registry.html": ["DeviceRegistry", "ExporterRegistry"],
         "spherecal/io/exporters.html": ["Exporter"],
         "spherecal/core/geometry.html": ["matrix_from_rotvec"],
     }
     for page, names in expected.items():
         assert page in pages, sorted(pages)
         for name in names:
-            assert re.search(rf'id="{re.escape(name)}"|>{re.escape(name)}<', pages[page]), f"{name} not in {page}"
-    # docstrings, not only names: the Robot protocol's contract and a fixture's parameters are there
-    assert "base_from_flange" in pages["spherecal/devices/contract.html"] and "check_target" in pages["spherecal/devices/contract.html"]
+            assert _has(pages[page], name), f"{name} not in {page}"
+    assert "base_from_flange" in pages["spherecal/devices/contract.html"]
+    assert "check_target" in pages["spherecal/devices/contract.html"]
     assert "true_transform" in pages["spherecal/plugins/testing.html"]

@@ -190,7 +190,7 @@ class TypeFieldConfig(BaseModel):
 @pytest.mark.parametrize(
     "robot_type, message",
     [
-        ("not a RobotType", r"plugin 'p' passed str to registry\.add_robot\(\); expected a spherecal\.devices\.RobotType"),
+        ("not a RobotType", r"plugin 'p' passed str to registry\.add_robot\(\); expected a spherecal\.plugins\.RobotType"),
         (RobotType(name="Bad-Name", config_model=ToyRobotConfig, factory=print),
          r"robot type named 'Bad-Name'; a type name must be lower case"),
         (RobotType(name="loose", config_model=LooseConfig, factory=print),

@@ -279,8 +279,8 @@ def test_cell_fixture_takes_a_whole_cell(spherecal_cell):
 
 @pytest.mark.parametrize("param, message", [
     ({"sphere_centre": (1, 2, 3)}, r"unknown parameter\(s\) \['sphere_centre'\]; known: .*'sphere_centre_mm'"),
-    ({"cell": "eye_in_hand"}, "'cell' takes a spherecal.sim.SimulatedCell and no other key"),
-    ({"true_transform": [1, 2, 3]}, "true_transform must be a spherecal.core.models.Pose, got list"),
+    ({"cell": "eye_in_hand"}, "'cell' takes a spherecal.plugins.SimulatedCell and no other key"),
+    ({"true_transform": [1, 2, 3]}, "true_transform must be a spherecal.plugins.Pose, got list"),
 ])
 def test_cell_fixture_parameters_are_checked(param, message):
     from spherecal.plugins.testing import make_cell
@@ -408,7 +408,7 @@ def test_robot_harness_takes_the_cells_plan():
     assert _same(SensorHarness(cell, plan=plan).stations, harness.stations)
     with pytest.raises(TypeError, match=r"RobotHarness: give stations or plan .*not both"):
         RobotHarness(cell, harness.stations, plan=plan)
-    with pytest.raises(TypeError, match=r"plan must be a spherecal.motion.planning.SweepPlan, got dict"):
+    with pytest.raises(TypeError, match=r"plan must be a spherecal.plugins.SweepPlan, got dict"):
         RobotHarness(cell, plan=OWN_PLAN_KW)
 
 
@@ -424,7 +424,7 @@ def test_cell_fixture_takes_the_cells_plan(spherecal_cell, spherecal_stations, s
     # a whole cell takes one too, and a plan that is not a SweepPlan is refused
     whole = make_cell({"cell": _whole_cell(), "plan": OWN_PLAN})
     assert whole is _whole_cell() and _same(RobotHarness(whole).stations, _expected_stations(whole, OWN_PLAN))
-    with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.motion.planning.SweepPlan, got dict"):
+    with pytest.raises(TypeError, match=r"spherecal_cell: plan must be a spherecal.plugins.SweepPlan, got dict"):
         make_cell({"plan": OWN_PLAN_KW})
 
 

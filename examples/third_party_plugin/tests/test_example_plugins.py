@@ -4,7 +4,7 @@ the fixtures spherecal installs into pytest (``spherecal_host``, ``spherecal_cel
 
 import pytest
 
-from spherecal.core.errors import ConfigError, DeviceError
+from spherecal.plugins import ConfigError, DeviceError
 
 ROBOT = {"type": "example_cartesian"}
 SENSOR = {"type": "example_profiler"}

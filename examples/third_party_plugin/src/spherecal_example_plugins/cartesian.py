@@ -2,7 +2,7 @@
 
 Three linear axes carry a spherical wrist, so the robot can put its flange at any
 position inside its workspace box with any orientation. It exists only in simulation:
-it moves the flange of a :class:`spherecal.sim.SimulatedCell` exactly to the commanded
+it moves the flange of a :class:`spherecal.plugins.SimulatedCell` exactly to the commanded
 pose and reports the pose as a controller would, with the cell's pose noise.
 
 Poses are ``base_from_flange``: translation in mm, rotation as a quaternion
@@ -13,10 +13,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from spherecal.devices.contract import DeviceContext, RobotType
-from spherecal.core.errors import DeviceError
-from spherecal.core.models import Pose
-from spherecal.plugins import hookimpl
+from spherecal.plugins import DeviceContext, DeviceError, Pose, RobotType, hookimpl
 
 TYPE_NAME = "example_cartesian"
 
@@ -63,7 +60,7 @@ class CartesianConfig(BaseModel):
 
 
 class ExampleCartesianRobot:
-    """The :class:`spherecal.devices.contract.Robot` of ``example_cartesian`` on a simulated cell."""
+    """The :class:`spherecal.plugins.Robot` of ``example_cartesian`` on a simulated cell."""
 
     def __init__(self, config: CartesianConfig, cell) -> None:
         self.config = config
@@ -119,7 +116,7 @@ def create_robot(config: CartesianConfig, context: DeviceContext) -> ExampleCart
     if context.cell is None:
         raise DeviceError(
             f"{TYPE_NAME} is a simulated robot and has no hardware to connect to; "
-            f"run it on a simulated cell (DeviceContext(cell=spherecal.sim.standard_cell(fov=...)))"
+            f"run it on a simulated cell (DeviceContext(cell=spherecal.plugins.standard_cell(fov=...)))"
         )
     context.log(f"{TYPE_NAME}: simulated Cartesian robot on a {context.cell.mounting} cell")
     return ExampleCartesianRobot(config, context.cell)

@@ -1,8 +1,8 @@
 """Sensor type ``example_profiler``: a simulated laser line sensor.
 
-It reads profiles from a :class:`spherecal.sim.SimulatedCell`
+It reads profiles from a :class:`spherecal.plugins.SimulatedCell`
 (``cell.measure_profile()``: points (y, z) in mm in the sensor's laser plane, z positive
-towards the sensor) and hands them on as :class:`spherecal.core.models.Profile`, or None
+towards the sensor) and hands them on as :class:`spherecal.plugins.Profile`, or None
 when too few points are valid.
 """
 
@@ -13,10 +13,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.devices.contract import DeviceContext, SensorFieldOfView, SensorType
-from spherecal.core.errors import DeviceError
-from spherecal.core.models import Profile
-from spherecal.plugins import hookimpl
+from spherecal.plugins import DeviceContext, DeviceError, Profile, SensorFieldOfView, SensorType, hookimpl
 
 TYPE_NAME = "example_profiler"
 
@@ -47,7 +44,7 @@ class ProfilerConfig(BaseModel):
 
 
 class ExampleProfiler:
-    """The :class:`spherecal.devices.contract.Sensor` of ``example_profiler`` on a simulated cell."""
+    """The :class:`spherecal.plugins.Sensor` of ``example_profiler`` on a simulated cell."""
 
     def __init__(self, config: ProfilerConfig, cell) -> None:
         self.config = config
@@ -76,7 +73,7 @@ def create_sensor(config: ProfilerConfig, context: DeviceContext) -> ExampleProf
     if context.cell is None:
         raise DeviceError(
             f"{TYPE_NAME} is a simulated sensor and has no hardware to connect to; "
-            f"run it on a simulated cell (DeviceContext(cell=spherecal.sim.standard_cell(fov=...)))"
+            f"run it on a simulated cell (DeviceContext(cell=spherecal.plugins.standard_cell(fov=...)))"
         )
     return ExampleProfiler(config, context.cell)
 

@@ -1,0 +1,70 @@
+"""``spherecal.plugins`` is the plugin API: every name it lists resolves to the object at
+its home, importing it loads nothing heavy (its names load on first use), and the
+third-party example package imports nothing of spherecal but it."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import spherecal.plugins as api
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLE = REPO / "examples" / "third_party_plugin"
+
+
+@pytest.mark.parametrize("name", api.__all__)
+def test_every_listed_name_resolves(name):
+    assert getattr(api, name) is not None
+    assert name in dir(api)
+
+
+def test_the_names_are_the_objects_at_their_homes():
+    from spherecal.core.field_of_view import SensorFieldOfView
+    from spherecal.core.workspace import WorkspaceBox
+    from spherecal.devices import contract, line_protocol, line_robot, motion_safety
+    from spherecal.plugins import registry
+
+    assert api.RobotType is contract.RobotType and api.SensorFieldOfView is SensorFieldOfView
+    assert contract.SensorFieldOfView is SensorFieldOfView  # the contract re-exports the value object
+    assert api.WorkspaceBox is WorkspaceBox is line_robot.WorkspaceBox
+    assert api.MotionSafety is motion_safety.MotionSafety and issubclass(api.LineRobot, api.MotionSafety)
+    assert api.line_protocol is line_protocol and api.DeviceRegistry is registry.DeviceRegistry
+    assert api.hookspecs is importlib.import_module("spherecal.plugins.hookspecs")
+    assert api.BASE_DIR_CONTEXT_KEY == "base_dir"
+
+
+def test_importing_the_api_loads_only_the_markers():
+    code = ("import json, sys\nbefore = set(sys.modules)\nimport spherecal.plugins\n"
+            "print(json.dumps(sorted(set(sys.modules) - before)))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    loaded = set(json.loads(proc.stdout))
+    assert not [m for m in loaded if m.startswith(("numpy", "pydantic", "scipy", "matplotlib", "pinocchio"))]
+    assert not [m for m in loaded if m.startswith("spherecal.") and m not in (
+        "spherecal._moved", "spherecal.core", "spherecal.core.lazy", "spherecal.plugins")]
+
+
+def _spherecal_imports(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            found.add(node.module or "")
+    return {m for m in found if m == "spherecal" or m.startswith("spherecal.")}
+
+
+@pytest.mark.parametrize("path", sorted((EXAMPLE / "src").rglob("*.py")) + sorted((EXAMPLE / "tests").rglob("*.py")),
+                         ids=lambda p: p.relative_to(EXAMPLE).as_posix())
+def test_the_example_package_imports_only_the_plugin_api(path):
+    assert _spherecal_imports(path) <= {"spherecal.plugins"}
+
+
+def test_the_example_calibration_adds_only_the_library_calibration():
+    assert _spherecal_imports(EXAMPLE / "calibrate_simulated.py") == {"spherecal.plugins", "spherecal.estimation"}
