@@ -765,7 +765,8 @@ def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFl
         )
     dropped = sorted(set(problem.station_labels) - set(left.station_labels))
     if dropped:
-        Rs = [left.R_A[np.flatnonzero(left.station_of == k)[0]] for k in range(len(left.station_labels))]
+        Rs = [left.R_sphere_from_mount[np.flatnonzero(left.station_of == k)[0]]
+              for k in range(len(left.station_labels))]
         M = np.vstack([np.hstack([R, -np.eye(3)]) for R in Rs])
         sv = np.linalg.svd(M, compute_uv=False)
         if len(sv) < 6 or sv[-1] < 1e-3 * sv[0]:

@@ -29,7 +29,7 @@ from spherecal.core.kinematics import (
 )
 from spherecal.estimation.blocks import BLOCK_POINTS, profile_blocks
 from spherecal.estimation.problem import (
-    KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, sphere_frame_from_base, unknown_variances,
+    KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, sphere_from_mount, unknown_variances,
 )
 
 
@@ -79,7 +79,7 @@ class RefineResult:
 
 def _centres(problem: Problem, R, t, c):
     """u_i = R_A^T (c - tA_i) - t and C_i = R^T u_i, (n, 3) each."""
-    u = np.einsum("nji,nj->ni", problem.R_A, c - problem.t_A) - t
+    u = np.einsum("nji,nj->ni", problem.R_sphere_from_mount, c - problem.t_sphere_from_mount) - t
     return u, u @ R
 
 
@@ -89,7 +89,7 @@ def _centre_jacobian(problem: Problem, R, u):
     J = np.empty((n, 3, 9))
     J[:, :, 0:3] = R.T @ geo.skew(u)
     J[:, :, 3:6] = -R.T
-    J[:, :, 6:9] = R.T @ np.swapaxes(problem.R_A, 1, 2)
+    J[:, :, 6:9] = R.T @ np.swapaxes(problem.R_sphere_from_mount, 1, 2)
     return J
 
 
@@ -520,8 +520,8 @@ def _apply_station_offsets(problem: Problem, delta: np.ndarray) -> Problem:
     d = delta[problem.station_of]
     R0 = geo.matrix_from_rotvec(d[:, :3]) @ problem.R0
     t0 = problem.t0 + d[:, 3:]
-    R_A, t_A = sphere_frame_from_base(problem.mounting, R0, t0)
-    return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
+    R_sm, t_sm = sphere_from_mount(problem.mounting, R0, t0)
+    return replace(problem, R0=R0, t0=t0, R_sphere_from_mount=R_sm, t_sphere_from_mount=t_sm)
 
 
 def _common_error_design(problem: Problem, Jd: np.ndarray) -> np.ndarray:
@@ -556,8 +556,8 @@ def _apply_kinematic_errors(problem: Problem, chain: SerialChain, kappa: np.ndar
     dR, dt = flange_corrections(chain, chain_with_errors(chain, kappa), problem.q_rad)
     R0 = dR @ problem.R0
     t0 = problem.t0 + dt
-    R_A, t_A = sphere_frame_from_base(problem.mounting, R0, t0)
-    return replace(problem, R0=R0, t0=t0, R_A=R_A, t_A=t_A)
+    R_sm, t_sm = sphere_from_mount(problem.mounting, R0, t0)
+    return replace(problem, R0=R0, t0=t0, R_sphere_from_mount=R_sm, t_sphere_from_mount=t_sm)
 
 
 def _neg2_reml_derivatives(sd, group, n_groups: int, A_tt, A_td, A_dd, b_t, b_d, yy):
@@ -1342,9 +1342,9 @@ def plan_design(mounting: str, R0: np.ndarray, t0: np.ndarray, q_rad: np.ndarray
     (rotations ``R0`` (n, 3, 3), translations ``t0`` (n, 3), mm) with joints ``q_rad``
     (model convention), nominal transform ``X`` and sphere ``centre``."""
     R0, t0 = np.asarray(R0, dtype=float), np.asarray(t0, dtype=float)
-    R_A, t_A = sphere_frame_from_base(mounting, R0, t0)
+    R_sm, t_sm = sphere_from_mount(mounting, R0, t0)
     n = len(R0)
-    problem = Problem(mounting, 1.0, R0, t0, R_A, t_A, [np.zeros((0, 2))] * n, np.arange(n), np.zeros(n, dtype=int),
+    problem = Problem(mounting, 1.0, R0, t0, R_sm, t_sm, [np.zeros((0, 2))] * n, np.arange(n), np.zeros(n, dtype=int),
                       ["plan"], np.asarray(q_rad, dtype=float))
     return _centre_design(problem, X.rotation_matrix, X.translation, np.asarray(centre, dtype=float), chain)
 
