@@ -29,7 +29,7 @@ Where each part lives:
 * :mod:`.state`: the state the steps share; :mod:`.driver`: :func:`refine` itself.
 """
 
-from spherecal.estimation.refine.covariance import SEEN_POSTERIOR_SHARE, _scale_averaged_covariance
+from spherecal.estimation.refine.covariance import SEEN_POSTERIOR_SHARE
 from spherecal.estimation.refine.design import (
     IDENTIFIABILITY_TOLERANCE, _centre_design, cramer_rao_bound, design_identifiability,
     identifiable_kinematic_parameters, plan_design,
