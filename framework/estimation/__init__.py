@@ -7,7 +7,8 @@ transform with its uncertainty.
    translations, translation by least squares over orientations).
 4. :mod:`.refine`: joint refinement over every point with the robot pose noise in the
    noise model, and the covariance; :func:`.refine.cramer_rao_bound`.
-5. :mod:`.pipeline`: screening, outlier rejection, diagnostics, the result.
+5. :mod:`.pipeline`: the solve, step by step, its diagnostics and the result;
+   :mod:`.screening`: the checks that flag and leave out observations.
 
 Centre observations (a circle fitted on board, a sphere centre from a table) join every
 step beside the profiles; :mod:`.centres` checks a typed table row by row.

@@ -1,5 +1,6 @@
-"""From a dataset to a :class:`CalibrationResult`: screening, two-step start, joint
-refinement, outlier rejection, diagnostics."""
+"""From a dataset to a :class:`CalibrationResult`: the solve step by step (the checks
+that leave observations out are :mod:`.screening`'s), two-step start, joint refinement,
+diagnostics."""
 
 from __future__ import annotations
 
@@ -19,26 +20,22 @@ from spherecal.core.models import (
 from spherecal.estimation.circle import CircleFit, fit_circles
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.problem import (
-    KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, build_problem,
+    KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
     derived_station_rotation_tolerance_deg, fill_unknown, screen_station_orientations,
 )
 from spherecal.estimation.refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
 from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
-from spherecal.estimation.robust import median, percentile
-from spherecal.estimation.twostep import CentreShot, TwoStepResult, two_step
+from spherecal.estimation.robust import percentile
+from spherecal.estimation.screening import (
+    RejectionBudget, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots, require_usable_stations,
+    trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
+)
+from spherecal.estimation.twostep import CentreShot, TwoStepResult
 
 #: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
 CHI2_3DOF_1E4 = 21.108
-#: Before the joint fit, a profile whose sphere centre moved more than this many robust
-#: SDs off the robot's move is left out (mis-pairs in the simulator: 30-130; clean data:
-#: at most 8). Smaller inconsistencies are judged by the joint fit's chi^2 test.
-GROSS_MOVE_OUTLIER_SDS = 20.0
-#: Floor of the robust scale of those residuals, mm.
-_MIN_MOVE_SCALE_MM = 0.002
-#: Median of the chi distribution with 3 degrees of freedom.
-_CHI3_MEDIAN = 1.5382
 
 
 class CalibrationOptions(BaseModel):
@@ -150,35 +147,6 @@ class Solution:
     extras: dict = field(default_factory=dict)
 
 
-#: A laser plane farther than this share of the radius from the sphere's centre cuts it
-#: near its edge: the circle's radius there changes by more than the plane's offset does.
-EDGE_PLANE_OFFSET_SHARE = 0.7
-
-
-def likely_cause_of_inconsistent_profile(centre_in_sensor_mm, radius_mm: float) -> str:
-    """The likely cause of a profile whose points lie far from the fitted sphere, from where
-    its laser plane cuts the sphere (``centre_in_sensor_mm``: the sphere centre in the
-    sensor frame as fitted, mm; the plane is x = 0). A cut near the edge turns the pose's
-    error along the sweep into an in-plane error x / rho times larger (rho the circle's
-    radius): a few hundredths of a millimetre of robot error look like a bad shot there,
-    and the advice is to keep sweeps off the edge, not to suspect the pairing."""
-    x = abs(float(centre_in_sensor_mm[0]))
-    r = float(radius_mm)
-    if x > EDGE_PLANE_OFFSET_SHARE * r:
-        rho = float(np.sqrt(max(r * r - x * x, 0.0)))
-        gain = x / rho if rho > 0 else float("inf")
-        return (f"it cuts the sphere near its edge (laser plane {x:.1f} mm from the centre, circle radius "
-                f"{rho:.1f} mm of {r:.1f} mm), where the robot's pose error along the sweep shows {gain:.1f} times "
-                "larger in the profile; when several such shots are flagged, keep the sweeps off the edge "
-                f"(acquisition.sweep.sweep_fraction at most {EDGE_PLANE_OFFSET_SHARE:g}); else a pose read at the "
-                "wrong moment or a mis-paired shot")
-    return "a pose read at the wrong moment or a mis-paired shot"
-
-
-def _flag(problem: Problem, i: int, reason: str, station: str | None = None) -> ObservationFlag:
-    return ObservationFlag(
-        index=int(problem.obs_index[i]), station=station or problem.station_labels[problem.station_of[i]], reason=reason
-    )
 
 
 #: The orientation read noise the stations show (within-station scatter) replaces the
@@ -259,11 +227,11 @@ def _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinemati
             say(f"warning: {joints_note}")
             problem = replace(problem, q_rad=None)
         else:
-            joint_flags = [_flag(problem, int(i), reason) for i, reason in check.shots.items()]
+            joint_flags = [flag_shot(problem, int(i), reason) for i, reason in check.shots.items()]
     joints_known = problem.q_rad is not None
     # rows that are typos (units, signs, a circle larger than the sphere): left out, flagged
     table_keep, table_flags, pairs, moved = screen_table(problem)
-    for f in joint_flags + _copied_profiles(problem):
+    for f in joint_flags + copied_profiles(problem):
         i = int(np.flatnonzero(problem.obs_index == f.index)[0])
         if table_keep[i]:
             table_keep[i] = False
@@ -310,80 +278,6 @@ def _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinemati
     return _with_joints_note(_size_moved_rows(attempt(keep, flags), problem, moved), joints_note)
 
 
-#: Where the robot's model may put the flange for a shot's joints, relative to the pose
-#: reported with them: a station's median difference within the larger of these and 4 x
-#: the stated robot accuracy (a calibrated model differs from the controller's nominal one
-#: by about the arm's accuracy), and each shot within these of its station's median (the
-#: poses' read noise is a few hundredths of a millimetre).
-JOINT_POSE_STATION_MM, JOINT_POSE_STATION_DEG = 3.0, 0.3
-JOINT_POSE_SHOT_MM, JOINT_POSE_SHOT_DEG = 1.0, 0.1
-
-
-@dataclass
-class JointPoseCheck:
-    """:func:`joints_against_poses`: ``disqualified`` when most shots' joints do not
-    describe their poses (``text`` says how far off, and the likely causes); else
-    ``shots`` maps the row of each shot that disagrees to the reason it is left out."""
-
-    disqualified: bool
-    text: str
-    shots: dict[int, str]
-
-
-def joints_against_poses(problem: Problem, kinematics: ArmKinematics, opt: CalibrationOptions) -> JointPoseCheck:
-    """Compare each shot's reported ``base_from_flange`` with the flange pose the robot's
-    model gives for the shot's joints (a pose computed from the joints agrees with itself).
-    The difference is taken per station (its median: a calibrated model's offset from the
-    nominal one changes little over a sweep) and per shot (off its station's median:
-    joints of another moment move by the sweep's step)."""
-    T = kinematics.chain.flange_matrices(problem.q_rad)
-    e = T[:, :3, 3] - problem.t0  # mm, base
-    rv = np.degrees(np.array([geo.rotvec_from_matrix(Ri @ R0.T) for Ri, R0 in zip(T[:, :3, :3], problem.R0)]))
-    tol_mm = max(JOINT_POSE_STATION_MM, 4.0 * opt.robot_accuracy_mm)
-    tol_deg = max(JOINT_POSE_STATION_DEG, 4.0 * opt.robot_accuracy_deg)
-    bad = np.zeros(len(e), dtype=bool)
-    shots: dict[int, str] = {}
-    for k in np.unique(problem.station_of):
-        rows = np.flatnonzero(problem.station_of == k)
-        e_k, rv_k = median(e[rows], axis=0), median(rv[rows], axis=0)
-        if np.linalg.norm(e_k) > tol_mm or np.linalg.norm(rv_k) > tol_deg:
-            bad[rows] = True
-            continue
-        for i in rows:
-            d_mm, d_deg = float(np.linalg.norm(e[i] - e_k)), float(np.linalg.norm(rv[i] - rv_k))
-            if d_mm > JOINT_POSE_SHOT_MM or d_deg > JOINT_POSE_SHOT_DEG:
-                bad[i] = True
-                shots[i] = (f"its joints put the flange {float(np.linalg.norm(e[i])):.2f} mm and "
-                            f"{float(np.linalg.norm(rv[i])):.3f} deg from the pose given with them ({d_mm:.2f} mm, "
-                            f"{d_deg:.3f} deg off its station's other shots): joints read at another moment than "
-                            "the pose?")
-    d_all, a_all = np.linalg.norm(e, axis=1), np.linalg.norm(rv, axis=1)
-    text = (f"the joint readings do not match the reported flange poses: for {int(bad.sum())} of {len(bad)} shots "
-            f"the robot's model puts the flange {float(median(d_all[bad])) if bad.any() else 0.0:.3g} mm and "
-            f"{float(median(a_all[bad])) if bad.any() else 0.0:.3f} deg (median) from the pose given (at most "
-            f"{tol_mm:g} mm and {tol_deg:g} deg expected): joints in radians or not in the controller's convention, "
-            "read at another moment than the poses, or another robot's model")
-    return JointPoseCheck(bool(bad.sum() > 0.5 * len(bad)), text, shots)
-
-
-def _copied_profiles(problem: Problem) -> list[ObservationFlag]:
-    """Profiles equal point for point to an earlier observation's: no sensor measures the
-    same points twice to the last digit, so the shot was written twice (a file appended to
-    itself, a repeated line under a new index). Counted twice, it would shrink the stated
-    uncertainty; each copy after the first is flagged."""
-    first: dict[bytes, int] = {}
-    flags = []
-    for i, pts in enumerate(problem.profiles):
-        if problem.kinds[i] != KIND_PROFILE or len(pts) == 0:
-            continue
-        key = np.ascontiguousarray(pts, dtype=float).tobytes()
-        if key in first:
-            flags.append(_flag(problem, i, f"its profile is observation {int(problem.obs_index[first[key]])}'s, "
-                                           "point for point: the same shot written twice?"))
-        else:
-            first[key] = i
-    return flags
-
 
 def _with_joints_note(solution: Solution, note: str | None) -> Solution:
     """The result with the joints' check in its diagnostics (``joints_vs_poses``) when
@@ -411,6 +305,10 @@ def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> 
 
 
 def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) -> Solution:
+    """Solve ``problem`` (the table's screening done, its flags in ``table_flags``): the
+    orientation screening, a circle per profile, the two-step start without the gross
+    outliers, the joint refinement, then the stray points and the inconsistent shots
+    left out (:mod:`.screening`), and the result."""
     robot_effects = {
         "station_effects": opt.station_effects(joints_known),
         "kinematic_effects": opt.kinematic_effects(kinematics.chain)
@@ -426,9 +324,52 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     flags: list[ObservationFlag] = table_flags + list(ori.flags)
     for note in ori.notes:
         say(note)
-    hint = _turned_hint(ori.flags, ori.diagnostics["tolerance_deg"])
-    r = problem.radius_mm
+    hint = turned_hint(ori.flags, ori.diagnostics["tolerance_deg"])
+    fits = _fit_shots(problem, opt, flags, say)
+    require_usable_stations(problem, fits, flags, opt, hint)
+    say("two-step solution (rotation from translations, translation from orientations)")
+    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
+    ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+    noise = _noise_assumptions(opt, sub_fits, ori.diagnostics, say)
 
+    def refit(clean_: Problem, start) -> RefineResult:
+        return refine(clean_, start.R, start.t, start.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
+                      **robot_effects)
+
+    clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
+                               for j, p in enumerate(sub.profiles)])
+    say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points"
+        + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
+    ref = refit(clean, ts)
+    # data that fit nothing (another mounting's data, poses in other units): the refinement
+    # does not converge and leaves residuals many times the noise. Screening them would
+    # only refit, once per profile left out, each refit as slow and as futile (minutes);
+    # the result is left as it is, its residuals showing the misfit (RED, the runner names
+    # the likely cause)
+    absurd = _fits_nothing(ref, clean, noise)
+    if absurd:
+        say(f"the refinement did not converge and leaves the points {absurd:.3g} mm RMS from the predicted circles, "
+            f"more than {ABSURD_RESIDUAL_RATIO:g} times the noise: the data fit nothing, screening skipped (another "
+            "mounting's data, poses in other units, another sphere?)")
+    else:
+        clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit)
+        clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit)
+
+    if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
+        # no profile shows the sensor's point noise: the centres' per-axis noise stands in
+        # for it (in the expected residual and the point-error budget)
+        noise = replace(noise, point_noise_mm=_typical_centre_sd(clean, ref))
+    n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
+    orientations = len(clean.station_labels)
+    result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
+    result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
+    return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+
+
+def _fit_shots(problem: Problem, opt, flags: list[ObservationFlag], say) -> dict[int, CircleFit | CentreShot]:
+    """A circle fitted to each profile that shows the sphere, the others left out and
+    flagged (:func:`.screening.unusable_profile_reason`); each centre observation as the
+    two-step takes it. Keyed by row of ``problem``."""
     kinds = problem.kinds
     n_centres = int(np.count_nonzero(kinds != KIND_PROFILE))
     say(f"fitting circles to {problem.n_profiles - n_centres} profiles"
@@ -441,74 +382,18 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         if kinds[i] != KIND_PROFILE:
             fits[i] = _centre_shot(problem, i)
             continue
-        if len(pts) < opt.min_points_per_profile:
-            flags.append(_flag(problem, i, f"only {len(pts)} points (needs {opt.min_points_per_profile}): "
-                                           "the line barely touches the sphere or misses it"))
+        reason = unusable_profile_reason(pts, circles.get(i), opt, problem.radius_mm)
+        if reason is not None:
+            flags.append(flag_shot(problem, i, reason))
             continue
-        fit = circles[i]
-        if not fit.converged or fit.rms > opt.max_circle_rms_mm or fit.n_inliers < opt.min_points_per_profile:
-            if (fit.converged and fit.n_inliers >= opt.min_points_per_profile and fit.rms <= 2 * opt.max_circle_rms_mm
-                    and fit.radius <= 1.02 * r):
-                # a circle of the sphere's size, its points just too scattered: the sensor's noise, not another object
-                flags.append(_flag(problem, i, f"the points scatter about their circle by {fit.rms:.3f} mm (rms), more "
-                                               f"than max_circle_rms_mm = {opt.max_circle_rms_mm:g} mm allows"))
-            else:
-                flags.append(_flag(problem, i, f"points do not lie on a circle (rms {fit.rms:.3f} mm): not the sphere?"))
-            continue
-        if fit.radius > 1.02 * r:
-            flags.append(_flag(problem, i, f"circle radius {fit.radius:.3f} mm exceeds the sphere radius {r} mm: "
-                                           "wrong sphere radius in the dataset, or not the sphere"))
-            continue
-        fits[i] = fit
-    if not fits:
-        todo = (_NOISY_HINT if _dominant_kind(flags) == _NOISY_KIND
-                else "check that the plan puts the sphere in the field of view")
-        raise DegenerateDataError(
-            f"no profile shows the sphere (every profile was left out: {_left_out_summary(flags) or 'none'}): {todo}"
-        )
-    _drop_thin_stations_of_fits(problem, fits, flags, opt, "")
-    if not fits:
-        todo = _NOISY_HINT if _dominant_kind(flags) == _NOISY_KIND else "add profiles to each sweep"
-        raise DegenerateDataError(
-            f"no station has {opt.min_profiles_per_station} usable profiles (left out: {_left_out_summary(flags)}): "
-            f"{todo}{hint}"
-        )
+        fits[i] = circles[i]
+    return fits
 
-    # profiles grossly inconsistent with the robot's moves (a pose read at the wrong moment,
-    # a mis-paired shot): left out worst first, the two-step redone each time, before they
-    # can pull the joint refinement away
-    say("two-step solution (rotation from translations, translation from orientations)")
-    nominal_R = opt.nominal_transform.rotation_matrix if opt.nominal_transform is not None else None
-    max_reject = int(opt.max_rejected_profile_fraction * len(fits))
-    rejected = 0
-    while True:
-        used = np.array(sorted(fits))
-        sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
-        sub_fits = {j: fits[i] for j, i in enumerate(used)}
-        try:
-            ts = two_step(sub, sub_fits, nominal_R)
-        except DegenerateDataError as exc:
-            raise _after_screening(exc, problem, sub, flags) from None
-        worst = None if rejected >= max_reject else _worst_move_outlier(ts)
-        if worst is None or worst[1] <= GROSS_MOVE_OUTLIER_SDS:
-            break
-        j, sds, off_mm, scale_mm = worst
-        is_profile = sub.kinds[j] == KIND_PROFILE
-        flags.append(_flag(sub, j, f"inconsistent with the other {'profiles' if is_profile else 'observations'}: its "
-                                   f"sphere centre is {off_mm:.3f} mm off where the robot motion puts it ({sds:.0f} "
-                                   f"robust SDs of {scale_mm:.3f} mm): "
-                                   + ("a pose read at the wrong moment or a mis-paired shot" if is_profile else
-                                      "a typo in the row (a sign, metres for millimetres), a pose read at the wrong "
-                                      "moment or a mis-paired shot")))
-        del fits[int(used[j])]
-        rejected += 1
-        _drop_thin_stations_of_fits(problem, fits, flags, opt, "left once others were left out ")
-        if not fits:
-            raise DegenerateDataError(
-                f"no station has {opt.min_profiles_per_station} consistent profiles: check the pairing of poses "
-                f"and profiles and re-acquire{hint}"
-            )
 
+def _noise_assumptions(opt, sub_fits: dict, orientation_diagnostics: dict, say) -> NoiseAssumptions:
+    """The noise the refinement assumes: the point noise given, else the circle fits'
+    pooled one; the orientation read noise the stations show where it is more than
+    :data:`ROTATION_NOISE_SEEN_FACTOR` times the assumed one."""
     circle_fits = [f for f in sub_fits.values() if isinstance(f, CircleFit)]
     if opt.point_noise_mm is not None:
         sigma = opt.point_noise_mm
@@ -520,101 +405,14 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         sigma = DEFAULT_POINT_NOISE_MM  # no profile: the points' noise enters only the point-error budget
     # the orientation readings' noise: what the stations show when it is more than assumed
     # (a station's shots share one orientation, so their scatter is the read noise alone;
-    # assumed 10 times too small, the station scales ran off and took the translation with them)
+    # assumed 10 times too small, the station scales run off and take the translation with them)
     rotation_noise_deg = opt.pose_rotation_noise_deg
-    seen = float(ori.diagnostics.get("rotation_noise_seen_deg", 0.0))
+    seen = float(orientation_diagnostics.get("rotation_noise_seen_deg", 0.0))
     if opt.estimate_pose_noise and seen > ROTATION_NOISE_SEEN_FACTOR * rotation_noise_deg:
         say(f"the orientation readings scatter by {seen:.4f} deg per axis within the stations, more than the "
             f"assumed pose_rotation_noise_deg = {rotation_noise_deg:g}: {seen:.4f} deg is used")
         rotation_noise_deg = seen
-    noise = NoiseAssumptions(max(sigma, 1e-7), opt.pose_translation_noise_mm, rotation_noise_deg)
-
-    clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
-                               for j, p in enumerate(sub.profiles)])
-    say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points"
-        + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
-    ref = refine(clean, ts.R, ts.t, ts.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     **robot_effects)
-    # data that fit nothing (another mounting's data, poses in other units): the refinement
-    # does not converge and leaves residuals many times the noise. Screening them would
-    # only refit, once per profile left out, each refit as slow and as futile (minutes);
-    # the result is left as it is, its residuals showing the misfit (RED, the runner names
-    # the likely cause)
-    absurd = _fits_nothing(ref, clean, noise)
-    if absurd:
-        say(f"the refinement did not converge and leaves the points {absurd:.3g} mm RMS from the predicted circles, "
-            f"more than {ABSURD_RESIDUAL_RATIO:g} times the noise: the data fit nothing, screening skipped (another "
-            "mounting's data, poses in other units, another sphere?)")
-
-    # stray points the circle fits kept: trim on the joint residuals and refit once. A
-    # profile that would lose too many points (or keep too few) has no strays: its pose is
-    # wrong. It is left out and flagged (worst first, refitting after each), never refitted
-    # empty; once the rejection budget is spent, only profiles that would keep too few
-    # points are left out, the others are trimmed.
-    keep_pts = [np.ones(len(e), dtype=bool) for e in ref.residuals]
-    while not absurd and (clean.kinds == KIND_PROFILE).any():
-        is_profile = clean.kinds == KIND_PROFILE
-        all_res = np.concatenate(ref.residuals)
-        limit = opt.point_outlier_k * max(1.4826 * median(np.abs(all_res)), noise.point_noise_mm)
-        keep_pts = [np.abs(e) <= limit for e in ref.residuals]
-        lost = np.array([int((~k).sum()) for k in keep_pts])
-        counts = np.array([len(k) for k in keep_pts])
-        too_few = is_profile & (counts - lost < opt.min_points_per_profile)
-        bad = too_few | (is_profile & (lost > opt.max_stray_point_fraction * counts))
-        if rejected < max_reject and bad.any():
-            drop = [int(np.argmax(np.where(bad, lost / np.maximum(counts, 1), -1.0)))]
-        elif too_few.any():
-            drop = np.flatnonzero(too_few).tolist()
-        else:
-            break
-        keep = np.ones(clean.n_profiles, dtype=bool)
-        for j in drop:
-            keep[j] = False
-            flags.append(_flag(clean, j, f"inconsistent with the other profiles: {lost[j]} of {counts[j]} points "
-                                         f"({lost[j] / counts[j]:.0%}) lie far from the sphere they agree on (beyond "
-                                         f"{limit:.3f} mm): "
-                                         + likely_cause_of_inconsistent_profile(ref.predicted[j], ref.radius)))
-        rejected += len(drop)
-        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
-        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     **robot_effects)
-    if any(not k.all() for k in keep_pts):
-        clean = clean.with_profiles([p if k.all() else p[k] for p, k in zip(clean.profiles, keep_pts)])
-        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     **robot_effects)
-
-    # profiles inconsistent with the rest (a pose read at the wrong moment, a bad pairing)
-    while not absurd and rejected < max_reject:
-        chi2 = np.asarray(ref.diagnostics["profile_chi2"])
-        worst = int(np.argmax(chi2))
-        if chi2[worst] <= opt.profile_outlier_chi2:
-            break
-        if clean.kinds[worst] == KIND_PROFILE:
-            shift = float(np.sqrt(chi2[worst] * np.trace(ref.centre_cov[worst]) / 3))
-            flags.append(_flag(clean, worst, f"inconsistent with the other profiles (chi2 {chi2[worst]:.1f} on 3 dof, "
-                                             f"about {shift:.3f} mm): a pose read at the wrong moment or a bad pairing"))
-        else:
-            off = float(np.linalg.norm(ref.centre_residuals[worst]))
-            flags.append(_flag(clean, worst, f"inconsistent with the other observations (chi2 {chi2[worst]:.1f} on 3 "
-                                             f"dof): its {KIND_NAMES[clean.kinds[worst]]} is {off:.3f} mm from where the "
-                                             "fit puts it: a typo in the row, a pose read at the wrong moment or a bad "
-                                             "pairing"))
-        keep = np.ones(clean.n_profiles, dtype=bool)
-        keep[worst] = False
-        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
-        rejected += 1
-        ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                     **robot_effects)
-
-    if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
-        # no profile shows the sensor's point noise: the centres' per-axis noise stands in
-        # for it (in the expected residual and the point-error budget)
-        noise = replace(noise, point_noise_mm=_typical_centre_sd(clean, ref))
-    n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
-    orientations = len(clean.station_labels)
-    result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
-    result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
-    return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+    return NoiseAssumptions(max(sigma, 1e-7), opt.pose_translation_noise_mm, rotation_noise_deg)
 
 
 #: Residual RMS over the noise (point noise and pose noise) beyond which an unconverged
@@ -654,154 +452,6 @@ def _typical_centre_sd(problem: Problem, ref: RefineResult) -> float:
     var = np.trace(fill_unknown(problem.centre_cov, (ref.centre_noise_mm or 0.0) ** 2), axis1=1, axis2=2) / 3
     return float(np.sqrt(np.mean(var[problem.kinds != KIND_PROFILE])))
 
-
-def station_minimum(kinds: np.ndarray, opt: "CalibrationOptions") -> tuple[int, str, str]:
-    """The fewest usable shots a station of these kinds needs, and why. Profiles:
-    ``min_profiles_per_station`` (each decides its side of the laser plane and is checked
-    against the others). Sphere centres only: 1 (each gives its centre; the translation
-    needs one shot per orientation). With circles: 2 (a move within the station decides
-    their side of the laser plane)."""
-    if (kinds == KIND_PROFILE).all():
-        return opt.min_profiles_per_station, "profiles", "add profiles to its sweep"
-    if (kinds == KIND_SPHERE_CENTRE).all():
-        return 1, "observations", "add a shot to the station"
-    return 2, "observations", "a move within the station decides the side of the laser plane: add a shot to it"
-
-
-def _turned_hint(turned: list[ObservationFlag], tolerance_deg: float) -> str:
-    if not turned:
-        return ""
-    return (f"; {len(turned)} shot(s) were left out because they turned within their station (beyond "
-            f"{tolerance_deg:.3f} deg): keep each station's orientation fixed, or, if the robot's orientation "
-            "readings are noisier than that, set calibration.pose_rotation_noise_deg or "
-            "station_rotation_tolerance_deg (spherecal solve --station-rotation-tolerance-deg)")
-
-
-def _thin_stations(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> np.ndarray:
-    """Leave out (flagged) the profiles of stations with fewer than the minimum of kept
-    profiles; returns the updated ``keep``."""
-    keep = keep.copy()
-    for k, label in enumerate(problem.station_labels):
-        members = np.flatnonzero((problem.station_of == k) & keep)
-        if not len(members):
-            continue
-        need, what, advice = station_minimum(problem.kinds[members], opt)
-        if len(members) < need:
-            for i in members:
-                flags.append(_flag(problem, i, f"station {label} has only {len(members)} usable {what} {context}"
-                                               f"(needs {need}): {advice}"))
-            keep[members] = False
-    return keep
-
-
-def _drop_thin_stations_of_fits(problem: Problem, fits: dict, flags: list[ObservationFlag], opt, context: str) -> None:
-    keep = _thin_stations(problem, np.isin(np.arange(problem.n_profiles), list(fits)), flags, opt, context)
-    for i in list(fits):
-        if not keep[i]:
-            del fits[i]
-
-
-def _after_screening(exc: DegenerateDataError, problem: Problem, left: Problem,
-                     flags: list[ObservationFlag]) -> DegenerateDataError:
-    """``exc`` (the stations left do not determine the transform), saying which stations
-    the screening left out and why, when it left any out: the data had them, and the
-    cause to fix is theirs (issue: "all 1 station(s) share one orientation" of a file
-    with four stations, three of them screened out)."""
-    dropped = sorted(set(problem.station_labels) - set(left.station_labels))
-    if not dropped:
-        return exc
-    theirs = [f for f in flags if f.station in dropped]
-    reasons = _left_out_summary(theirs)
-    todo = "; " + _NOISY_HINT if _dominant_kind(theirs) == _NOISY_KIND else ""
-    return DegenerateDataError(
-        f"the screening left out station(s) {', '.join(dropped)} ({reasons}), and the station(s) left "
-        f"({', '.join(left.station_labels)}) cannot determine the transform: {exc}. Fix what left them out "
-        f"before changing the plan{todo}")
-
-
-#: The screening's reason for a profile of the sphere's size whose points scatter too much
-#: (the sensor's noise), and what to do when it is what left the data out.
-_NOISY_KIND = "the points scatter about their circle"
-_NOISY_HINT = ("the sensor's points scatter more than max_circle_rms_mm allows (its exposure, a dull, dirty or wet "
-               "sphere, ambient light); if that is the noise this sensor gives, raise the calibration setting "
-               "max_circle_rms_mm above it")
-
-
-def _flag_kind(reason: str) -> str:
-    """The kind of a screening reason, without its figures."""
-    if reason.startswith("station "):
-        return "too few usable profiles left in the station"
-    for cut in (" (", ":", " by "):
-        reason = reason.split(cut)[0]
-    return reason
-
-
-def _dominant_kind(flags: list[ObservationFlag]) -> str | None:
-    kinds = [_flag_kind(f.reason) for f in flags if not f.reason.startswith("station ")]
-    return max(set(kinds), key=kinds.count) if kinds else None
-
-
-def _left_out_summary(flags: list[ObservationFlag]) -> str:
-    """``21 x points do not lie on a circle; 9 x too few usable profiles left in the station``."""
-    why: dict[str, int] = {}
-    for f in flags:
-        kind = _flag_kind(f.reason)
-        why[kind] = why.get(kind, 0) + 1
-    return "; ".join(f"{n} x {kind}" for kind, n in sorted(why.items(), key=lambda kv: -kv[1])[:3])
-
-
-def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> Problem:
-    """``problem`` without the profiles not kept (already flagged) and without the
-    stations left too thin (flagged here); raises when what is left cannot determine
-    the transform."""
-    if keep.all():
-        return problem
-    keep = _thin_stations(problem, keep, flags, opt, context)
-    left = problem.subset(keep)
-    if left.n_profiles == 0:
-        raise DegenerateDataError(
-            f"no station has {opt.min_profiles_per_station} consistent profiles: check the pairing of poses and "
-            "profiles and re-acquire"
-        )
-    dropped = sorted(set(problem.station_labels) - set(left.station_labels))
-    if dropped:
-        Rs = [left.R_A[np.flatnonzero(left.station_of == k)[0]] for k in range(len(left.station_labels))]
-        M = np.vstack([np.hstack([R, -np.eye(3)]) for R in Rs])
-        sv = np.linalg.svd(M, compute_uv=False)
-        if len(sv) < 6 or sv[-1] < 1e-3 * sv[0]:
-            raise DegenerateDataError(
-                f"after leaving out station(s) {', '.join(dropped)} (too few consistent profiles), the stations "
-                f"left ({', '.join(left.station_labels)}) do not determine the translation: re-acquire the "
-                "stations left out, or add stations tilted about two different axes"
-            )
-    return left
-
-
-def _worst_move_outlier(ts: TwoStepResult):
-    """The profile whose sphere centre (circle fit, side of the laser plane resolved)
-    moved least like the robot: within a station the centre must move in the sensor frame
-    by the robot's displacement rotated by the two-step rotation. Residuals are taken
-    about the station's median, so one bad profile does not shift the others; the scale
-    is robust, pooled over the stations (per axis, from the median residual length).
-    Returns ``(profile, residual in robust SDs, residual mm, scale mm)`` or None."""
-    rows = []
-    for st in ts.stations:
-        if len(st.profiles) == 0:
-            continue
-        # a station whose moves span less than 3-D leaves two mirror candidates; the one
-        # that agrees with the pooled rotation is the one to judge its profiles by
-        best = None
-        for cand in st.candidates:
-            e = cand @ ts.R.T - st.d
-            e = np.linalg.norm(e - median(e, axis=0), axis=1)
-            if best is None or median(e) < median(best):
-                best = e
-        rows.extend(zip(st.profiles.tolist(), best.tolist()))
-    if not rows:
-        return None
-    scale = max(float(median([e for _, e in rows])) / _CHI3_MEDIAN, _MIN_MOVE_SCALE_MM)
-    i, e = max(rows, key=lambda r: r[1])
-    return int(i), e / scale, e, scale
 
 
 def calibrate(
@@ -974,3 +624,4 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
         },
         provenance={"dataset": dataset.provenance.get("source", "unknown")},
     )
+

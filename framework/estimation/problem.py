@@ -1,9 +1,12 @@
 """The calibration problem in arrays, built from a validated :class:`Dataset`.
 
-Both mounting modes are one problem (docs/conventions.md): with ``A_i`` the transform
-from base to the sphere frame at shot i -- ``base_from_flange_i`` in eye-in-hand,
-``flange_from_base_i`` in eye-to-hand -- and ``X`` the unknown (``flange_from_sensor``
-or ``base_from_sensor``), every profile point p = (0, y, z) satisfies
+Both mounting modes are one problem (docs/conventions.md). The mount frame is the frame
+the sensor is fixed in (``flange`` in eye-in-hand, ``base`` in eye-to-hand), the sphere
+frame the one the sphere is fixed in (``base`` in eye-in-hand, ``flange`` in
+eye-to-hand). With ``A_i = sphere_from_mount_i`` the robot's pose at shot i in those
+terms -- ``base_from_flange_i`` in eye-in-hand, ``flange_from_base_i`` in eye-to-hand --
+and ``X = mount_from_sensor`` the unknown (``flange_from_sensor`` or
+``base_from_sensor``), every profile point p = (0, y, z) satisfies
 ``|A_i X p - c| = r``, c being the sphere centre in the sphere frame.
 """
 
@@ -33,8 +36,8 @@ class Problem:
     radius_mm: float
     R0: np.ndarray  # (n, 3, 3) base_from_flange rotations
     t0: np.ndarray  # (n, 3) base_from_flange translations, mm
-    R_A: np.ndarray  # (n, 3, 3) sphere_frame_from_base... see A_i above
-    t_A: np.ndarray  # (n, 3)
+    R_sphere_from_mount: np.ndarray  # (n, 3, 3) rotations of A_i (module docstring)
+    t_sphere_from_mount: np.ndarray  # (n, 3) translations of A_i, mm
     profiles: list[np.ndarray]  # (N_i, 2) points (y, z), mm
     obs_index: np.ndarray  # (n,) observation index of each profile
     station_of: np.ndarray  # (n,) station number of each profile
@@ -73,8 +76,8 @@ class Problem:
             self.radius_mm,
             self.R0[keep],
             self.t0[keep],
-            self.R_A[keep],
-            self.t_A[keep],
+            self.R_sphere_from_mount[keep],
+            self.t_sphere_from_mount[keep],
             [p for p, k in zip(self.profiles, keep) if k],
             self.obs_index[keep],
             np.array([remap[s] for s in self.station_of[keep]], dtype=int),
@@ -88,8 +91,12 @@ class Problem:
         return replace(self, profiles=profiles)
 
 
-def sphere_frame_from_base(mounting: str, R0: np.ndarray, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``A_i`` of the module docstring from ``base_from_flange`` stacks."""
+def sphere_from_mount(mounting: str, R0: np.ndarray, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``A_i = sphere_from_mount_i`` (module docstring), rotations (n, 3, 3) and
+    translations (n, 3, mm), from the ``base_from_flange`` stacks ``R0``, ``t0``: those
+    themselves in eye-in-hand (sphere in ``base``, sensor on the ``flange``), their
+    inverse ``flange_from_base`` in eye-to-hand (sphere on the ``flange``, sensor in
+    ``base``)."""
     if mounting == "eye_in_hand":
         return R0, t0
     return geo.invert_rt(R0, t0)
@@ -143,12 +150,12 @@ def build_problem(
         if o.station not in labels:
             labels.append(o.station)
         station_of[i] = labels.index(o.station)
-    R_A, t_A = sphere_frame_from_base(dataset.mounting, R0, t0)
+    R_sm, t_sm = sphere_from_mount(dataset.mounting, R0, t0)
     q_rad = None
     if model_joints_rad is not None and all(o.joints_deg is not None for o in obs):
         q_rad = np.array([model_joints_rad(np.asarray(o.joints_deg, dtype=float)) for o in obs])
     return Problem(
-        dataset.mounting, dataset.sphere_radius_mm, R0, t0, R_A, t_A, profiles,
+        dataset.mounting, dataset.sphere_radius_mm, R0, t0, R_sm, t_sm, profiles,
         np.array([o.index for o in obs]), station_of, labels, q_rad, kind, centre_meas, centre_cov,
     )
 

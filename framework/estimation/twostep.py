@@ -139,8 +139,8 @@ def station_centres(problem: Problem, fits: dict[int, CircleFit], label_index: i
     centres = problem.has_centres and bool(np.any(problem.kinds[idx] != KIND_PROFILE))
     if centres:
         h, x_known = _depths(problem, fits, idx)
-    R_A = problem.R_A[idx[0]]
-    tA = problem.t_A[idx]
+    R_A = problem.R_sphere_from_mount[idx[0]]
+    tA = problem.t_sphere_from_mount[idx]
     d = -(tA - tA.mean(axis=0)) @ R_A  # rows: R_A^T (tA_mean - tA_i)
     _, s, Vt = np.linalg.svd(d, full_matrices=False)
     n = len(idx)
@@ -227,13 +227,14 @@ def translation_from_orientations(
     rows, rhs = [], []
     kinds = problem.kinds
     for st, ch in zip(stations, choice):
-        R_A = problem.R_A[st.profiles[0]]
+        R_A = problem.R_sphere_from_mount[st.profiles[0]]
         is_centre = kinds[st.profiles] != KIND_PROFILE
         if is_centre.any():
             # each centre shot: R_Ai Tx - c = -(R_Ai Rx C_i + tA_i)
             for i, C in zip(st.profiles[is_centre], st.candidates[ch][is_centre]):
-                rows.append(np.hstack([problem.R_A[i], -np.eye(3)]))
-                rhs.append(-(problem.R_A[i] @ (R @ C) + problem.t_A[i]))
+                R_Ai, t_Ai = problem.R_sphere_from_mount[i], problem.t_sphere_from_mount[i]
+                rows.append(np.hstack([R_Ai, -np.eye(3)]))
+                rhs.append(-(R_Ai @ (R @ C) + t_Ai))
             if is_centre.all():
                 continue
             prof = st.profiles[~is_centre]
@@ -241,9 +242,9 @@ def translation_from_orientations(
         else:
             prof, cands = st.profiles, st.candidates[ch]
         # the station's points through R_A X (the station shares R_A), each shot's t_A added
-        pts, _ = map_profile_list(np.broadcast_to(R_A @ R, (len(prof), 3, 3)), problem.t_A[prof],
+        pts, _ = map_profile_list(np.broadcast_to(R_A @ R, (len(prof), 3, 3)), problem.t_sphere_from_mount[prof],
                                   [inlier_profiles[i] for i in prof], backend=MAPPING_BACKEND)
-        start = np.mean(cands @ R.T @ R_A.T + problem.t_A[prof], axis=0)
+        start = np.mean(cands @ R.T @ R_A.T + problem.t_sphere_from_mount[prof], axis=0)
         xb = fit_sphere_fixed_radius(pts, problem.radius_mm, start)
         rows.append(np.hstack([R_A, -np.eye(3)]))
         rhs.append(-xb)
@@ -257,7 +258,7 @@ def translation_from_orientations(
 
 
 def _orientation_advice(problem: Problem, stations: list[StationCentres]) -> str:
-    Rs = [problem.R_A[st.profiles[0]] for st in stations]
+    Rs = [problem.R_sphere_from_mount[st.profiles[0]] for st in stations]
     rel = [geo.rotvec_from_matrix(Rs[0].T @ Ri) for Ri in Rs[1:]]
     big = [r for r in rel if np.linalg.norm(r) > np.radians(1.0)]
     if not big:
@@ -277,7 +278,8 @@ def point_rms(problem: Problem, R, t, centre, profiles: list[np.ndarray]) -> flo
     """RMS distance (mm) of all mapped points to the sphere |A_i X p - c| = r; with
     centre observations, their residuals' components (:func:`centre_residuals`) join
     the points."""
-    q, _ = map_profile_list(problem.R_A @ R, problem.R_A @ t + problem.t_A, profiles, backend=MAPPING_BACKEND)
+    R_A, t_A = problem.R_sphere_from_mount, problem.t_sphere_from_mount
+    q, _ = map_profile_list(R_A @ R, R_A @ t + t_A, profiles, backend=MAPPING_BACKEND)
     res = np.linalg.norm(q - centre, axis=1) - problem.radius_mm
     sq, n = float(res @ res), len(res)
     if problem.has_centres:
@@ -290,7 +292,8 @@ def point_rms(problem: Problem, R, t, centre, profiles: list[np.ndarray]) -> flo
 
 def predicted_sensor_centres(problem: Problem, R, t, centre) -> np.ndarray:
     """The sphere centre in the sensor frame at each shot, ``X^-1 A_i^-1 c`` (n, 3), mm."""
-    u = np.einsum("nji,nj->ni", problem.R_A, np.asarray(centre, float) - problem.t_A) - t
+    R_A, t_A = problem.R_sphere_from_mount, problem.t_sphere_from_mount
+    u = np.einsum("nji,nj->ni", R_A, np.asarray(centre, float) - t_A) - t
     return u @ R
 
 

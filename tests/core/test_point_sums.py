@@ -1,4 +1,4 @@
-"""The refinement's per-point work (:func:`spherecal.estimation.refine._point_sums`), done
+"""The refinement's per-point work (:func:`spherecal.estimation.refine.linearisation._point_sums`), done
 a block of whole profiles at a time, gives every residual and every profile's nine sums
 as a profile-by-profile computation does, whatever the blocks: one point a block, blocks
 that end on an empty profile, a profile longer than a block."""
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from reference_sensor import reference_fov
 
-from spherecal.estimation import refine as rf
+from spherecal.estimation.refine import linearisation as rf
 from spherecal.estimation.problem import KIND_PROFILE, KIND_SPHERE_CENTRE
 
 

@@ -196,5 +196,5 @@ def test_mapped_points_are_each_shots_transform_of_its_points(solution):
     assert [len(m) for m in mapped] == [len(p) for p in prob.profiles]
     for i in (0, prob.n_profiles // 2, prob.n_profiles - 1):
         p_s = np.column_stack([np.zeros(len(prob.profiles[i])), prob.profiles[i]])
-        expected = (p_s @ ref.R.T + ref.t) @ prob.R_A[i].T + prob.t_A[i]
+        expected = (p_s @ ref.R.T + ref.t) @ prob.R_sphere_from_mount[i].T + prob.t_sphere_from_mount[i]
         np.testing.assert_allclose(mapped[i], expected, rtol=0, atol=1e-9)

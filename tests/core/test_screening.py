@@ -9,7 +9,7 @@ import pytest
 
 from spherecal.core import geometry as geo
 from spherecal.core.errors import DegenerateDataError
-from spherecal.estimation import CalibrationOptions, pipeline, solve
+from spherecal.estimation import CalibrationOptions, screening, solve
 from spherecal.estimation.problem import derived_station_rotation_tolerance_deg
 from spherecal.core.models import Dataset, Observation, Pose, Profile
 from spherecal.sim import NoiseModel, SweepPlan, plan_stations, simulate_dataset, standard_cell
@@ -119,7 +119,7 @@ def test_profile_losing_all_its_points_in_the_joint_fit_is_flagged(monkeypatch):
     """Without the check on the robot's moves before the joint fit, a mis-paired shot
     reaches the joint fit and loses (nearly) all its points as strays there: it is left
     out and flagged, never refitted empty (this was an IndexError in add.reduceat)."""
-    monkeypatch.setattr(pipeline, "GROSS_MOVE_OUTLIER_SDS", np.inf)
+    monkeypatch.setattr(screening, "GROSS_MOVE_OUTLIER_SDS", np.inf)
     for seed in range(6):
         cell = cell_for(seed)
         ds = simulate_dataset(cell, SweepPlan(profiles_per_station=8))
@@ -264,7 +264,7 @@ def test_a_profile_flagged_near_the_spheres_edge_is_explained_by_the_edge_not_th
     """A laser plane 0.8 r from the centre (the default sweep's ends) turns the pose's error
     along the sweep into an in-plane error 1.33 times larger: the flag says so and points to
     the sweep fraction; a plane through the middle keeps the pairing as the likely cause."""
-    from spherecal.estimation.pipeline import likely_cause_of_inconsistent_profile
+    from spherecal.estimation.screening import likely_cause_of_inconsistent_profile
 
     r = 19.05
     edge = likely_cause_of_inconsistent_profile([0.8 * r, 1.0, -20.0], r)

@@ -25,8 +25,8 @@ def mapped_points(solution) -> list[np.ndarray]:
     ``base_from_flange_i`` (eye-in-hand) or ``flange_from_base_i`` (eye-to-hand). mm.
     (:func:`spherecal.core.mapping.map_profile_list`, the scan's mapping.)"""
     prob, ref = solution.problem, solution.refined
-    points, _ = map_profile_list(prob.R_A @ ref.R, prob.R_A @ np.asarray(ref.t, dtype=float) + prob.t_A,
-                                 prob.profiles)
+    R_A, t_A = prob.R_sphere_from_mount, prob.t_sphere_from_mount
+    points, _ = map_profile_list(R_A @ ref.R, R_A @ np.asarray(ref.t, dtype=float) + t_A, prob.profiles)
     return np.split(points, np.cumsum([len(p) for p in prob.profiles])[:-1])
 
 
@@ -43,7 +43,8 @@ def mapped_centres(solution) -> dict[int, tuple[int, np.ndarray]]:
             p_s = v[None, :]
         else:  # the circle lies in the laser plane x = 0
             p_s = np.column_stack([np.zeros_like(theta), v[0] + v[2] * np.cos(theta), v[1] + v[2] * np.sin(theta)])
-        out[int(i)] = (int(prob.kinds[i]), (p_s @ ref.R.T + ref.t) @ prob.R_A[i].T + prob.t_A[i])
+        p_sphere = (p_s @ ref.R.T + ref.t) @ prob.R_sphere_from_mount[i].T + prob.t_sphere_from_mount[i]
+        out[int(i)] = (int(prob.kinds[i]), p_sphere)
     return out
 
 
