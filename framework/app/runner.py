@@ -16,6 +16,7 @@ from spherecal.io import dataset as dataio
 from spherecal.io.runlog import Notice, progress_log
 from spherecal.core.errors import ConfigError, FitBreakdownError, InputError, SpherecalError
 from spherecal.estimation import CalibrationOptions, Solution, solve
+from spherecal.estimation.options import station_rotation_tolerance_deg
 from spherecal.core.models import Dataset, Pose
 from spherecal.core.models import SPHERE_FRAME, TRANSFORM_NAME
 from spherecal.report.assess import Verdict
@@ -481,7 +482,7 @@ def run_calibrate(
                 notify = lambda obs: host.observation_taken(observation=obs, **kinds)  # noqa: E731
                 if manual:
                     rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
-                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance(),
+                                         rotation_tolerance_deg=station_rotation_tolerance_deg(cfg.calibration),
                                          first_station=first_station)
                 else:
                     rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,

@@ -55,6 +55,7 @@ from typing import Callable, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from spherecal.config import Vec3
 from spherecal.devices import line_protocol as P
 from spherecal.core.errors import DeviceError, InputError
 from spherecal.core.geometry import matrix_from_rotvec as _matrix_from_rotvec
@@ -74,8 +75,6 @@ _MAX_PENDING = 4 * P.MAX_LINE_CHARS
 #: carries one decimal, and a move that does not translate (or turn) still names one.
 MIN_SPEED_MM_S = 0.1
 
-
-Vec3 = tuple[float, float, float]
 
 #: The scheme of a TCP port: ``socket://host:port``.
 SOCKET_SCHEME = "socket://"

@@ -36,10 +36,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from spherecal.config import KinematicPlanSettings
 from spherecal.core import geometry as geo
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
+from spherecal.estimation.options import kinematic_effects
 from spherecal.estimation.refine import design_identifiability, plan_design
 from spherecal.core.kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
 from spherecal.core.models import MountingMode, Pose
@@ -77,39 +78,6 @@ DESIGN_CENTRE_NOISE_MM = 0.05
 #: singularity (of the wrist, most often) and is left out: a real controller slows down or
 #: stops there, and the design's linearisation fails.
 MAX_SWEEP_JOINT_TRAVEL_DEG = 10.0
-#: Default (max tilt, max turn) in deg per mounting mode. Eye-to-hand turns the sphere on
-#: its stylus in front of the fixed sensor; 30 deg and 40 deg there leave the identification
-#: poorly conditioned (about 1,000 on the example cell), 45 and 90 give 316. The simulated
-#: cell does not model a stylus or flange hiding the sphere from the laser: on a real cell,
-#: choose limits that keep them out of its view.
-DEFAULT_LIMITS_DEG = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (45.0, 90.0)}
-
-
-class KinematicPlanSettings(BaseModel):
-    """``[acquisition.kinematic_plan]``: stations for kinematic calibration chosen by the
-    planner (module docstring) instead of listed in ``acquisition.sweep.tilts_deg``."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    stations: int = Field(20, ge=4, le=200, description="stations to plan")
-    candidates: int = Field(240, ge=8, le=5000, description="candidate orientations the stations are chosen from")
-    max_tilt_deg: float | None = Field(
-        None, gt=0, le=90, description="largest tilt of the view axis from the reference orientation, deg "
-        "(default 50 eye-in-hand, 45 eye-to-hand)")
-    max_turn_deg: float | None = Field(None, ge=0, le=180, description="largest turn about the view axis, deg (default 90)")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the candidates' turns (the plan is the same for "
-                      "the same seed and configuration)")
-
-    @model_validator(mode="after")
-    def _enough_candidates(self):
-        if self.candidates < self.stations:
-            raise ValueError(f"candidates = {self.candidates} must be at least stations = {self.stations}")
-        return self
-
-    def limits_deg(self, mounting: MountingMode) -> tuple[float, float]:
-        tilt, turn = DEFAULT_LIMITS_DEG[mounting]
-        return (tilt if self.max_tilt_deg is None else self.max_tilt_deg,
-                turn if self.max_turn_deg is None else self.max_turn_deg)
 
 
 def uses_planner(cfg: "RunConfig") -> bool:
@@ -186,7 +154,7 @@ class _Context:
         sweep = with_standoff(acq.sweep, None)  # as runner.for_sensor fitted it to the sensor (else: which setting)
         return cls(cfg.mounting, cfg.nominal_transform.pose(), np.asarray(acq.sphere_centre_mm, float),
                    cfg.sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
-                   acq.workspace, arm, cfg.calibration.kinematic_effects(arm.chain).prior_sd,
+                   acq.workspace, arm, kinematic_effects(cfg.calibration, arm.chain).prior_sd,
                    acq.kinematic_plan or KinematicPlanSettings())
 
     def rows(self, R0: np.ndarray, t0: np.ndarray, joints_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ from spherecal.core.errors import ConfigError, DegenerateDataError
 from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
 from spherecal.core.metrology import (
     AcceptanceReport,
+    MaximumPermissibleErrors,
     acceptance_report,
     flatness_error,
     probing_errors,
@@ -213,7 +214,7 @@ def evaluate(cfg: RunConfig, X: Pose, measured: list[Measured]) -> ValidationOut
             flatness.append(flatness_error(pts, position=m.sweep.label))
     for label, pair in balls.items():
         spacing.append(sphere_spacing_error(pair["ball_a"], pair["ball_b"], v.ball_bar.certified_distance_mm, position=label))
-    report = acceptance_report(v.mpe.as_metrology(), probing=probing, sphere_spacing=spacing, flatness=flatness)
+    report = acceptance_report(MaximumPermissibleErrors(**v.mpe.model_dump()), probing=probing, sphere_spacing=spacing, flatness=flatness)
     spread = passed = None
     if len(centres) >= 2:
         c = np.array(list(centres.values()))

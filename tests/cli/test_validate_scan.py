@@ -150,7 +150,7 @@ def test_a_partial_mpe_section_keeps_the_other_defaults():
     from spherecal.config import ValidationConfig
 
     v = ValidationConfig.model_validate({"mpe": {"probing_form_mm": 0.3}})
-    m = v.mpe.as_metrology()
+    m = v.mpe
     assert (m.probing_form_mm, m.probing_size_mm, m.sphere_spacing_mm, m.flatness_mm) == (0.3, 0.06, 0.1, 0.15)
 
 
