@@ -39,6 +39,8 @@ COMPONENTS = {
     "offset_mm": "y, z",
     "offset_percent": "y, z",
 }
+#: An unknown key names the keys allowed beside it when there are at most this many.
+_MAX_KEYS_LISTED = 16
 #: Longest rendering of a refused value.
 _SHOWN_CHARS = 60
 #: Prefixes pydantic puts before a validator's own message.
@@ -107,7 +109,10 @@ def _unknown_key(model: type[BaseModel] | None, loc: Sequence[Any]) -> str:
     if not allowed:
         return "unknown key (a typo?)"
     close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
-    return f"unknown key (allowed here: {', '.join(allowed)}" + (f"; did you mean '{close[0]}'?)" if close else ")")
+    meant = f"did you mean '{close[0]}'?" if close else ""
+    if len(allowed) > _MAX_KEYS_LISTED:
+        return f"unknown key ({meant or 'a typo?'})"
+    return f"unknown key (allowed here: {', '.join(allowed)}" + (f"; {meant})" if meant else ")")
 
 
 def _wrong_length(loc: Sequence[Any], given: Any, needed: int | None) -> str | None:

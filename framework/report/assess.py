@@ -20,7 +20,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from spherecal.config import POINT_DISTANCE_MM
+from spherecal.config import POINT_DISTANCE_MM  # noqa: F401 (the report's default, imported from here)
 from spherecal.estimation.robust import median
 from spherecal.core.models import CalibrationResult
 
