@@ -33,11 +33,10 @@ search, continuing from the plan as it is, and checked as the plan they make).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from spherecal.config import KinematicPlanSettings
+from spherecal.config import AcquisitionConfig, CalibrationOptions, KinematicPlanSettings, SphereConfig, TransformConfig
 from spherecal.core import geometry as geo
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.estimation.options import kinematic_effects
@@ -45,9 +44,6 @@ from spherecal.estimation.refine import design_identifiability, plan_design
 from spherecal.core.kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
 from spherecal.core.models import MountingMode, Pose
 from spherecal.motion.planning import SweepPlan, station_flange_poses, with_standoff
-
-if TYPE_CHECKING:  # pragma: no cover
-    from spherecal.config import RunConfig
 
 #: With identify_kinematics a plan must identify at least this many geometric parameters
 #: per joint on average: a revolute arm seen through one sphere has 3 per joint
@@ -80,15 +76,14 @@ DESIGN_CENTRE_NOISE_MM = 0.05
 MAX_SWEEP_JOINT_TRAVEL_DEG = 10.0
 
 
-def uses_planner(cfg: "RunConfig") -> bool:
-    """True when the configuration's stations come from the kinematic planner: an
+def uses_planner(acq: AcquisitionConfig | None, calibration: CalibrationOptions) -> bool:
+    """True when the stations come from the kinematic planner: an
     ``[acquisition.kinematic_plan]`` section, or ``identify_kinematics`` with no
     ``acquisition.sweep.tilts_deg`` given (automatic acquisition only)."""
-    acq = cfg.acquisition
     if acq is None or acq.mode == "manual":
         return False
     return acq.kinematic_plan is not None or (
-        cfg.calibration.identify_kinematics and "tilts_deg" not in acq.sweep.model_fields_set)
+        calibration.identify_kinematics and "tilts_deg" not in acq.sweep.model_fields_set)
 
 
 def candidate_tilts_deg(settings: KinematicPlanSettings, mounting: MountingMode) -> np.ndarray:
@@ -149,12 +144,12 @@ class _Context:
     settings: KinematicPlanSettings
 
     @classmethod
-    def of(cls, cfg: "RunConfig", arm) -> "_Context":
-        acq = cfg.acquisition
+    def of(cls, acq: AcquisitionConfig, calibration: CalibrationOptions, mounting: MountingMode,
+           nominal: TransformConfig, sphere: SphereConfig, arm) -> "_Context":
         sweep = with_standoff(acq.sweep, None)  # as runner.for_sensor fitted it to the sensor (else: which setting)
-        return cls(cfg.mounting, cfg.nominal_transform.pose(), np.asarray(acq.sphere_centre_mm, float),
-                   cfg.sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
-                   acq.workspace, arm, kinematic_effects(cfg.calibration, arm.chain).prior_sd,
+        return cls(mounting, nominal.pose(), np.asarray(acq.sphere_centre_mm, float),
+                   sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
+                   acq.workspace, arm, kinematic_effects(calibration, arm.chain).prior_sd,
                    acq.kinematic_plan or KinematicPlanSettings())
 
     def rows(self, R0: np.ndarray, t0: np.ndarray, joints_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -284,19 +279,23 @@ class KinematicPlan:
                 f"{self.limits_deg[1]:g} deg) for the arm's geometric parameters; tilts_deg = [{tilts}]")
 
 
-def plan_kinematic_stations(cfg: "RunConfig", arm) -> KinematicPlan:
-    """The stations of the kinematic planner (module docstring) for ``cfg``, with the
-    arm's kinematics ``arm``. Raises :class:`InputError` when too few candidate
-    orientations are reachable."""
+def plan_kinematic_stations(acq: AcquisitionConfig, calibration: CalibrationOptions, mounting: MountingMode,
+                            nominal: TransformConfig, sphere: SphereConfig, arm, *,
+                            robot_type: str | None = None) -> KinematicPlan:
+    """The stations of the kinematic planner (module docstring) for the acquisition
+    ``acq`` (its ``kinematic_plan`` settings, sweep, workspace and rough sphere centre),
+    with the arm's kinematics ``arm`` and the prior spread of its geometric error from
+    ``calibration``; ``robot_type`` names the robot in the message when ``arm`` is None.
+    Raises :class:`InputError` when too few candidate orientations are reachable."""
 
     if arm is None:
         raise ConfigError("the kinematic planner needs a robot type whose plugin describes its arm "
-                          f"(robot.type = {cfg.robot.get('type')!r} does not): list the stations in "
+                          f"(robot.type = {robot_type!r} does not): list the stations in "
                           "acquisition.sweep.tilts_deg")
-    ctx = _Context.of(cfg, arm)
+    ctx = _Context.of(acq, calibration, mounting, nominal, sphere, arm)
     n = ctx.settings.stations
-    limits = ctx.settings.limits_deg(cfg.mounting)
-    R, t = station_flange_poses(cfg.mounting, ctx.X, ctx.centre, ctx.radius_mm, ctx.sweep, [(0.0, 0.0, 0.0)],
+    limits = ctx.settings.limits_deg(mounting)
+    R, t = station_flange_poses(mounting, ctx.X, ctx.centre, ctx.radius_mm, ctx.sweep, [(0.0, 0.0, 0.0)],
                                 [(0.0, 0.0)], ctx.R_ref)
     mid = R.shape[1] // 2
     try:
@@ -396,8 +395,10 @@ def _passes(info: dict, n_joints: int, max_condition: float) -> bool:
         info["condition_number"] <= max_condition
 
 
-def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: KinematicPlan | None = None,
-                                     start_joints_deg=None) -> str:
+def check_plan_identifies_kinematics(targets, acq: AcquisitionConfig, calibration: CalibrationOptions,
+                                     mounting: MountingMode, nominal: TransformConfig, sphere: SphereConfig, arm,
+                                     planned: KinematicPlan | None = None, *, start_joints_deg=None,
+                                     robot_type: str | None = None) -> str:
     """Before anything moves, with ``identify_kinematics``: the parameters the plan would
     identify (per joint) and the condition number of their identification. Raises
     :class:`InputError` (nothing moved) when the plan identifies fewer than
@@ -408,11 +409,12 @@ def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: Ki
     to ask the planner for); returns a one-line summary otherwise. The joints of the
     targets are those the arm takes reaching them in order from ``start_joints_deg``
     (controller convention; default: zero joints, before the robot is connected; the
-    arm's joints where it stands, once it is)."""
+    arm's joints where it stands, once it is). The sections and ``robot_type`` are as
+    for :func:`plan_kinematic_stations`."""
     if arm is None:
         raise ConfigError("calibration.identify_kinematics needs a robot type whose plugin describes its arm "
-                          f"(robot.type = {cfg.robot.get('type')!r} does not); nothing was moved")
-    ctx = _Context.of(cfg, arm)
+                          f"(robot.type = {robot_type!r} does not); nothing was moved")
+    ctx = _Context.of(acq, calibration, mounting, nominal, sphere, arm)
     joints = _sequential_joints(arm, [t.pose for t in targets], start_joints_deg)
     rows, info = _identification(ctx, np.array([t.pose.rotation_matrix for t in targets]),
                                  np.array([t.pose.translation for t in targets]), joints)
