@@ -81,7 +81,9 @@ def planned(mode: str, kin) -> SweepPlan:
         from spherecal.app.runner import configured_for_sensor
 
         loaded, _ = configured_for_sensor(load_config(path), PluginHost())  # the sweep's standoff: the sensor's
-        return plan_kinematic_stations(loaded.config, kin).sweep
+        cfg = loaded.config
+        return plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform,
+                                       cfg.sphere, kin).sweep
 
 
 def plans(mode: str, kin=None) -> tuple[SweepPlan, SweepPlan]:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spherecal.io import dataset as dataio
+from spherecal.io import observation_line
 from spherecal.core.models import Dataset, Observation, Pose, Profile
 
 
@@ -72,8 +73,8 @@ def main() -> None:
     ap.add_argument("--no-orjson", action="store_true", help="use the standard library's json only")
     args = ap.parse_args()
     if args.no_orjson:
-        dataio._orjson = None
-    parser = "orjson" if dataio._orjson is not None else "stdlib json"
+        observation_line._orjson = None
+    parser = "orjson" if observation_line._orjson is not None else "stdlib json"
     print(f"{args.profiles} profiles x {args.points} points, parser: {parser}, median of {args.repeat}")
     with tempfile.TemporaryDirectory() as tmp:
         for label, resolution in (("full precision", None), ("5 um resolution", 0.005)):

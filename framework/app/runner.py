@@ -16,6 +16,7 @@ from spherecal.io import dataset as dataio
 from spherecal.io.runlog import Notice, progress_log
 from spherecal.core.errors import ConfigError, FitBreakdownError, InputError, SpherecalError
 from spherecal.estimation import CalibrationOptions, Solution, solve
+from spherecal.estimation.options import station_rotation_tolerance_deg
 from spherecal.core.models import Dataset, Pose
 from spherecal.core.models import SPHERE_FRAME, TRANSFORM_NAME
 from spherecal.report.assess import Verdict
@@ -280,8 +281,9 @@ def _check_identification_from_here(robot, targets, cfg, arm, planned, log) -> N
     if start is None:
         return
     try:
-        log("from the arm's joints now: " + check_plan_identifies_kinematics(targets, cfg, arm, planned,
-                                                                           start_joints_deg=start))
+        log("from the arm's joints now: " + check_plan_identifies_kinematics(
+            targets, cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere, arm,
+            planned, start_joints_deg=start))
     except SpherecalError as exc:
         raise InputError(f"from where the arm stands now (joints {np.round(np.asarray(start, float), 1).tolist()} deg): "
                          f"{exc}") from exc
@@ -399,19 +401,22 @@ def run_calibrate(
         manual = manual or acq.mode == "manual"
         journal = out / JOURNAL_NAME
         targets, identification, planned = [], "", None
-        if not manual and uses_planner(cfg):
-            planned = plan_kinematic_stations(cfg, arm)
+        if not manual and uses_planner(cfg.acquisition, cfg.calibration):
+            planned = plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform,
+                                              cfg.sphere, arm, robot_type=cfg.robot.get("type"))
             log(planned.summary())
-            targets = plan_targets(cfg, planned.sweep)
+            targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere, planned.sweep)
         elif not manual:
-            targets = plan_targets(cfg)
+            targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
         if not manual:
             log(f"plan: {len(targets)} shots in {len(set(t.station for t in targets))} stations")
             log(describe_plan(targets))
             _check_plan(targets, acq, "plan")
             check_plan_solvable(targets)
             if cfg.calibration.identify_kinematics:
-                identification = check_plan_identifies_kinematics(targets, cfg, arm, planned)
+                identification = check_plan_identifies_kinematics(
+                    targets, cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere, arm,
+                    planned, robot_type=cfg.robot.get("type"))
                 log(identification)
         if dry_run:
             log("dry run: plan checked against acquisition.workspace and speeds; nothing moved")
@@ -481,7 +486,7 @@ def run_calibrate(
                 notify = lambda obs: host.observation_taken(observation=obs, **kinds)  # noqa: E731
                 if manual:
                     rep = acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
-                                         rotation_tolerance_deg=cfg.calibration.station_rotation_tolerance(),
+                                         rotation_tolerance_deg=station_rotation_tolerance_deg(cfg.calibration),
                                          first_station=first_station)
                 else:
                     rep = acquire(robot, sensor, targets, writer, acq, done, notify, log,
@@ -1092,7 +1097,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
         X, source = transform.pose, transform.source
         if transform.note:
             log(f"note: {transform.note}")
-    sweeps = plan_validation(cfg, X, fov)
+    sweeps = plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, X, cfg.sphere, fov, cfg.sensor["type"])
     targets = [t for s in sweeps for t in s.targets]
     log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
     _check_plan(targets, cfg.acquisition, "validation plan")
@@ -1118,8 +1123,9 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                                           timestamp=datetime.now(timezone.utc), base_from_flange=pose,
                                           profile=profile, target=target.index))
 
-            measured = measure(robot, sensor, sweeps, cfg, log, Progress(len(targets), progress_stream), record)
-    outcome = evaluate(cfg, X, measured)
+            measured = measure(robot, sensor, sweeps, cfg.acquisition, log, Progress(len(targets), progress_stream),
+                               record)
+    outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured)
     from spherecal.report.assess import Verdict, verdict, with_validation
     from spherecal.motion.validation import position_rows
 
@@ -1201,7 +1207,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     doubt = failed_validation(out, result)
     if doubt:  # said before anything moves, and again by the exit code
         log(Notice(f"warning: {doubt}; the scan's points carry that error (scanning all the same)"))
-    targets = plan_scan(cfg, result.transform, fov)
+    targets = plan_scan(cfg.scan, cfg.acquisition, cfg.mounting, result.transform, fov)
     _check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
@@ -1215,7 +1221,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         _check_plan(targets, cfg.acquisition, "scan plan", robot=robot)
         with PlyWriter(ply_path, format=cfg.scan.format, with_profile=True, frame=frame,
                        comments=(f"spherecal scan, {result.transform_name} from {result_path}",)) as writer:
-            summary = scan(robot, sensor, targets, result.transform, cfg, writer, log,
+            summary = scan(robot, sensor, targets, result.transform, cfg.acquisition, cfg.mounting, writer, log,
                               Progress(len(targets), progress_stream))
     log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in {frame} frame")
     summary.calibration_doubt = doubt

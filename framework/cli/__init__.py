@@ -475,8 +475,9 @@ def cmd_simulate(args) -> int:
                               "change simulation.seed there")
         if arm is not None and cell.arm is None:
             cell.attach_arm(arm)  # as the simulated controller does: the joints of every shot are recorded
-        if uses_planner(cfg):  # the kinematic planner's stations, as calibrate plans them
-            plan = plan_kinematic_stations(cfg, arm).sweep
+        if uses_planner(cfg.acquisition, cfg.calibration):  # the kinematic planner's stations, as calibrate does
+            plan = plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform,
+                                           cfg.sphere, arm, robot_type=cfg.robot.get("type")).sweep
         else:
             plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
     else:

@@ -1,19 +1,18 @@
-"""Dataset and calibration-result files (the formats are specified in docs/file-formats.md).
+"""Dataset files (the format is specified in docs/file-formats.md).
 
 Datasets are JSON Lines (UTF-8): line 1 is a header object, then one object per
-observation. A file grows one observation at a time (:class:`DatasetWriter` appends a
-whole line and flushes it, with an optional ``os.fsync``), so an acquisition that is
-interrupted leaves a file that :func:`read_dataset` still loads up to its last whole
-observation, with a :class:`TruncatedFileWarning` saying what was dropped.
-
-Results are one pretty-printed JSON document (:func:`write_result`, :func:`read_result`).
+observation (:mod:`spherecal.io.observation_line`). A file grows one observation at a
+time (:class:`DatasetWriter` appends a whole line and flushes it, with an optional
+``os.fsync``), so an acquisition that is interrupted leaves a file that
+:func:`read_dataset` still loads up to its last whole observation, with a
+:class:`TruncatedFileWarning` saying what was dropped.
 
 Conventions (docs/conventions.md): lengths in mm, angles in degrees in ``*_deg`` fields,
 poses ``A_from_B`` with ``quaternion_wxyz`` scalar first (ABB order), timestamps ISO 8601
 with a time zone. Numbers are written at full precision (shortest round-trip form), so a
 file read back gives exactly the values that were written.
 
-Public API::
+Public API (the result file's functions are :mod:`spherecal.io.result`'s, named here too)::
 
     write_dataset(path, dataset)            read_dataset(path) -> Dataset
     DatasetWriter(path, mounting=..., sphere_radius_mm=..., resume=...)
@@ -24,7 +23,6 @@ Public API::
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import warnings
@@ -33,17 +31,23 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from spherecal import __version__
 from spherecal.core.errors import DatasetFileError, FileWriteError, InputError
-from spherecal.core.models import CalibrationResult, Dataset, MountingMode, Observation, Pose
-
-try:  # optional accelerator: parses full-precision floats about 7x faster than json
-    import orjson as _orjson
-except ImportError:  # pragma: no cover - exercised only where orjson is missing
-    _orjson = None
+from spherecal.core.models import Dataset, MountingMode, Observation
+from spherecal.core.validation_errors import validation_error_lines
+from spherecal.io.files import check_input, text_encoding_problem
+from spherecal.io.json_files import (
+    DATASET_FORMAT,
+    RESULT_FORMAT,
+    atomic_temporary,
+    fsync_dir,
+    json_safe,
+    read_bytes,
+)
+from spherecal.io.observation_line import FieldError, loads_json, observation_from_json, observation_line, parse_timestamp
+from spherecal.io.result import RESULT_VERSION, read_result, write_result
 
 __all__ = [
     "DATASET_FORMAT",
@@ -60,25 +64,11 @@ __all__ = [
     "write_result",
 ]
 
-#: ``format`` value on line 1 of every dataset file.
-DATASET_FORMAT = "spherecal-dataset"
 #: Newest dataset format version this module reads and the one it writes. Version 2 adds
 #: centre observations (``circle``, ``sphere_centre_mm``) beside ``profile``.
 DATASET_VERSION = 2
-#: Observation fields that need format version 2.
-_VERSION_2_FIELDS = ("circle", "sphere_centre_mm", "sphere_centre_covariance_mm2")
-#: ``format`` value of every result file.
-RESULT_FORMAT = "spherecal-result"
-#: Newest result format version this module reads and the one it writes. Version 2 adds
-#: the centre observations' figures to ``residuals``.
-RESULT_VERSION = 2
-
-_OBSERVATION_KIND = "observation"
 #: Longest line of a dataset file (a profile of 3200 points is about 130 kB).
 MAX_LINE_BYTES = 64 << 20
-#: Largest magnitude of a coordinate (mm) or joint angle (deg) in a file: beyond it the
-#: value is not a measurement (and would overflow the fits).
-MAX_ABS_VALUE = 1e6
 
 
 class TruncatedFileWarning(UserWarning):
@@ -98,375 +88,6 @@ class DatasetHeader(BaseModel):
     provenance: dict[str, Any] = Field(default={}, description="where the data came from (free form)")
     created: datetime = Field(description="when the file was started, ISO 8601 with a time zone")
     written_by: str = Field("", description="software that started the file, e.g. 'spherecal 0.1.0'")
-
-
-# ---------------------------------------------------------------------------------------
-# small helpers
-# ---------------------------------------------------------------------------------------
-
-
-class _FieldError(Exception):
-    """A problem with one field of one line; turned into a DatasetFileError by the caller."""
-
-    def __init__(self, field: str, message: str):
-        super().__init__(f"{field}: {message}" if field else message)
-
-
-#: The components of the fixed-length number lists of the format, by field name: a list
-#: of the wrong length is reported as "needs 3 numbers (x, y, z), got 2".
-_COMPONENTS = {"translation_mm": "x, y, z", "quaternion_wxyz": "w, x, y, z", "sphere_centre_mm": "x, y, z",
-               "centre_yz_mm": "y, z"}
-
-
-def _loc_text(loc) -> str:
-    text = ""
-    for item in loc:
-        text += f"[{item}]" if isinstance(item, int) else (f".{item}" if text else str(item))
-    return text
-
-
-def _wrong_length(loc, given, needed: int | None) -> str | None:
-    """"needs N numbers (names), got M" for a fixed-length list of the wrong length, else None."""
-    name = next((x for x in reversed(loc) if isinstance(x, str)), "")
-    if not isinstance(given, (list, tuple)):
-        return None
-    parts = _COMPONENTS.get(name)
-    n = len(parts.split(", ")) if parts else needed
-    if n is None:
-        return None
-    names = f" ({parts})" if parts else ""
-    return f"needs {n} numbers{names}, got {len(given)}"
-
-
-def _describe_validation_error(exc: ValidationError) -> str:
-    parts = []
-    short: dict[tuple, int] = {}  # a list too short: its location -> how many items the errors ask for
-    errors = exc.errors()
-    for err in errors:
-        loc = err["loc"]
-        if err["type"] == "missing" and loc and isinstance(loc[-1], int) and isinstance(err.get("input"), (list, tuple)):
-            short[tuple(loc[:-1])] = max(short.get(tuple(loc[:-1]), 0), loc[-1] + 1)
-    done: set[tuple] = set()
-    for err in errors:
-        loc = err["loc"]
-        msg = err["msg"]
-        for prefix in ("Value error, ", "Assertion failed, "):
-            if msg.startswith(prefix):
-                msg = msg[len(prefix):]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown field (not part of the format; check the spelling)"
-        elif err["type"] == "missing" and tuple(loc[:-1]) in short:
-            loc = tuple(loc[:-1])
-            if loc in done:
-                continue
-            done.add(loc)
-            msg = _wrong_length(loc, err["input"], short[loc]) or "missing (required)"
-        elif err["type"] == "missing":
-            msg = "missing (required)"
-        elif err["type"] == "too_long" and (ctx := err.get("ctx")) and ctx.get("field_type") == "Tuple":
-            msg = _wrong_length(loc, err.get("input"), ctx.get("max_length")) or msg
-        text = _loc_text(loc)
-        parts.append(f"{text}: {msg}" if text else msg)
-    return "; ".join(parts)
-
-
-def _loads(raw: bytes) -> Any:
-    """Parse one JSON text. orjson when available (fast, strict JSON); the standard
-    library as the fallback and for what orjson rejects but Python's json reads (NaN,
-    Infinity), so that such a file fails in validation with a field path, not here."""
-    if _orjson is not None:
-        try:
-            return _orjson.loads(raw)
-        except ValueError:
-            pass
-    try:
-        return json.loads(raw)
-    except RecursionError:
-        raise ValueError("nested too deeply (hundreds of levels of lists or objects)") from None
-
-
-def _parse_timestamp(value: Any) -> datetime:
-    if isinstance(value, datetime):
-        ts = value
-    elif isinstance(value, str):
-        try:
-            ts = datetime.fromisoformat(value)
-        except ValueError:
-            raise _FieldError("timestamp", f"{value!r} is not an ISO 8601 date and time") from None
-    else:
-        raise _FieldError("timestamp", f"expected an ISO 8601 string, got {value!r}")
-    if ts.tzinfo is None or ts.utcoffset() is None:
-        raise _FieldError(
-            "timestamp", f"{value!r} has no time zone; write it with one (UTC: end it with 'Z' or '+00:00')"
-        )
-    return ts
-
-
-def _within_limit(v: int | float) -> bool:
-    """A finite number of magnitude at most MAX_ABS_VALUE (a huge int overflows float)."""
-    try:
-        return abs(float(v)) <= MAX_ABS_VALUE
-    except OverflowError:
-        return False
-
-
-def _number_array(value: Any, field: str) -> np.ndarray:
-    """A JSON list of numbers as a float array, refusing strings, booleans and nulls
-    (which NumPy would otherwise convert, or keep as objects)."""
-    if not isinstance(value, list):
-        raise _FieldError(field, f"expected a list of numbers, got {type(value).__name__} {value!r:.60}")
-    try:
-        arr = np.asarray(value)
-    except ValueError:
-        raise _FieldError(field, "expected a flat list of numbers, got nested lists of unequal length") from None
-    kind = arr.dtype.kind
-    if kind in "fiu" and arr.size and arr.ndim == 1:
-        with np.errstate(invalid="ignore", over="ignore"):
-            a = arr.astype(float)
-            big = np.flatnonzero(np.isfinite(a) & (np.abs(a) > MAX_ABS_VALUE))  # NaN, inf: the model says
-        if big.size:
-            i = int(big[0])
-            raise _FieldError(field, f"item {i} is {float(arr[i])!r}: beyond {MAX_ABS_VALUE:g} mm, not a "
-                                     "measurement (check the units)")
-    if kind == "f" and arr.ndim == 1:
-        # NumPy turns true/false mixed with floats into 1.0/0.0: look only at those values
-        suspects = np.flatnonzero((arr == 1.0) | (arr == 0.0))
-        if not any(type(value[i]) is bool for i in suspects):
-            return arr
-    elif kind in "iu":
-        return arr.astype(float)
-    elif kind == "f":
-        return arr  # not flat: the model reports the shape
-    for i, v in enumerate(value):
-        if type(v) is bool or not isinstance(v, (int, float)):
-            if isinstance(v, list):
-                raise _FieldError(field, f"expected a flat list of numbers, item {i} is a list")
-            shown = "null" if v is None else json.dumps(v) if isinstance(v, (bool, str)) else repr(v)
-            raise _FieldError(field, f"must hold only numbers; item {i} is {shown} ({type(v).__name__})")
-        if not _within_limit(v):
-            raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} mm "
-                                     "(check the units)")
-    return np.asarray(value, dtype=float)
-
-
-def _small_numbers(value: Any, field: str) -> Any:
-    """Poses and joint readings: JSON lists -> tuples (what the strict model expects)."""
-    if isinstance(value, list):
-        for i, v in enumerate(value):
-            if type(v) is bool or not isinstance(v, (int, float)):
-                raise _FieldError(field, f"must hold only numbers; item {i} is {json.dumps(v)}")
-            if not _within_limit(v):
-                raise _FieldError(field, f"item {i} is {v!r:.40}: not a finite number of at most {MAX_ABS_VALUE:g} "
-                                         "(check the units)")
-        return tuple(value)
-    return value
-
-
-def _pose_input(value: Any, field: str) -> Any:
-    if isinstance(value, dict):
-        value = dict(value)
-        for key in ("translation_mm", "quaternion_wxyz"):
-            if key in value:
-                value[key] = _small_numbers(value[key], f"{field}.{key}")
-    return value
-
-
-def _keep_written_quaternion(pose: Pose, raw: Any) -> Pose:
-    """Pose normalises its quaternion; re-normalising an already unit quaternion can move
-    its last bit. When the file's quaternion is unit to rounding and has w >= 0, keep it
-    bit for bit so that round trips are exact. Anything further off keeps the model's
-    normalised value."""
-    try:
-        q_file = tuple(float(c) for c in raw["quaternion_wxyz"])
-    except (TypeError, KeyError, ValueError):
-        return pose
-    if q_file == pose.quaternion_wxyz:
-        return pose
-    if q_file[0] >= 0 and max(abs(a - b) for a, b in zip(q_file, pose.quaternion_wxyz)) <= 1e-15:
-        return Pose.model_construct(translation_mm=pose.translation_mm, quaternion_wxyz=q_file)
-    return pose
-
-
-def _scalar_number(value: Any, field: str) -> Any:
-    """One JSON number, finite and at most MAX_ABS_VALUE (null passes: the model says
-    whether it may be absent)."""
-    if value is None:
-        return value
-    if type(value) is bool or not isinstance(value, (int, float)):
-        shown = json.dumps(value) if isinstance(value, (str, bool)) else repr(value)
-        raise _FieldError(field, f"must be a number, got {shown:.40}")
-    if not _within_limit(value):
-        raise _FieldError(field, f"{value!r:.40} is not a finite number of at most {MAX_ABS_VALUE:g} (check the units)")
-    return value
-
-
-def _centre_input(data: dict) -> None:
-    """The version-2 fields of an observation, checked number by number (in place)."""
-    circle = data.get("circle")
-    if isinstance(circle, dict):
-        circle = dict(circle)
-        if "centre_yz_mm" in circle:
-            circle["centre_yz_mm"] = _small_numbers(circle["centre_yz_mm"], "circle.centre_yz_mm")
-        for key in ("radius_mm", "centre_std_mm", "radius_std_mm"):
-            if key in circle:
-                circle[key] = _scalar_number(circle[key], f"circle.{key}")
-        data["circle"] = circle
-    if data.get("sphere_centre_mm") is not None:
-        data["sphere_centre_mm"] = _small_numbers(data["sphere_centre_mm"], "sphere_centre_mm")
-    cov = data.get("sphere_centre_covariance_mm2")
-    if cov is not None:
-        field = "sphere_centre_covariance_mm2"
-        if not isinstance(cov, list) or len(cov) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in cov):
-            raise _FieldError(field, "expected a 3x3 matrix: a list of 3 rows of 3 numbers, mm^2")
-        data[field] = tuple(_small_numbers(row, f"{field}[{i}]") for i, row in enumerate(cov))
-
-
-def _observation_from_json(obj: Any, version: int = DATASET_VERSION) -> Observation:
-    if not isinstance(obj, dict):
-        raise _FieldError("", f"expected a JSON object, got {type(obj).__name__}")
-    if "format" in obj and "kind" not in obj:
-        raise _FieldError(
-            "", f"a second header (format {obj.get('format')!r}); two files were joined into one? "
-            "Keep one dataset per file"
-        )
-    data = dict(obj)
-    kind = data.pop("kind", None)
-    if kind != _OBSERVATION_KIND:
-        raise _FieldError("kind", f"expected 'observation', got {json.dumps(kind)}")
-    if "timestamp" not in data:
-        raise _FieldError("timestamp", "missing (required in files: ISO 8601 with a time zone)")
-    data["timestamp"] = _parse_timestamp(data["timestamp"])
-    if data.get("base_from_flange") is not None:
-        data["base_from_flange"] = _pose_input(data["base_from_flange"], "base_from_flange")
-    if data.get("joints_deg") is not None:
-        data["joints_deg"] = _small_numbers(data["joints_deg"], "joints_deg")
-    if version < 2:
-        late = [k for k in _VERSION_2_FIELDS if k in data]
-        if late:
-            raise _FieldError(late[0], f"needs dataset format version 2 (the header says version {version}): "
-                                       "write \"version\": 2 on line 1")
-        if "profile" not in data:
-            raise _FieldError("profile", "missing (required in version 1 files)")
-    _centre_input(data)
-    profile = data.get("profile")
-    if isinstance(profile, dict):
-        profile = dict(profile)
-        for key in ("y_mm", "z_mm"):
-            if key in profile:
-                profile[key] = _number_array(profile[key], f"profile.{key}")
-        data["profile"] = profile
-    try:
-        obs = Observation.model_validate(data, strict=True)
-    except ValidationError as exc:
-        raise _FieldError("", _describe_validation_error(exc)) from None
-    if obs.base_from_flange is not None:
-        pose = _keep_written_quaternion(obs.base_from_flange, obj["base_from_flange"])
-        if pose is not obs.base_from_flange:
-            obs = obs.model_copy(update={"base_from_flange": pose})
-    return obs
-
-
-def _observation_line(obs: Observation) -> bytes:
-    """One observation as one line of JSON (with its newline)."""
-    if not isinstance(obs, Observation):
-        raise InputError(f"expected an Observation, got {type(obs).__name__}")
-    ts = obs.timestamp
-    if ts.tzinfo is None or ts.utcoffset() is None:
-        raise InputError(
-            f"observation {obs.index}: timestamp {ts.isoformat()} has no time zone; "
-            "files hold ISO 8601 with a time zone (use datetime.now(timezone.utc))"
-        )
-    profile = obs.profile
-    if profile is not None:
-        y, z = profile.y_mm, profile.z_mm
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
-            raise InputError(f"observation {obs.index}: profile contains NaN or infinite values; not written")
-    pose = obs.base_from_flange
-    doc = {
-        "kind": _OBSERVATION_KIND,
-        "index": obs.index,
-        "station": obs.station,
-        "timestamp": ts.isoformat(),
-        "base_from_flange": None
-        if pose is None
-        else {"translation_mm": list(pose.translation_mm), "quaternion_wxyz": list(pose.quaternion_wxyz)},
-        "joints_deg": None if obs.joints_deg is None else list(obs.joints_deg),
-    }
-    centre_numbers: list[float] = []
-    if profile is not None:
-        doc["profile"] = {"y_mm": np.ascontiguousarray(y), "z_mm": np.ascontiguousarray(z)}
-        if profile.shot_id is not None:
-            doc["profile"]["shot_id"] = profile.shot_id
-    elif obs.circle is not None:
-        c = obs.circle
-        doc["circle"] = {"centre_yz_mm": list(c.centre_yz_mm), "radius_mm": c.radius_mm}
-        for key in ("centre_std_mm", "radius_std_mm"):
-            if getattr(c, key) is not None:
-                doc["circle"][key] = getattr(c, key)
-        centre_numbers = [*c.centre_yz_mm, c.radius_mm]
-    else:
-        doc["sphere_centre_mm"] = list(obs.sphere_centre_mm)
-        centre_numbers = list(obs.sphere_centre_mm)
-        if obs.sphere_centre_covariance_mm2 is not None:
-            doc["sphere_centre_covariance_mm2"] = [list(r) for r in obs.sphere_centre_covariance_mm2]
-            centre_numbers += [v for r in obs.sphere_centre_covariance_mm2 for v in r]
-    if obs.target is not None:
-        doc["target"] = obs.target
-    small = [*(pose.translation_mm if pose else ()), *(pose.quaternion_wxyz if pose else ()), *(obs.joints_deg or ())]
-    if not all(math.isfinite(v) for v in small):
-        raise InputError(f"observation {obs.index}: pose or joints contain NaN or infinite values; not written")
-    if not all(math.isfinite(v) for v in centre_numbers):
-        raise InputError(f"observation {obs.index}: {obs.kind} contains NaN or infinite values; not written")
-    if _orjson is not None:
-        return _orjson.dumps(doc, option=_orjson.OPT_SERIALIZE_NUMPY | _orjson.OPT_APPEND_NEWLINE)
-    if profile is not None:
-        doc["profile"].update(y_mm=y.tolist(), z_mm=z.tolist())
-    return (json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
-
-
-def _check_json_safe(value: Any, where: str) -> Any:
-    """Plain JSON types only (dict with str keys, list, str, finite number, bool, None);
-    tuples, NumPy arrays and scalars, datetimes and paths are converted. Anything else,
-    and NaN or infinity, raises InputError naming the place."""
-    if value is None or isinstance(value, (bool, str)):
-        return value
-    if isinstance(value, (int, float)):
-        if isinstance(value, float) and not math.isfinite(value):
-            raise InputError(f"{where} is {value}: a file cannot hold NaN or infinity (standard JSON)")
-        return value if type(value) in (int, float) else (float(value) if isinstance(value, float) else int(value))
-    if isinstance(value, np.generic):
-        return _check_json_safe(value.item(), where)
-    if isinstance(value, np.ndarray):
-        return _check_json_safe(value.tolist(), where)
-    if isinstance(value, BaseModel):
-        return _check_json_safe(value.model_dump(mode="python"), where)
-    if isinstance(value, dict):
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise InputError(f"{where}: key {k!r} is not a string; JSON object keys must be strings")
-            out[k] = _check_json_safe(v, f"{where}.{k}" if where else k)
-        return out
-    if isinstance(value, (list, tuple)):
-        return [_check_json_safe(v, f"{where}[{i}]") for i, v in enumerate(value)]
-    if isinstance(value, datetime):
-        return value.isoformat()
-    if isinstance(value, Path):
-        return str(value)
-    raise InputError(f"{where}: a {type(value).__name__} cannot be written to a JSON file")
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:  # pragma: no cover - e.g. Windows
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
 
 
 # ---------------------------------------------------------------------------------------
@@ -511,8 +132,8 @@ def _header_from_json(obj: Any, name: str) -> DatasetHeader:
     if "created" not in data:
         raise DatasetFileError(f"{where}: created: missing (required)")
     try:
-        data["created"] = _parse_timestamp(data["created"])
-    except _FieldError as exc:
+        data["created"] = parse_timestamp(data["created"])
+    except FieldError as exc:
         raise DatasetFileError(f"{where}: {str(exc).replace('timestamp', 'created', 1)}") from None
     try:
         header = DatasetHeader.model_validate(data, strict=True)
@@ -521,7 +142,7 @@ def _header_from_json(obj: Any, name: str) -> DatasetHeader:
             {"mounting": header.mounting, "sphere_radius_mm": header.sphere_radius_mm}, strict=True
         )
     except ValidationError as exc:
-        raise DatasetFileError(f"{where}: {_describe_validation_error(exc)}") from None
+        raise DatasetFileError(f"{where}: {'; '.join(validation_error_lines(exc, model=DatasetHeader))}") from None
     return header
 
 
@@ -544,8 +165,6 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     if start == len(data) or _NOT_BLANK.search(data, start) is None:
         raise DatasetFileError(f"{name}: the file holds no data (only a byte order mark or blank space); "
                                "expected a spherecal dataset (header line first)")
-    from spherecal.io.files import text_encoding_problem
-
     problem = text_encoding_problem(data)
     if problem:
         raise DatasetFileError(f"{name}: not a spherecal dataset as written: {problem}. A dataset is UTF-8 "
@@ -573,7 +192,7 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
         off, end = lines[-1]
         tail = data[off:end]
         try:
-            whole = isinstance(_loads(tail), dict)
+            whole = isinstance(loads_json(tail), dict)
         except ValueError:
             whole = False
         if whole:  # complete JSON object, only the newline missing (or written by hand)
@@ -591,7 +210,7 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     off0, end0 = lines[0]
     raw0 = data[off0:end0]
     try:
-        header_obj = _loads(raw0)
+        header_obj = loads_json(raw0)
     except ValueError as exc:
         if _is_result_document(data):
             raise DatasetFileError(
@@ -613,7 +232,7 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
         if not raw.strip():
             continue
         try:
-            obj = _loads(raw)
+            obj = loads_json(raw)
         except ValueError as exc:
             raise DatasetFileError(
                 f"{name} line {lineno} (byte {off}): not valid JSON ({exc}). Only the last line of a file "
@@ -623,8 +242,8 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
         idx = obj.get("index") if isinstance(obj, dict) else None
         where = f"{name} line {lineno}" + (f" (observation {idx})" if type(idx) is int else "")
         try:
-            obs = _observation_from_json(obj, header.version)
-        except _FieldError as exc:
+            obs = observation_from_json(obj, header.version)
+        except FieldError as exc:
             raise DatasetFileError(f"{where}: {exc}") from None
         if obs.index in seen:
             raise DatasetFileError(
@@ -646,12 +265,6 @@ def _scan(path: str | os.PathLike, data: bytes) -> _Scan:
     return _Scan(header, observations, whole_end, needs_newline, dropped)
 
 
-def _read_bytes(path: str | os.PathLike) -> bytes:
-    from spherecal.io.files import read_input
-
-    return read_input(path, DatasetFileError, "a spherecal file")
-
-
 def read_dataset(path: str | os.PathLike) -> Dataset:
     """Load a dataset file (JSON Lines, docs/file-formats.md).
 
@@ -660,7 +273,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     :class:`TruncatedFileWarning`; any other problem raises :class:`DatasetFileError`
     naming the file, the line, the observation index and the field.
     ``provenance`` comes back as JSON types (tuples written become lists)."""
-    scan = _scan(path, _read_bytes(path))
+    scan = _scan(path, read_bytes(path))
     h = scan.header
     return Dataset(
         mounting=h.mounting,
@@ -674,8 +287,6 @@ def read_dataset_header(path: str | os.PathLike) -> DatasetHeader:
     """Read and check only line 1 of a dataset file (format, version, mounting, radius,
     provenance, creation time)."""
     name = os.fspath(path)
-    from spherecal.io.files import check_input
-
     check_input(path, DatasetFileError, "a dataset file")
     try:
         with open(path, "rb") as f:
@@ -688,7 +299,7 @@ def read_dataset_header(path: str | os.PathLike) -> DatasetHeader:
         raise DatasetFileError(f"{name}: the file is empty; expected a spherecal dataset (header line first)")
     raw = raw.removeprefix(b"\xef\xbb\xbf")
     try:
-        obj = _loads(raw)
+        obj = loads_json(raw)
     except ValueError as exc:
         if not raw.endswith(b"\n"):
             raise DatasetFileError(f"{name}: the file ends inside its header (line 1 is incomplete)") from None
@@ -742,7 +353,7 @@ class DatasetWriter:
         try:
             Dataset.model_validate({"mounting": mounting, "sphere_radius_mm": sphere_radius_mm}, strict=True)
         except ValidationError as exc:
-            raise InputError(f"{name}: {_describe_validation_error(exc)}") from None
+            raise InputError(f"{name}: {'; '.join(validation_error_lines(exc))}") from None
         self._indices: dict[int, int] = {}  # index -> line number
         self._lines = 1
         exists = self.path.exists()
@@ -765,17 +376,17 @@ class DatasetWriter:
                 created=created,
                 written_by=f"spherecal {__version__}",
             )
-            doc = _check_json_safe(self.header.model_dump(mode="python"), "header")
+            doc = json_safe(self.header.model_dump(mode="python"), "header")
             line = json.dumps(doc, ensure_ascii=False, allow_nan=False, separators=(", ", ": ")) + "\n"
             self._file = open(self.path, "r+b" if exists else "xb")
             self._write(line.encode("utf-8"))
             if self.fsync:
-                _fsync_dir(self.path)
+                fsync_dir(self.path)
 
     def _resume(self, name: str, mounting: str, radius: float) -> DatasetHeader:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TruncatedFileWarning)
-            scan = _scan(self.path, _read_bytes(self.path))
+            scan = _scan(self.path, read_bytes(self.path))
         for w in caught:  # re-issue, attributed to the caller
             warnings.warn(
                 f"{w.message} Resuming: the incomplete line is cut off before appending.",
@@ -839,7 +450,7 @@ class DatasetWriter:
         """Write one observation as one line, then flush (and fsync if asked)."""
         if self._file.closed:
             raise DatasetFileError(f"{os.fspath(self.path)}: the writer is closed; open a new one with resume=True")
-        line = _observation_line(observation)
+        line = observation_line(observation)
         if observation.index in self._indices:
             raise InputError(
                 f"{os.fspath(self.path)}: observation index {observation.index} is already in the file "
@@ -885,12 +496,6 @@ class DatasetWriter:
         return f"DatasetWriter({os.fspath(self.path)!r}, {self.n_observations} observations, {state})"
 
 
-def _atomic_target(path: Path, overwrite: bool) -> Path:
-    if path.exists() and not overwrite:
-        raise DatasetFileError(f"{os.fspath(path)} already exists; pass overwrite=True to replace it")
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
 def write_dataset(
     path: str | os.PathLike, dataset: Dataset, *, overwrite: bool = False, fsync: bool = False
 ) -> None:
@@ -900,7 +505,7 @@ def write_dataset(
     never holds a half-written dataset. An existing file is replaced only with
     ``overwrite=True``."""
     path = Path(path)
-    tmp = _atomic_target(path, overwrite)
+    tmp = atomic_temporary(path, overwrite)
     try:
         try:
             writer = DatasetWriter(
@@ -921,179 +526,7 @@ def write_dataset(
                 os.fsync(out._file.fileno())
         os.replace(tmp, path)
         if fsync:
-            _fsync_dir(path)
+            fsync_dir(path)
     finally:
         if tmp.exists():
             tmp.unlink()
-
-
-# ---------------------------------------------------------------------------------------
-# results
-# ---------------------------------------------------------------------------------------
-
-
-def _scalar_json(v: Any) -> str:
-    return json.dumps(v, ensure_ascii=False, allow_nan=False)
-
-
-def _pretty(v: Any, indent: int) -> str:
-    """Indented JSON that keeps short lists of numbers (vectors, matrix rows) on one line."""
-    pad, inner = "  " * indent, "  " * (indent + 1)
-    if isinstance(v, dict):
-        if not v:
-            return "{}"
-        items = [f"{inner}{_scalar_json(k)}: {_pretty(x, indent + 1)}" for k, x in v.items()]
-        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
-    if isinstance(v, list):
-        if all(not isinstance(x, (dict, list)) for x in v):
-            return "[" + ", ".join(_scalar_json(x) for x in v) + "]"
-        return "[\n" + ",\n".join(inner + _pretty(x, indent + 1) for x in v) + "\n" + pad + "]"
-    return _scalar_json(v)
-
-
-def write_result(
-    path: str | os.PathLike, result: CalibrationResult, *, overwrite: bool = False, fsync: bool = False
-) -> None:
-    """Write a calibration result as one pretty-printed JSON document (UTF-8), format
-    ``spherecal-result``. Poses are ``translation_mm`` + ``quaternion_wxyz`` (w first).
-    Written under a temporary name and renamed into place; an existing file is replaced
-    only with ``overwrite=True``. NaN or infinity anywhere raises InputError naming the
-    field (standard JSON cannot hold them)."""
-    if not isinstance(result, CalibrationResult):
-        raise InputError(f"expected a CalibrationResult, got {type(result).__name__}")
-    path = Path(path)
-    doc = _check_json_safe(result.model_dump(mode="python"), "")
-    text = _pretty(doc, 0) + "\n"
-    tmp = _atomic_target(path, overwrite)
-    try:
-        with open(tmp, "xb") as f:
-            f.write(text.encode("utf-8"))
-            f.flush()
-            if fsync:
-                os.fsync(f.fileno())
-        os.replace(tmp, path)
-        if fsync:
-            _fsync_dir(path)
-    except OSError as exc:
-        raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _non_finite(value: Any, where: str) -> str | None:
-    """The path of the first NaN or infinite number in a parsed JSON document, or None."""
-    stack = [(value, where)]
-    while stack:
-        v, at = stack.pop()
-        if isinstance(v, float) and not math.isfinite(v):
-            return at
-        if isinstance(v, dict):
-            stack.extend((x, f"{at}.{k}" if at else str(k)) for k, x in v.items())
-        elif isinstance(v, list):
-            stack.extend((x, f"{at}[{i}]") for i, x in enumerate(v))
-    return None
-
-
-def _result_number_problem(doc: dict) -> str | None:
-    """What is wrong with the numbers of a result document (NaN or infinity anywhere, a
-    negative standard deviation or variance, an implausibly large position), or None."""
-    at = _non_finite(doc, "")
-    if at:
-        return f"{at}: NaN or infinity is not a number a result can hold (standard JSON has neither)"
-    for key in ("std_rotation_deg", "std_translation_mm", "std_sphere_centre_mm"):
-        v = doc.get(key)
-        if isinstance(v, list) and any(isinstance(x, (int, float)) and x < 0 for x in v):
-            return f"{key}: a standard deviation cannot be negative, got {v}"
-    radius = doc.get("sphere_radius_mm")
-    if isinstance(radius, (int, float)) and not isinstance(radius, bool) and radius <= 0:
-        return f"sphere_radius_mm: must be greater than 0, got {radius}"
-    cov = doc.get("covariance")
-    if isinstance(cov, list):
-        n = 10 if doc.get("radius_fitted") is True else 9
-        if len(cov) != n or not all(isinstance(r, list) and len(r) == n for r in cov):
-            return (f"covariance: expected a {n} x {n} matrix (rotation, translation, sphere centre"
-                    f"{', radius' if n == 10 else ''}), got {len(cov)} rows")
-    if isinstance(cov, list) and all(isinstance(r, list) for r in cov):
-        for i, row in enumerate(cov):
-            if i < len(row) and isinstance(row[i], (int, float)) and row[i] < 0:
-                return f"covariance[{i}][{i}]: a variance cannot be negative, got {row[i]}"
-    for key, value in (("transform.translation_mm", (doc.get("transform") or {}).get("translation_mm")),
-                       ("sphere_centre_mm", doc.get("sphere_centre_mm")),
-                       ("sphere_radius_mm", [doc.get("sphere_radius_mm")])):
-        if isinstance(value, list):
-            for x in value:
-                if isinstance(x, (int, float)) and not isinstance(x, bool):
-                    try:
-                        ok = abs(float(x)) <= MAX_ABS_VALUE
-                    except OverflowError:
-                        ok = False
-                    if not ok:
-                        return f"{key}: {x!r:.40} is beyond {MAX_ABS_VALUE:g} mm: not a plausible value (units?)"
-    return None
-
-
-def read_result(path: str | os.PathLike) -> CalibrationResult:
-    """Load a result file written by :func:`write_result` (format ``spherecal-result``).
-    Raises :class:`DatasetFileError` naming the file and the field at fault; a result
-    of a newer format version asks for a newer spherecal."""
-    name = os.fspath(path)
-    data = _read_bytes(path)
-    if not data.removeprefix(b"\xef\xbb\xbf").strip():
-        raise DatasetFileError(f"{name}: the file holds no data; expected a spherecal result (one JSON document)")
-    from spherecal.io.files import text_encoding_problem
-
-    problem = text_encoding_problem(data)
-    if problem:
-        raise DatasetFileError(f"{name}: not a spherecal result as written: {problem}")
-    data = data.removeprefix(b"\xef\xbb\xbf")
-    try:
-        doc = json.loads(data)
-    except RecursionError:
-        raise DatasetFileError(f"{name}: not a spherecal result: nested too deeply") from None
-    except ValueError as exc:
-        first = data.split(b"\n", 1)[0]
-        try:
-            is_dataset = json.loads(first).get("format") == DATASET_FORMAT
-        except (ValueError, AttributeError):
-            is_dataset = False
-        if is_dataset:
-            raise DatasetFileError(
-                f"{name}: not a spherecal result: it is a dataset ({DATASET_FORMAT!r}); give a result.json or a run "
-                "folder holding one (spherecal solve makes one from a dataset)"
-            ) from None
-        raise DatasetFileError(f"{name}: not valid JSON ({exc}); a result file is one JSON document") from None
-    if not isinstance(doc, dict) or "format" not in doc:
-        raise DatasetFileError(
-            f"{name}: not a spherecal result: expected a JSON object with format {RESULT_FORMAT!r}"
-        )
-    fmt = doc["format"]
-    if fmt != RESULT_FORMAT:
-        hint = ("; it is a dataset, not a result: give a result.json or a run folder holding one (spherecal solve "
-                "makes one from a dataset)") if fmt == DATASET_FORMAT else ""
-        raise DatasetFileError(
-            f"{name}: not a spherecal result: format is {json.dumps(fmt)}, expected {RESULT_FORMAT!r}{hint}"
-        )
-    version = doc.get("version")
-    if type(version) is not int or version < 1:
-        raise DatasetFileError(f"{name}: version must be a whole number >= 1, found {json.dumps(version)}")
-    if version > RESULT_VERSION:
-        raise DatasetFileError(
-            f"{name}: result format version {version} is newer than this spherecal ({__version__}) reads "
-            f"(versions 1 to {RESULT_VERSION}); upgrade spherecal to read it"
-        )
-    bad = _result_number_problem(doc)
-    if bad:
-        raise DatasetFileError(f"{name}: {bad}")
-    try:
-        result = CalibrationResult.model_validate_json(data, strict=True)
-    except ValidationError as exc:
-        raise DatasetFileError(f"{name}: {_describe_validation_error(exc)}") from None
-    update = {}
-    for key in ("transform", "two_step_transform"):
-        pose = getattr(result, key)
-        if pose is not None:
-            kept = _keep_written_quaternion(pose, doc[key])
-            if kept is not pose:
-                update[key] = kept
-    return result.model_copy(update=update) if update else result

@@ -19,10 +19,10 @@ import numpy as np
 
 from spherecal.core import geometry as geo
 from spherecal.io.runlog import progress_log
-from spherecal.config import AcquisitionConfig, RunConfig
+from spherecal.config import AcquisitionConfig, SphereConfig, TransformConfig
 from spherecal.io.dataset import DatasetWriter
 from spherecal.core.errors import DeviceError, InputError, SpherecalError
-from spherecal.core.models import Observation, Pose, Profile
+from spherecal.core.models import MountingMode, Observation, Pose, Profile
 from spherecal.motion.planning import SweepPlan, plan_stations
 
 _LOG = progress_log("acquisition")  # the default ``log``: logger spherecal.acquisition
@@ -48,16 +48,17 @@ def targets_from_poses(poses: list[Pose], station: str, first_index: int, approa
     ]
 
 
-def plan_targets(cfg: RunConfig, sweep: SweepPlan | None = None) -> list[Target]:
-    """The planned shots, in order, from the configuration's nominal transform and the
-    rough sphere position; ``sweep`` replaces ``acquisition.sweep`` (the kinematic
-    planner's stations, :mod:`spherecal.motion.kinematic_plan`)."""
-    acq = cfg.acquisition
+def plan_targets(acq: AcquisitionConfig | None, mounting: MountingMode, nominal: TransformConfig,
+                 sphere: SphereConfig, sweep: SweepPlan | None = None) -> list[Target]:
+    """The planned shots of ``acq``, in order, from the nominal transform (the
+    configuration's ``[nominal_transform]``) and the rough sphere position; ``sweep``
+    replaces ``acquisition.sweep`` (the kinematic planner's stations,
+    :mod:`spherecal.motion.kinematic_plan`)."""
     if acq is None:
         raise InputError("no [acquisition] section: nothing to plan")
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
     stations = plan_stations(
-        cfg.mounting, cfg.nominal_transform.pose(), acq.sphere_centre_mm, cfg.sphere.radius_mm, sweep or acq.sweep, R_ref
+        mounting, nominal.pose(), acq.sphere_centre_mm, sphere.radius_mm, sweep or acq.sweep, R_ref
     )
     targets: list[Target] = []
     for label, poses in stations:

@@ -33,20 +33,17 @@ search, continuing from the plan as it is, and checked as the plan they make).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from spherecal.config import AcquisitionConfig, CalibrationOptions, KinematicPlanSettings, SphereConfig, TransformConfig
 from spherecal.core import geometry as geo
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
+from spherecal.estimation.options import kinematic_effects
 from spherecal.estimation.refine import design_identifiability, plan_design
 from spherecal.core.kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
 from spherecal.core.models import MountingMode, Pose
 from spherecal.motion.planning import SweepPlan, station_flange_poses, with_standoff
-
-if TYPE_CHECKING:  # pragma: no cover
-    from spherecal.config import RunConfig
 
 #: With identify_kinematics a plan must identify at least this many geometric parameters
 #: per joint on average: a revolute arm seen through one sphere has 3 per joint
@@ -77,50 +74,16 @@ DESIGN_CENTRE_NOISE_MM = 0.05
 #: singularity (of the wrist, most often) and is left out: a real controller slows down or
 #: stops there, and the design's linearisation fails.
 MAX_SWEEP_JOINT_TRAVEL_DEG = 10.0
-#: Default (max tilt, max turn) in deg per mounting mode. Eye-to-hand turns the sphere on
-#: its stylus in front of the fixed sensor; 30 deg and 40 deg there leave the identification
-#: poorly conditioned (about 1,000 on the example cell), 45 and 90 give 316. The simulated
-#: cell does not model a stylus or flange hiding the sphere from the laser: on a real cell,
-#: choose limits that keep them out of its view.
-DEFAULT_LIMITS_DEG = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (45.0, 90.0)}
 
 
-class KinematicPlanSettings(BaseModel):
-    """``[acquisition.kinematic_plan]``: stations for kinematic calibration chosen by the
-    planner (module docstring) instead of listed in ``acquisition.sweep.tilts_deg``."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    stations: int = Field(20, ge=4, le=200, description="stations to plan")
-    candidates: int = Field(240, ge=8, le=5000, description="candidate orientations the stations are chosen from")
-    max_tilt_deg: float | None = Field(
-        None, gt=0, le=90, description="largest tilt of the view axis from the reference orientation, deg "
-        "(default 50 eye-in-hand, 45 eye-to-hand)")
-    max_turn_deg: float | None = Field(None, ge=0, le=180, description="largest turn about the view axis, deg (default 90)")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the candidates' turns (the plan is the same for "
-                      "the same seed and configuration)")
-
-    @model_validator(mode="after")
-    def _enough_candidates(self):
-        if self.candidates < self.stations:
-            raise ValueError(f"candidates = {self.candidates} must be at least stations = {self.stations}")
-        return self
-
-    def limits_deg(self, mounting: MountingMode) -> tuple[float, float]:
-        tilt, turn = DEFAULT_LIMITS_DEG[mounting]
-        return (tilt if self.max_tilt_deg is None else self.max_tilt_deg,
-                turn if self.max_turn_deg is None else self.max_turn_deg)
-
-
-def uses_planner(cfg: "RunConfig") -> bool:
-    """True when the configuration's stations come from the kinematic planner: an
+def uses_planner(acq: AcquisitionConfig | None, calibration: CalibrationOptions) -> bool:
+    """True when the stations come from the kinematic planner: an
     ``[acquisition.kinematic_plan]`` section, or ``identify_kinematics`` with no
     ``acquisition.sweep.tilts_deg`` given (automatic acquisition only)."""
-    acq = cfg.acquisition
     if acq is None or acq.mode == "manual":
         return False
     return acq.kinematic_plan is not None or (
-        cfg.calibration.identify_kinematics and "tilts_deg" not in acq.sweep.model_fields_set)
+        calibration.identify_kinematics and "tilts_deg" not in acq.sweep.model_fields_set)
 
 
 def candidate_tilts_deg(settings: KinematicPlanSettings, mounting: MountingMode) -> np.ndarray:
@@ -181,12 +144,12 @@ class _Context:
     settings: KinematicPlanSettings
 
     @classmethod
-    def of(cls, cfg: "RunConfig", arm) -> "_Context":
-        acq = cfg.acquisition
+    def of(cls, acq: AcquisitionConfig, calibration: CalibrationOptions, mounting: MountingMode,
+           nominal: TransformConfig, sphere: SphereConfig, arm) -> "_Context":
         sweep = with_standoff(acq.sweep, None)  # as runner.for_sensor fitted it to the sensor (else: which setting)
-        return cls(cfg.mounting, cfg.nominal_transform.pose(), np.asarray(acq.sphere_centre_mm, float),
-                   cfg.sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
-                   acq.workspace, arm, cfg.calibration.kinematic_effects(arm.chain).prior_sd,
+        return cls(mounting, nominal.pose(), np.asarray(acq.sphere_centre_mm, float),
+                   sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
+                   acq.workspace, arm, kinematic_effects(calibration, arm.chain).prior_sd,
                    acq.kinematic_plan or KinematicPlanSettings())
 
     def rows(self, R0: np.ndarray, t0: np.ndarray, joints_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -316,19 +279,23 @@ class KinematicPlan:
                 f"{self.limits_deg[1]:g} deg) for the arm's geometric parameters; tilts_deg = [{tilts}]")
 
 
-def plan_kinematic_stations(cfg: "RunConfig", arm) -> KinematicPlan:
-    """The stations of the kinematic planner (module docstring) for ``cfg``, with the
-    arm's kinematics ``arm``. Raises :class:`InputError` when too few candidate
-    orientations are reachable."""
+def plan_kinematic_stations(acq: AcquisitionConfig, calibration: CalibrationOptions, mounting: MountingMode,
+                            nominal: TransformConfig, sphere: SphereConfig, arm, *,
+                            robot_type: str | None = None) -> KinematicPlan:
+    """The stations of the kinematic planner (module docstring) for the acquisition
+    ``acq`` (its ``kinematic_plan`` settings, sweep, workspace and rough sphere centre),
+    with the arm's kinematics ``arm`` and the prior spread of its geometric error from
+    ``calibration``; ``robot_type`` names the robot in the message when ``arm`` is None.
+    Raises :class:`InputError` when too few candidate orientations are reachable."""
 
     if arm is None:
         raise ConfigError("the kinematic planner needs a robot type whose plugin describes its arm "
-                          f"(robot.type = {cfg.robot.get('type')!r} does not): list the stations in "
+                          f"(robot.type = {robot_type!r} does not): list the stations in "
                           "acquisition.sweep.tilts_deg")
-    ctx = _Context.of(cfg, arm)
+    ctx = _Context.of(acq, calibration, mounting, nominal, sphere, arm)
     n = ctx.settings.stations
-    limits = ctx.settings.limits_deg(cfg.mounting)
-    R, t = station_flange_poses(cfg.mounting, ctx.X, ctx.centre, ctx.radius_mm, ctx.sweep, [(0.0, 0.0, 0.0)],
+    limits = ctx.settings.limits_deg(mounting)
+    R, t = station_flange_poses(mounting, ctx.X, ctx.centre, ctx.radius_mm, ctx.sweep, [(0.0, 0.0, 0.0)],
                                 [(0.0, 0.0)], ctx.R_ref)
     mid = R.shape[1] // 2
     try:
@@ -428,8 +395,10 @@ def _passes(info: dict, n_joints: int, max_condition: float) -> bool:
         info["condition_number"] <= max_condition
 
 
-def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: KinematicPlan | None = None,
-                                     start_joints_deg=None) -> str:
+def check_plan_identifies_kinematics(targets, acq: AcquisitionConfig, calibration: CalibrationOptions,
+                                     mounting: MountingMode, nominal: TransformConfig, sphere: SphereConfig, arm,
+                                     planned: KinematicPlan | None = None, *, start_joints_deg=None,
+                                     robot_type: str | None = None) -> str:
     """Before anything moves, with ``identify_kinematics``: the parameters the plan would
     identify (per joint) and the condition number of their identification. Raises
     :class:`InputError` (nothing moved) when the plan identifies fewer than
@@ -440,11 +409,12 @@ def check_plan_identifies_kinematics(targets, cfg: "RunConfig", arm, planned: Ki
     to ask the planner for); returns a one-line summary otherwise. The joints of the
     targets are those the arm takes reaching them in order from ``start_joints_deg``
     (controller convention; default: zero joints, before the robot is connected; the
-    arm's joints where it stands, once it is)."""
+    arm's joints where it stands, once it is). The sections and ``robot_type`` are as
+    for :func:`plan_kinematic_stations`."""
     if arm is None:
         raise ConfigError("calibration.identify_kinematics needs a robot type whose plugin describes its arm "
-                          f"(robot.type = {cfg.robot.get('type')!r} does not); nothing was moved")
-    ctx = _Context.of(cfg, arm)
+                          f"(robot.type = {robot_type!r} does not); nothing was moved")
+    ctx = _Context.of(acq, calibration, mounting, nominal, sphere, arm)
     joints = _sequential_joints(arm, [t.pose for t in targets], start_joints_deg)
     rows, info = _identification(ctx, np.array([t.pose.rotation_matrix for t in targets]),
                                  np.array([t.pose.translation for t in targets]), joints)

@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
+from spherecal.config import SweepPlan
 from spherecal.core import geometry as geo
 from spherecal.core.errors import ConfigError
 from spherecal.core.models import MountingMode, Pose
@@ -27,39 +27,6 @@ if TYPE_CHECKING:  # pragma: no cover
 #: gives it to the last bit (sin(pi) in double precision is 1.2246e-16), so that importing
 #: the planner needs no SciPy.
 FLANGE_DOWN = np.array([[-1.0, 0.0, 1.2246467991473532e-16], [0.0, 1.0, 0.0], [-1.2246467991473532e-16, 0.0, -1.0]])
-
-
-class SweepPlan(BaseModel):
-    """How to sweep the sphere: sensor-frame positions of the sphere centre per station.
-
-    Within a station the flange only translates. The sphere centre crosses the laser
-    plane along the sensor's x from ``-sweep_fraction * r`` to ``+sweep_fraction * r``
-    while wandering by ``lateral_amplitude_mm`` in y and z, so that the moves of one
-    station span three dimensions (this is what lets each station decide, on its own,
-    on which side of the laser plane the centre lies)."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    profiles_per_station: int = Field(10, ge=4, le=10_000, description="profiles taken per station")
-    sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
-    standoff_z_mm: float | None = Field(
-        None, description="sensor-frame z of the sphere centre, mm (default: the sensor's declared "
-        "field of view's standoff, SensorFieldOfView.sweep_standoff_z_mm)")
-    lateral_amplitude_mm: float | None = Field(
-        None, ge=0, le=1000, description="y/z wander within a sweep, mm (default: LATERAL_AMPLITUDE_PERCENT of the "
-        "sensor's measuring range, 4 mm in a 100 mm range)")
-    station_offsets_mm: list[tuple[float, float]] | None = Field(
-        None,
-        description="(y, z) shift of the sweep in the sensor frame, mm, per station (cycled): "
-        "sweeps at different places of the field of view tie the rotation to the translation (default: "
-        "STATION_OFFSETS_PERCENT of the sensor's field of view, [(0, 0), (10, -25), (-10, 18), (0, -30)] for a "
-        "100 mm range and a line 40 mm wide at the standoff)",
-    )
-    tilts_deg: list[tuple[float, float, float]] = Field(
-        default_factory=lambda: [(0.0, 0.0, 0.0), (30.0, 0.0, 0.0), (0.0, 30.0, 0.0), (0.0, 0.0, 45.0)],
-        description="one rotation vector (deg) per station: about sensor axes (eye-in-hand) "
-        "or base axes (eye-to-hand), applied to the reference orientation",
-    )
 
 
 #: The default stations' places in the field of view, (y, z) in percent: y of the line's

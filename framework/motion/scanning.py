@@ -13,21 +13,21 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import Progress, Target, move_and_shoot, targets_from_poses
-from spherecal.config import RunConfig
+from spherecal.config import AcquisitionConfig, ScanConfig
 from spherecal.core.errors import ConfigError
 from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list
-from spherecal.core.models import SPHERE_FRAME, Pose
+from spherecal.core.models import SPHERE_FRAME, MountingMode, Pose
 from spherecal.io.ply import PlyWriter
 from spherecal.motion.planning import SweepPlan, plan_stations, site_offset_mm
 
 _LOG = progress_log("scan")  # the default ``log``: logger spherecal.scan
 
 
-def plan_scan(cfg: RunConfig, X: Pose, field_of_view=None) -> list[Target]:
-    """Parallel pure-translation passes over ``[scan] object_centre_mm``; a site's
-    ``offset_percent`` is sized to ``field_of_view`` (the sensor's)."""
-    sc = cfg.scan
-    acq = cfg.acquisition
+def plan_scan(sc: ScanConfig, acq: AcquisitionConfig, mounting: MountingMode, X: Pose,
+              field_of_view=None) -> list[Target]:
+    """Parallel pure-translation passes over ``[scan] object_centre_mm``, with the
+    calibrated transform ``X`` and the reference orientation and approach speed of
+    ``acq``; a site's ``offset_percent`` is sized to ``field_of_view`` (the sensor's)."""
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
     if sc.standoff_z_mm is None:
         raise ConfigError("scan.standoff_z_mm: not set, and the sensor type declares no field of view to take it "
@@ -40,7 +40,7 @@ def plan_scan(cfg: RunConfig, X: Pose, field_of_view=None) -> list[Target]:
         plan = SweepPlan(profiles_per_station=max(n, 4), sweep_fraction=0.5, lateral_amplitude_mm=0.0,
                          standoff_z_mm=sc.standoff_z_mm, station_offsets_mm=[(dy, offset[1])],
                          tilts_deg=[sc.site.tilt_deg])
-        (_, poses), = plan_stations(cfg.mounting, X, sc.object_centre_mm, sc.length_mm, plan, R_ref)
+        (_, poses), = plan_stations(mounting, X, sc.object_centre_mm, sc.length_mm, plan, R_ref)
         targets += targets_from_poses(poses, f"pass{j + 1}", len(targets), acq.approach_speed_mm_s, sc.speed_mm_s)
     return targets
 
@@ -55,11 +55,12 @@ class ScanSummary:
     calibration_doubt: str | None = None
 
 
-def scan(robot, sensor, targets: list[Target], X: Pose, cfg: RunConfig, writer: PlyWriter,
-         log: Callable[[str], None] = _LOG, progress: Progress | None = None) -> ScanSummary:
-    """Take every target and append its mapped points to ``writer`` straight away."""
-    acq = cfg.acquisition
-    frame = SPHERE_FRAME[cfg.mounting]
+def scan(robot, sensor, targets: list[Target], X: Pose, acq: AcquisitionConfig, mounting: MountingMode,
+         writer: PlyWriter, log: Callable[[str], None] = _LOG, progress: Progress | None = None) -> ScanSummary:
+    """Take every target (with the pose checks and retries of ``acq``) and append its
+    points, mapped through ``X`` into the frame the object is fixed in, to ``writer``
+    straight away."""
+    frame = SPHERE_FRAME[mounting]
     summary = ScanSummary()
     progress = progress or Progress(len(targets))
     for n, t in enumerate(targets, start=1):
@@ -67,7 +68,7 @@ def scan(robot, sensor, targets: list[Target], X: Pose, cfg: RunConfig, writer: 
         if profile is None:
             summary.empty_profiles += 1
         else:
-            R, tt = frame_from_sensor_stack(cfg.mounting, pose.rotation_matrix[None], pose.translation[None], X, frame)
+            R, tt = frame_from_sensor_stack(mounting, pose.rotation_matrix[None], pose.translation[None], X, frame)
             pts, _ = map_profile_list(R, tt, [profile.points_mm])
             writer.write(pts, profile=np.full(len(pts), t.index, dtype=np.uint32))
             summary.profiles += 1

@@ -14,17 +14,18 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import Progress, Target, move_and_shoot, targets_from_poses
-from spherecal.config import RunConfig, SweepSite
+from spherecal.config import AcquisitionConfig, SphereConfig, SweepSite, ValidationConfig
 from spherecal.core.errors import ConfigError, DegenerateDataError
 from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
 from spherecal.core.metrology import (
     AcceptanceReport,
+    MaximumPermissibleErrors,
     acceptance_report,
     flatness_error,
     probing_errors,
     sphere_spacing_error,
 )
-from spherecal.core.models import SPHERE_FRAME, Pose
+from spherecal.core.models import SPHERE_FRAME, MountingMode, Pose
 from spherecal.motion.planning import SweepPlan, plan_stations, site_offset_mm
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -42,12 +43,12 @@ class Sweep:
     targets: list[Target]
 
 
-def _sweep(cfg: RunConfig, X: Pose, label: str, kind: str, centre, half_length_mm: float, site: SweepSite,
-           n: int, first_index: int, field_of_view: "SensorFieldOfView | None") -> Sweep:
-    acq = cfg.acquisition
+def _sweep(acq: AcquisitionConfig, mounting: MountingMode, X: Pose, label: str, kind: str, centre,
+           half_length_mm: float, site: SweepSite, n: int, first_index: int,
+           field_of_view: "SensorFieldOfView | None", sensor_type: str | None) -> Sweep:
     R_ref = geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz)
     if field_of_view is None:
-        raise ConfigError(f"sensor type {cfg.sensor['type']!r} declares no field of view: validation plans its "
+        raise ConfigError(f"sensor type {sensor_type!r} declares no field of view: validation plans its "
                           "sweeps in it (give it in the sensor plugin, or [simulation.fov] for a simulated run)")
     # a sphere's centre at the sensor's sweep standoff, a flat's surface in the middle of the range
     standoff = field_of_view.sweep_standoff_z_mm if kind != "flat" else field_of_view.middle_z_mm
@@ -55,35 +56,40 @@ def _sweep(cfg: RunConfig, X: Pose, label: str, kind: str, centre, half_length_m
     plan = SweepPlan(profiles_per_station=n, sweep_fraction=0.9, lateral_amplitude_mm=0.0,
                      standoff_z_mm=standoff,
                      station_offsets_mm=[offset], tilts_deg=[site.tilt_deg])
-    (_, poses), = plan_stations(cfg.mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
+    (_, poses), = plan_stations(mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
     return Sweep(label, kind, targets_from_poses(poses, label, first_index, acq.approach_speed_mm_s, acq.speed_mm_s))
 
 
-def plan_validation(cfg: RunConfig, X: Pose, field_of_view: "SensorFieldOfView | None" = None) -> list[Sweep]:
-    """The validation sweeps, planned with the calibrated transform ``X`` in the sensor's
-    ``field_of_view`` (a sphere's centre at its ``sweep_standoff_z_mm``, a flat in the
-    middle of its range)."""
-    v = cfg.validation
+def plan_validation(v: ValidationConfig, acq: AcquisitionConfig | None, mounting: MountingMode, X: Pose,
+                    sphere: SphereConfig, field_of_view: "SensorFieldOfView | None" = None,
+                    sensor_type: str | None = None) -> list[Sweep]:
+    """The validation sweeps of ``v``, planned with the calibrated transform ``X`` in the
+    sensor's ``field_of_view`` (a sphere's centre at its ``sweep_standoff_z_mm``, a flat
+    in the middle of its range), with the reference orientation and speeds of ``acq``
+    (whose rough sphere centre places the sphere's sweeps); ``sensor_type`` names the
+    sensor in the message when there is no field of view."""
     n = v.profiles_per_sweep
-    r = cfg.sphere.radius_mm
-    centre = cfg.acquisition.sphere_centre_mm if cfg.acquisition else None
+    r = sphere.radius_mm
+    centre = acq.sphere_centre_mm if acq else None
     sweeps: list[Sweep] = []
     count = lambda: sum(len(s.targets) for s in sweeps)  # noqa: E731
+
+    def add(label: str, kind: str, centre, half_length_mm: float, site: SweepSite) -> None:
+        sweeps.append(_sweep(acq, mounting, X, label, kind, centre, half_length_mm, site, n, count(), field_of_view,
+                             sensor_type))
+
     if centre is not None:
         for k, site in enumerate(v.sphere_positions):
-            sweeps.append(_sweep(cfg, X, f"P{k + 1}", "sphere", centre, 0.9 * r, site, n, count(), field_of_view))
+            add(f"P{k + 1}", "sphere", centre, 0.9 * r, site)
     if v.ball_bar is not None:
         bb = v.ball_bar
         for k, site in enumerate(bb.positions):
             other = bb.positions[(k + 1) % len(bb.positions)]
-            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site,
-                                 n, count(), field_of_view))
-            sweeps.append(_sweep(cfg, X, f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other,
-                                 n, count(), field_of_view))
+            add(f"B{k + 1}", "ball_a", bb.centre_a_mm, 0.9 * bb.ball_radius_mm, site)
+            add(f"B{k + 1}", "ball_b", bb.centre_b_mm, 0.9 * bb.ball_radius_mm, other)
     if v.flat is not None:
         for k, site in enumerate(v.flat.positions):
-            sweeps.append(_sweep(cfg, X, f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site,
-                                 n, count(), field_of_view))
+            add(f"F{k + 1}", "flat", v.flat.centre_mm, v.flat.sweep_length_mm / 2, site)
     if not sweeps:
         raise DegenerateDataError("nothing to validate: give [acquisition] sphere_centre_mm, [validation.ball_bar] or [validation.flat]")
     return sweeps
@@ -98,10 +104,10 @@ class Measured:
     profiles: list[np.ndarray] = field(default_factory=list)
 
 
-def measure(robot, sensor, sweeps: list[Sweep], cfg: RunConfig, log: Callable[[str], None] = _LOG,
+def measure(robot, sensor, sweeps: list[Sweep], acq: AcquisitionConfig, log: Callable[[str], None] = _LOG,
             progress: Progress | None = None, on_shot: Callable | None = None) -> list[Measured]:
-    """Move through every sweep and take its profiles (poses read before and after)."""
-    acq = cfg.acquisition
+    """Move through every sweep and take its profiles (poses read before and after, with
+    the checks and retries of ``acq``)."""
     total = sum(len(s.targets) for s in sweeps)
     progress = progress or Progress(total)
     out, done = [], 0
@@ -193,18 +199,19 @@ def position_rows(outcome: "ValidationOutcome") -> list[dict]:
     return rows
 
 
-def evaluate(cfg: RunConfig, X: Pose, measured: list[Measured]) -> ValidationOutcome:
-    """The acceptance figures from the measured sweeps."""
-    v = cfg.validation
+def evaluate(v: ValidationConfig, mounting: MountingMode, X: Pose, sphere: SphereConfig,
+             measured: list[Measured]) -> ValidationOutcome:
+    """The acceptance figures from the measured sweeps, mapped through ``X``, against
+    the MPEs of ``v`` and the certified radius of ``sphere``."""
     probing, spacing, flatness = [], [], []
     centres: dict[str, list[float]] = {}
     balls: dict[str, dict[str, np.ndarray]] = {}
     for m in measured:
         if not m.profiles:
             raise DegenerateDataError(f"validation sweep {m.sweep.label} ({m.sweep.kind}) saw nothing: check its position")
-        pts = points_in_object_frame(cfg.mounting, X, m.poses, m.profiles)
+        pts = points_in_object_frame(mounting, X, m.poses, m.profiles)
         if m.sweep.kind == "sphere":
-            pr = probing_errors(pts, 2 * cfg.sphere.radius_mm, position=m.sweep.label)
+            pr = probing_errors(pts, 2 * sphere.radius_mm, position=m.sweep.label)
             probing.append(pr)
             centres[m.sweep.label] = list(pr.fit.centre_mm)
         elif m.sweep.kind in ("ball_a", "ball_b"):
@@ -213,7 +220,7 @@ def evaluate(cfg: RunConfig, X: Pose, measured: list[Measured]) -> ValidationOut
             flatness.append(flatness_error(pts, position=m.sweep.label))
     for label, pair in balls.items():
         spacing.append(sphere_spacing_error(pair["ball_a"], pair["ball_b"], v.ball_bar.certified_distance_mm, position=label))
-    report = acceptance_report(v.mpe.as_metrology(), probing=probing, sphere_spacing=spacing, flatness=flatness)
+    report = acceptance_report(MaximumPermissibleErrors(**v.mpe.model_dump()), probing=probing, sphere_spacing=spacing, flatness=flatness)
     spread = passed = None
     if len(centres) >= 2:
         c = np.array(list(centres.values()))

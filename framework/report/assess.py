@@ -20,12 +20,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from spherecal.config import POINT_DISTANCE_MM  # noqa: F401 (the report's default, imported from here)
 from spherecal.estimation.robust import median
 from spherecal.core.models import CalibrationResult
-
-#: The distance from the sensor (mm, along its line of sight) of the point whose
-#: uncertainty the report gives when ``[report] point_distance_mm`` is not set.
-POINT_DISTANCE_MM = 100.0
 
 Level = Literal["green", "amber", "red"]
 _RANK = {"green": 0, "amber": 1, "red": 2}

@@ -17,16 +17,16 @@ _WHERE = {
     "FlatPlate": ".objects",
     "SceneObject": ".objects",
     "Sphere": ".objects",
-    "NoiseModel": ".cell",
+    "NoiseModel": "spherecal.config",
     "SensorFieldOfView": ".cell",
     "SimulatedCell": ".cell",
     "arm_layout": ".cell",
     "standard_cell": ".cell",
-    "SweepPlan": "spherecal.motion.planning",  # re-exported: the simulated acquisition plans with them
+    "SweepPlan": "spherecal.config",  # re-exported: the simulated acquisition plans with them
     "plan_stations": "spherecal.motion.planning",
     "simulate_centre_dataset": ".datasets",
     "simulate_dataset": ".datasets",
-    "RobotErrorModel": ".robot_error",
+    "RobotErrorModel": "spherecal.config",
     "SimulatedArm": ".robot_error",
 }
 

@@ -17,13 +17,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
+from spherecal.config import NoiseModel, RobotErrorModel
 from spherecal.core import geometry as geo
 from spherecal.devices.contract import SensorFieldOfView
 from spherecal.core.models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
 from spherecal.sim.objects import BallBar, SceneObject, Sphere
-from spherecal.sim.robot_error import RobotErrorModel, SimulatedArm
+from spherecal.sim.robot_error import SimulatedArm
 
 
 def _field_of_view(fov, who: str) -> SensorFieldOfView:
@@ -38,19 +38,6 @@ def _field_of_view(fov, who: str) -> SensorFieldOfView:
             "PluginHost().registry.sensor_type(name).field_of_view); the simulator knows no sensor's"
         )
     raise TypeError(f"{who}: fov must be a spherecal.devices.contract.SensorFieldOfView, got {type(fov).__name__}")
-
-
-class NoiseModel(BaseModel):
-    """Noise of the simulated cell. Standard deviations, per axis."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    point_noise_mm: float = Field(0.01, ge=0, description="sensor point noise, each of y and z, mm")
-    pose_translation_noise_mm: float = Field(0.02, ge=0, description="robot position noise, each base axis, mm")
-    pose_rotation_noise_deg: float = Field(0.0, ge=0, description="robot orientation noise, about each base axis, deg")
-    stray_profile_fraction: float = Field(0.0, ge=0, le=1, description="share of profiles that get stray points")
-    strays_per_profile: int = Field(4, ge=0, le=100_000, description="stray points added to such a profile")
-    stray_offset_mm: tuple[float, float] = Field((0.3, 3.0), description="range of a stray's distance off the surface, mm")
 
 
 class FanHits(NamedTuple):

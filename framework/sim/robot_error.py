@@ -9,7 +9,7 @@ amount that changes slowly over the joint space (see ``shared/reference/method.m
 "Robot error"). :class:`SimulatedArm` does exactly that on the geometry a robot plugin
 describes (:class:`~spherecal.core.kinematics.ArmKinematics`); it knows no robot brand.
 
-The error of a particular arm is drawn once from :class:`RobotErrorModel` (magnitudes
+The error of a particular arm is drawn once from :class:`~spherecal.config.RobotErrorModel` (magnitudes
 uniform in the given ranges, signs and directions random) and stays fixed: it is the
 arm's geometry, not noise.
 """
@@ -17,47 +17,11 @@ arm's geometry, not noise.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from spherecal.config import RobotErrorModel
 from spherecal.core import geometry as geo
 from spherecal.core.kinematics import ArmKinematics, SerialChain
 from spherecal.core.models import Pose
-
-
-def _range(lo_default: float, hi_default: float, what: str):
-    return Field(
-        (lo_default, hi_default),
-        description=f"{what}: each error's magnitude is drawn uniformly from this range, with a random sign",
-    )
-
-
-class RobotErrorModel(BaseModel):
-    """Geometric error of the simulated arm (defaults: an uncalibrated IRB 2400-class
-    arm, flange 0.5-2 mm and 0.03-0.15 deg off its nominal pose)."""
-
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-    joint_zero_offset_deg: tuple[float, float] = _range(0.02, 0.05, "zero offset of every joint, deg")
-    link_length_mm: tuple[float, float] = _range(0.1, 0.3, "error of each joint placement along the link, mm")
-    link_offset_mm: tuple[float, float] = _range(0.0, 0.2, "error of each joint placement across the link, mm")
-    axis_tilt_deg: tuple[float, float] = _range(0.0, 0.02, "tilt of every joint axis, deg")
-    joint_compliance_deg_per_m: tuple[float, float] = Field(
-        (0.0, 0.0), description="gravity sag of every joint: it turns by this much (deg) per metre of "
-        "horizontal lever from its axis to the flange (drawn uniformly per joint, always with gravity). Not a "
-        "geometric error: it changes with the arm's configuration, so no kinematic model holds it"
-    )
-    seed: int | None = Field(
-        None, ge=0, le=2**63 - 1, description="seed of this arm's errors (default: the cell's seed)"
-    )
-
-    @model_validator(mode="after")
-    def _ordered(self):
-        for name in ("joint_zero_offset_deg", "link_length_mm", "link_offset_mm", "axis_tilt_deg",
-                     "joint_compliance_deg_per_m"):
-            lo, hi = getattr(self, name)
-            if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi <= 100):
-                raise ValueError(f"{name}: expected 0 <= low <= high <= 100, got ({lo}, {hi})")
-        return self
 
 
 def _signed(rng: np.random.Generator, rng_range: tuple[float, float], size) -> np.ndarray:

@@ -39,7 +39,9 @@ def calibrated(sim_config, tmp_path):
     nominal = PluginHost().arm_kinematics(cfg.robot)
     cell = make_cell(cfg, nominal)  # as the runner makes it
     cell.attach_arm(nominal)  # as the simulated controller does
-    dataset = simulate_dataset(cell, plan_kinematic_stations(cfg, nominal).sweep)
+    plan = plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere,
+                                   nominal)
+    dataset = simulate_dataset(cell, plan.sweep)
     out = tmp_path / "out"
     solution, _, written = solve_and_write(dataset, calibration_options(cfg), out, log=lambda m: None, report=False,
                                            kinematics=nominal)

@@ -121,7 +121,7 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
     host.validate_sensor_config("nxsensor_i", cfg.sensor)
     exports = host.export_plan(cfg.export, cfg.mounting, cfg.robot["type"])
     assert exports.names[0] == "abb_rapid" and exports.selected[0].settings.cog_mm == (0.0, 0.0, 80.0)
-    targets = plan_targets(cfg)
+    targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
     assert check_targets(targets, cfg.acquisition) == []
     from spherecal.robots.abb_irb2400.kinematics import kinematics_for
 

@@ -77,7 +77,8 @@ def test_a_third_party_sensor_is_simulated_and_planned_with_its_declared_field_o
     from spherecal.motion.acquisition import plan_targets
 
     seen = 0
-    for target in plan_targets(loaded.config)[:40]:
+    cfg = loaded.config
+    for target in plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)[:40]:
         cell.move_flange_to(target.pose)
         pts = cell.ideal_profile(target.pose)
         seen += len(pts)

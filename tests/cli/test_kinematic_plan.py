@@ -16,6 +16,15 @@ from spherecal.plugins.host import PluginHost
 IDENTIFY = {r"^\[calibration\]$": "[calibration]\nidentify_kinematics = true"}
 
 
+def sections(cfg) -> tuple:
+    """The sections of ``cfg`` the kinematic planner and its check take."""
+    return cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere
+
+
+def targets_of(cfg, sweep=None):
+    return plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere, sweep)
+
+
 def with_tilts(tilts) -> dict:
     """A replacement for example_config that lists the stations' tilts by hand."""
     text = "[" + ", ".join("[" + ", ".join(f"{v:g}" for v in t) + "]" for t in tilts) + "]"
@@ -31,7 +40,7 @@ def test_the_planner_is_used_when_no_stations_are_given(sim_config, capsys):
     """identify_kinematics and no acquisition.sweep.tilts_deg: the planner's 20 stations,
     its summary and the identification's (per joint) before anything moves."""
     path = sim_config(**IDENTIFY)
-    assert uses_planner(load_config(path).config)
+    assert uses_planner(load_config(path).config.acquisition, load_config(path).config.calibration)
     assert main(["calibrate", str(path), "--dry-run"]) == EXIT_OK
     err = capsys.readouterr().err
     assert "kinematic plan: 20 stations chosen from" in err and "plan: 200 shots in 20 stations" in err
@@ -39,12 +48,14 @@ def test_the_planner_is_used_when_no_stations_are_given(sim_config, capsys):
             "0, 4, 4, 4, 4, 2), condition number") in err
     assert not (path.parent / "out").exists()
     # listed stations, or no identify_kinematics: no planner
-    assert not uses_planner(load_config(sim_config(**IDENTIFY, **with_tilts([(0, 0, 0), (30, 0, 0), (0, 30, 0)]))).config)
-    assert not uses_planner(load_config(sim_config()).config)
+    listed = load_config(sim_config(**IDENTIFY, **with_tilts([(0, 0, 0), (30, 0, 0), (0, 30, 0)]))).config
+    assert not uses_planner(listed.acquisition, listed.calibration)
+    plain = load_config(sim_config()).config
+    assert not uses_planner(plain.acquisition, plain.calibration)
     # asked for explicitly: planned without identify_kinematics too, with its own settings
     cfg = for_run(sim_config(**{r"^\[acquisition\.workspace\]$": "[acquisition.kinematic_plan]\nstations = 6\n\n"
                                                                        "[acquisition.workspace]"})).config
-    assert uses_planner(cfg) and cfg.acquisition.kinematic_plan.stations == 6
+    assert uses_planner(cfg.acquisition, cfg.calibration) and cfg.acquisition.kinematic_plan.stations == 6
 
 
 def test_kinematic_plan_settings_are_checked(sim_config):
@@ -65,7 +76,7 @@ def test_the_plan_is_deterministic(sim_config, arm):
 
     def tilts(seed):
         cfg = for_run(sim_config(**{r"^\[acquisition\.workspace\]$": settings.format(seed)})).config
-        plan = plan_kinematic_stations(cfg, arm)
+        plan = plan_kinematic_stations(*sections(cfg), arm)
         assert plan.tried == 40 and len(plan.sweep.tilts_deg) == 6
         assert plan.sweep.tilts_deg[0] == (0.0, 0.0, 0.0)  # the reference orientation first
         return plan.sweep.tilts_deg
@@ -79,7 +90,7 @@ def test_a_workspace_too_small_for_the_stations_is_refused(sim_config, arm):
     with pytest.raises(InputError, match=r"only \d+ of 240 candidate orientations .* are reachable with every flange "
                                          r"position in acquisition.workspace, and 20 stations were asked for: widen "
                                          r"acquisition.workspace.*nothing was moved"):
-        plan_kinematic_stations(cfg, arm)
+        plan_kinematic_stations(*sections(cfg), arm)
 
 
 #: Degenerate plans: every station in one arm configuration (small tilts, the wrist
@@ -100,7 +111,7 @@ def for_run(path):
 def joint_spans(cfg, arm):
     """Range of each joint (deg) over the plan's targets, as the robot takes them."""
     joints, seed = [], None
-    for t in plan_targets(cfg):
+    for t in targets_of(cfg):
         seed = arm.joints_from_flange_pose(t.pose, seed)
         joints.append(seed)
     return np.ptp(joints, axis=0)
@@ -170,10 +181,12 @@ def test_the_identification_is_checked_again_from_where_the_arm_stands(sim_confi
     assert "from the arm's joints now: kinematic identification: the plan (20 stations) identifies 18" in err
 
     cfg = for_run(path).config
-    planned = plan_kinematic_stations(cfg, arm)
-    targets = plan_targets(cfg, planned.sweep)
-    at_zero = check_plan_identifies_kinematics(targets, cfg, arm, planned)
-    assert check_plan_identifies_kinematics(targets, cfg, arm, planned, start_joints_deg=np.zeros(6)) == at_zero
-    flipped = check_plan_identifies_kinematics(targets, cfg, arm, planned, start_joints_deg=[0, 0, 0, -170, -40, 0])
+    planned = plan_kinematic_stations(*sections(cfg), arm)
+    targets = targets_of(cfg, planned.sweep)
+    at_zero = check_plan_identifies_kinematics(targets, *sections(cfg), arm, planned)
+    from_zero = check_plan_identifies_kinematics(targets, *sections(cfg), arm, planned, start_joints_deg=np.zeros(6))
+    assert from_zero == at_zero
+    flipped = check_plan_identifies_kinematics(targets, *sections(cfg), arm, planned,
+                                               start_joints_deg=[0, 0, 0, -170, -40, 0])
     cond = lambda s: float(re.search(r"condition number (\d+)", s).group(1))  # noqa: E731
     assert cond(flipped) != cond(at_zero)

@@ -8,6 +8,7 @@ from spherecal.io import dataset as dataio
 from spherecal.core import geometry as geo
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
 from spherecal.config import load_config
+from spherecal.estimation.options import station_rotation_tolerance_deg
 from spherecal.core.models import Observation, Pose
 from spherecal.robots.abb_irb2400.kinematics import kinematics_for
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
@@ -160,7 +161,7 @@ def test_station_rotation_tolerance_from_the_command_line(tmp_path):
 def test_station_rotation_tolerance_in_the_configuration(sim_config):
     path = sim_config(**{r"^\[calibration\]$": "[calibration]\nstation_rotation_tolerance_deg = 0.08"})
     cal = load_config(path).config.calibration
-    assert cal.station_rotation_tolerance_deg == 0.08 and cal.station_rotation_tolerance() == 0.08
+    assert cal.station_rotation_tolerance_deg == 0.08 and station_rotation_tolerance_deg(cal) == 0.08
     assert load_config(sim_config()).config.calibration.station_rotation_tolerance_deg is None
 
 

@@ -2,8 +2,8 @@
 ``spherecal --help`` and ``spherecal plugins`` load neither matplotlib, SciPy's spatial
 module nor Pinocchio (the robot plugin's kinematics import it on first use), and a
 ``solve`` without a report loads neither matplotlib nor Pinocchio, nor what only runs
-with a configuration file and devices (the configuration's models, the acquisition, the
-planners, the metrology of `validate`, the sensor's USB driver). Each command runs in a fresh interpreter, which
+with a configuration file and devices (the acquisition, the planners, the metrology of
+`validate`, the sensor's USB driver). Each command runs in a fresh interpreter, which
 then lists what it imported."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from reference_sensor import reference_fov
 
 HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 #: What `solve` (a dataset file, no configuration, no devices) has no use for.
-RUN_ONLY = ("spherecal.config", "spherecal.motion.acquisition", "spherecal.motion.kinematic_plan", "spherecal.core.metrology",
+RUN_ONLY = ("spherecal.motion.acquisition", "spherecal.motion.kinematic_plan", "spherecal.core.metrology",
             "spherecal.motion.validation", "spherecal.motion.scanning", "spherecal.sensors.nxsensor_i.driver", "usb",
             "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
             "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree",  # (the simulated world, URDF)

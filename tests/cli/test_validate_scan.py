@@ -70,11 +70,11 @@ def noise_spread(cfg, X, seeds=10):
         cell = make_cell(cfg.model_copy(update={"simulation": cfg.simulation.model_copy(update={"seed": seed})}))
         cell.noise_per_pose = False
         measured = []
-        for sweep in plan_validation(cfg, X, fov_of(cfg)):
+        for sweep in plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, X, cfg.sphere, fov_of(cfg)):
             poses, profiles = cell.scan([t.pose for t in sweep.targets])
             keep = [k for k, p in enumerate(profiles) if len(p)]
             measured.append(Measured(sweep, [poses[k] for k in keep], [profiles[k] for k in keep]))
-        report = evaluate(cfg, X, measured).report
+        report = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured).report
         ps += [p.probing_size_error_mm for p in report.probing]
         sd += [s.sphere_spacing_error_mm for s in report.sphere_spacing]
     return float(np.sqrt(np.mean(np.square(ps)))), float(np.sqrt(np.mean(np.square(sd))))
@@ -95,7 +95,7 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
 
     from spherecal.motion.validation import plan_validation
 
-    sweeps = plan_validation(cfg, true, fov_of(cfg))
+    sweeps = plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, true, cfg.sphere, fov_of(cfg))
     R0 = {s.label + s.kind: s.targets[0].pose.rotation_matrix for s in sweeps}
     shifts = np.array([R0[f"P{k}sphere"] @ dt for k in range(1, 5)])
     predicted_spread = np.linalg.norm(shifts - shifts.mean(axis=0), axis=1).max()
@@ -136,7 +136,8 @@ def test_a_rotated_calibration_is_caught(cfg_path):
     from spherecal.motion.validation import plan_validation
 
     shifts = []
-    for sweep in [s for s in plan_validation(cfg, true, fov_of(cfg)) if s.kind == "sphere"]:
+    sweeps = plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, true, cfg.sphere, fov_of(cfg))
+    for sweep in [s for s in sweeps if s.kind == "sphere"]:
         mean_z = np.concatenate([cell.ideal_profile(t.pose)[:, 1] for t in sweep.targets]).mean()
         shifts.append(sweep.targets[0].pose.rotation_matrix @ true.rotation_matrix @ [delta * mean_z, 0.0, 0.0])
     shifts = np.array(shifts)
@@ -150,7 +151,7 @@ def test_a_partial_mpe_section_keeps_the_other_defaults():
     from spherecal.config import ValidationConfig
 
     v = ValidationConfig.model_validate({"mpe": {"probing_form_mm": 0.3}})
-    m = v.mpe.as_metrology()
+    m = v.mpe
     assert (m.probing_form_mm, m.probing_size_mm, m.sphere_spacing_mm, m.flatness_mm) == (0.3, 0.06, 0.1, 0.15)
 
 

@@ -1,6 +1,6 @@
 import pytest
 
-from spherecal.io import dataset as dataio
+from spherecal.io import observation_line
 
 
 @pytest.fixture(params=["eye_in_hand", "eye_to_hand"])
@@ -12,8 +12,8 @@ def mounting(request):
 def parser(request, monkeypatch):
     """Run a test with the orjson accelerator and with the standard library's json."""
     if request.param == "orjson":
-        if dataio._orjson is None:
+        if observation_line._orjson is None:
             pytest.skip("orjson not installed")
     else:
-        monkeypatch.setattr(dataio, "_orjson", None)
+        monkeypatch.setattr(observation_line, "_orjson", None)
     return request.param

@@ -11,7 +11,7 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 import pytest
 
-from spherecal.io import dataset as dataio
+from spherecal.io.json_files import json_safe
 from spherecal.io.dataset import (
     DATASET_VERSION,
     DatasetWriter,
@@ -413,7 +413,7 @@ def obs_dict(index: int, /, **changes) -> dict:
         ({"mounting": "eye_on_hand"}, r"line 1 \(header\): mounting: Input should be 'eye_in_hand' or 'eye_to_hand'"),
         ({"sphere_radius_mm": 0.019}, r"line 1 \(header\): sphere_radius_mm: .*looks like metres"),
         ({"created": "2026-01-01T00:00:00"}, r"line 1 \(header\): created: .* has no time zone"),
-        ({"sphere_radius": 19.05}, r"line 1 \(header\): sphere_radius: unknown field"),
+        ({"sphere_radius": 19.05}, r"line 1 \(header\): sphere_radius: unknown key \(allowed here: .*did you mean 'sphere_radius_mm'\?\)"),
     ],
 )
 def test_bad_headers(tmp_path, header, message, parser):
@@ -460,7 +460,7 @@ def test_a_file_that_is_not_a_dataset(tmp_path):
         ({"index": -1}, r"index: Input should be greater than or equal to 0"),
         ({"index": 1.0}, r"index: Input should be a valid integer"),
         ({"kind": "event"}, r'kind: expected \'observation\', got "event"'),
-        ({"exposure_us": 120}, r"exposure_us: unknown field"),
+        ({"exposure_us": 120}, r"exposure_us: unknown key"),
         ({"profile__shot_id": 17}, r"profile\.shot_id: Input should be a valid string"),
         ({"profile__shot_id": "frame 17"}, r"profile\.shot_id: String should match pattern"),
         ({"profile__shot_id": "7" * 65}, r"profile\.shot_id: String should have at most 64 characters"),
@@ -584,7 +584,7 @@ def test_bad_result_files(tmp_path):
     check(lambda d: d["transform"].update(quaternion_wxyz=[1.0, 0.0, 0.0]), r"transform\.quaternion_wxyz")
     check(lambda d: d.update(variance_factor="1.07"), r"variance_factor: Input should be a valid number")
     check(lambda d: d["residuals"].pop("rms_mm"), r"residuals\.rms_mm: missing")
-    check(lambda d: d.update(tool="x"), r"tool: unknown field")
+    check(lambda d: d.update(tool="x"), r"tool: unknown key")
     path.write_text(path.read_text()[:200])
     with pytest.raises(DatasetFileError, match=r"r\.json: not valid JSON"):
         read_result(path)
@@ -618,5 +618,5 @@ def test_real_result_round_trip(tmp_path):
     assert back.covariance == result.covariance
     assert back.residuals == result.residuals
     assert back.model_dump(mode="json") == json_normalised(
-        dataio._check_json_safe(result.model_dump(mode="python"), "")
+        json_safe(result.model_dump(mode="python"), "")
     )

@@ -130,7 +130,7 @@ PROFILE = {"profile": {"y_mm": [1.0, 2.0, 3.0], "z_mm": [-20.0, -21.0, -22.0]}}
          r"circle\.radius_std_mm: Input should be greater than 0"),
         ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius_mm": 15.0, "centre_std_mm": 0.0, "radius_std_mm": 0.01}},
          r"circle\.centre_std_mm: Input should be greater than 0"),
-        ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius": 15.0}}, r"circle\.radius: unknown field"),
+        ({"circle": {"centre_yz_mm": [2.0, -20.0], "radius": 15.0}}, r"circle\.radius: unknown key \(allowed here: .*did you mean 'radius_mm'\?\)"),
         ({**SPHERE, "base_from_flange": {"translation_mm": [1000.0, 2.0, 3.0], "quaternion_wxyz": [0.96, 0.0, 0.0, 0.0]}},
          r"base_from_flange\.quaternion_wxyz: .*has norm 0\.960000; expected a unit quaternion"),
     ],

@@ -200,15 +200,17 @@ def test_planned_stations_calibrate_the_arm(kin, mounting, tmp_path):
         plan_kinematic_stations, uses_planner
 
     cfg = planned_config(tmp_path, mounting)
-    assert uses_planner(cfg)
-    plan = plan_kinematic_stations(cfg, kin)
+    assert uses_planner(cfg.acquisition, cfg.calibration)
+    sections = (cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere)
+    plan = plan_kinematic_stations(*sections, kin)
     assert len(plan.sweep.tilts_deg) == 20 and plan.sweep.profiles_per_station == 5
-    targets = plan_targets(cfg, plan.sweep)
+    targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere, plan.sweep)
     assert check_targets(targets, cfg.acquisition) == []
-    summary = check_plan_identifies_kinematics(targets, cfg, kin)
+    summary = check_plan_identifies_kinematics(targets, *sections, kin)
     assert "identifies 18 of 36 geometric parameters (per joint: 0, 4, 4, 4, 4, 2)" in summary
     assert float(re.search(r"condition number (\d+)", summary)[1]) < MAX_IDENTIFICATION_CONDITION / 2
-    spans, default = _joint_spans(kin, targets), _joint_spans(kin, plan_targets(cfg))
+    default_targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
+    spans, default = _joint_spans(kin, targets), _joint_spans(kin, default_targets)
     bends = [0, 1, 2, 4]  # the IRB 2400's waist, shoulder, elbow and wrist bend (4 and 6 roll)
     assert np.all(spans[bends] > 1.5 * default[bends]) and spans[1] > 20 and spans[2] > 15, (spans, default)
 

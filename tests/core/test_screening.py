@@ -10,6 +10,7 @@ import pytest
 from spherecal.core import geometry as geo
 from spherecal.core.errors import DegenerateDataError
 from spherecal.estimation import CalibrationOptions, screening, solve
+from spherecal.estimation.options import station_rotation_tolerance_deg
 from spherecal.estimation.problem import derived_station_rotation_tolerance_deg
 from spherecal.core.models import Dataset, Observation, Pose, Profile
 from spherecal.sim import NoiseModel, SweepPlan, plan_stations, simulate_dataset, standard_cell
@@ -153,8 +154,8 @@ def test_inconsistent_profiles_that_thin_a_station_drop_it_with_flags():
 def test_derived_station_rotation_tolerance():
     assert derived_station_rotation_tolerance_deg(0.0) == 0.02
     assert derived_station_rotation_tolerance_deg(0.01) == pytest.approx(4 * 0.01 * np.sqrt(3))
-    assert CalibrationOptions().station_rotation_tolerance() == 0.02
-    assert CalibrationOptions(station_rotation_tolerance_deg=0.3).station_rotation_tolerance() == 0.3
+    assert station_rotation_tolerance_deg(CalibrationOptions()) == 0.02
+    assert station_rotation_tolerance_deg(CalibrationOptions(station_rotation_tolerance_deg=0.3)) == 0.3
 
 
 def test_orientation_read_noise_is_never_refused():

@@ -60,7 +60,7 @@ def acquire_with_late_frames(config_path: Path, journal: Path, late_at_triggers:
     loaded, fov = configured_for_sensor(load_config(config_path), host)  # the sweep's standoff: the sensor's
     cfg = loaded.config
     cell = make_cell(cfg, field_of_view=fov)
-    targets = plan_targets(cfg)
+    targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
     assert len(targets) == SHOTS
     logs, true_poses = [], []
     with open_devices(loaded, host, cell, logs.append) as (robot, sensor):

@@ -1,0 +1,466 @@
+"""The sections of a configuration file, one pydantic model per concern, and the root
+:class:`RunConfig` that composes them.
+
+Every model is frozen and forbids unknown keys. Lengths in mm, angles in degrees,
+quaternions (w, x, y, z). The robot and sensor sections belong to their plugins: the
+root only checks that they name a ``type``. See docs/configuration.md.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from spherecal.core.workspace import WorkspaceBox
+from spherecal.core.models import MountingMode, Pose
+
+#: Most profiles one scan may ask for.
+MAX_SCAN_PROFILES = 10_000_000
+#: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
+CHI2_3DOF_1E4 = 21.108
+#: The distance from the sensor (mm, along its line of sight) of the point whose
+#: uncertainty the report gives when ``[report] point_distance_mm`` is not set.
+POINT_DISTANCE_MM = 100.0
+#: The key of the pydantic validation context that holds the folder of the configuration
+#: file: a plugin section's validator resolves its relative paths against it.
+BASE_DIR_CONTEXT_KEY = "base_dir"
+#: Default (max tilt, max turn) in deg per mounting mode. Eye-to-hand turns the sphere on
+#: its stylus in front of the fixed sensor; 30 deg and 40 deg there leave the identification
+#: poorly conditioned (about 1,000 on the example cell), 45 and 90 give 316. The simulated
+#: cell does not model a stylus or flange hiding the sphere from the laser: on a real cell,
+#: choose limits that keep them out of its view.
+DEFAULT_LIMITS_DEG = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (45.0, 90.0)}
+
+#: A point or a vector (x, y, z).
+Vec3 = tuple[float, float, float]
+#: A quaternion (w, x, y, z).
+Vec4 = tuple[float, float, float, float]
+
+
+def _unit_quaternion(v: Vec4) -> Vec4:
+    n = float(np.linalg.norm(v))
+    if abs(n - 1.0) > 1e-3:
+        raise ValueError(f"quaternion {list(v)} has norm {n:.6f}; give a unit quaternion (w, x, y, z)")
+    return v
+
+
+#: A unit quaternion (w, x, y, z), checked where it is read.
+UnitQuaternion = Annotated[Vec4, AfterValidator(_unit_quaternion)]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+
+class TransformConfig(_Section):
+    """A rigid transform written by hand: translation in mm, quaternion (w, x, y, z)."""
+
+    translation_mm: Vec3 = Field(description="translation, mm")
+    quaternion_wxyz: UnitQuaternion = Field(description="rotation, unit quaternion, scalar first (ABB order)")
+
+    def pose(self) -> Pose:
+        return Pose.from_abb(self.translation_mm, self.quaternion_wxyz)
+
+
+class SphereConfig(_Section):
+    radius_mm: float = Field(gt=0, le=10_000, description="certified radius of the reference sphere, mm")
+    radius_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10, description="expanded uncertainty (k = 2) of the certified radius, from the certificate, "
+        "mm; shown in the report and recorded in the result (not propagated into the transform's uncertainty)"
+    )
+    certificate: str | None = Field(None, max_length=200, description="the sphere's certificate (number, issuer)")
+
+    @field_validator("radius_mm")
+    @classmethod
+    def _mm(cls, v):
+        if v < 0.5:
+            raise ValueError(f"radius_mm = {v} looks like metres; give the certified radius in millimetres")
+        return v
+
+
+#: The box every planned flange position must lie in (base frame, mm): the one workspace
+#: box of spherecal, also a robot plugin's.
+WorkspaceConfig = WorkspaceBox
+
+
+class AcquisitionConfig(_Section):
+    """How to acquire: where the sphere roughly is, the sweeps, speeds and limits."""
+
+    mode: Literal["automatic", "manual"] = Field(
+        "automatic", description="automatic: the program moves the robot; manual: the operator jogs, the program captures"
+    )
+    sphere_centre_mm: Vec3 = Field(
+        description="rough sphere centre: in base (eye_in_hand) or in the flange frame (eye_to_hand), mm"
+    )
+    reference_flange_quaternion_wxyz: UnitQuaternion = Field(
+        (0.0, 0.0, 1.0, 0.0), description="flange orientation of the first station, base_from_flange, (w, x, y, z)"
+    )
+    sweep: SweepPlan = Field(default_factory=SweepPlan, description="stations and sweeps")
+    kinematic_plan: KinematicPlanSettings | None = Field(
+        None, description="plan the stations for kinematic calibration (spread over the arm's joints) instead of "
+        "listing them in sweep.tilts_deg; the default with calibration.identify_kinematics when sweep.tilts_deg "
+        "is not given")
+    speed_mm_s: float = Field(20.0, gt=0, description="speed along a sweep, mm/s")
+    approach_speed_mm_s: float = Field(100.0, gt=0, description="speed of the move to a station's first target, mm/s")
+    max_speed_mm_s: float = Field(250.0, gt=0, description="no move may be faster, mm/s")
+    settle_s: float = Field(0.0, ge=0, le=3600, description="wait after each move before reading, s")
+    pose_agreement_mm: float = Field(0.05, gt=0, description="poses read before and after a profile must agree, mm")
+    pose_agreement_deg: float = Field(0.02, gt=0, description="... and in orientation, deg")
+    retries_per_target: int = Field(2, ge=0, le=100, description="re-takes of a shot whose poses disagree")
+    workspace: WorkspaceConfig = Field(description="allowed flange positions, base frame, mm")
+
+    @model_validator(mode="after")
+    def _one_station_source(self):
+        if self.kinematic_plan is not None and "tilts_deg" in self.sweep.model_fields_set:
+            raise ValueError("give either sweep.tilts_deg (the stations listed) or [acquisition.kinematic_plan] (the "
+                             "stations planned), not both")
+        return self
+
+    @model_validator(mode="after")
+    def _speeds(self):
+        for name in ("speed_mm_s", "approach_speed_mm_s"):
+            if getattr(self, name) > self.max_speed_mm_s:
+                raise ValueError(f"{name} = {getattr(self, name)} exceeds max_speed_mm_s = {self.max_speed_mm_s}")
+        return self
+
+
+class CalibrationOptions(_Section):
+    """Settings of the estimator. Lengths in mm, angles in degrees."""
+
+    fit_radius: bool = Field(False, description="estimate the sphere radius too (else the certified one is used)")
+    point_noise_mm: float | None = Field(
+        None, gt=0, description="sensor point noise (each of y, z), mm; None: estimated from the circle fits"
+    )
+    pose_translation_noise_mm: float = Field(0.02, ge=0, description="robot position noise, each axis, mm")
+    pose_rotation_noise_deg: float = Field(0.002, ge=0, description="robot orientation noise, each axis, deg")
+    estimate_pose_noise: bool = Field(True, description="rescale the pose noise to what the data show")
+    min_points_per_profile: int = Field(20, ge=3, description="profiles with fewer points are left out")
+    min_profiles_per_station: int = Field(4, ge=3, description="stations with fewer usable profiles are left out")
+    max_circle_rms_mm: float = Field(0.5, gt=0, description="a profile whose circle fit is worse is not the sphere")
+    point_outlier_k: float = Field(5.0, gt=2, description="points beyond k robust standard deviations are strays")
+    profile_outlier_chi2: float = Field(
+        CHI2_3DOF_1E4, gt=0, description="profiles whose whitened chi^2 (3 dof) exceeds this are left out"
+    )
+    max_rejected_profile_fraction: float = Field(0.2, ge=0, le=1, description="stop rejecting profiles beyond this share")
+    max_stray_point_fraction: float = Field(
+        0.3, gt=0, le=1, description="a profile with a larger share of its points beyond point_outlier_k robust SDs "
+        "of the sphere the other profiles agree on is left out and flagged (its pose is wrong, not its points)"
+    )
+    nominal_transform: Pose | None = Field(
+        None, description="rough X (flange_from_sensor or base_from_sensor), used only to choose between "
+        "solutions the data cannot tell apart"
+    )
+    station_rotation_tolerance_deg: float | None = Field(
+        None, gt=0, description="a shot turned more than this from its station's mean orientation is left out "
+        "(or, with enough like it, split off as a station of its own), deg; None: derived from the orientation "
+        "read noise, max(0.02, 4 sqrt(3) s) with s the larger of pose_rotation_noise_deg and the scatter the "
+        "stations show"
+    )
+    robot_error_model: Literal["auto", "kinematic", "station", "kinematic+station", "none"] = Field(
+        "auto", description="the robot's systematic error (docs/estimation.md): 'kinematic': the arm's geometric "
+        "error (joint zero offsets, joint origins, axis tilts), from each shot's joints through the robot's "
+        "kinematics, marginalised; 'station': a pose offset shared by the shots of a station, marginalised; "
+        "'kinematic+station': both; 'none': pose noise only; 'auto': with the joints and the robot's kinematics "
+        "known, kinematic when the data show the arm's geometric error (else pose noise only, the arm's geometry "
+        "considered in the uncertainty), without them station"
+    )
+    identify_kinematics: bool = Field(
+        False, description="estimate the arm's identifiable geometric errors (kinematic calibration, "
+        "docs/estimation.md); needs joint readings and the robot's kinematics"
+    )
+    kinematic_prior_zero_offset_deg: float = Field(
+        0.05, ge=0, le=5, description="spread of each joint's zero offset on an uncalibrated arm, 1 sigma, deg"
+    )
+    kinematic_prior_length_mm: float = Field(
+        0.3, ge=0, le=50, description="spread of each joint origin's position, per axis, 1 sigma, mm"
+    )
+    kinematic_prior_tilt_deg: float = Field(
+        0.02, ge=0, le=5, description="spread of each joint axis' tilt, per direction, 1 sigma, deg"
+    )
+    station_rotation_error_deg: float | None = Field(
+        None, ge=0, le=5, description="station-to-station robot orientation error, per axis, deg (None: estimated)"
+    )
+    station_translation_error_mm: float | None = Field(
+        None, ge=0, le=50, description="station-to-station robot position error, per axis, mm (None: estimated)"
+    )
+    robot_accuracy_mm: float = Field(
+        0.75, ge=0, le=50, description="the robot's position error shared by every station of the plan, per axis, "
+        "1 sigma, mm (an uncalibrated industrial arm: 0.3-1.2); one sphere location cannot measure it, so it "
+        "enters the uncertainty only (docs/estimation.md)"
+    )
+    robot_accuracy_deg: float = Field(
+        0.06, ge=0, le=5, description="the robot's orientation error shared by every station, per axis, 1 sigma, deg"
+    )
+
+    def uses_kinematic_model(self, joints_known: bool) -> bool:
+        return self.identify_kinematics or self.robot_error_model in ("kinematic", "kinematic+station") or (
+            self.robot_error_model == "auto" and joints_known)
+
+
+class SweepSite(_Section):
+    """Where and how a validation or scan sweep looks at its target: the sensor tilted by
+    ``tilt_deg`` (rotation vector, about the sensor axes in eye-in-hand, base axes in
+    eye-to-hand) from the reference orientation, the sweep shifted by ``offset_mm`` (y, z)
+    in the sensor's field of view."""
+
+    tilt_deg: Vec3 = Field((0.0, 0.0, 0.0), description="rotation vector from the reference orientation, deg")
+    offset_mm: tuple[float, float] | None = Field(
+        None, description="(y, z) shift of the sweep in the sensor frame, mm (default: offset_percent of the sensor's "
+        "field of view)")
+    offset_percent: tuple[float, float] = Field(
+        (0.0, 0.0), description="(y, z) shift as shares of the sensor's field of view, percent: y of the line's width "
+        "at the sweep's standoff, z of the measuring range; used when offset_mm is not given")
+
+
+def _default_sphere_sites() -> list[SweepSite]:
+    # orientations other than the calibration's (0/30/30/45 deg about x, y, z), places in the field of view
+    # sized to it: for a 100 mm range and a line 40 mm wide at the standoff (5, -10), (-8, 10), (0, -20), (8, 0) mm
+    return [
+        SweepSite(tilt_deg=(15.0, 15.0, 0.0), offset_percent=(12.5, -10.0)),
+        SweepSite(tilt_deg=(-20.0, 10.0, 25.0), offset_percent=(-20.0, 10.0)),
+        SweepSite(tilt_deg=(10.0, -25.0, -30.0), offset_percent=(0.0, -20.0)),
+        SweepSite(tilt_deg=(-15.0, -15.0, 60.0), offset_percent=(20.0, 0.0)),
+    ]
+
+
+class BallBarConfig(_Section):
+    """A ball bar: two spheres at a certified centre distance, fixed where the reference
+    sphere is fixed (base in eye-in-hand, flange in eye-to-hand)."""
+
+    centre_a_mm: Vec3 = Field(description="rough centre of ball A, mm")
+    centre_b_mm: Vec3 = Field(description="rough centre of ball B, mm")
+    ball_radius_mm: float = Field(gt=0.5, description="radius of the balls, mm")
+    certified_distance_mm: float = Field(gt=0, description="certified centre distance, mm")
+    positions: list[SweepSite] = Field(
+        default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(20.0, 0.0, 30.0)), SweepSite(tilt_deg=(0.0, -20.0, -40.0))],
+        description="views of the bar; at each, ball A is swept at this site and ball B at the next site's orientation",
+    )
+
+
+class FlatConfig(_Section):
+    """A flat (a plate), fixed where the reference sphere is fixed."""
+
+    centre_mm: Vec3 = Field(description="rough centre of the area to sweep, mm")
+    quaternion_wxyz: UnitQuaternion = Field((1.0, 0.0, 0.0, 0.0), description="orientation of the plate (its z: the normal)")
+    length_mm: float = Field(150.0, gt=0, description="size along the plate's x (simulation), mm")
+    width_mm: float = Field(100.0, gt=0, description="size along the plate's y (simulation), mm")
+    sweep_length_mm: float = Field(30.0, gt=0, description="length of each sweep across the flat, mm")
+    positions: list[SweepSite] = Field(
+        default_factory=lambda: [SweepSite(), SweepSite(tilt_deg=(10.0, 0.0, 45.0), offset_percent=(0.0, -15.0))],
+        description="views of the flat",
+    )
+
+
+class MpeConfig(_Section):
+    """Maximum permissible errors, mm. Each has its own default; a figure is judged
+    against its MPE whenever it is measured (the fields of
+    :class:`~spherecal.core.metrology.MaximumPermissibleErrors`)."""
+
+    probing_form_mm: float = Field(0.25, gt=0, description="MPE of P_F, mm")
+    probing_size_mm: float = Field(0.06, gt=0, description="MPE of |P_S|, mm")
+    sphere_spacing_mm: float = Field(0.1, gt=0, description="MPE of |SD|, mm")
+    flatness_mm: float = Field(0.15, gt=0, description="MPE of F, mm")
+
+
+class ValidationConfig(_Section):
+    """`spherecal validate`: scan with the calibrated system at positions other than the
+    calibration's and compare the acceptance figures with the MPEs."""
+
+    result: str | None = Field(None, description="calibration result to validate (default: <output_dir>/result.json)")
+    profiles_per_sweep: int = Field(24, ge=8, le=10_000, description="profiles per sweep")
+    sphere_positions: list[SweepSite] = Field(default_factory=_default_sphere_sites, description="views of the sphere")
+    ball_bar: BallBarConfig | None = None
+    flat: FlatConfig | None = None
+    mpe: MpeConfig = Field(default_factory=MpeConfig, description="maximum permissible errors, mm")
+    mpe_centre_spread_mm: float | None = Field(
+        0.1, gt=0, description="MPE of the spread of the sphere centres fitted from the different views, mm"
+    )
+
+
+class ScanConfig(_Section):
+    """`spherecal scan`: sweep an object with the calibrated system, write a PLY."""
+
+    result: str | None = Field(None, description="calibration result (default: <output_dir>/result.json)")
+    object_centre_mm: Vec3 = Field(description="centre of the area to scan, in the frame the object is fixed in, mm")
+    site: SweepSite = Field(default_factory=SweepSite, description="orientation and field-of-view offset")
+    length_mm: float = Field(100.0, gt=0, le=10_000, description="length of each pass (along the sensor's x), mm")
+    step_mm: float = Field(0.5, ge=0.001, le=10_000, description="distance between profiles, mm")
+    passes: int = Field(1, ge=1, le=10_000, description="parallel passes")
+    pass_spacing_mm: float = Field(20.0, gt=0, description="distance between passes (along the laser line), mm")
+    standoff_z_mm: float | None = Field(
+        None, description="sensor-frame z of the object's surface at the centre, mm (default: the middle of the "
+        "sensor's declared measuring range)")
+    speed_mm_s: float = Field(50.0, gt=0, description="speed between profiles, mm/s")
+    ply: str = Field("scan.ply", description="output file (relative: in output_dir); a path outside output_dir "
+                     "(absolute, or through '..') needs ply_outside_output_dir = true")
+    ply_outside_output_dir: bool = Field(
+        False, description="allow scan.ply to lie outside output_dir (an absolute path or one through '..')"
+    )
+    format: Literal["binary_little_endian", "ascii"] = Field("binary_little_endian", description="PLY encoding")
+
+    @model_validator(mode="after")
+    def _bounded(self):
+        n = (self.length_mm / self.step_mm + 1) * self.passes
+        if n > MAX_SCAN_PROFILES:
+            raise ValueError(f"length_mm / step_mm x passes asks for {n:.3g} profiles (at most {MAX_SCAN_PROFILES:g}): "
+                             "a longer step_mm or fewer passes")
+        return self
+
+
+class FieldOfViewOverride(_Section):
+    """``[simulation.fov]``: fields of the simulated sensor's field of view that replace
+    its sensor type's declared ones (:class:`spherecal.devices.contract.SensorFieldOfView`); a
+    sensor type that declares none needs the four geometric fields here."""
+
+    z_near_mm: float | None = Field(None, description="near end of the measuring range (z, mm)")
+    z_far_mm: float | None = Field(None, description="far end of the measuring range (z, mm)")
+    width_near_mm: float | None = Field(None, gt=0, description="line width at the near end, mm")
+    width_far_mm: float | None = Field(None, gt=0, description="line width at the far end, mm")
+    n_columns: int | None = Field(None, ge=16, le=100_000, description="points across the full line")
+    standoff_z_mm: float | None = Field(None, description="z of the sphere centre in a calibration sweep, mm")
+
+
+class NoiseModel(_Section):
+    """Noise of the simulated cell. Standard deviations, per axis."""
+
+    point_noise_mm: float = Field(0.01, ge=0, description="sensor point noise, each of y and z, mm")
+    pose_translation_noise_mm: float = Field(0.02, ge=0, description="robot position noise, each base axis, mm")
+    pose_rotation_noise_deg: float = Field(0.0, ge=0, description="robot orientation noise, about each base axis, deg")
+    stray_profile_fraction: float = Field(0.0, ge=0, le=1, description="share of profiles that get stray points")
+    strays_per_profile: int = Field(4, ge=0, le=100_000, description="stray points added to such a profile")
+    stray_offset_mm: tuple[float, float] = Field((0.3, 3.0), description="range of a stray's distance off the surface, mm")
+
+
+def _range(lo_default: float, hi_default: float, what: str):
+    return Field(
+        (lo_default, hi_default),
+        description=f"{what}: each error's magnitude is drawn uniformly from this range, with a random sign",
+    )
+
+
+class RobotErrorModel(_Section):
+    """Geometric error of the simulated arm (defaults: an uncalibrated IRB 2400-class
+    arm, flange 0.5-2 mm and 0.03-0.15 deg off its nominal pose)."""
+
+    joint_zero_offset_deg: tuple[float, float] = _range(0.02, 0.05, "zero offset of every joint, deg")
+    link_length_mm: tuple[float, float] = _range(0.1, 0.3, "error of each joint placement along the link, mm")
+    link_offset_mm: tuple[float, float] = _range(0.0, 0.2, "error of each joint placement across the link, mm")
+    axis_tilt_deg: tuple[float, float] = _range(0.0, 0.02, "tilt of every joint axis, deg")
+    joint_compliance_deg_per_m: tuple[float, float] = Field(
+        (0.0, 0.0), description="gravity sag of every joint: it turns by this much (deg) per metre of "
+        "horizontal lever from its axis to the flange (drawn uniformly per joint, always with gravity). Not a "
+        "geometric error: it changes with the arm's configuration, so no kinematic model holds it"
+    )
+    seed: int | None = Field(
+        None, ge=0, le=2**63 - 1, description="seed of this arm's errors (default: the cell's seed)"
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        for name in ("joint_zero_offset_deg", "link_length_mm", "link_offset_mm", "axis_tilt_deg",
+                     "joint_compliance_deg_per_m"):
+            lo, hi = getattr(self, name)
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi <= 100):
+                raise ValueError(f"{name}: expected 0 <= low <= high <= 100, got ({lo}, {hi})")
+        return self
+
+
+class SimulationConfig(_Section):
+    """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
+
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="seed of the cell's noise")
+    true_transform: TransformConfig | None = Field(
+        None, description="the cell's true X (default: the standard cell's), mm and (w, x, y, z)"
+    )
+    sphere_centre_mm: Vec3 | None = Field(
+        None, description="true sphere centre, base (eye_in_hand) or flange (eye_to_hand), mm (default: standard cell's)"
+    )
+    noise: NoiseModel = Field(default_factory=NoiseModel, description="sensor and robot noise of the cell")
+    robot_error: RobotErrorModel | None = Field(
+        None, description="geometric error of the simulated arm (a real arm's systematic error); absent: the arm "
+        "is exactly its nominal model"
+    )
+    fov: FieldOfViewOverride | None = Field(
+        None, description="the simulated sensor's field of view, over its sensor type's declared one")
+    scan_object: Literal["none", "flat_plate", "car_door_panel"] = Field(
+        "none", description="object placed at [scan] object_centre_mm (its surface at the centre)"
+    )
+    ball_bar_true_distance_mm: float | None = Field(
+        None, gt=0, description="true centre distance of the simulated ball bar (default: the certified one)"
+    )
+
+
+class ExportConfig(BaseModel):
+    """``[export]``: which exporters run and their settings. ``run`` lists exporters by
+    name (default: every installed exporter that applies to the mounting and robot type;
+    ``[]``: none, only ``result.json``); each ``[export.<exporter>]`` table holds one
+    exporter's settings, validated by the plugin host against that exporter's own model
+    (``spherecal plugins`` lists them). See docs/configuration.md."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="allow")
+
+    run: list[str] | None = Field(
+        None, description="exporters to run, by name (default: every one that applies to the run)"
+    )
+
+    @model_validator(mode="after")
+    def _tables(self):
+        for key, value in (self.model_extra or {}).items():
+            if not isinstance(value, dict):
+                raise ValueError(f"{key}: expected a table [export.{key}] of that exporter's settings, got "
+                                 f"{type(value).__name__}")
+        return self
+
+
+class ReportConfig(_Section):
+    """What the report and the result's provenance say besides the numbers."""
+
+    operator: str | None = Field(None, max_length=200, description="who ran the calibration (--operator overrides)")
+    cell: str | None = Field(None, max_length=200, description="the cell's name or number")
+    point_distance_mm: float = Field(
+        POINT_DISTANCE_MM, gt=0, le=10_000, description="the report gives the uncertainty of a point this far from the sensor, "
+        "mm (along its line of sight)"
+    )
+
+
+class RunConfig(_Section):
+    """The root of a configuration file."""
+
+    mounting: MountingMode = Field(description="eye_in_hand (sensor on the flange) or eye_to_hand (sensor fixed)")
+    output_dir: str = Field(description="folder for the journal, result, exports and report (relative: to this file)")
+    robot: dict[str, Any] = Field(description="robot plugin section: type = '<name>' plus the plugin's settings")
+    sensor: dict[str, Any] = Field(description="sensor plugin section: type = '<name>' plus the plugin's settings")
+    sphere: SphereConfig
+    nominal_transform: TransformConfig = Field(
+        description="rough X from drawings: flange_from_sensor (eye_in_hand) or base_from_sensor (eye_to_hand)"
+    )
+    acquisition: AcquisitionConfig | None = Field(None, description="acquire with the devices")
+    replay: str | None = Field(None, description="a recorded dataset (.jsonl) to calibrate instead of acquiring")
+    calibration: CalibrationOptions = Field(default_factory=CalibrationOptions, description="estimator settings")
+    simulation: SimulationConfig | None = Field(None, description="simulate the cell instead of using hardware")
+    validation: ValidationConfig | None = Field(None, description="settings of `spherecal validate`")
+    scan: ScanConfig | None = Field(None, description="settings of `spherecal scan`")
+    export: ExportConfig = Field(default_factory=ExportConfig, description="exporters to run and their settings")
+    report: ReportConfig = Field(default_factory=ReportConfig, description="operator, cell and report settings")
+
+    @field_validator("robot", "sensor")
+    @classmethod
+    def _typed(cls, v):
+        if "type" not in v or not isinstance(v["type"], str):
+            raise ValueError("needs type = '<plugin name>' (see `spherecal plugins`)")
+        return v
+
+    @model_validator(mode="after")
+    def _source(self):
+        if (self.acquisition is None) == (self.replay is None):
+            raise ValueError("give exactly one of [acquisition] (acquire with the devices) or replay = '<dataset>'")
+        if self.calibration.nominal_transform is not None:
+            raise ValueError("calibration.nominal_transform: give the rough transform as [nominal_transform] instead")
+        if self.scan is not None and self.acquisition is not None and self.scan.speed_mm_s > self.acquisition.max_speed_mm_s:
+            raise ValueError(
+                f"scan.speed_mm_s = {self.scan.speed_mm_s} exceeds acquisition.max_speed_mm_s = "
+                f"{self.acquisition.max_speed_mm_s}"
+            )
+        return self
