@@ -85,6 +85,62 @@ class SphereConfig(_Section):
 WorkspaceConfig = WorkspaceBox
 
 
+class SweepPlan(_Section):
+    """How to sweep the sphere: sensor-frame positions of the sphere centre per station.
+
+    Within a station the flange only translates. The sphere centre crosses the laser
+    plane along the sensor's x from ``-sweep_fraction * r`` to ``+sweep_fraction * r``
+    while wandering by ``lateral_amplitude_mm`` in y and z, so that the moves of one
+    station span three dimensions (this is what lets each station decide, on its own,
+    on which side of the laser plane the centre lies)."""
+
+    profiles_per_station: int = Field(10, ge=4, le=10_000, description="profiles taken per station")
+    sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
+    standoff_z_mm: float | None = Field(
+        None, description="sensor-frame z of the sphere centre, mm (default: the sensor's declared "
+        "field of view's standoff, SensorFieldOfView.sweep_standoff_z_mm)")
+    lateral_amplitude_mm: float | None = Field(
+        None, ge=0, le=1000, description="y/z wander within a sweep, mm (default: LATERAL_AMPLITUDE_PERCENT of the "
+        "sensor's measuring range, 4 mm in a 100 mm range)")
+    station_offsets_mm: list[tuple[float, float]] | None = Field(
+        None,
+        description="(y, z) shift of the sweep in the sensor frame, mm, per station (cycled): "
+        "sweeps at different places of the field of view tie the rotation to the translation (default: "
+        "STATION_OFFSETS_PERCENT of the sensor's field of view, [(0, 0), (10, -25), (-10, 18), (0, -30)] for a "
+        "100 mm range and a line 40 mm wide at the standoff)",
+    )
+    tilts_deg: list[tuple[float, float, float]] = Field(
+        default_factory=lambda: [(0.0, 0.0, 0.0), (30.0, 0.0, 0.0), (0.0, 30.0, 0.0), (0.0, 0.0, 45.0)],
+        description="one rotation vector (deg) per station: about sensor axes (eye-in-hand) "
+        "or base axes (eye-to-hand), applied to the reference orientation",
+    )
+
+
+class KinematicPlanSettings(_Section):
+    """``[acquisition.kinematic_plan]``: stations for kinematic calibration chosen by the
+    planner (:mod:`spherecal.motion.kinematic_plan`) instead of listed in ``acquisition.sweep.tilts_deg``."""
+
+    stations: int = Field(20, ge=4, le=200, description="stations to plan")
+    candidates: int = Field(240, ge=8, le=5000, description="candidate orientations the stations are chosen from")
+    max_tilt_deg: float | None = Field(
+        None, gt=0, le=90, description="largest tilt of the view axis from the reference orientation, deg "
+        "(default 50 eye-in-hand, 45 eye-to-hand)")
+    max_turn_deg: float | None = Field(None, ge=0, le=180, description="largest turn about the view axis, deg (default 90)")
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the candidates' turns (the plan is the same for "
+                      "the same seed and configuration)")
+
+    @model_validator(mode="after")
+    def _enough_candidates(self):
+        if self.candidates < self.stations:
+            raise ValueError(f"candidates = {self.candidates} must be at least stations = {self.stations}")
+        return self
+
+    def limits_deg(self, mounting: MountingMode) -> tuple[float, float]:
+        tilt, turn = DEFAULT_LIMITS_DEG[mounting]
+        return (tilt if self.max_tilt_deg is None else self.max_tilt_deg,
+                turn if self.max_turn_deg is None else self.max_turn_deg)
+
+
 class AcquisitionConfig(_Section):
     """How to acquire: where the sphere roughly is, the sweeps, speeds and limits."""
 
