@@ -44,6 +44,7 @@ from pydantic import BaseModel, ValidationError
 from pydantic_core import PydanticUndefined
 
 from spherecal.core.errors import ConfigError, PluginError, SpherecalError
+from spherecal.core.validation_errors import location_text, validation_error_lines
 from spherecal.devices.contract import DeviceContext, Robot, Sensor
 from spherecal.io.exporters import Exporter, ExportPlan, SelectedExporter
 
@@ -220,31 +221,6 @@ def _describe_fields(model: type[BaseModel], prefix: str = "") -> list[FieldDesc
     return out
 
 
-def _fields_at(model: type[BaseModel], loc: Sequence[Any]) -> list[str] | None:
-    """Names of the fields of the (nested) model at ``loc``, if it is a model."""
-    current: Any = model
-    for part in loc:
-        if not (isinstance(current, type) and issubclass(current, BaseModel)):
-            return None
-        info = current.model_fields.get(part) if isinstance(part, str) else None
-        if info is None:
-            return None
-        current = info.annotation
-    if isinstance(current, type) and issubclass(current, BaseModel):
-        return list(current.model_fields)
-    return None
-
-
-def _format_loc(path: str, loc: Sequence[Any]) -> str:
-    text = path
-    for part in loc:
-        if isinstance(part, int):
-            text += f"[{part}]"
-        else:
-            text += f".{part}" if text else str(part)
-    return text
-
-
 def _field_description(model: type[BaseModel], loc: Sequence[Any]) -> str:
     info = model.model_fields.get(loc[0]) if loc and isinstance(loc[0], str) else None
     return (info.description if info is not None and info.description else "required")
@@ -253,30 +229,6 @@ def _field_description(model: type[BaseModel], loc: Sequence[Any]) -> str:
 def _applies_text(exporter: Exporter) -> str:
     robots = "any robot" if exporter.robot_types is None else "robot types " + ", ".join(exporter.robot_types)
     return f"it is for {' and '.join(exporter.mountings)}, {robots}"
-
-
-def format_validation_error(error: ValidationError, path: str, model: type[BaseModel]) -> list[str]:
-    """One line per pydantic error: ``<dotted path>: <message> (got <input>)``."""
-    lines = []
-    for err in error.errors(include_url=False):
-        loc = err.get("loc", ())
-        where = _format_loc(path, loc)
-        msg = err.get("msg", "invalid")
-        kind = err.get("type", "")
-        line = f"{where}: {msg}"
-        if kind == "extra_forbidden":
-            allowed = _fields_at(model, loc[:-1])
-            if allowed is not None:
-                close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
-                line += f" (allowed here: {', '.join(allowed)}"
-                line += f"; did you mean '{close[0]}'?)" if close else ")"
-        elif kind != "missing" and "input" in err:
-            shown = repr(err["input"])
-            if len(shown) > 60:
-                shown = shown[:57] + "..."
-            line += f" (got {shown})"
-        lines.append(line)
-    return lines
 
 
 # ---------------------------------------------------------------------------------------
@@ -523,7 +475,7 @@ class PluginHost:
             context = None if base_dir is None else {BASE_DIR_CONTEXT_KEY: base_dir}
             return model.model_validate(settings, context=context)
         except ValidationError as exc:
-            lines = format_validation_error(exc, path, model)
+            lines = validation_error_lines(exc, path, model)
             plugin = self.registry.provider(kind, dtype.name)
             head = (
                 f"invalid configuration for {kind} type '{dtype.name}' (plugin '{plugin}'), "
@@ -695,9 +647,9 @@ class PluginHost:
             errors = exc.errors(include_url=False)
             if all(err.get("type") == "missing" and len(err["loc"]) == 1 and err["loc"][0] not in table
                    for err in errors):
-                return [f"{_format_loc(where, err['loc'])} ({_field_description(model, err['loc'])})"
+                return [f"{location_text(where, err['loc'])} ({_field_description(model, err['loc'])})"
                         for err in errors]
-            lines = format_validation_error(exc, where, model)
+            lines = validation_error_lines(exc, where, model)
             head = (f"invalid settings for exporter '{exporter.name}' (plugin '{self.exporters.provider(exporter.name)}'), "
                     f"{len(lines)} error{'s' if len(lines) != 1 else ''}:")
             raise ConfigError("\n  ".join([head, *lines])) from None

@@ -96,9 +96,9 @@ def test_export_section_chooses_and_sets_up_the_exporters(tmp_path, dataset_file
 
 @pytest.mark.parametrize("export, message", [
     ("[export.abb_rapid]\nmass_kg = 0\n", "export.abb_rapid.mass_kg: Input should be greater than 0"),
-    ("[export.abb_rapid]\ntool_nam = 'tLaser'\n", "export.abb_rapid.tool_nam: Extra inputs are not permitted"),
+    ("[export.abb_rapid]\ntool_nam = 'tLaser'\n", "export.abb_rapid.tool_nam: unknown key"),
     ("[export]\nrun = ['matrices']\n", "export.run[0]: unknown exporter 'matrices'"),
-    ("[export.ros2]\nframe_id = 'tool 0'\n", "export.ros2.frame_id: Value error, frame_id 'tool 0' is not a valid tf2"),
+    ("[export.ros2]\nframe_id = 'tool 0'\n", "export.ros2.frame_id: frame_id 'tool 0' is not a valid tf2"),
 ])
 def test_a_bad_export_section_stops_before_anything_moves(sim_config, capsys, export, message):
     cfg = sim_config()

@@ -361,12 +361,12 @@ def test_config_errors_list_every_error_with_its_dotted_path(nested_host):
     lines = str(info.value).splitlines()
     assert lines[0] == "invalid configuration for robot type 'nested' (plugin 'nest'), 5 errors:"
     body = [line.strip() for line in lines[1:]]
-    assert "cell.robot.address: Field required" in body
+    assert "cell.robot.address: missing (required)" in body
     assert "cell.robot.workspace.max_x_mm: Input should be greater than 0 (got -3)" in body
-    assert ("cell.robot.workspace.max_y: Extra inputs are not permitted (allowed here: max_x_mm; "
+    assert ("cell.robot.workspace.max_y: unknown key (allowed here: max_x_mm; "
             "did you mean 'max_x_mm'?)") in body
     assert any(line.startswith("cell.robot.tilts_deg[1]: Input should be a valid number") for line in body)
-    assert "cell.robot.speed: Extra inputs are not permitted (allowed here: address, workspace, tilts_deg)" in body
+    assert "cell.robot.speed: unknown key (allowed here: address, workspace, tilts_deg)" in body
 
 
 def test_valid_config_gives_the_model_instance(nested_host):

@@ -163,7 +163,7 @@ def test_settings_reach_the_file(results, host, mounting, tmp_path):
     ({"cog_mm": [0.0, 0.0]}, r"export\.abb_rapid\.cog_mm"),
     ({"tool_name": "PERS"}, r"export\.abb_rapid\.tool_name: .*reserved word"),
     ({"module_name": "1mod"}, r"export\.abb_rapid\.module_name: .*not a valid RAPID identifier"),
-    ({"toolname": "t"}, r"export\.abb_rapid\.toolname: Extra inputs .*did you mean 'tool_name'"),
+    ({"toolname": "t"}, r"export\.abb_rapid\.toolname: unknown key .*did you mean 'tool_name'"),
 ])
 def test_bad_settings_name_the_key(host, settings, message):
     with pytest.raises(ConfigError, match=message):
