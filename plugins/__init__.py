@@ -55,10 +55,6 @@ from spherecal.core.lazy import lazy_attributes
 PROJECT_NAME = "spherecal"
 #: Entry-point group that built-in and third-party plugins are registered under.
 ENTRY_POINT_GROUP = "spherecal"
-#: Key of the pydantic validation context that gives the folder a configuration's
-#: relative paths resolve against (the configuration file's folder): the host validates
-#: a device's section with ``context={BASE_DIR_CONTEXT_KEY: folder}`` when it knows it.
-BASE_DIR_CONTEXT_KEY = "base_dir"
 
 hookspec = pluggy.HookspecMarker(PROJECT_NAME)
 hookimpl = pluggy.HookimplMarker(PROJECT_NAME)
@@ -157,6 +153,9 @@ _WHERE = {
     "Pose": "spherecal.core.models",
     "Profile": "spherecal.core.models",
     "TRANSFORM_NAME": "spherecal.core.models",
+    "Vec3": "spherecal.core.models",
+    # the validation-context key of the folder relative paths resolve against
+    "BASE_DIR_CONTEXT_KEY": "spherecal.config.sections",
     # the simulated cell and the planner a plugin's tests run on
     "SimulatedCell": "spherecal.sim.cell",
     "standard_cell": "spherecal.sim.cell",
@@ -169,7 +168,7 @@ _MODULES = {
     "line_protocol": "spherecal.devices.line_protocol",
 }
 
-__all__ = sorted(["BASE_DIR_CONTEXT_KEY", "ENTRY_POINT_GROUP", "PROJECT_NAME", "hookimpl", "hookspec",
+__all__ = sorted(["ENTRY_POINT_GROUP", "PROJECT_NAME", "hookimpl", "hookspec",
                   "lazy_attributes", *_WHERE, *_MODULES])
 
 _name_getattr, _name_dir = lazy_attributes(__name__, _WHERE)

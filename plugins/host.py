@@ -48,7 +48,9 @@ from spherecal.core.validation_errors import location_text, validation_error_lin
 from spherecal.devices.contract import DeviceContext, Robot, Sensor
 from spherecal.io.exporters import Exporter, ExportPlan, SelectedExporter
 
-from . import BASE_DIR_CONTEXT_KEY, ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
+from spherecal.config.sections import BASE_DIR_CONTEXT_KEY
+
+from . import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
 from . import hookspecs as _hookspec_module
 from .registry import (  # noqa: F401 - DeviceRegistry and ExporterRegistry: importable from the host too
     DISABLE_AUTOLOAD_ENV,

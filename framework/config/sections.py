@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from spherecal.core.workspace import WorkspaceBox
-from spherecal.core.models import MountingMode, Pose
+from spherecal.core.models import MountingMode, Pose, Vec3
 
 #: Most profiles one scan may ask for.
 MAX_SCAN_PROFILES = 10_000_000
@@ -34,7 +34,6 @@ BASE_DIR_CONTEXT_KEY = "base_dir"
 DEFAULT_LIMITS_DEG = {"eye_in_hand": (50.0, 90.0), "eye_to_hand": (45.0, 90.0)}
 
 #: A point or a vector (x, y, z).
-Vec3 = tuple[float, float, float]
 #: A quaternion (w, x, y, z).
 Vec4 = tuple[float, float, float, float]
 

@@ -26,6 +26,8 @@ from pydantic import (
 from spherecal.core import geometry as geo
 
 MountingMode = Literal["eye_in_hand", "eye_to_hand"]
+#: Three numbers (x, y, z); the unit and frame are in the field's name and description.
+Vec3 = tuple[float, float, float]
 
 #: Name of the unknown transform in each mounting mode (see docs/conventions.md).
 TRANSFORM_NAME: dict[str, str] = {

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-Vec3 = tuple[float, float, float]
+from spherecal.core.models import Vec3
+
 
 
 class WorkspaceBox(BaseModel):

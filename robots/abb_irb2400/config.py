@@ -8,13 +8,12 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.plugins import BASE_DIR_CONTEXT_KEY, InputError, LineLinkSettings, Pose
+from spherecal.plugins import BASE_DIR_CONTEXT_KEY, InputError, LineLinkSettings, Pose, Vec3
 from spherecal.plugins import SimulatedControllerSettings as CoreSimulatedControllerSettings
 from spherecal.plugins import WorkspaceBox as CoreWorkspaceBox
 
 from .kinematics import Irb2400Geometry, Irb2400Kinematics, calibrated_kinematics_for, kinematics_for
 
-Vec3 = tuple[float, float, float]
 
 
 class WorkspaceBox(CoreWorkspaceBox):
