@@ -48,6 +48,8 @@ __all__ = [
 MOUNTINGS: tuple[MountingMode, ...] = ("eye_in_hand", "eye_to_hand")
 #: Files of a calibration folder no exporter may write.
 RESERVED_FILE_NAMES = frozenset({"result.json", "journal.jsonl", "report.html", "robot_calibrated.urdf"})
+#: The result, the acquisition journal and the identified robot model of a calibration folder.
+RESULT_NAME, JOURNAL_NAME, CALIBRATED_URDF_NAME = "result.json", "journal.jsonl", "robot_calibrated.urdf"
 #: Names a file-name template may use besides the exporter's own settings fields.
 TEMPLATE_FIELDS = ("transform_name", "mounting")
 
@@ -248,17 +250,16 @@ class ExportPlan:
 def write_exports(
     result: CalibrationResult,
     out_dir: str | Path,
-    exporters: ExportPlan | Sequence[SelectedExporter | Exporter] | None = None,
+    exporters: ExportPlan | Sequence[SelectedExporter | Exporter],
     *,
     overwrite: bool = False,
 ) -> dict[str, Path]:
     """Write ``result.json`` and every file of ``exporters`` into ``out_dir`` (created if
     needed); return ``{file name: path}``.
 
-    ``exporters``: an :class:`ExportPlan` (what the runner uses), or exporters (an
-    :class:`Exporter` runs with its default settings); None: every installed exporter
-    that applies to the result's mounting, with its default settings (a
-    :class:`~spherecal.plugins.host.PluginHost` is built to find them).
+    ``exporters``: an :class:`ExportPlan` (what a run uses:
+    :meth:`spherecal.plugins.host.PluginHost.export_plan`), or exporters (an
+    :class:`Exporter` runs with its default settings).
     Existing files are replaced only with ``overwrite=True``; every file is rendered and
     checked before the first is written, so nothing is written if any would be refused.
     """
@@ -294,10 +295,6 @@ def write_exports(
 
 
 def _selection(exporters, result: CalibrationResult) -> tuple[SelectedExporter, ...]:
-    if exporters is None:
-        from spherecal.plugins.host import PluginHost
-
-        return PluginHost().export_plan(None, result.mounting, None).selected
     if isinstance(exporters, ExportPlan):
         return exporters.selected
     out = []

@@ -240,11 +240,12 @@ def test_write_exports_writes_every_export_readably(result, tmp_path):
     write_exports(result, tmp_path / "out", plan, overwrite=True)
 
 
-def test_write_exports_defaults_to_every_installed_exporter(result, tmp_path):
-    """Without a plan: every installed exporter for the mounting, default settings (the
-    robot is not known, so the built-in robot's export is written too)."""
-    paths = write_exports(result, tmp_path)
+def test_write_exports_with_the_plan_of_every_installed_exporter(result, tmp_path):
+    """The plan of no [export] section and no robot type: every installed exporter for the
+    mounting, default settings (the robot is not known, so the built-in robot's export is
+    written too)."""
     host = PluginHost()
+    paths = write_exports(result, tmp_path, host.export_plan(None, result.mounting, None))
     expected = {f for e in host.exporters.exporters.values() if result.mounting in e.mountings
                 for f in e.file_names(result, e.settings_model())}
     assert set(paths) == expected | {"result.json"} and len(expected) >= 6
