@@ -5,7 +5,6 @@ logging set up for its length, map its errors to exit codes, and write run.log a
 from __future__ import annotations
 
 import contextlib
-import gc
 import importlib
 import logging
 import os
@@ -32,30 +31,12 @@ _PLUGIN_OPTIONS = frozenset({"compare", "validate"})
 
 
 def console() -> int:
-    """The ``spherecal`` program (its console script): :func:`main`, with Python's cyclic
-    garbage collector held off while the command imports its modules. What the imports
-    build lives as long as the process; collecting among it again and again as it grows,
-    and once more at exit, costs a small ``solve`` a few per cent. The dispatcher ends it
-    (:func:`_imports_done`) once the command's module is in, before the command reads
-    data or moves a device. :func:`main` itself (the library entry, tests) leaves the
-    collector alone."""
-    gc.disable()
-    try:
-        return main(_imports_held=True)
-    finally:
-        if not gc.isenabled():
-            _imports_done()
+    """The ``spherecal`` program (its console script): :func:`main` with the process's
+    arguments."""
+    return main()
 
 
-def _imports_done() -> None:
-    """The end of a command's start-up under :func:`console`: the objects alive now
-    (modules, classes, the parser) move to the collector's permanent generation
-    (:func:`gc.freeze`: never scanned again) and the collector is switched back on."""
-    gc.freeze()
-    gc.enable()
-
-
-def main(argv: list[str] | None = None, *, _imports_held: bool = False) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Run one command; returns its exit code (:data:`spherecal.cli.output.EXIT_CODES_HELP`).
     Logging is set up for the command's length only (:func:`_logging`): nothing stays
     installed afterwards. Only the chosen command's modules are imported."""
@@ -73,7 +54,7 @@ def main(argv: list[str] | None = None, *, _imports_held: bool = False) -> int:
         with _logging(args, session), (contextlib.redirect_stdout(sys.stderr) if args.json
                                        else contextlib.nullcontext()):
             _log.debug("spherecal %s: spherecal %s", __version__, " ".join(args._argv))
-            code = _run(args, session, _imports_held)
+            code = _run(args, session)
             if args.json:
                 sys.stderr.flush()
             else:
@@ -99,15 +80,11 @@ def _plugin_options(argv: list[str]) -> tuple[object | None, dict[str, list[str]
     return importlib.import_module("spherecal.app.plugins").host_and_frame_options()
 
 
-def _run(args, session: Session, imports_held: bool = False) -> int:
-    """The command's module (:mod:`spherecal.cli` ``.<command>``) run; its errors as exit
-    codes. ``imports_held``: :func:`console` holds the collector off until the command's
-    modules are in."""
+def _run(args, session: Session) -> int:
+    """The command's module (:mod:`spherecal.cli` ``.<command>``) run; its errors as exit codes."""
     command = None
     try:
         command = importlib.import_module(f"spherecal.cli.{args.command}")
-        if imports_held:
-            _imports_done()
         return command.run(args, session)
     except BrokenPipeError:
         raise
