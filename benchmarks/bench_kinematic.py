@@ -78,7 +78,7 @@ def planned(mode: str, kin) -> SweepPlan:
         path.write_text(text + "\n[acquisition.kinematic_plan]\nstations = 20\n" if "[acquisition.kinematic_plan]"
                         not in text else text)
         from spherecal.plugins.host import PluginHost
-        from spherecal.app.runner import configured_for_sensor
+        from spherecal.app.cell import configured_for_sensor
 
         loaded, _ = configured_for_sensor(load_config(path), PluginHost())  # the sweep's standoff: the sensor's
         cfg = loaded.config

@@ -35,7 +35,6 @@ MOVED = {
     "spherecal.validation": "spherecal.motion.validation",
     "spherecal.scanning": "spherecal.motion.scanning",
     "spherecal.compare": "spherecal.report.compare",
-    "spherecal.runner": "spherecal.app.runner",
     "spherecal.completion": "spherecal.cli.completion",
     "spherecal.sim.planner": "spherecal.sim.datasets",
 }

@@ -13,6 +13,11 @@ from __future__ import annotations
 import argparse
 import re
 
+from spherecal.app.plugins import host_and_frame_options
+from spherecal.cli.output import EXIT_OK
+from spherecal.cli.parser import build_parser
+from spherecal.cli.session import Session
+
 #: Options whose value is a folder, and ones whose value is a file (by ``dest``).
 FOLDER_DESTS = {"out"}
 FILE_DESTS = {"config", "robot_config", "transform", "dataset", "a", "b"}
@@ -37,6 +42,14 @@ def _positionals(parser: argparse.ArgumentParser) -> list[argparse.Action]:
 
 def _takes_value(action: argparse.Action) -> bool:
     return action.nargs != 0
+
+
+def run(args, session: Session) -> int:
+    """``spherecal completion SHELL``: the script for the command line with the installed
+    robot types' options."""
+    _host, frame_options = host_and_frame_options()
+    session.say(completion_script(build_parser(frame_options), args.shell))
+    return EXIT_OK
 
 
 def completion_script(parser: argparse.ArgumentParser, shell: str) -> str:

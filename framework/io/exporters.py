@@ -48,6 +48,8 @@ __all__ = [
 MOUNTINGS: tuple[MountingMode, ...] = ("eye_in_hand", "eye_to_hand")
 #: Files of a calibration folder no exporter may write.
 RESERVED_FILE_NAMES = frozenset({"result.json", "journal.jsonl", "report.html", "robot_calibrated.urdf"})
+#: The result, the acquisition journal and the identified robot model of a calibration folder.
+RESULT_NAME, JOURNAL_NAME, CALIBRATED_URDF_NAME = "result.json", "journal.jsonl", "robot_calibrated.urdf"
 #: Names a file-name template may use besides the exporter's own settings fields.
 TEMPLATE_FIELDS = ("transform_name", "mounting")
 

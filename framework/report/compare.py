@@ -23,7 +23,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -116,17 +116,14 @@ def looks_like_numbers(text: str) -> bool:
     return True
 
 
-def read_controller_frame(text: str, what: str = "--controller-frame", host=None, robot_type: str | None = None
+def read_controller_frame(text: str, registry, what: str = "--controller-frame", robot_type: str | None = None
                           ) -> ControllerFrame:
-    """The frame in ``text`` as a robot controller writes it, read by the installed robot
-    plugin that knows the syntax (:attr:`spherecal.devices.contract.RobotType.read_frame`; only
-    ``robot_type``'s when given). :class:`ConfigError` naming ``what`` when no plugin reads
-    it, or the reader's message (the component at fault) when it is malformed."""
-    if host is None:
-        from spherecal.plugins.host import PluginHost
-
-        host = PluginHost()
-    types = [host.registry.robot_type(robot_type)] if robot_type else list(host.registry.robots.values())
+    """The frame in ``text`` as a robot controller writes it, read by the robot plugin of
+    ``registry`` (the run's installed plugins: ``PluginHost.registry``) that knows the
+    syntax (:attr:`spherecal.devices.contract.RobotType.read_frame`; only ``robot_type``'s
+    when given). :class:`ConfigError` naming ``what`` when no plugin reads it, or the
+    reader's message (the component at fault) when it is malformed."""
+    types = [registry.robot_type(robot_type)] if robot_type else list(registry.robots.values())
     readers = [t for t in types if t.read_frame is not None]
     for t in readers:
         try:
@@ -149,11 +146,12 @@ def read_controller_frame(text: str, what: str = "--controller-frame", host=None
                       + f" (robot types that read controller frames: {known})")
 
 
-def read_transform_argument(text: str, what: str = "--transform", host=None, robot_type: str | None = None,
+def read_transform_argument(text: str, read_frame: Callable[[str, str], ControllerFrame], what: str = "--transform",
                             uncertainty: str = "robot-frame") -> TransformEstimate:
     """A transform given on the command line: numbers ``x,y,z,qw,qx,qy,qz`` (no name: it
     takes the other operand's), or a file: a ``result.json`` or run folder (its transform,
-    name and covariance), or a text file holding the numbers or a controller frame line."""
+    name and covariance), or a text file holding the numbers or a controller frame line,
+    read by ``read_frame(text, what)`` (:func:`read_controller_frame` with the run's plugins)."""
     stripped = text.strip()
     if looks_like_numbers(stripped) or not stripped:
         return TransformEstimate(parse_xyz_quat(stripped, what), None, np.zeros((6, 6)), f"{what} {stripped}")
@@ -176,7 +174,7 @@ def read_transform_argument(text: str, what: str = "--transform", host=None, rob
     numbers = ",".join(code.replace(",", " ").split())  # the numbers, by commas or blanks
     if numbers and looks_like_numbers(numbers):
         return TransformEstimate(parse_xyz_quat(numbers, str(path)), None, np.zeros((6, 6)), str(path))
-    frame = read_controller_frame(body, str(path), host, robot_type)
+    frame = read_frame(body, str(path))
     return estimate_of_frame(frame, str(path))
 
 

@@ -13,9 +13,12 @@ from spherecal.config import load_config
 from spherecal.motion.kinematic_plan import plan_kinematic_stations
 from spherecal.plugins.host import PluginHost
 from spherecal.io.ply import read_ply
-from spherecal.app.runner import calibration_options, configured_for_sensor, make_cell, open_devices, solve_and_write
+from spherecal.app.cell import configured_for_sensor
+from spherecal.app.plugin_host import open_devices
+from spherecal.app.solving import calibration_options, solve_and_write
 from spherecal.sim import simulate_dataset
 from spherecal.core.urdf import read_urdf_chain
+from tests.cli.cells import simulated_cell
 
 #: The eye-in-hand example with identify_kinematics (the planner's stations, kept off the
 #: sphere's edge), a plate to scan and short validation sweeps of the sphere and ball bar.
@@ -37,14 +40,15 @@ def calibrated(sim_config, tmp_path):
     loaded, _ = configured_for_sensor(load_config(path), PluginHost())  # as a run: the sensor's standoff
     cfg = loaded.config
     nominal = PluginHost().arm_kinematics(cfg.robot)
-    cell = make_cell(cfg, nominal)  # as the runner makes it
+    cell = simulated_cell(cfg, nominal)  # as a run makes it
     cell.attach_arm(nominal)  # as the simulated controller does
     plan = plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere,
                                    nominal)
     dataset = simulate_dataset(cell, plan.sweep)
     out = tmp_path / "out"
-    solution, _, written = solve_and_write(dataset, calibration_options(cfg), out, log=lambda m: None, report=False,
-                                           kinematics=nominal)
+    exports = PluginHost().export_plan(None, cfg.mounting, None)
+    solution, _, written = solve_and_write(dataset, calibration_options(cfg), out, exports, log=lambda m: None,
+                                           report=False, kinematics=nominal)
     assert written and (out / "robot_calibrated.urdf").exists()
     _check_the_red_mark(solution, nominal, out, tmp_path / "red")
     return path, out, dataio.read_result(out / "result.json"), nominal
@@ -56,7 +60,7 @@ def _check_the_red_mark(solution, kinematics, out, red_out):
     from dataclasses import replace
 
     from spherecal.io.exporters import RED_WARNING
-    from spherecal.app.runner import write_calibrated_urdf
+    from spherecal.app.solving import write_calibrated_urdf
 
     assert RED_WARNING not in (out / "robot_calibrated.urdf").read_text()
     verdict = {"level": "red", "headline": "forced", "written_with_force": True}
@@ -93,7 +97,7 @@ def test_validate_and_scan_through_the_calibrated_model(calibrated, tmp_path, mo
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)  # not the configuration's folder
     loaded = load_config(with_model(path, "out/robot_calibrated.urdf"))
-    with open_devices(loaded, PluginHost(), make_cell(loaded.config), log=lambda m: None) as (robot, _sensor):
+    with open_devices(loaded, PluginHost(), simulated_cell(loaded.config), log=lambda m: None) as (robot, _sensor):
         assert robot.calibrated is not None and robot.calibrated.source == str(out / "robot_calibrated.urdf")
         model = read_urdf_chain(out / "robot_calibrated.urdf", "base_link", "tool0")
         q = np.radians(np.random.default_rng(0).uniform(-40, 40, (20, 6)))

@@ -112,7 +112,7 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
     every target is reachable by the IRB 2400 within its joint limits (checked with the
     plugin's kinematics, no controller needed)."""
     host = PluginHost()
-    from spherecal.app.runner import configured_for_sensor
+    from spherecal.app.cell import configured_for_sensor
 
     loaded, _ = configured_for_sensor(load_config(EXAMPLES / "irb2400-nxsensor-eye-in-hand.toml"), host)
     cfg = loaded.config

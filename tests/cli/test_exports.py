@@ -7,7 +7,7 @@ import pytest
 
 from spherecal.io import dataset as dataio
 
-from spherecal.app import runner
+from spherecal.app import plugin_host
 from spherecal.cli import EXIT_OK, EXIT_USAGE, main
 from spherecal.plugins.host import PluginHost
 from spherecal.report import export as ex
@@ -54,7 +54,7 @@ class OldStyle:
 @pytest.fixture
 def plugins(monkeypatch):
     rec, old = Recorder(), OldStyle()
-    monkeypatch.setattr(runner, "make_host", lambda enable=None: PluginHost(plugins=[("recorder", rec),
+    monkeypatch.setattr(plugin_host, "make_host", lambda enable=None: PluginHost(plugins=[("recorder", rec),
                                                                                      ("old_style", old)]))
     return rec, old
 

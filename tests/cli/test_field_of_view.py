@@ -14,7 +14,8 @@ from spherecal.core.errors import ConfigError
 from spherecal.motion.planning import SweepPlan, plan_stations, sphere_centres_in_sensor, with_standoff
 from spherecal.plugins import hookimpl
 from spherecal.plugins.host import PluginHost
-from spherecal.app.runner import configured_for_sensor, make_cell, sensor_field_of_view
+from spherecal.app import plugin_host
+from spherecal.app.cell import configured_for_sensor, make_cell, sensor_field_of_view
 from spherecal.sensors.nxsensor_i.plugin import FIELD_OF_VIEW as NXSENSOR_FOV
 
 #: A third-party profiler's field of view, unlike the nxSensor-I's.
@@ -98,15 +99,13 @@ def test_simulation_fov_overrides_fields_of_the_declared_one(sim_config):
 
 
 def test_a_sensor_without_a_field_of_view_must_be_given_one_in_the_toml(sim_config, monkeypatch):
-    import spherecal.app.runner
-
     host = host_with_profiler(None)
-    monkeypatch.setattr(spherecal.app.runner, "make_host", lambda enable=None: host)  # the run's plugins
+    monkeypatch.setattr(plugin_host, "make_host", lambda enable=None: host)  # the run's plugins
     loaded = config_with(sim_config)
     assert sensor_field_of_view(loaded.config, host) is None
     with pytest.raises(ConfigError, match=r"simulation.fov: sensor type 'acme_profiler' declares no field of view; "
                                           r"give z_near_mm, z_far_mm, width_near_mm and width_far_mm"):
-        make_cell(loaded.config)
+        make_cell(loaded.config, field_of_view=sensor_field_of_view(loaded.config, host))
     with pytest.raises(ConfigError, match=r"simulation.fov \(sensor type 'acme_profiler' declares no field of "
                                           r"view\): z_far_mm: Field required"):
         sensor_field_of_view(config_with(sim_config, fov_toml="z_near_mm = 15.0, width_near_mm = 18.0, "
@@ -251,11 +250,10 @@ WIDE = SensorFieldOfView(z_near_mm=60.0, z_far_mm=-60.0, width_near_mm=40.0, wid
 
 
 def test_simulate_takes_the_sensor_type_by_name(tmp_path, monkeypatch, capsys):
-    import spherecal.app.runner
     from spherecal.io import dataset as dataio
     from spherecal.cli import EXIT_OK, EXIT_USAGE, main
 
-    monkeypatch.setattr(spherecal.app.runner, "make_host", lambda enable=None: host_with_profiler(WIDE))
+    monkeypatch.setattr(plugin_host, "make_host", lambda enable=None: host_with_profiler(WIDE))
     out = tmp_path / "acme.jsonl"
     assert main(["simulate", str(out), "--sensor", "acme_profiler", "--profiles", "4"]) == EXIT_OK
     ds = dataio.read_dataset(out)
@@ -295,12 +293,11 @@ def test_simulate_options_that_clash_with_a_configuration_are_refused(tmp_path, 
 
 
 def test_simulate_without_a_name_uses_the_only_sensor_type_with_a_field_of_view(tmp_path, monkeypatch):
-    import spherecal.app.runner
     from spherecal.io import dataset as dataio
     from spherecal.cli import EXIT_OK, main
 
     only = PluginHost(autoload=False)  # the built-ins: one sensor type, the nxSensor-I
-    monkeypatch.setattr(spherecal.app.runner, "make_host", lambda enable=None: only)
+    monkeypatch.setattr(plugin_host, "make_host", lambda enable=None: only)
     assert main(["simulate", str(tmp_path / "d.jsonl"), "--profiles", "4"]) == EXIT_OK
     assert dataio.read_dataset(tmp_path / "d.jsonl").provenance["fov"] == NXSENSOR_FOV.model_dump()
 

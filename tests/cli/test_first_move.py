@@ -18,7 +18,7 @@ from spherecal.estimation import calibrate
 from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400 import plugin
 from spherecal.robots.abb_irb2400.config import AbbIrb2400Config
-from spherecal.app.runner import make_cell
+from tests.cli.cells import simulated_cell
 from spherecal.sim import SweepPlan, simulate_dataset
 from spherecal.sim.cell import standard_cell
 from reference_sensor import reference_fov
@@ -115,7 +115,7 @@ def test_validate_and_scan_check_their_first_move_too(sim_config, irb2400_contro
     cfg = with_home(sim_config, LEANING_BACK)
     out = cfg.parent / "out"
     out.mkdir()
-    cell = make_cell(load_config(cfg).config)
+    cell = simulated_cell(load_config(cfg).config)
     dataio.write_result(out / "result.json", calibrate(simulate_dataset(cell, SweepPlan(profiles_per_station=5))))
     assert main([command, str(cfg)] + (["--no-report"] if command == "validate" else [])) == EXIT_DATA
     err = capsys.readouterr().err

@@ -103,7 +103,7 @@ TOO_FEW = [(0, 0, 0), (30, 0, 0), (0, 30, 0)]
 def for_run(path):
     """The configuration at ``path`` as a run sees it (standoffs from the sensor's field of view)."""
     from spherecal.plugins.host import PluginHost
-    from spherecal.app.runner import configured_for_sensor
+    from spherecal.app.cell import configured_for_sensor
 
     return configured_for_sensor(load_config(path), PluginHost())[0]
 

@@ -59,13 +59,13 @@ def test_an_output_folder_that_cannot_be_written_is_refused_before_any_work(tmp_
     else:
         (tmp_path / "a-file").write_text("not a folder\n")
         out = tmp_path / "a-file" / "run"
-    import spherecal.app.runner as runner
+    import spherecal.cli.calibrate as calibrate_command
 
     def no_work(*args, **kwargs):
         raise AssertionError("the work began")
 
     monkeypatch.setattr(dataio, "read_dataset", no_work)
-    monkeypatch.setattr(runner, "run_calibrate", no_work)
+    monkeypatch.setattr(calibrate_command, "run_calibrate", no_work)
     try:
         for argv in (["solve", str(dataset_file)], ["calibrate", str(sim_config())]):
             assert main([*argv, "--out", str(out), "--no-report"]) == EXIT_DATA
@@ -169,6 +169,7 @@ def test_writers_refuse_a_planted_symbolic_link(tmp_path):
 
 def test_the_report_and_exports_refuse_a_link(tmp_path, dataset_file):
     from spherecal.estimation import solve
+    from spherecal.plugins.host import PluginHost
     from spherecal.report.export import write_exports
     from spherecal.plugins.host import PluginHost
     from spherecal.report.html import write_report
@@ -216,12 +217,12 @@ def test_a_full_disk_names_the_journal_and_says_resume(tmp_path, monkeypatch):
 
 
 def test_a_full_disk_in_calibrate_says_resume(tmp_path, monkeypatch, dataset_file, capsys):
-    from spherecal.app import runner
+    from spherecal.app import calibrate
 
     def full(*a, **k):
         raise FileWriteError(f"{tmp_path}/out/journal.jsonl: cannot write (No space left on device)")
 
-    monkeypatch.setattr(runner, "solve_and_write", full)
+    monkeypatch.setattr(calibrate, "solve_and_write", full)
     cfg = tmp_path / "replay.toml"
     cfg.write_text(REPLAY.format(data=dataset_file))
     assert main(["calibrate", str(cfg)]) == EXIT_DATA

@@ -65,7 +65,7 @@ def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
     assert main(["solve", str(path), "--out", str(out), "--force"]) == EXIT_RED
     assert all((out / f).exists() for f in EXPORTS)
     assert (out / "report.html").exists()
-    assert "likely cause" in (out / "report.html").read_text()  # the report shows the runner's verdict
+    assert "likely cause" in (out / "report.html").read_text()  # the report shows the run's verdict
     assert "written with --force" in capsys.readouterr().out
     # result.json itself says it is RED, written with --force
     verdict = dataio.read_result(out / "result.json").diagnostics["verdict"]
@@ -135,7 +135,7 @@ def test_the_terminal_verdict_lists_the_reasons_of_an_amber_one_too():
     """'see the checks below' is followed by them in the terminal, not only in the report:
     amber and red reasons (red first), never the green ones."""
     from spherecal.report.assess import Verdict
-    from spherecal.app.runner import format_verdict
+    from spherecal.report.terminal import format_verdict
 
     amber = Verdict("amber", "Usable with care: see the checks and the advice below.",
                     [("green", "residuals fine"), ("amber", "rotation 1-sigma 0.06 deg")])
@@ -153,7 +153,7 @@ def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_pat
     Centre rows with joints keep the two kinematic solves short."""
     from spherecal.estimation import CalibrationOptions
     from spherecal.plugins.host import PluginHost
-    from spherecal.app.runner import solve_and_write
+    from spherecal.app.solving import solve_and_write
     from spherecal.sim import NoiseModel, RobotErrorModel, simulate_centre_dataset
 
     kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
@@ -162,7 +162,8 @@ def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_pat
                          fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="sphere_centre", centre_noise_mm=0.01)
     bad = ds.model_copy(update={"mounting": "eye_to_hand"})
-    _, graded, written = solve_and_write(bad, CalibrationOptions(identify_kinematics=True), tmp_path / "res",
+    exports = PluginHost().export_plan(None, bad.mounting, None)
+    _, graded, written = solve_and_write(bad, CalibrationOptions(identify_kinematics=True), tmp_path / "res", exports,
                                          log=lambda msg: None, report=False, kinematics=kin)
     assert graded.level == "red" and not written
     causes = [text for level, text in graded.reasons if text.startswith("likely cause: ")]

@@ -63,7 +63,7 @@ def test_run_log_names_what_ran_its_input_and_what_was_measured(solved, dataset_
     text = (out / "run.log").read_text()
     assert "spherecal" in text and " solve, started " in text and "exit code 0 (success)" in text
     assert f"command line: spherecal solve {dataset_path} -o {out} --json" in text
-    from spherecal.app.runner import sha256_of
+    from spherecal.app.provenance import sha256_of
 
     assert f"dataset: {dataset_path} (sha256 {sha256_of(dataset_path)})" in text
     assert '"fit_radius":false' in text  # the options it ran with
@@ -127,7 +127,7 @@ def test_a_dataset_cut_off_mid_line_is_one_warning_line_and_is_in_run_log(datase
 
 
 def test_no_handler_is_left_installed_and_an_application_can_route_the_messages(dataset_path, tmp_path):
-    probe = ("import logging, spherecal, spherecal.cli, spherecal.app.runner, spherecal.motion.validation; "
+    probe = ("import logging, spherecal, spherecal.cli, spherecal.app.solving, spherecal.motion.validation; "
              "lg = logging.getLogger('spherecal'); print(len(lg.handlers), lg.level)")
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert proc.stdout.split() == ["0", "0"], proc.stderr  # nothing installed on import, no level set
@@ -135,9 +135,10 @@ def test_no_handler_is_left_installed_and_an_application_can_route_the_messages(
     before = list(root.handlers)
     assert main(["plugins", "-q"]) == EXIT_OK
     assert root.handlers == before and root.level == logging.NOTSET  # main() leaves nothing behind
-    # an application embedding spherecal routes the runner's messages with its own handler
+    # an application embedding spherecal routes the commands' messages with its own handler
     from spherecal.estimation import CalibrationOptions
-    from spherecal.app.runner import solve_and_write
+    from spherecal.app.solving import solve_and_write
+    from spherecal.plugins.host import PluginHost
 
     seen = []
 
@@ -149,7 +150,9 @@ def test_no_handler_is_left_installed_and_an_application_can_route_the_messages(
     root.addHandler(handler)
     root.setLevel(logging.INFO)
     try:
-        solve_and_write(dataio.read_dataset(dataset_path), CalibrationOptions(), tmp_path / "api", report=False)
+        dataset = dataio.read_dataset(dataset_path)
+        exports = PluginHost().export_plan(None, dataset.mounting, None)
+        solve_and_write(dataset, CalibrationOptions(), tmp_path / "api", exports, report=False)
     finally:
         root.removeHandler(handler)
         root.setLevel(logging.NOTSET)
@@ -187,11 +190,11 @@ def test_json_on_an_error_still_prints_one_summary(tmp_path, capsys):
 
 def test_validate_json(sim_config, capsys):
     from spherecal.config import load_config
-    from spherecal.app.runner import make_cell
+    from tests.cli.cells import simulated_cell
 
     cfg = sim_config("sim-eye-in-hand.toml", exact_arm=True)
     out = cfg.parent / "out"
-    true = make_cell(load_config(cfg).config).true_transform
+    true = simulated_cell(load_config(cfg).config).true_transform
     write_result_with(out, cfg, true)
     code = main(["validate", str(cfg), "--json", "--no-report"])
     summary = json.loads(capsys.readouterr().out)
@@ -209,11 +212,11 @@ def test_validate_json(sim_config, capsys):
 def test_scan_records_the_result_it_used_with_out(sim_config, capsys):
     from spherecal.config import load_config
     from spherecal.io.ply import read_ply_header
-    from spherecal.app.runner import make_cell
+    from tests.cli.cells import simulated_cell
 
     cfg = sim_config("sim-eye-in-hand.toml", exact_arm=True, **{r"^passes = 2$": "passes = 1"})
     other = cfg.parent / "other-run"
-    write_result_with(other, cfg, make_cell(load_config(cfg).config).true_transform)
+    write_result_with(other, cfg, simulated_cell(load_config(cfg).config).true_transform)
     assert main(["scan", str(cfg), "--out", str(other)]) == EXIT_OK
     header = read_ply_header(other / "scan.ply")
     assert f"spherecal scan, flange_from_sensor from {other / 'result.json'}" in header.comments
@@ -260,9 +263,9 @@ def write_result_with(out, cfg_path, transform):
     other fields are genuine)."""
     from spherecal.config import load_config
     from spherecal.estimation import calibrate
-    from spherecal.app.runner import make_cell
+    from tests.cli.cells import simulated_cell
 
-    result = calibrate(simulate_dataset(make_cell(load_config(cfg_path).config), SweepPlan(profiles_per_station=6)))
+    result = calibrate(simulate_dataset(simulated_cell(load_config(cfg_path).config), SweepPlan(profiles_per_station=6)))
     out.mkdir(parents=True, exist_ok=True)
     dataio.write_result(out / "result.json", result.model_copy(update={"transform": transform}))
 
@@ -317,9 +320,9 @@ def test_zsh_completion_names_every_command_and_option(capsys):
 def test_the_json_summary_is_strict_json():
     from pathlib import Path
 
-    from spherecal.cli import _json_text
+    from spherecal.cli.output import json_text
 
-    text = _json_text({"command": "x", "a": float("nan"), "b": np.float64(1.5), "c": np.array([1, 2]),
+    text = json_text({"command": "x", "a": float("nan"), "b": np.float64(1.5), "c": np.array([1, 2]),
                        "d": {"e": float("inf"), "f": (np.bool_(True), Path("p"))}})
     assert json.loads(text) == {"command": "x", "a": None, "b": 1.5, "c": [1, 2], "d": {"e": None, "f": [True, "p"]}}
     assert list(json.loads(text)) == ["command", "a", "b", "c", "d"]

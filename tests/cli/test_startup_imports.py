@@ -1,10 +1,10 @@
-"""Start-up (issue 13): commands do not import the heavy modules they do not use.
+"""Start-up: commands do not import the heavy modules they do not use.
 ``spherecal --help`` and ``spherecal plugins`` load neither matplotlib, SciPy's spatial
 module nor Pinocchio (the robot plugin's kinematics import it on first use), and a
 ``solve`` without a report loads neither matplotlib nor Pinocchio, nor what only runs
-with a configuration file and devices (the acquisition, the planners, the metrology of
-`validate`, the sensor's USB driver). Each command runs in a fresh interpreter, which
-then lists what it imported."""
+with a configuration file and devices (the other commands,
+the acquisition, the planners, the metrology of `validate`, the sensor's USB driver).
+Each command runs in a fresh interpreter, which then lists what it imported."""
 
 from __future__ import annotations
 
@@ -17,8 +17,12 @@ from reference_sensor import reference_fov
 
 HEAVY = ("matplotlib", "scipy.spatial", "pinocchio")
 #: What `solve` (a dataset file, no configuration, no devices) has no use for.
-RUN_ONLY = ("spherecal.motion.acquisition", "spherecal.motion.kinematic_plan", "spherecal.core.metrology",
-            "spherecal.motion.validation", "spherecal.motion.scanning", "spherecal.sensors.nxsensor_i.driver", "usb",
+RUN_ONLY = ("spherecal.motion.acquisition", "spherecal.motion.kinematic_plan",
+            "spherecal.core.metrology", "spherecal.motion.validation", "spherecal.motion.scanning",
+            "spherecal.app.calibrate", "spherecal.app.simulate", "spherecal.app.validate", "spherecal.app.scan",
+            "spherecal.app.compare", "spherecal.app.cell", "spherecal.app.plan_checks",  # (the other commands)
+            "spherecal.cli.calibrate", "spherecal.cli.simulate", "spherecal.cli.validate", "spherecal.cli.scan",
+            "spherecal.cli.compare", "spherecal.sensors.nxsensor_i.driver", "usb",
             "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
             "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree",  # (the simulated world, URDF)
             "spherecal.robots.abb_irb2400.frames",  # (reading a tooldata line: compare and validate)
@@ -53,7 +57,7 @@ def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(t
                                                 SweepPlan(profiles_per_station=6)))
     modules = _modules_after(["solve", str(path), "--no-report", "--out", str(tmp_path / "out")])
     assert (tmp_path / "out" / "result.json").exists()  # it did solve
-    assert "spherecal.estimation.refine" in modules
+    assert "spherecal.estimation.refine" in modules and "spherecal.app.solve" in modules
     assert "matplotlib" not in modules and "pinocchio" not in modules
     assert not [m for m in RUN_ONLY if m in modules]
 
@@ -66,47 +70,3 @@ def test_the_robot_plugin_still_builds_its_kinematics_when_asked():
     pose = kin.flange_pose_from_joints([0.0, 0.0, 0.0, 0.0, 30.0, 0.0])
     assert "pinocchio" in sys.modules
     assert 500.0 < pose.translation_mm[0] < 1500.0 and abs(pose.translation_mm[1]) < 1e-9  # ahead, in the x-z plane
-
-
-def test_the_program_holds_the_garbage_collector_off_for_its_imports_only(tmp_path):
-    """The ``spherecal`` program (``cli.console``) keeps Python's cyclic garbage
-    collector off while a command imports its modules, and on from before the data is
-    read; ``cli.main``, the library's entry, leaves the collector as it found it."""
-    from spherecal.io import dataset as dataio
-    from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
-
-    path = tmp_path / "small.jsonl"
-    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()),
-                                                SweepPlan(profiles_per_station=6)))
-    code = (
-        "import gc, json, sys\n"
-        "from spherecal import cli, dataio\n"
-        "seen = {}\n"
-        "real_read, real_done = dataio.read_dataset, cli._imports_done\n"
-        "def read(p):\n"
-        "    seen['read'] = gc.isenabled()\n"
-        "    return real_read(p)\n"
-        "def done():\n"
-        "    seen.setdefault('imports', gc.isenabled())\n"
-        "    real_done()\n"
-        "dataio.read_dataset, cli._imports_done = read, done\n"
-        "argv = json.loads(sys.argv[1])\n"
-        "if sys.argv[2] == 'console':\n"
-        "    sys.argv = ['spherecal', *argv]\n"
-        "    exit_code = cli.console()\n"
-        "else:\n"
-        "    exit_code = cli.main(argv)\n"
-        "print('SEEN ' + json.dumps([exit_code, seen, gc.isenabled(), gc.get_freeze_count() > 0]))\n"
-    )
-    outcomes = {}
-    for entry in ("console", "main"):
-        argv = ["solve", str(path), "--no-report", "--out", str(tmp_path / entry)]
-        proc = subprocess.run([sys.executable, "-c", code, json.dumps(argv), entry], capture_output=True, text=True,
-                              timeout=300)
-        line = [ln for ln in proc.stdout.splitlines() if ln.startswith("SEEN ")]
-        assert line, proc.stderr
-        outcomes[entry] = json.loads(line[-1][len("SEEN "):])
-    # the program: off through the imports, on when the file is read and after; start-up frozen
-    assert outcomes["console"] == [0, {"imports": False, "read": True}, True, True]
-    # the library: never off, nothing frozen
-    assert outcomes["main"] == [0, {"imports": True, "read": True}, True, False]

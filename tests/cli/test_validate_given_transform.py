@@ -8,7 +8,7 @@ import pytest
 
 from spherecal.cli import EXIT_OK, EXIT_USAGE, EXIT_VALIDATION, main
 from spherecal.config import load_config
-from spherecal.app.runner import make_cell
+from tests.cli.cells import simulated_cell
 
 
 @pytest.fixture
@@ -26,7 +26,7 @@ def _numbers(pose) -> str:
 
 def test_the_true_transform_passes_and_one_1_mm_off_fails(cfg_path, capsys):
     out = cfg_path.parent / "out"
-    true = make_cell(load_config(cfg_path).config).true_transform
+    true = simulated_cell(load_config(cfg_path).config).true_transform
     assert not (out / "result.json").exists()  # no calibration: the transform is given
     assert main(["validate", str(cfg_path), "--transform", _numbers(true)]) == EXIT_OK
     captured = capsys.readouterr()

@@ -11,7 +11,8 @@ from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, EXIT_VALIDATION, main
 from spherecal.config import load_config
 from spherecal.core.models import Pose
 from spherecal.io.ply import read_ply, read_ply_header
-from spherecal.app.runner import make_cell, sensor_field_of_view
+from spherecal.app.cell import sensor_field_of_view
+from tests.cli.cells import simulated_cell
 
 
 def fov_of(cfg):
@@ -27,7 +28,7 @@ def write_result_with(out, cfg_path, transform: Pose):
     from spherecal.estimation import calibrate
     from spherecal.sim import SweepPlan, simulate_dataset
 
-    cell = make_cell(load_config(cfg_path).config)
+    cell = simulated_cell(load_config(cfg_path).config)
     result = calibrate(simulate_dataset(cell, SweepPlan(profiles_per_station=6)))
     out.mkdir(parents=True, exist_ok=True)
     dataio.write_result(out / "result.json", result.model_copy(update={"transform": transform}), overwrite=True)
@@ -42,7 +43,7 @@ def cfg_path(sim_config):
 
 def test_validate_with_the_true_calibration_passes(cfg_path, capsys):
     out = cfg_path.parent / "out"
-    cell = make_cell(load_config(cfg_path).config)
+    cell = simulated_cell(load_config(cfg_path).config)
     write_result_with(out, cfg_path, cell.true_transform)
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
     printed = capsys.readouterr().out
@@ -67,7 +68,7 @@ def noise_spread(cfg, X, seeds=10):
 
     ps, sd = [], []
     for seed in range(100, 100 + seeds):
-        cell = make_cell(cfg.model_copy(update={"simulation": cfg.simulation.model_copy(update={"seed": seed})}))
+        cell = simulated_cell(cfg.model_copy(update={"simulation": cfg.simulation.model_copy(update={"seed": seed})}))
         cell.noise_per_pose = False
         measured = []
         for sweep in plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, X, cfg.sphere, fov_of(cfg)):
@@ -86,7 +87,7 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
     the predicted amounts."""
     out = cfg_path.parent / "out"
     cfg = load_config(cfg_path).config
-    true = make_cell(cfg).true_transform
+    true = simulated_cell(cfg).true_transform
     dt = np.array([0.3, 0.0, 0.0])
     write_result_with(out, cfg_path, Pose.from_rt(true.rotation_matrix, true.translation + dt))
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_VALIDATION
@@ -125,7 +126,7 @@ def test_a_rotated_calibration_is_caught(cfg_path):
     centres spread accordingly."""
     out = cfg_path.parent / "out"
     cfg = load_config(cfg_path).config
-    cell = make_cell(cfg)
+    cell = simulated_cell(cfg)
     true = cell.true_transform
     delta = np.radians(0.5)
     wrong = Pose.from_rt(true.rotation_matrix @ geo.matrix_from_rotvec([0, delta, 0]), true.translation)
@@ -223,7 +224,7 @@ def test_scan_a_flat_plate_into_ply(sim_config, fmt, capsys):
         r"^passes = 2$": f'passes = 2\nformat = "{fmt}"',
     })
     out = cfg_path.parent / "out"
-    true = make_cell(load_config(cfg_path).config).true_transform
+    true = simulated_cell(load_config(cfg_path).config).true_transform
     write_result_with(out, cfg_path, true)
     assert main(["scan", str(cfg_path)]) == EXIT_OK
     printed = capsys.readouterr().out
@@ -244,7 +245,7 @@ def test_scan_a_flat_plate_into_ply(sim_config, fmt, capsys):
 
 def test_scan_the_car_door_panel(cfg_path, capsys):
     out = cfg_path.parent / "out"
-    true = make_cell(load_config(cfg_path).config).true_transform
+    true = simulated_cell(load_config(cfg_path).config).true_transform
     write_result_with(out, cfg_path, true)
     assert main(["scan", str(cfg_path)]) == EXIT_OK
     v = read_ply(out / "scan.ply")
@@ -260,7 +261,8 @@ def test_why_the_report_is_not_updated_names_the_changed_configuration(tmp_path)
     added, other settings), not "not the calibration" of a journal that is its own."""
     from types import SimpleNamespace
 
-    from spherecal.app.runner import _not_the_calibration, sha256_of
+    from spherecal.app.provenance import sha256_of
+    from spherecal.app.validate import not_the_calibration
 
     journal, cfg_then, cfg_now = tmp_path / "journal.jsonl", tmp_path / "a.toml", tmp_path / "b.toml"
     journal.write_text("the shots\n")
@@ -268,12 +270,12 @@ def test_why_the_report_is_not_updated_names_the_changed_configuration(tmp_path)
     cfg_now.write_text("[robot]\ncalibrated_model = 'robot_calibrated.urdf'\n")
     result = SimpleNamespace(provenance={"dataset_sha256": sha256_of(journal), "configuration_file": str(cfg_then),
                                          "configuration_sha256": sha256_of(cfg_then)})
-    why = _not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_now))
+    why = not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_now))
     assert why.startswith(f"{tmp_path / 'result.json'} is the calibration of {journal}, but solving that journal "
                           f"again with this configuration gives another transform: {cfg_now} is not the "
                           f"configuration it was calibrated with ({cfg_then})")
-    same = _not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_then))
+    same = not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_then))
     assert "the configuration is the one it was calibrated with, so a file it names (a robot model)" in same
     journal.write_text("other shots\n")
-    assert _not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_now)) == (
+    assert not_the_calibration(result, tmp_path / "result.json", journal, SimpleNamespace(path=cfg_now)) == (
         f"{tmp_path / 'result.json'} is not the calibration of {journal}")

@@ -174,7 +174,7 @@ def planned_config(tmp_path, mounting, profiles_per_station=5):
     path = tmp_path / f"{mounting}.toml"
     path.write_text(text)
     from spherecal.plugins.host import PluginHost
-    from spherecal.app.runner import configured_for_sensor
+    from spherecal.app.cell import configured_for_sensor
 
     return configured_for_sensor(load_config(path), PluginHost())[0].config  # as a run: the sensor's standoff
 
@@ -271,7 +271,7 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
 
 
 def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
-    from spherecal.app.runner import write_calibrated_urdf
+    from spherecal.app.solving import write_calibrated_urdf
 
     cell = standard_cell("eye_in_hand", seed=5, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
                          fov=reference_fov())

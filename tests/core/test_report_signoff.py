@@ -18,7 +18,7 @@ from spherecal.estimation import solve
 from spherecal.core.models import correlation_matrix
 from spherecal.report.assess import Verdict, verdict, with_validation
 from spherecal.report.html import point_uncertainty, write_report
-from spherecal.app.runner import traceability
+from spherecal.app.provenance import traceability
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
 

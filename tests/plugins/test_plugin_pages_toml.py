@@ -26,14 +26,14 @@ def page_toml(page: str) -> str:
 @pytest.fixture
 def example_plugins_host(monkeypatch):
     """The run's plugin host: the installed plugins plus the example package's two."""
-    import spherecal.app.runner
+    from spherecal.app import plugin_host
     from spherecal.plugins.host import PluginHost
 
     monkeypatch.syspath_prepend(str(EXAMPLE_SRC))
     mods = [importlib.import_module(f"spherecal_example_plugins.{m}") for m in ("cartesian", "profiler")]
     host = lambda enable=None: PluginHost(plugins=[("example_cartesian", mods[0]),  # noqa: E731
                                                    ("example_profiler", mods[1])])
-    monkeypatch.setattr(spherecal.app.runner, "make_host", host)
+    monkeypatch.setattr(plugin_host, "make_host", host)
     return host
 
 
@@ -43,7 +43,8 @@ def test_the_pages_configuration_calibrates_on_the_simulated_cell(page, device, 
                                                                   capsys):
     from spherecal.cli import EXIT_OK, main
     from spherecal.config import load_config
-    from spherecal.app.runner import configured_for_sensor, make_cell, robot_arm
+    from spherecal.app.cell import configured_for_sensor, make_cell
+    from spherecal.app.plugin_host import robot_arm
 
     text = page_toml(page)
     assert f'type = "{device}"' in text and "[simulation]" in text and "[simulation.fov]" not in text

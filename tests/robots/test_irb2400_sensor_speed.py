@@ -95,7 +95,7 @@ def test_the_framework_hands_the_sensor_position_to_the_robot(tmp_path):
     from pathlib import Path
 
     from spherecal.config import load_config
-    from spherecal.app.runner import tool_point_mm
+    from spherecal.app.plugin_host import tool_point_mm
 
     examples = Path(__file__).resolve().parents[2] / "examples"
     eih = load_config(examples / "sim-eye-in-hand.toml").config

@@ -264,7 +264,7 @@ def test_calibrated_model_reads_back_through_the_urdf_type(host, irb, tmp_path):
     examples/sim-kinematic-eye-in-hand.toml writes it) reads back through the urdf type
     and reproduces the calibrated flange poses of controller joints."""
     from spherecal.estimation import CalibrationOptions, solve
-    from spherecal.app.runner import write_calibrated_urdf
+    from spherecal.app.solving import write_calibrated_urdf
     from spherecal.sim import SweepPlan
 
     rng = np.random.default_rng(7)

@@ -27,7 +27,9 @@ from spherecal.core import geometry as geo
 from spherecal.motion.acquisition import Progress, acquire, plan_targets
 from spherecal.config import load_config
 from spherecal.estimation import solve
-from spherecal.app.runner import calibration_options, configured_for_sensor, make_cell, make_host, open_devices
+from spherecal.app.cell import configured_for_sensor, make_cell
+from spherecal.app.plugin_host import make_host, open_devices
+from spherecal.app.solving import calibration_options
 from spherecal.sensors.nxsensor_i import SimulatedNxSensorBackend
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "sim-eye-in-hand.toml"

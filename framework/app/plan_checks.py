@@ -1,0 +1,99 @@
+"""Checks of a motion plan before anything moves, and the operator's confirmation of the
+motion on real hardware."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Callable
+
+import numpy as np
+
+from spherecal.core.errors import ConfigError, InputError, SpherecalError
+from spherecal.io.runlog import Notice
+from spherecal.motion.acquisition import check_first_move, check_targets
+from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics
+
+
+def plan_digest(targets) -> str:
+    """A short fingerprint of a plan (every target's station, pose and speed), stored in
+    the journal so that --resume can refuse a journal taken with another plan."""
+    h = hashlib.sha256()
+    for t in targets:
+        h.update(f"{t.index}|{t.station}|{t.speed_mm_s:.6f}|".encode())
+        h.update(np.round(np.concatenate([t.pose.translation_mm, t.pose.quaternion_wxyz]), 6).tobytes())
+    return h.hexdigest()[:16]
+
+
+def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset()) -> None:
+    """Raise before any motion when a target breaks the configured limits (or, with
+    ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
+    stands to the first target not in ``done``, breaks either)."""
+    problems = check_targets(targets, acq, robot)
+    todo = [t for t in targets if t.index not in done]
+    if robot is not None and todo:
+        problems += check_first_move(robot, todo[0], acq)
+    if problems:
+        limits = "the robot's limits" if robot is not None else "the limits"
+        raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
+
+
+def check_identification_from_here(robot, targets, cfg, arm, planned, log: Callable[[str], None]) -> None:
+    """With ``identify_kinematics``, once the robot is connected: the plan check again,
+    with the joints the arm will take from where it stands (the check before connecting
+    assumed zero joints; an arm that starts in another wrist or elbow configuration keeps
+    it, and sees the arm's geometry from other joints). Raises before anything moves when
+    the plan no longer identifies the arm from here."""
+    if not cfg.calibration.identify_kinematics or arm is None:
+        return
+    start = robot.read_joints_deg()
+    if start is None:
+        return
+    try:
+        log("from the arm's joints now: " + check_plan_identifies_kinematics(
+            targets, cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere, arm,
+            planned, start_joints_deg=start))
+    except SpherecalError as exc:
+        raise InputError(f"from where the arm stands now (joints {np.round(np.asarray(start, float), 1).tolist()} deg): "
+                         f"{exc}") from exc
+
+
+def check_plan_solvable(targets) -> None:
+    """Raise InputError (before anything moves) when the plan's stations can never
+    determine the transform: the translation needs changes of orientation about at
+    least two different axes, so at least three stations."""
+    first: dict[str, np.ndarray] = {}
+    for t in targets:
+        first.setdefault(t.station, t.pose.rotation_matrix)
+    Rs = list(first.values())
+    hint = ("add stations tilted by 20-45 deg about two different axes (acquisition.sweep.tilts_deg); nothing "
+            "was moved")
+    if len(Rs) < 3:
+        raise InputError(f"the plan has {len(Rs)} station(s): the translation cannot be determined from fewer than "
+                         f"three orientations; {hint}")
+    M = np.vstack([R - Rs[0] for R in Rs[1:]])
+    sv = np.linalg.svd(M, compute_uv=False)
+    if sv[-1] < 0.05:
+        raise InputError("the plan's stations are tilted about one axis only: the translation along it cannot be "
+                         f"determined; {hint}")
+
+
+class MotionNotConfirmed(ConfigError):
+    """The operator did not confirm the motion (or could not: no input and no --yes)."""
+
+
+def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str], log: Callable[[str], None]) -> None:
+    """Before the first motion on real hardware: the plan summary and a typed 'yes', or
+    ``yes`` (``--yes``). Raises :class:`MotionNotConfirmed` otherwise; nothing has been
+    opened or moved then."""
+    if yes:
+        log(f"{command}: motion confirmed with --yes: {plan}")
+        return
+    log(Notice(f"{command} is about to move the real robot: {plan}. Keep the cell clear and a hand on the "
+               "enabling device or the emergency stop."))  # shown with -q too: it is what 'yes' confirms
+    try:
+        answer = ask("Type 'yes' to start the motion (anything else stops): ")
+    except (EOFError, OSError):
+        raise MotionNotConfirmed(f"{command} would move the robot and nobody confirmed it (no input): run it at a "
+                                 "terminal and type 'yes', or give --yes; nothing was moved") from None
+    if answer.strip().lower() != "yes":
+        raise MotionNotConfirmed(f"{command}: motion not confirmed (answer {answer.strip()[:20]!r}); nothing was moved")

@@ -1,0 +1,83 @@
+"""The result's provenance: what was calibrated, from which files, by whom, when and
+with which software (docs/results.md, "Identity and traceability")."""
+
+from __future__ import annotations
+
+import hashlib
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+from spherecal import __version__
+from spherecal.core.models import Dataset
+
+if TYPE_CHECKING:
+    from spherecal.config import LoadedConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
+
+
+def sha256_of(path: Path) -> str:
+    """SHA-256 of a file's bytes, hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def provenance_type(dataset: Dataset, kind: str = "robot") -> str | None:
+    """The robot (or, with ``kind="sensor"``, sensor) type a dataset's provenance names
+    (``"robot": "abb_irb2400"`` as ``spherecal calibrate`` writes it, or ``"robot":
+    {"type": ...}``), or None."""
+    robot = dataset.provenance.get(kind)
+    if isinstance(robot, dict):
+        robot = robot.get("type")
+    return robot if isinstance(robot, str) and robot else None
+
+
+def traceability(dataset: Dataset, dataset_path: Path | None, loaded: LoadedConfig | None = None,
+                 operator: str | None = None) -> dict:
+    """The result's provenance (docs/results.md, "Identity and traceability"): what was
+    calibrated (cell, robot and sensor types with what the devices said they are, the
+    sphere and its certificate), by whom, when, with which software, and the SHA-256 of
+    the dataset and of the configuration it was calibrated from."""
+    prov = dataset.provenance
+    cfg = loaded.config if loaded is not None else None
+    settings = cfg.report if cfg is not None else None  # (its [report]: operator, cell)
+
+    def device(kind: str) -> dict:
+        given = prov.get(kind)
+        kind_type = given.get("type") if isinstance(given, dict) else given
+        if kind_type is None and cfg is not None:
+            kind_type = getattr(cfg, kind).get("type")
+        found = prov.get(f"{kind}_identity")
+        return {"type": kind_type, **(found if isinstance(found, dict) else {})}
+
+    sphere = {"radius_mm": dataset.sphere_radius_mm}
+    if cfg is not None:
+        sphere.update(radius_uncertainty_mm_k2=cfg.sphere.radius_uncertainty_mm, certificate=cfg.sphere.certificate)
+    return {
+        "dataset": prov.get("source", "unknown"),
+        "dataset_file": None if dataset_path is None else str(dataset_path),
+        "dataset_sha256": None if dataset_path is None else sha256_of(dataset_path),
+        "configuration_file": None if loaded is None else str(loaded.path),
+        "configuration_sha256": None if loaded is None else sha256_of(loaded.path),
+        "software": f"spherecal {__version__}",
+        "calibrated_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "operator": operator or (settings.operator if settings is not None else None),
+        "cell": settings.cell if settings is not None else None,
+        "robot": device("robot"),
+        "sensor": device("sensor"),
+        "sphere": sphere,
+        "simulated": prov.get("simulated"),
+    }
+
+
+def check_same_devices(before: dict, now: dict, journal: Path, log: Callable[[str], None]) -> None:
+    """On --resume: say so when the robot or sensor now connected is not the one the
+    journal was started with (a swapped unit changes the transform)."""
+    for kind in ("robot", "sensor"):
+        was, is_ = before.get(f"{kind}_identity") or {}, now.get(f"{kind}_identity") or {}
+        if was.get("serial_number") and is_.get("serial_number") and was["serial_number"] != is_["serial_number"]:
+            log(f"warning: {journal} was started with {kind} serial number {was['serial_number']}, now "
+                f"{is_['serial_number']} is connected: the journal's provenance keeps the first; if the unit was "
+                "swapped, start a new run")

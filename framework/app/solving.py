@@ -1,0 +1,190 @@
+"""Solve a dataset, grade the result (naming the likely cause of a RED one) and write the
+result, exports, calibrated robot model and report: the end of calibrate and solve."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from spherecal.app.outputs import CALIBRATED_URDF_NAME, check_output_targets
+from spherecal.core.errors import FitBreakdownError
+from spherecal.core.kinematics import chain_with_errors
+from spherecal.core.models import Dataset
+from spherecal.core.urdf import chain_to_urdf
+from spherecal.estimation import CalibrationOptions, Solution, solve
+from spherecal.estimation import diagnose
+from spherecal.io import files as safeio
+from spherecal.io.exporters import ExportPlan, red_warning, write_exports
+from spherecal.io.runlog import progress_log
+from spherecal.report.assess import Thresholds, Verdict, absurd_ratio, expected_rms_mm, is_absurd, verdict
+
+if TYPE_CHECKING:
+    from spherecal.config import ReportConfig, RunConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
+
+_LOG = progress_log("run")  # the default ``log``: logger spherecal.run
+
+
+@dataclass
+class Outcome:
+    """What a calibrate/solve run produced."""
+
+    solution: Solution | None = None
+    files: dict[str, Path] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    verdict: Verdict | None = None
+    #: False when the result is RED and was not written (no ``force``)
+    exports_written: bool = False
+    #: ``--resume`` found a finished run (its result.json): nothing was done
+    finished: bool = False
+    #: the dataset solved (the journal or replayed file of calibrate, solve's dataset)
+    dataset: Dataset | None = None
+
+
+def calibration_options(cfg: RunConfig) -> CalibrationOptions:
+    """The configuration's ``[calibration]`` with its nominal transform."""
+    return cfg.calibration.model_copy(update={"nominal_transform": cfg.nominal_transform.pose()})
+
+
+def solve_and_write(
+    dataset: Dataset,
+    options: CalibrationOptions,
+    out: Path,
+    exports: ExportPlan,
+    fk=None,
+    log: Callable[[str], None] = _LOG,
+    report: bool = True,
+    force: bool = False,
+    kinematics=None,
+    provenance: dict | None = None,
+    report_settings: ReportConfig | None = None,
+) -> tuple[Solution, Verdict, bool]:
+    """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
+    ``result.json``, the exports and the HTML report in ``out``. A RED result's
+    ``result.json`` and exports are written only with ``force``; its report is written
+    (it says why). Returns the solution, its verdict and whether the result and exports
+    were written. ``exports``: the run's :class:`~spherecal.io.exporters.ExportPlan`
+    (``PluginHost.export_plan``); ``kinematics``: the robot's arm model, for the
+    kinematic robot error model; ``provenance``: the result's
+    (:func:`spherecal.app.provenance.traceability`); ``report_settings``: the
+    configuration's ``[report]``."""
+    check_output_targets(out, exports)  # a planted link: refuse before solving, write nothing
+    try:
+        solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
+    except FitBreakdownError as exc:
+        cause = _breakdown_cause(dataset, options, fk, log, kinematics)
+        if cause is None:
+            raise
+        raise FitBreakdownError(f"{cause}. ({exc})") from None
+    if provenance is not None:
+        solution = replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
+    graded = assess_solution(solution, dataset, options, fk, log, kinematics=kinematics)
+    out.mkdir(parents=True, exist_ok=True)
+    written = graded.level != "red" or force
+    # the verdict travels with the result: a RED one written with --force says so in result.json
+    solution = replace(solution, result=solution.result.model_copy(update={"diagnostics": {
+        **solution.result.diagnostics,
+        "verdict": {"level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}}}))
+    if written:
+        write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
+        urdf = write_calibrated_urdf(solution, kinematics, out)
+        if urdf is not None:
+            log(f"calibrated robot model: {urdf}")
+    if report:
+        # (imported only for a report: matplotlib is not loaded by `solve --no-report`,
+        # tests/cli/test_startup_imports.py)
+        from spherecal.report.html import write_report
+
+        chosen = {} if report_settings is None else {"point_distance_mm": report_settings.point_distance_mm}
+        write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result), **chosen)
+    return solution, graded, written
+
+
+def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | None:
+    """With identified kinematic parameters, the robot with its identified geometry as a
+    URDF (metres, joints in the model's convention): the nominal chain with the identified
+    errors applied and the others left at zero. Joint and link names are the arm's when
+    its kinematics name them (``joint_names``, ``base_link``, ``flange_link``: a robot
+    described by its URDF reads the file back with the same settings), else ``joint_1``
+    ... with ``base_link`` and ``tool0``. None when nothing was identified."""
+    ref = solution.refined
+    ke = ref.diagnostics.get("kinematic_effects")
+    if kinematics is None or not ke or not any(ke["identified"]):
+        return None
+    kappa = np.where(ke["identified"], ref.kinematic_errors, 0.0)
+    limits = getattr(kinematics, "model_joint_limits_rad", None)
+    n_id = sum(ke["identified"])
+    text = chain_to_urdf(
+        chain_with_errors(kinematics.chain, kappa), "spherecal_calibrated_robot",
+        joint_names=getattr(kinematics, "joint_names", None),
+        base_link=getattr(kinematics, "base_link", "base_link"),
+        flange_link=getattr(kinematics, "flange_link", "tool0"),
+        joint_limits_rad=limits() if callable(limits) else None,
+        warning=red_warning(solution.result) or None,
+        comment=f"Identified by spherecal from {solution.problem.n_profiles} profiles: {n_id} of "
+                f"{len(ke['identified'])} geometric parameters (result.json, robot_error.kinematic_parameters); "
+                "joint zero offsets are folded into the joint origins.",
+    )
+    path = out / CALIBRATED_URDF_NAME
+    safeio.write_text(path, text)
+    return path
+
+
+def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kinematics,
+                     what: str = "the fit broke down") -> str | None:
+    """When the fit broke down or is absurd (``what``): the reading of the dataset that is
+    not absurd, if there is one (:func:`spherecal.estimation.diagnose.breakdown_cause`)."""
+    return diagnose.breakdown_cause(dataset, options, fk, log, kinematics, what,
+                                    fits=lambda res: not is_absurd(res), ratio=absurd_ratio)
+
+
+def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
+                    log: Callable[[str], None] = _LOG, kinematics=None) -> Verdict:
+    """The verdict of ``solution`` (:func:`spherecal.report.assess.verdict`); for a RED
+    one, the likely cause named where the data can tell it
+    (:mod:`spherecal.estimation.diagnose`):
+
+    - an absurd solution (residuals many times the noise) solved again with the other
+      mounting: when that fits, the dataset's mounting label is wrong;
+    - residuals above the expected with the certified radius: solved again with the
+      radius fitted; when the data prefer another radius, it is named.
+
+    Each check costs one more solve, and only for a RED result. ``kinematics`` (the arm's,
+    as given to :func:`solve`) is passed to every such solve: without it a solve that
+    identifies the arm's geometry or uses the kinematic error model refuses to run, and
+    the check would say nothing."""
+    th = Thresholds()
+    v = verdict(solution.result, th)
+    if v.level != "red":
+        return v
+    result = solution.result
+    ratio = result.residuals.rms_mm / expected_rms_mm(result, th)
+    causes: list[str] = []
+    absurd = is_absurd(result, th)
+    if absurd:
+        cause = _breakdown_cause(dataset, options, fk, log, kinematics,
+                                 f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected)")
+        if cause is not None:
+            causes.append(cause)
+    if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
+        cause = diagnose.radius_cause(result, dataset, options, fk, log, kinematics)
+        if cause is not None:
+            causes.append(cause)
+    robot_error = result.robot_error
+    if not causes and robot_error is not None and len(dataset.observations) and robot_error.station_translation_mm > 0.1:
+        cause = diagnose.odd_station(solution, dataset, options, fk, log, kinematics,
+                                     level=lambda alt: verdict(alt, th).level)
+        if cause is None and not absurd:  # (an absurd result has had its stations read the other way already)
+            spread = robot_error.station_translation_mm
+            cause = diagnose.station_quaternions_xyzw(
+                dataset, options, fk, log, kinematics, f"the stations disagree by {spread:.3f} mm",
+                lambda alt: verdict(alt, th).level != "red" and alt.robot_error is not None
+                and alt.robot_error.station_translation_mm < spread / 3)
+        if cause is not None:
+            causes.append(cause)
+    if causes:
+        v.reasons.extend(("red", "likely cause: " + c) for c in causes)
+        v.headline = f"{v.headline} Likely cause: {causes[0].split(':')[0]}."
+    return v

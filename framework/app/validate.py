@@ -1,0 +1,153 @@
+"""``spherecal validate``: the acceptance test of a calibration, at views other than the
+calibration's, against the maximum permissible errors."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from spherecal.app import plugin_host
+from spherecal.app.cell import configured_for_sensor, make_cell
+from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup
+from spherecal.app.plan_checks import check_plan, confirm_motion
+from spherecal.app.plugin_host import export_plan, open_devices, robot_arm
+from spherecal.app.provenance import sha256_of
+from spherecal.app.solving import calibration_options
+from spherecal.config import LoadedConfig
+from spherecal.core.errors import ConfigError
+from spherecal.core.models import TRANSFORM_NAME, Observation
+from spherecal.estimation import solve
+from spherecal.io import dataset as dataio
+from spherecal.io import files as safeio
+from spherecal.io.runlog import progress_log
+from spherecal.motion.acquisition import Progress
+from spherecal.motion.validation import evaluate, measure, plan_validation, position_rows
+from spherecal.report.assess import Verdict, verdict, with_validation
+from spherecal.report.html import write_report
+
+_LOG = progress_log("run")  # the default ``log``: logger spherecal.run
+
+
+def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable[[str], None] = _LOG,
+                 progress_stream=None, report: bool = True, yes: bool = False, ask: Callable[[str], str] = input,
+                 transform=None, host=None):
+    """``spherecal validate``: scan the artefacts at new views with the calibrated
+    system, compute the acceptance figures, compare with the MPEs. ``transform`` (a
+    :class:`~spherecal.report.compare.TransformEstimate`): validate that transform, one spherecal
+    did not compute (the controller's current tool or work object, a pose file), instead
+    of the calibration's ``result.json``; the report is then left alone. ``host``: the
+    run's plugin host (default: made here)."""
+    host = host if host is not None else plugin_host.make_host()
+    loaded, fov = configured_for_sensor(loaded, host)
+    cfg = loaded.config
+    out, result_path, result, X, source = _transform_to_validate(loaded, out_dir, transform, log)
+    sweeps = plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, X, cfg.sphere, fov, cfg.sensor["type"])
+    targets = [t for s in sweeps for t in s.targets]
+    log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
+    check_plan(targets, cfg.acquisition, "validation plan")
+    exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
+    cell = make_cell(cfg, robot_arm(loaded, host), fov)
+    if cell is None:
+        confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
+    out.mkdir(parents=True, exist_ok=True)
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
+    journal = out / f"validation-{stamp}.jsonl"  # one journal per validation run; none is overwritten
+    with open_devices(loaded, host, cell, log) as (robot, sensor):
+        check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
+        with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
+                                  provenance={"source": "spherecal validate", "result": source,
+                                              "transform": X.model_dump()},
+                                  fsync=True) as writer:
+
+            def record(sweep, target, pose, profile):
+                writer.append(Observation(index=writer.next_index, station=f"{sweep.label}-{sweep.kind}",
+                                          timestamp=datetime.now(timezone.utc), base_from_flange=pose,
+                                          profile=profile, target=target.index))
+
+            measured = measure(robot, sensor, sweeps, cfg.acquisition, log, Progress(len(targets), progress_stream),
+                               record)
+    outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured)
+    own = verdict(result) if result is not None else Verdict(
+        "green", "A transform spherecal did not compute: only its validation is graded.")
+    outcome.verdict = with_validation(own, outcome.table())
+    outcome.transform, outcome.transform_name, outcome.transform_source = X, TRANSFORM_NAME[cfg.mounting], source
+    _write_validation(outcome, out, stamp, journal, transform is not None)
+    calib_journal = out / JOURNAL_NAME
+    if report and transform is None and calib_journal.exists():
+        # the report shows the calibration's residuals: only when that calibration is the one validated
+        _update_report(loaded, host, outcome, result, result_path, out, exports, log)
+    return outcome
+
+
+def _transform_to_validate(loaded: LoadedConfig, out_dir: Path | None, transform, log: Callable[[str], None]):
+    """The output folder, the calibration's result (path and result; None for a given
+    transform), the transform to validate and where it comes from."""
+    cfg = loaded.config
+    missing = "no [validation] section: say what to validate against which MPEs"
+    if transform is None:
+        out, result_path, result = calibrated_setup(loaded, cfg.validation, missing, "validation", out_dir)
+        return out, result_path, result, result.transform, str(result_path)
+    out, result_path, result = calibrated_setup(loaded, cfg.validation, missing, "validation", out_dir,
+                                                read_result=False)
+    expected = TRANSFORM_NAME[cfg.mounting]
+    if transform.transform_name not in (None, expected):
+        raise ConfigError(f"{transform.source} is {transform.transform_name}, but {loaded.path} calibrates "
+                          f"{expected} ({cfg.mounting}): validate a transform of the configuration's mounting")
+    if transform.note:
+        log(f"note: {transform.note}")
+    return out, result_path, result, transform.pose, transform.source
+
+
+def _write_validation(outcome, out: Path, stamp: str, journal: Path, transform_given: bool) -> None:
+    """``validation-<stamp>.json`` and ``validation.json`` (the latest run, for scripts)."""
+    X = outcome.transform
+    text = json.dumps({"passed": outcome.passed, "result": outcome.transform_source, "transform": X.model_dump(),
+                       "transform_given": transform_given, "journal": journal.name,
+                       "verdict": {"level": outcome.verdict.level, "headline": outcome.verdict.headline},
+                       "figures": outcome.table(), "positions": position_rows(outcome),
+                       "report": outcome.report.model_dump(), "centres_mm": outcome.centres_mm},
+                      indent=2, default=float)
+    safeio.write_text(out / f"validation-{stamp}.json", text)
+    safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
+
+
+def _update_report(loaded: LoadedConfig, host, outcome, result, result_path: Path, out: Path, exports,
+                   log: Callable[[str], None]) -> None:
+    """The calibration's report in ``out`` rewritten with the validation's figures, when
+    solving the calibration's journal there again gives the transform validated; else
+    the log says why not."""
+    cfg = loaded.config
+    calib_journal = out / JOURNAL_NAME
+    X = outcome.transform
+    solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
+                     host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
+    if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
+        # the result as written (its provenance: the calibration's identity and hashes)
+        solution = replace(solution, result=result)
+        write_report(solution, out, validation=outcome.table(), validation_positions=position_rows(outcome),
+                     verdict_override=outcome.verdict, notes=exports.notes(solution.result),
+                     point_distance_mm=cfg.report.point_distance_mm)
+    else:
+        log(f"report.html not updated: {not_the_calibration(result, result_path, calib_journal, loaded)}")
+
+
+def not_the_calibration(result, result_path: Path, journal: Path, loaded: LoadedConfig) -> str:
+    """Why ``result`` and the calibration of ``journal`` solved again with ``loaded``'s
+    settings differ: another dataset, or the same one under a configuration that changed
+    since (its robot model, the calibration settings), from the result's provenance."""
+    prov = (result.provenance or {}) if result is not None else {}
+    taken = prov.get("dataset_sha256")
+    if taken is None or taken != sha256_of(journal):
+        return f"{result_path} is not the calibration of {journal}"
+    cfg_then = prov.get("configuration_sha256")
+    changed = (f"{loaded.path} is not the configuration it was calibrated with ({prov.get('configuration_file')})"
+               + " (its robot model or [calibration] settings)" if cfg_then != sha256_of(loaded.path)
+               else "the configuration is the one it was calibrated with, so a file it names (a robot model) or "
+                    "spherecal changed since")
+    return (f"{result_path} is the calibration of {journal}, but solving that journal again with this configuration "
+            f"gives another transform: {changed}; the validation itself used the result as written")

@@ -1,0 +1,58 @@
+"""``spherecal calibrate CONFIG``: calls :mod:`spherecal.app.calibrate` and prints the
+result, its verdict and what to do next."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from shlex import quote
+
+from spherecal.app.calibrate import run_calibrate
+from spherecal.app.outputs import journal_holds_shots
+from spherecal.cli.finish import finish
+from spherecal.cli.output import EXIT_OK, result_json
+from spherecal.cli.session import Session, ask
+from spherecal.config import load_config
+from spherecal.io.runlog import progress_log
+from spherecal.report.terminal import summary, truth_check
+
+_log = logging.getLogger("spherecal.cli")
+
+
+def run(args, session: Session) -> int:
+    loaded = load_config(args.config)
+    out = Path(args.out) if args.out else loaded.output_dir
+    session.run_folder(out)
+    _log.debug("configuration %s", loaded.path)
+    session.note_file("configuration", loaded.path, with_text=True)
+    outcome = run_calibrate(
+        loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
+        out_dir=Path(args.out) if args.out else None, log=progress_log("run"),
+        progress_stream=session.progress_stream(), report=not args.no_report, force=args.force, yes=args.yes,
+        ask=ask, operator=args.operator,
+    )
+    if outcome.finished:
+        session.say(f"{out} holds a finished run ({out / 'result.json'}): nothing to resume; its result, exports "
+                    "and report were left as they are")
+        return EXIT_OK
+    if outcome.solution is None:
+        return EXIT_OK
+    session.say(summary(outcome.solution, outcome.verdict))
+    session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
+    if loaded.config.validation is not None and outcome.verdict.level != "red":
+        folder = f" -o {quote(str(args.out))}" if args.out else ""  # (the run validate is to check)
+        session.say(f"acceptance test: spherecal validate {quote(str(args.config))}{folder} (its figures then join "
+                    "this verdict, in the terminal and the report)")
+    if outcome.files.get("journal") is not None:
+        check = truth_check(outcome.solution, outcome.dataset)
+        if check:
+            session.say(check)
+    return finish(session, out, outcome.verdict, outcome.exports_written,
+                  "--resume --force" if outcome.files.get("journal") else "--force", report=not args.no_report)
+
+
+def after_failure(session: Session) -> str:
+    """What to do after a calibration stopped half-way."""
+    if not journal_holds_shots(session.out_dir):
+        return "; no shot was taken yet: nothing to resume, run the same command again"
+    return "; what was taken is in the journal: continue with --resume"

@@ -1,0 +1,28 @@
+"""``spherecal simulate OUT``: calls :mod:`spherecal.app.simulate` and says what it wrote."""
+
+from __future__ import annotations
+
+from spherecal.app.simulate import configured_cell, standard_cell_for, write_simulated
+from spherecal.cli.output import EXIT_OK
+from spherecal.cli.parser import SIMULATE_DEFAULTS, flag
+from spherecal.cli.session import Session
+from spherecal.core.errors import ConfigError
+
+
+def run(args, session: Session) -> int:
+    if args.config:
+        # the configuration gives the cell and the plan: an option that would change them is refused, never ignored
+        clash = [flag(name) for name in ("sensor", *SIMULATE_DEFAULTS) if name != "seed"
+                 and getattr(args, name) is not None]
+        if clash:
+            raise ConfigError(f"{', '.join(clash)}: the configuration gives the sensor, the mounting, the plan and "
+                              "the noise ([sensor], mounting, [acquisition], [simulation]); give these options "
+                              "without --config, or change the configuration")
+        cell, plan = configured_cell(args.config, seed=args.seed)
+    else:
+        given = {name: default if getattr(args, name) is None else getattr(args, name)
+                 for name, default in SIMULATE_DEFAULTS.items()}
+        cell, plan = standard_cell_for(args.sensor, **given)
+    ds = write_simulated(cell, plan, args.out, force=args.force)
+    session.say(f"wrote {len(ds.observations)} observations ({cell.mounting}) to {args.out}")
+    return EXIT_OK
