@@ -21,7 +21,7 @@ from spherecal.estimation.circle import CircleFit, fit_circles
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
-    derived_station_rotation_tolerance_deg, fill_unknown, screen_station_orientations,
+    derived_station_rotation_tolerance_deg, fill_unknown, screen_station_orientations, several_stations_under_one_label,
 )
 from spherecal.estimation.refine import KinematicEffects, NoiseAssumptions, RefineResult, StationEffects, refine
 from spherecal.estimation.centres import (
@@ -326,10 +326,18 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         say(note)
     hint = turned_hint(ori.flags, ori.diagnostics["tolerance_deg"])
     fits = _fit_shots(problem, opt, flags, say)
-    require_usable_stations(problem, fits, flags, opt, hint)
-    say("two-step solution (rotation from translations, translation from orientations)")
-    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
-    ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+    try:
+        require_usable_stations(problem, fits, flags, opt, hint)
+        say("two-step solution (rotation from translations, translation from orientations)")
+        budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
+        ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+    except DegenerateDataError as exc:
+        scattered = ori.diagnostics.get("scattered_stations")
+        if not scattered:
+            raise
+        # what is left says too little because a label held several stations: that is the cause to name
+        raise DegenerateDataError(f"{several_stations_under_one_label(scattered)}; the observations left cannot "
+                                  "determine the transform") from exc
     noise = _noise_assumptions(opt, sub_fits, ori.diagnostics, say)
 
     def refit(clean_: Problem, start) -> RefineResult:

@@ -179,6 +179,11 @@ def rotation_from_translations(stations: list[StationCentres], choice) -> tuple[
     A = np.vstack([st.candidates[ch] - st.candidates[ch].mean(axis=0) for st, ch in zip(stations, choice)])
     Bm = np.vstack([st.d for st in stations])
     sv = np.linalg.svd(Bm, compute_uv=False)
+    if len(Bm) < 2 or not sv[0] > 0:
+        raise DegenerateDataError(
+            "no station has two shots the robot moved between by a pure translation: the rotation is not "
+            "determined; each station needs shots at different positions of a pure-translation sweep"
+        )
     if sv[1] < RANK_TOLERANCE * sv[0] or sv[1] / np.sqrt(len(Bm)) < MIN_EXTENT_MM:
         raise DegenerateDataError(
             "the pure-translation moves are all along one line: the rotation is not determined; "

@@ -81,3 +81,24 @@ def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(
     assert main(["solve", str(path), "--out", str(tmp_path / "forced"), "--no-report", "--force"]) == EXIT_RED
     verdict = dataio.read_result(tmp_path / "forced" / "result.json").diagnostics["verdict"]
     assert verdict["level"] == "red" and verdict["written_with_force"]
+
+
+def test_centre_rows_of_several_orientations_under_one_label_are_a_data_error(tmp_path, capsys):
+    """One sphere-centre row at each of five orientations, all labelled S1 (a table whose
+    station column was left at its default): a data error (exit 3) naming station S1 and
+    its orientations, never an internal error."""
+    from spherecal.cli import EXIT_DATA
+
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
+    tilts = [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 20.0), (-20.0, 0.0, 0.0)]
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4, tilts_deg=tilts), kind="sphere_centre",
+                                 centre_noise_mm=0.02)
+    rows = [o.model_copy(update={"station": "S1", "index": k})
+            for k, o in enumerate(o for o in ds.observations if o.index % 4 == 0)]
+    path = tmp_path / "centres.dataset.jsonl"
+    dataio.write_dataset(path, ds.model_copy(update={"observations": rows}))
+    assert main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "internal error" not in err, err
+    assert "error: station S1: its 5 observations are at 5 different orientations" in err, err
+    assert "label each orientation a station of its own" in err, err

@@ -377,6 +377,66 @@ def test_a_sign_flip_in_a_quaternion_component_is_named_with_its_angle():
     assert_known_answer(res, cell)
 
 
+#: Five stations tilted about 20 deg from each other, as a hand-held teach pendant session gives them.
+TILTS_20 = [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 20.0), (-20.0, 0.0, 0.0)]
+
+
+def one_label_for_five_orientations(per_orientation: int) -> tuple[Dataset, Dataset, object]:
+    """Sphere-centre rows at five orientations 20-40 deg apart, ``per_orientation`` rows
+    of each: as labelled (S1-S5), and all labelled S1 (a table whose station column was
+    left at its default)."""
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4, tilts_deg=TILTS_20), kind="sphere_centre",
+                                 centre_noise_mm=0.02)
+    rows = [o for o in ds.observations if o.index % 4 < per_orientation]
+    rows = [o.model_copy(update={"index": k}) for k, o in enumerate(rows)]
+    one = [o.model_copy(update={"station": "S1"}) for o in rows]
+    return ds.model_copy(update={"observations": rows}), ds.model_copy(update={"observations": one}), cell
+
+
+@pytest.mark.parametrize("per_orientation", [1, 3])
+def test_rows_of_several_orientations_under_one_label_are_named_not_blamed_as_typos(per_orientation):
+    """Within a station the robot may only translate: rows at five orientations under one
+    label are a labelling error. With fewer rows per orientation than a split station
+    needs, what is left cannot determine the transform, and the refusal names the station,
+    how many orientations it holds and how far apart, and what to do; never a crash (one
+    row per orientation), never the rows flagged one by one as typos, and never 'all
+    stations share one orientation', the opposite of the cause."""
+    _, one, _ = one_label_for_five_orientations(per_orientation)
+    with pytest.raises(DegenerateDataError) as caught:
+        solve(one)
+    said = str(caught.value)
+    assert re.match(rf"station S1: its {5 * per_orientation} observations are at 5 different orientations \(up to "
+                    r"4\d\.\d deg apart\)", said), said
+    assert "label each orientation a station of its own" in said, said
+    assert "share one orientation" not in said and "typo" not in said, said
+
+
+def test_rows_of_several_orientations_under_one_label_are_split_and_solved_as_labelled():
+    """Four rows at each of five orientations, all labelled S1: each orientation is split
+    off as a station of its own, no row is blamed, and the result is that of the table
+    as it should have been labelled (the orientations' 20-40 deg differences are not
+    taken for orientation read noise)."""
+    labelled, one, cell = one_label_for_five_orientations(4)
+    res, ref = solve(one).result, solve(labelled).result
+    orientation = res.diagnostics["station_orientation"]
+    assert orientation["split_stations"] == {"S1": ["S1", "S1/b", "S1/c", "S1/d", "S1/e"]}
+    assert orientation["rotation_noise_seen_deg"] < 0.01, orientation
+    assert res.flagged == ref.flagged == []
+    assert geo.rotation_angle_deg(res.transform.rotation_matrix, ref.transform.rotation_matrix) < 1e-6
+    assert np.allclose(res.transform.translation, ref.transform.translation, atol=1e-6)
+    assert_known_answer(res, cell)
+
+
+def test_stations_of_one_sphere_centre_each_say_the_rotation_needs_moves():
+    """Every station one sphere centre: no pure-translation move, so the two-step cannot
+    find the rotation, and says so (not an index error)."""
+    labelled, _, _ = one_label_for_five_orientations(1)
+    with pytest.raises(DegenerateDataError, match="no station has two shots the robot moved between by a pure "
+                                                  "translation: the rotation is not determined"):
+        solve(labelled)
+
+
 def test_a_hand_typed_table_with_a_non_unit_quaternion_names_the_line(tmp_path):
     ds, _ = table()
     path = tmp_path / "paper-table.dataset.jsonl"

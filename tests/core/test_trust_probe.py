@@ -36,40 +36,6 @@ def _near_truth(result, cell, deg=1.0, mm=1.0) -> bool:
     return rot < deg and np.linalg.norm(cell.true_transform.translation - result.transform.translation) < mm
 
 
-# --- a station whose rows do not share an orientation --------------------------------------------
-
-@pytest.mark.parametrize("per_orientation", [1, 4])
-def test_centre_rows_of_several_orientations_in_one_station_are_named_not_a_crash(tmp_path, capsys, per_orientation):
-    """Sphere-centre rows taken at five orientations about 20 deg apart, all labelled one
-    station (a table where the station column was left at its default). Within a station
-    the robot may only translate, so this is a labelling error, and the user can fix it
-    only if told: the command must either solve it (each orientation a station of its
-    own) or stop with a data error (exit 3) that names station S1 and says its rows are at
-    different orientations. Never an internal error (one row per orientation), and never
-    the rows blamed as typos one by one until 'all stations share one orientation' is
-    left, which says the opposite of the cause (four rows per orientation)."""
-    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
-    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4, tilts_deg=TILTS_20), kind="sphere_centre",
-                                 centre_noise_mm=0.02)
-    kept, seen = [], {}
-    for o in ds.observations:
-        seen[o.station] = seen.get(o.station, 0) + 1
-        if seen[o.station] <= per_orientation:
-            kept.append(o.model_copy(update={"station": "S1", "index": len(kept)}))
-    assert len({o.base_from_flange.quaternion_wxyz for o in kept}) >= 5
-    code, out, err, res = _solve(tmp_path, capsys, ds.model_copy(update={"observations": kept}))
-    text = out + err
-    assert "internal error" not in text, text
-    if code == EXIT_OK:
-        assert _near_truth(dataio.read_result(res / "result.json"), cell), text
-        return
-    assert code == EXIT_DATA, (code, text)
-    assert "share one orientation" not in err, err
-    message = err.split("spherecal: error:")[-1]
-    assert "S1" in message, message
-    assert re.search(r"different orientations|(do not|don't) share (an|one|the same) orientation|turned", message), message
-
-
 # --- a path in the configuration that cannot be expanded -----------------------------------------
 
 CONFIG = """mounting = "eye_in_hand"
