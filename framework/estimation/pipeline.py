@@ -29,8 +29,8 @@ from spherecal.estimation.centres import (
 )
 from spherecal.estimation.robust import percentile
 from spherecal.estimation.screening import (
-    RejectionBudget, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots, require_usable_stations,
-    trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
+    RejectionBudget, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots,
+    require_usable_stations, trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
 )
 from spherecal.estimation.twostep import CentreShot, TwoStepResult
 

@@ -31,6 +31,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.errors import DegenerateDataError
 from spherecal.core.mapping import map_profile_list
+from spherecal.core.models import TRANSFORM_NAME
 from spherecal.estimation.circle import CircleFit, half_chord_depth
 from spherecal.estimation.problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
@@ -262,6 +263,19 @@ def translation_from_orientations(
     return sol[:3], sol[3:], {"condition_number": float(cond), "singular_values": sv.tolist()}
 
 
+def rotation_determined(problem: Problem, stations: list[StationCentres], R: np.ndarray, diag: dict) -> str:
+    """What the moves within ``stations`` still give when the translation is not
+    determined: the rotation ``R`` (``diag``: :func:`rotation_from_translations`'), the
+    stations it comes from (those whose moves span 3-D, else all), and about how well:
+    the moves' residual RMS over their smallest singular value (rad), one sigma."""
+    spanning = [st.label for st in stations if st.rank == 3] or [st.label for st in stations]
+    q = geo.quat_wxyz_from_matrix(R)
+    sd_deg = float(np.degrees(diag["rms_mm"] / diag["displacement_singular_values_mm"][-1]))
+    return (f"the rotation is determined, by the moves within station(s) {', '.join(spanning)}, to about "
+            f"{sd_deg:.2g} deg: {TRANSFORM_NAME[problem.mounting]} quaternion_wxyz "
+            f"[{', '.join(f'{v:.5f}' for v in q)}]")
+
+
 def _orientation_advice(problem: Problem, stations: list[StationCentres]) -> str:
     Rs = [problem.R_sphere_from_mount[st.profiles[0]] for st in stations]
     rel = [geo.rotvec_from_matrix(Rs[0].T @ Ri) for Ri in Rs[1:]]
@@ -364,7 +378,12 @@ def two_step(
     solutions = []
     for choice in combos:
         R, diag1 = rotation_from_translations(stations, choice)
-        t, c, diag2 = translation_from_orientations(problem, R, stations, choice, inliers)
+        try:
+            t, c, diag2 = translation_from_orientations(problem, R, stations, choice, inliers)
+        except DegenerateDataError as exc:
+            if len(combos) > 1:
+                raise
+            raise DegenerateDataError(f"{exc}; {rotation_determined(problem, stations, R, diag1)}") from None
         solutions.append((point_rms(problem, R, t, c, inliers), R, t, c, choice, diag1, diag2))
     solutions.sort(key=lambda s: s[0])
     best = solutions[0]

@@ -485,6 +485,87 @@ def test_in_a_station_of_two_the_solution_of_the_others_names_the_row_with_the_t
     assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
 
 
+def two_rows_moved_otherwise(ds: Dataset, sizes: dict[str, float], how: str) -> Dataset:
+    """Each station of ``sizes`` cut to its first and last rows, the last row's sphere
+    centre moved otherwise than the robot by ``sizes[station]`` mm: 'across' keeps the
+    distance it moved (only the direction is wrong, as a wrong sign or a swapped pair of
+    coordinates in a hand-typed row gives it), 'along' changes the distance by that much."""
+    by: dict[str, list] = {}
+    for o in ds.observations:
+        by.setdefault(o.station, []).append(o)
+    out = []
+    for label, rows in by.items():
+        if label not in sizes:
+            out += rows
+            continue
+        first, last = rows[0], rows[-1]
+        c1, c2 = np.array(first.sphere_centre_mm), np.array(last.sphere_centre_mm)
+        d, size = c2 - c1, sizes[label]
+        D = np.linalg.norm(d)
+        if how == "along":
+            e = size * d / D
+        else:  # |d + e| = |d|: e at the angle whose cosine is -size / (2 D) to the move
+            w = np.cross(d, [0.0, 0.0, 1.0])
+            w /= np.linalg.norm(w)
+            cos = -size / (2 * D)
+            e = size * (cos * d / D + np.sqrt(1 - cos**2) * w)
+        out += [first, last.model_copy(update={"sphere_centre_mm": tuple(float(v) for v in c2 + e)})]
+    return ds.model_copy(update={"observations": [o.model_copy(update={"index": k}) for k, o in enumerate(out)]})
+
+
+def quaternion_in(text: str) -> np.ndarray:
+    return np.array([float(v) for v in re.search(r"quaternion_wxyz \[([^\]]+)\]", text).group(1).split(",")])
+
+
+@pytest.mark.parametrize("how", ["across", "along"])
+def test_the_ten_row_table_names_the_inconsistent_rows_and_what_is_still_determined(how):
+    """A published table: S1 four pure translations, which alone determine the rotation;
+    S2-S4 two rows each, and in S3 and S4 the sphere centre moved 27 and 33 mm otherwise
+    than the robot did. Moved the right distance in a wrong direction, only the rotation
+    S1 gives can show it (the rotation pooled over every station is pulled 30 deg off, and
+    judged against it no row stands out). Both rows of S3 and S4 (observations 6-9) are
+    named with their station's error in mm and left out; S1 and S2 cannot determine the
+    translation, and the refusal says so and gives the rotation S1 determines, with how
+    well, never 'the data do not fit the model at all'."""
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
+    full = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre", centre_noise_mm=0.02)
+    ds = two_rows_moved_otherwise(minimal(full), {"S3": 27.0, "S4": 33.0}, how)
+    assert [o.station for o in ds.observations] == ["S1"] * 4 + ["S2", "S2", "S3", "S3", "S4", "S4"]
+    with pytest.raises(DegenerateDataError) as caught:
+        solve(ds)
+    said = str(caught.value)
+    for a, b, size in ((6, 7, 27.0), (7, 6, 27.0), (8, 9, 33.0), (9, 8, 33.0)):
+        flag = re.search(rf"observation {a}: inconsistent with observation {b} of its station[^;]*?(\d+\.\d+) mm"
+                         r"(?: away from where|\) \(a pure)", said)
+        assert flag and abs(float(flag.group(1)) - size) < 0.5, (a, said)
+    assert "both left out" in said and "do not fit the model" not in said
+    assert "one component of the translation is not determined" in said, said
+    spread = re.search(r"the rotation is determined, by the moves within station\(s\) S1, to about (\d\.\d+) deg: "
+                       r"flange_from_sensor quaternion_wxyz", said)
+    assert spread, said
+    off = geo.rotation_angle_deg(geo.matrix_from_quat_wxyz(quaternion_in(said)), cell.true_transform.rotation_matrix)
+    assert off < 3 * float(spread.group(1)) and off < 1.0, (off, said)
+
+
+def test_two_row_stations_that_moved_the_wrong_way_are_left_out_and_the_rest_solved():
+    """As the ten-row table, with three stations of four rows tilted about three axes:
+    S2 and S5, two rows each, moved the right distance in a wrong direction (27 and 33
+    mm); their rows are left out with that size and the other stations give the known
+    answer."""
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
+    plan = SweepPlan(profiles_per_station=4, tilts_deg=TILTS_20)
+    ds = two_rows_moved_otherwise(
+        simulate_centre_dataset(cell, plan, kind="sphere_centre", centre_noise_mm=0.02), {"S2": 27.0, "S5": 33.0},
+        "across")
+    flags, res = flagged_reasons(ds)
+    assert sorted(flags) == [4, 5, 14, 15], flags
+    for i, size in ((4, 27.0), (5, 27.0), (14, 33.0), (15, 33.0)):
+        moved = float(re.search(r"the sphere centre moved (\d+\.\d+) mm away", flags[i]).group(1))
+        assert abs(moved - size) < 0.5 and "nothing tells which: both left out" in flags[i], flags[i]
+    assert res.residuals.n_centres_used == len(ds.observations) - 4
+    assert_known_answer(res, cell)
+
+
 @pytest.mark.parametrize("known", ["centre_std_mm", "radius_std_mm"])
 def test_a_circle_may_give_one_standard_deviation_and_the_other_is_estimated(mounting, known):
     """Each of a circle's two standard deviations is optional on its own (issue 14): the

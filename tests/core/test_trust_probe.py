@@ -124,64 +124,6 @@ def test_a_circle_table_says_when_the_mirror_twin_cannot_be_excluded(tmp_path, c
         assert "cannot be excluded" in said and "nominal" in said, where
 
 
-# --- the published ten-row table ------------------------------------------------------------------
-
-def _ten_row_table(how: str):
-    """One station of four pure translations (S1), three of two rows (S2-S4), sphere
-    centres; in S3 and S4 the second row's centre moved 27 and 33 mm otherwise than the
-    robot's translation. ``how``: 'across' keeps the distance it moved (only the
-    direction is wrong, as a wrong sign or a swapped pair of coordinates in a hand-typed
-    row gives it), 'along' changes the distance by that much."""
-    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
-    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre", centre_noise_mm=0.02)
-    by: dict[str, list] = {}
-    for o in ds.observations:
-        by.setdefault(o.station, []).append(o)
-    rows = by["S1"][:4] + [by[s][j] for s in ("S2", "S3", "S4") for j in (0, 3)]
-    sizes = {"S3": 27.0, "S4": 33.0}
-    out = []
-    for o in rows:
-        if o.station in sizes and o is by[o.station][3]:
-            c1, c2 = np.array(by[o.station][0].sphere_centre_mm), np.array(o.sphere_centre_mm)
-            d, size = c2 - c1, sizes[o.station]
-            D = np.linalg.norm(d)
-            if how == "along":
-                e = size * d / D
-            else:  # |d + e| = |d|: e at the angle whose cosine is -size / (2 D) to the move
-                w = np.cross(d, [0.0, 0.0, 1.0])
-                w /= np.linalg.norm(w)
-                cos = -size / (2 * D)
-                e = size * (cos * d / D + np.sqrt(1 - cos**2) * w)
-            o = o.model_copy(update={"sphere_centre_mm": tuple(float(v) for v in c2 + e)})
-        out.append(o.model_copy(update={"index": len(out)}))
-    return ds.model_copy(update={"observations": out})
-
-
-@pytest.mark.parametrize("how", ["across", "along"])
-def test_the_ten_row_table_names_the_inconsistent_rows_and_what_is_still_determined(tmp_path, capsys, how):
-    """A published table: S1 is four pure translations, which alone determine the
-    rotation; in each of S3 and S4 the sphere centre moved 27 and 33 mm otherwise than
-    the robot did. Within a station of two rows only the distance moved can be checked
-    before the rotation is known; once S1 gives the rotation, every station's moves can
-    be checked in direction too, and these two disagree by 27 and 33 mm. The command
-    must name the rows of S3 and S4 (observations 6-9) with the size of the
-    inconsistency in mm, leave them out, and say what the rest still determines (the
-    rotation, from S1), never 'the data do not fit the model at all' with no row named."""
-    ds = _ten_row_table(how)
-    code, out, err, _ = _solve(tmp_path, capsys, ds)
-    text = out + err
-    assert "internal error" not in text
-    assert "do not fit the model at all" not in text, text
-    for index in (6, 7, 8, 9):
-        assert f"observation {index}" in text, (index, text)
-    sizes = [float(v) for v in re.findall(r"(\d+\.\d+) mm", text)]
-    assert any(26.0 < v < 28.0 for v in sizes) and any(32.0 < v < 34.0 for v in sizes), text
-    if code != EXIT_OK:
-        assert code in (EXIT_DATA, EXIT_RED), code
-        said = text.lower()
-        assert re.search(r"rotation(?![^.;]*\bnot\b)[^.;]*\b(is|can be)\b[^.;]*\bdetermined", said), text
-
-
 # --- quaternions written (x, y, z, w) in a sphere-centre table --------------------------------------
 
 def _quaternions_xyzw(ds):
