@@ -419,6 +419,52 @@ class RejectionBudget:
     rejected: int = 0
 
 
+#: A line sensor sees the side of the sphere that faces it: a profile's points lie above
+#: its circle's centre in z (z points towards the sensor, docs/conventions.md). A point
+#: whose direction from the centre dips below it by more than this sine (6 deg) is on the
+#: far side.
+FAR_SIDE_SINE = 0.1
+#: Share of the profiles' points on the far side beyond which the arcs face the wrong
+#: way. Simulated profiles (both mountings, 19.1 and 12.7 mm spheres, 25-48 mm lines,
+#: point noise 0.05 mm, strays on half the profiles, partial arcs): 0; the same with y and
+#: z swapped: 0.38-0.44.
+FAR_SIDE_SHARE = 0.2
+#: Points looked at, at most (every k-th point of each profile above it).
+FAR_SIDE_POINTS = 200_000
+
+
+def arcs_facing_away(problem: Problem, fits: dict) -> str | None:
+    """Why the profiles cannot have been measured as written, when their arcs face along
+    y instead of towards the sensor (+z): y and z swapped in every profile. The base-frame
+    points of such data are those of the sensor turned half a turn about its (0, 1, 1)
+    axis, which fits them exactly, so no residual shows it; where the arcs face does. None
+    when they face the sensor (or when too few points lie on the far side to say)."""
+    rows = [i for i, f in fits.items() if isinstance(f, CircleFit)]
+    if not rows:
+        return None
+    stride = max(1, -(-sum(int(fits[i].n_inliers) for i in rows) // FAR_SIDE_POINTS))
+    parts = [(problem.profiles[i][fits[i].inliers][::stride] - fits[i].centre_yz) for i in rows]
+    lengths = np.array([len(q) for q in parts])
+    q = np.concatenate(parts)
+    u = q / np.maximum(np.linalg.norm(q, axis=1), 1e-12)[:, None]
+    far = u[:, 1] < -FAR_SIDE_SINE
+    share = float(far.mean())
+    if share <= FAR_SIDE_SHARE:
+        return None
+    ends = np.cumsum(lengths) - lengths
+    facing = np.add.reduceat(u, ends) / lengths[:, None]  # each profile's mean direction from its centre
+    many_far = int(np.count_nonzero(np.add.reduceat(far.astype(float), ends) > FAR_SIDE_SHARE * lengths))
+    angle = float(np.degrees(np.arctan2(abs(float(median(facing[:, 0]))), float(median(facing[:, 1])))))
+    if not 45.0 < angle < 135.0:
+        return None  # not the signature of swapped coordinates
+    return (f"the profiles' arcs face along y, not towards the sensor: {share:.0%} of their points lie below their "
+            f"circle's centre in z, on the side of the sphere facing away from the sensor (more than "
+            f"{FAR_SIDE_SHARE:.0%} in {many_far} of {len(rows)} profiles), which a line sensor cannot see (z points towards the sensor, "
+            "docs/conventions.md); the arcs' median direction is "
+            f"{angle:.0f} deg from +z. y and z probably swapped in every profile (each point written (z, y)): write "
+            "the points as (y, z); a fit would give the sensor turned half a turn about its (0, 1, 1) axis")
+
+
 def unusable_profile_reason(points: np.ndarray, fit: CircleFit | None, opt, radius_mm: float) -> str | None:
     """Why a profile with ``points`` and circle ``fit`` (None: too few points to fit)
     does not show the sphere of radius ``radius_mm``, or None when it does."""

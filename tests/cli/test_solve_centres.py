@@ -102,3 +102,42 @@ def test_centre_rows_of_several_orientations_under_one_label_are_a_data_error(tm
     assert "internal error" not in err, err
     assert "error: station S1: its 5 observations are at 5 different orientations" in err, err
     assert "label each orientation a station of its own" in err, err
+
+
+def _swapped_circles(ds):
+    return ds.model_copy(update={"observations": [o.model_copy(update={"circle": o.circle.model_copy(update={
+        "centre_yz_mm": (o.circle.centre_yz_mm[1], o.circle.centre_yz_mm[0])})}) for o in ds.observations]})
+
+
+def test_a_circle_table_says_that_its_twin_with_y_and_z_swapped_cannot_be_excluded(tmp_path, capsys):
+    """Circles carry no arc: the sensor turned half a turn about its (0, 1, 1) axis fits a
+    circle table with y and z swapped exactly as the right transform fits it as given, and
+    without a nominal transform nothing tells them apart. The result is given, AMBER, and
+    says so in the terminal and in result.json with what would tell them apart; with a
+    nominal transform it is not said, and a swapped table is RED with the swap named."""
+    from spherecal.cli import EXIT_RED
+
+    cell = standard_cell("eye_to_hand", seed=9, noise=NOISE, fov=reference_fov())
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="circle", centre_noise_mm=0.02)
+    path, swapped = tmp_path / "circles.dataset.jsonl", tmp_path / "swapped.dataset.jsonl"
+    dataio.write_dataset(path, ds)
+    dataio.write_dataset(swapped, _swapped_circles(ds))
+    twin = "a twin of this result cannot be excluded: the sensor turned half a turn about its (0, 1, 1) axis fits this "
+    for name in (path, swapped):  # either way round, the data alone cannot tell
+        out = tmp_path / name.stem
+        assert main(["solve", str(name), "--out", str(out), "--no-report"]) == EXIT_OK
+        printed = capsys.readouterr().out
+        assert "verdict: AMBER" in printed and f"amber: {twin}table with y and z swapped in every circle" in printed
+        assert "Give a nominal transform (calibration.nominal_transform; spherecal solve --nominal)" in printed
+        result = dataio.read_result(out / "result.json")
+        assert result.diagnostics["mirror_twin"]["excluded"] is False
+        assert result.diagnostics["mirror_twin"]["text"].startswith(twin)
+    X = cell.true_transform
+    nominal = ",".join(str(v) for v in (*X.translation_mm, *X.quaternion_wxyz))
+    assert main(["solve", str(path), "--out", str(tmp_path / "nominal"), "--no-report", "--nominal", nominal]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert "twin" not in printed and "mirror_twin" not in dataio.read_result(tmp_path / "nominal" / "result.json").diagnostics
+    assert main(["solve", str(swapped), "--out", str(tmp_path / "caught"), "--no-report", "--nominal", nominal]) == EXIT_RED
+    printed = capsys.readouterr().out
+    assert "red: the result is 180.0 deg and " in printed, printed
+    assert "turned half a turn about the sensor's (0, 1, 1) axis, which is what data with y and z swapped" in printed
