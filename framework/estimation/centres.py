@@ -33,7 +33,9 @@ from __future__ import annotations
 import numpy as np
 
 from spherecal.core.models import ObservationFlag
-from spherecal.estimation.problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, unknown_variances
+from spherecal.estimation.problem import (
+    KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem, fill_unknown, orientation_groups, unknown_variances,
+)
 from spherecal.estimation.robust import median
 
 __all__ = ["screen_table", "pairwise_move_check", "settle_pairs", "leave_one_out_sizes", "with_leave_one_out_size",
@@ -207,11 +209,22 @@ def _given_sd(problem: Problem, i: int) -> float:
     return 0.0 if unknown_variances(C).all() else float(np.sqrt(np.linalg.eigvalsh(fill_unknown(C, 0.0))[-1]))
 
 
+#: Rows of a station whose orientations differ by more than this (deg, from the mean of
+#: their orientation group) are not compared with each other by :func:`pairwise_move_check`:
+#: the robot did not only translate between them, so the pure-translation rule does not
+#: hold, and the orientation screening (:func:`.problem.screen_station_orientations`)
+#: names them. 0.1 deg turns the sphere centre by at most 0.5 mm at a 300 mm lever, within
+#: :data:`GROSS_MOVE_MM`.
+SAME_ORIENTATION_DEG = 0.1
+
+
 def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
                         ) -> tuple[np.ndarray, list[ObservationFlag], list[tuple[int, int]]]:
     """Within each station, the sphere centre must move in the sensor frame by the
     distance the flange moved (a pure translation): compares every pair of centre
-    observations. The row that disagrees with two or more rows of its station (worst
+    observations at one orientation (within :data:`SAME_ORIENTATION_DEG`; rows of a
+    station at several orientations are a labelling error the orientation screening
+    names, not typos). The row that disagrees with two or more rows of its station (worst
     first, then again without it) is left out and flagged with its inconsistency in mm;
     two rows that disagree with each other only (the rest of the station agreeing with
     both, or no rest) are both left out and flagged, and returned as a pair: the check
@@ -221,63 +234,72 @@ def pairwise_move_check(problem: Problem, keep: np.ndarray | None = None
     flags: list[ObservationFlag] = []
     pairs: list[tuple[int, int]] = []
     kinds = problem.kinds
-    for k, label in enumerate(problem.station_labels):
-        rows = [int(i) for i in np.flatnonzero((problem.station_of == k) & keep & (kinds != KIND_PROFILE))]
+    for k in range(len(problem.station_labels)):
+        rows = np.flatnonzero((problem.station_of == k) & keep & (kinds != KIND_PROFILE))
         if len(rows) < 2:
             continue
-        m = len(rows)
-        excess = np.zeros((m, m))  # inconsistency beyond the tolerance, mm (0: consistent)
-        gap = np.zeros((m, m))  # the inconsistency itself, mm
-        moved = np.zeros((m, m))
-        for a in range(m):
-            for b in range(a + 1, m):
-                i, j = rows[a], rows[b]
-                D = float(np.linalg.norm(problem.t0[i] - problem.t0[j]))
-                g = min(abs(d - D) for d in _centre_distances(problem, i, j))
-                tol = GROSS_MOVE_MM + GROSS_MOVE_RELATIVE * D + 6.0 * np.hypot(_given_sd(problem, i), _given_sd(problem, j))
-                gap[a, b] = gap[b, a] = g
-                moved[a, b] = moved[b, a] = D
-                excess[a, b] = excess[b, a] = max(g - tol, 0.0)
-        alive = list(range(m))
-        while len(alive) >= 2:
-            sub = excess[np.ix_(alive, alive)]
-            bad = (sub > 0).sum(axis=1)
-            if not bad.any():
-                break
-            if bad.max() == 1:
-                # every row that disagrees does so with one other row only, which disagrees
-                # with it only: the rest of the station agrees with both, so nothing within
-                # the station tells which of the two is wrong (a typo mostly across the
-                # robot's moves changes only the distance to the row it was moved along,
-                # and a station's first or last row has one such neighbour). Both are left
-                # out as a pair, for the solution of the others to settle (settle_pairs).
-                for u in range(len(alive)):
-                    w = int(np.flatnonzero(sub[u] > 0)[0]) if bad[u] else -1
-                    if w <= u:
-                        continue
-                    a, b = alive[u], alive[w]
-                    for x, y in ((a, b), (b, a)):
-                        i = rows[x]
-                        keep[i] = False
-                        flags.append(_flag(problem, i, (
-                            f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station: the robot "
-                            f"moved {moved[x, y]:.3f} mm between them, the sphere centre moved otherwise in the sensor "
-                            f"frame (the distances differ by {gap[x, y]:.3f} mm) (a pure translation moves both alike); "
-                            + PAIR_UNDECIDED)))
-                    pairs.append((rows[a], rows[b]))
-                break
-            worst = max(range(len(alive)), key=lambda x: (bad[x], sub[x].sum()))
-            x = alive[worst]
-            i = rows[x]
-            others = [y for y in alive if y != x]
-            size = float(median(gap[x, others]))
-            keep[i] = False
-            flags.append(_flag(problem, i, (
-                f"inconsistent with {bad[worst]} of the {len(others)} other rows of its station: its sphere centre "
-                f"did not move in the sensor frame by the distance the robot moved (the distances differ by {size:.3f} "
-                "mm, median; a pure translation moves both alike): a typo in the pose or the centre (a sign, metres for millimetres)?")))
-            alive = others
+        for members in orientation_groups(problem.R0[rows], SAME_ORIENTATION_DEG):
+            if len(members) >= 2:
+                _check_moves(problem, [int(i) for i in rows[np.sort(members)]], keep, flags, pairs)
     return keep, flags, pairs
+
+
+def _check_moves(problem: Problem, rows: list[int], keep: np.ndarray, flags: list[ObservationFlag],
+                 pairs: list[tuple[int, int]]) -> None:
+    """:func:`pairwise_move_check` on ``rows`` (positions in ``problem``, of one station
+    and one orientation): updates ``keep``, ``flags`` and ``pairs``."""
+    m = len(rows)
+    excess = np.zeros((m, m))  # inconsistency beyond the tolerance, mm (0: consistent)
+    gap = np.zeros((m, m))  # the inconsistency itself, mm
+    moved = np.zeros((m, m))
+    for a in range(m):
+        for b in range(a + 1, m):
+            i, j = rows[a], rows[b]
+            D = float(np.linalg.norm(problem.t0[i] - problem.t0[j]))
+            g = min(abs(d - D) for d in _centre_distances(problem, i, j))
+            tol = GROSS_MOVE_MM + GROSS_MOVE_RELATIVE * D + 6.0 * np.hypot(_given_sd(problem, i), _given_sd(problem, j))
+            gap[a, b] = gap[b, a] = g
+            moved[a, b] = moved[b, a] = D
+            excess[a, b] = excess[b, a] = max(g - tol, 0.0)
+    alive = list(range(m))
+    while len(alive) >= 2:
+        sub = excess[np.ix_(alive, alive)]
+        bad = (sub > 0).sum(axis=1)
+        if not bad.any():
+            break
+        if bad.max() == 1:
+            # every row that disagrees does so with one other row only, which disagrees
+            # with it only: the rest of the station agrees with both, so nothing within
+            # the station tells which of the two is wrong (a typo mostly across the
+            # robot's moves changes only the distance to the row it was moved along,
+            # and a station's first or last row has one such neighbour). Both are left
+            # out as a pair, for the solution of the others to settle (settle_pairs).
+            for u in range(len(alive)):
+                w = int(np.flatnonzero(sub[u] > 0)[0]) if bad[u] else -1
+                if w <= u:
+                    continue
+                a, b = alive[u], alive[w]
+                for x, y in ((a, b), (b, a)):
+                    i = rows[x]
+                    keep[i] = False
+                    flags.append(_flag(problem, i, (
+                        f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station: the robot "
+                        f"moved {moved[x, y]:.3f} mm between them, the sphere centre moved otherwise in the sensor "
+                        f"frame (the distances differ by {gap[x, y]:.3f} mm) (a pure translation moves both alike); "
+                        + PAIR_UNDECIDED)))
+                pairs.append((rows[a], rows[b]))
+            break
+        worst = max(range(len(alive)), key=lambda x: (bad[x], sub[x].sum()))
+        x = alive[worst]
+        i = rows[x]
+        others = [y for y in alive if y != x]
+        size = float(median(gap[x, others]))
+        keep[i] = False
+        flags.append(_flag(problem, i, (
+            f"inconsistent with {bad[worst]} of the {len(others)} other rows of its station: its sphere centre "
+            f"did not move in the sensor frame by the distance the robot moved (the distances differ by {size:.3f} "
+            "mm, median; a pure translation moves both alike): a typo in the pose or the centre (a sign, metres for millimetres)?")))
+        alive = others
 
 
 def settle_pairs(problem: Problem, pairs: list[tuple[int, int]], R, t, centre, noise_mm: float,

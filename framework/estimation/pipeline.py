@@ -21,7 +21,7 @@ from spherecal.estimation.circle import CircleFit, fit_circles
 from spherecal.estimation.prediction import point_error_budget
 from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
-    fill_unknown, screen_station_orientations,
+    fill_unknown, screen_station_orientations, several_stations_under_one_label,
 )
 from spherecal.estimation.options import kinematic_effects, station_effects
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, refine
@@ -30,8 +30,8 @@ from spherecal.estimation.centres import (
 )
 from spherecal.estimation.robust import percentile
 from spherecal.estimation.screening import (
-    RejectionBudget, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots, require_usable_stations,
-    trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
+    RejectionBudget, arcs_facing_away, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots,
+    require_usable_stations, trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
 )
 from spherecal.estimation.twostep import CentreShot, TwoStepResult
 
@@ -47,6 +47,18 @@ class Solution:
     extras: dict = field(default_factory=dict)
 
 
+
+
+#: What a result of circles alone, without a nominal transform, cannot exclude: a circle
+#: (y, z, radius) leaves the side of the laser plane open, so the sensor turned half a turn
+#: about its (0, 1, 1) axis, which maps (x, y, z) to (-x, z, y), fits the same circles with
+#: y and z swapped exactly as this result fits them (profiles show it: their arcs face the
+#: sensor).
+CIRCLE_TWIN = (
+    "a twin of this result cannot be excluded: the sensor turned half a turn about its (0, 1, 1) axis fits this table "
+    "with y and z swapped in every circle exactly as well, and circles carry no arc to show which side faces the "
+    "sensor. Give a nominal transform (calibration.nominal_transform; spherecal solve --nominal) to tell them "
+    "apart, or profiles instead of circles")
 
 
 #: The orientation read noise the stations show (within-station scatter) replaces the
@@ -89,9 +101,11 @@ def solve(
     turn = geo.rotvec_from_matrix(nominal.rotation_matrix.T @ X.rotation_matrix)  # in the sensor frame
     angle = float(np.degrees(np.linalg.norm(turn)))
     about_z = bool(angle > 90.0 and abs(turn[2]) > 0.95 * np.linalg.norm(turn))
+    # half a turn about (0, 1, 1) maps the laser plane's (y, z) to (z, y): y and z swapped in the data
+    about_yz = bool(angle > 90.0 and abs(turn[1] + turn[2]) / np.sqrt(2.0) > 0.95 * np.linalg.norm(turn))
     diag = {**solution.result.diagnostics, "nominal_transform": {
         "rotation_deg": angle, "translation_mm": float(np.linalg.norm(X.translation - nominal.translation)),
-        "half_turn_about_sensor_z": about_z}}
+        "half_turn_about_sensor_z": about_z, "half_turn_about_sensor_yz": about_yz}}
     return replace(solution, result=solution.result.model_copy(update={"diagnostics": diag}))
 
 
@@ -226,10 +240,21 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         say(note)
     hint = turned_hint(ori.flags, ori.diagnostics["tolerance_deg"])
     fits = _fit_shots(problem, opt, flags, say)
-    require_usable_stations(problem, fits, flags, opt, hint)
-    say("two-step solution (rotation from translations, translation from orientations)")
-    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
-    ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+    facing = arcs_facing_away(problem, fits)
+    if facing is not None:
+        raise DegenerateDataError(facing)
+    try:
+        require_usable_stations(problem, fits, flags, opt, hint)
+        say("two-step solution (rotation from translations, translation from orientations)")
+        budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
+        ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+    except DegenerateDataError as exc:
+        scattered = ori.diagnostics.get("scattered_stations")
+        if not scattered:
+            raise
+        # what is left says too little because a label held several stations: that is the cause to name
+        raise DegenerateDataError(f"{several_stations_under_one_label(scattered)}; the observations left cannot "
+                                  "determine the transform") from exc
     noise = _noise_assumptions(opt, sub_fits, ori.diagnostics, say)
 
     def refit(clean_: Problem, start) -> RefineResult:
@@ -262,7 +287,10 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
-    result = result.model_copy(update={"diagnostics": {**result.diagnostics, "station_orientation": ori.diagnostics}})
+    diagnostics = {**result.diagnostics, "station_orientation": ori.diagnostics}
+    if opt.nominal_transform is None and (clean.kinds == KIND_CIRCLE).all():
+        diagnostics["mirror_twin"] = {"excluded": False, "text": CIRCLE_TWIN}
+    result = result.model_copy(update={"diagnostics": diagnostics})
     return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
 
 

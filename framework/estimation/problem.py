@@ -212,6 +212,11 @@ STATION_ROTATION_K = 4.0
 #: it the pure-translation start degrades (0.1 deg is 0.35 mm at 200 mm), so a robot whose
 #: readings scatter more must be told so (pose_rotation_noise_deg or the tolerance).
 STATION_ROTATION_SEEN_CAP_DEG = 0.1
+#: The scatter the stations show is taken over pairs of shots within this angle of their
+#: group's mean orientation (deg): ten times the cap, so that shots that turned a few
+#: tenths of a degree still count, and stations labelled with orientations degrees apart
+#: do not pass for read noise.
+NOISE_PAIRS_WITHIN_DEG = 10 * STATION_ROTATION_SEEN_CAP_DEG
 #: Median of the chi distribution with 3 degrees of freedom (sqrt of chi^2_3's median).
 _CHI3_MEDIAN = 1.5382
 
@@ -282,6 +287,12 @@ def _clusters(Rs: np.ndarray, tolerance_deg: float) -> list[tuple[np.ndarray, np
     return groups
 
 
+def orientation_groups(Rs: np.ndarray, tolerance_deg: float) -> list[np.ndarray]:
+    """Positions of ``Rs`` (n, 3, 3) grouped by orientation: each group within
+    ``tolerance_deg`` of its chordal mean, largest first."""
+    return [members for members, _ in _clusters(Rs, tolerance_deg)]
+
+
 def screen_station_orientations(
     problem: Problem,
     tolerance_deg: float | None = None,
@@ -305,9 +316,12 @@ def screen_station_orientations(
     pair_angles = []
     for k in range(len(problem.station_labels)):
         idx = np.flatnonzero(problem.station_of == k)
-        if len(idx) > 1:
-            D = _pairwise_angles_deg(R0[idx])
-            pair_angles.append(D[np.triu_indices(len(idx), 1)])
+        # pairs of one orientation only: shots degrees apart under one label are a
+        # labelling error (split or flagged below), not read noise
+        for members in orientation_groups(R0[idx], NOISE_PAIRS_WITHIN_DEG) if len(idx) > 1 else ():
+            if len(members) > 1:
+                D = _pairwise_angles_deg(R0[idx[members]])
+                pair_angles.append(D[np.triu_indices(len(members), 1)])
     pairs = np.concatenate(pair_angles) if pair_angles else np.zeros(0)
     noise_seen = float(median(pairs) / (np.sqrt(2.0) * _CHI3_MEDIAN)) if len(pairs) >= 10 else 0.0
     derived = tolerance_deg is None
@@ -357,6 +371,7 @@ def screen_station_orientations(
                            "within a station the robot may only translate",
                 ))
     shaped = replace(problem, station_of=station_of, station_labels=labels)
+    scattered = _scattered_stations(problem, keep)
     diagnostics = {
         "tolerance_deg": float(tolerance_deg),
         "tolerance_derived": derived,
@@ -365,8 +380,43 @@ def screen_station_orientations(
         "split_stations": split,
         "turned_observations": sorted(f.index for f in flags),
         "notes": notes,
+        **({"scattered_stations": scattered} if scattered else {}),
     }
     return OrientationScreening(shaped.subset(keep) if not keep.all() else shaped, flags, diagnostics, notes)
+
+
+#: Orientations farther apart than this (deg) within one station are not a robot that
+#: turned a little during its sweep or noisy orientation readings (tenths of a degree)
+#: but shots of several stations under one label (stations differ by 10-45 deg).
+SEVERAL_STATIONS_DEG = 5.0
+
+
+def _scattered_stations(problem: Problem, keep: np.ndarray) -> dict[str, dict]:
+    """The stations whose shots the orientation screening mostly left out as turned (no
+    orientation holds most of them) and whose orientations lie more than
+    :data:`SEVERAL_STATIONS_DEG` apart: shots of several stations under one label. For
+    each: its shots, how many orientations they are at, and the largest angle between two
+    of them (deg)."""
+    out = {}
+    for k, label in enumerate(problem.station_labels):
+        idx = np.flatnonzero(problem.station_of == k)
+        if len(idx) < 2 or 2 * np.count_nonzero(keep[idx]) > len(idx):
+            continue
+        widest = float(_pairwise_angles_deg(problem.R0[idx]).max())
+        if widest > SEVERAL_STATIONS_DEG:
+            out[label] = {"observations": len(idx), "widest_deg": widest,
+                          "orientations": len(orientation_groups(problem.R0[idx], NOISE_PAIRS_WITHIN_DEG))}
+    return out
+
+
+def several_stations_under_one_label(scattered: dict[str, dict]) -> str:
+    """What :func:`_scattered_stations` found, as the cause of a refusal: the stations,
+    why their observations were left out, and what to do."""
+    parts = [f"station {label}: its {v['observations']} observations are at {v['orientations']} different "
+             f"orientations (up to {v['widest_deg']:.1f} deg apart), so no orientation holds most of them and the "
+             "others were left out as turned" for label, v in scattered.items()]
+    return ("; ".join(parts) + ". Within a station the robot may only translate: label each orientation a station "
+            "of its own (each with shots at different positions of a pure-translation sweep)")
 
 
 def _check_units(dataset: Dataset, t0: np.ndarray, profiles: list[np.ndarray]) -> None:

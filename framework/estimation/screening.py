@@ -21,7 +21,10 @@ from spherecal.estimation.circle import CircleFit
 from spherecal.estimation.problem import KIND_NAMES, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult
 from spherecal.estimation.robust import median
-from spherecal.estimation.twostep import TwoStepResult, two_step
+from spherecal.estimation.centres import GROSS_MOVE_MM, GROSS_MOVE_RELATIVE
+from spherecal.estimation.twostep import (
+    StationCentres, TwoStepResult, rotation_from_translations, station_centres, two_step,
+)
 
 
 #: Before the joint fit, a profile whose sphere centre moved more than this many robust
@@ -199,7 +202,7 @@ def _after_screening(exc: DegenerateDataError, problem: Problem, left: Problem,
     if not dropped:
         return exc
     theirs = [f for f in flags if f.station in dropped]
-    reasons = _left_out_summary(theirs)
+    reasons = _left_out_summary(theirs) if len(theirs) > _LISTED_FLAGS else _listed(theirs)
     todo = "; " + _NOISY_HINT if _dominant_kind(theirs) == _NOISY_KIND else ""
     return DegenerateDataError(
         f"the screening left out station(s) {', '.join(dropped)} ({reasons}), and the station(s) left "
@@ -227,6 +230,20 @@ def _flag_kind(reason: str) -> str:
 def _dominant_kind(flags: list[ObservationFlag]) -> str | None:
     kinds = [_flag_kind(f.reason) for f in flags if not f.reason.startswith("station ")]
     return max(set(kinds), key=kinds.count) if kinds else None
+
+
+#: Up to this many flags are listed one by one where the screening says what it left out.
+_LISTED_FLAGS = 6
+
+
+def _listed(flags: list[ObservationFlag]) -> str:
+    """``observations 6, 7: <reason>; observation 9: <reason>``: the flags, those with one
+    reason together."""
+    by_reason: dict[str, list[int]] = {}
+    for f in flags:
+        by_reason.setdefault(f.reason, []).append(f.index)
+    return "; ".join(f"observation{'s' if len(ix) > 1 else ''} {', '.join(map(str, ix))}: {reason}"
+                     for reason, ix in by_reason.items())
 
 
 def _left_out_summary(flags: list[ObservationFlag]) -> str:
@@ -293,6 +310,106 @@ def _worst_move_outlier(ts: TwoStepResult):
     return int(i), e / scale, e, scale
 
 
+def _move_error(st: StationCentres, R: np.ndarray) -> tuple[float, float]:
+    """How far a station's sphere centres moved otherwise than the robot's moves rotated
+    by ``R`` (mm): twice the median distance of its rows' ``e = C R^T - d`` from their
+    median (a station of two rows: the error of its one move; of more, a typical move's,
+    which a single bad row does not make large), of the candidate (side of the laser
+    plane) that agrees best; and the robot's move measured alike (mm)."""
+    best = None
+    for cand in st.candidates:
+        e = cand @ R.T - st.d
+        size = 2.0 * float(median(np.linalg.norm(e - median(e, axis=0), axis=1)))
+        if best is None or size < best:
+            best = size
+    move = 2.0 * float(median(np.linalg.norm(st.d - median(st.d, axis=0), axis=1)))
+    return best, move
+
+
+def _gross_move_tolerance(move_mm: float, rotation_sd: float) -> float:
+    """The pure-translation check's tolerance for a move of ``move_mm`` (mm)
+    (:data:`.centres.GROSS_MOVE_MM` + :data:`.centres.GROSS_MOVE_RELATIVE` of the move),
+    plus six standard deviations of a reference rotation known to ``rotation_sd`` rad."""
+    return GROSS_MOVE_MM + GROSS_MOVE_RELATIVE * move_mm + 6.0 * rotation_sd * move_mm
+
+
+@dataclass
+class StationsOffTheRotation:
+    """:func:`stations_off_the_reference_rotation`: the station whose moves gave the
+    reference rotation, the stations that agree with it, and for each that does not (by
+    index into the stations) its move error and the robot's move (mm)."""
+
+    reference: str
+    agreeing: list[str]
+    off: dict[int, tuple[float, float]]
+
+
+def stations_off_the_reference_rotation(stations: list[StationCentres]) -> StationsOffTheRotation | None:
+    """Stations whose moves disagree grossly with the rotation a station whose moves
+    span 3-D gives on its own. The pooled rotation takes in every station's moves, so two
+    stations of two rows whose centres moved the right distance in a wrong direction (a
+    typo across the move, which the pure-translation distance check cannot see) pull it
+    tens of degrees off, and judged against it no row stands out. A station whose moves
+    span 3-D (one side of the laser plane, its own moves consistent) determines the
+    rotation alone; each one is tried as the reference, and the one most other stations
+    agree with is kept (ties: the best-conditioned moves). Its verdict counts only when at
+    least one other station agrees with it and the stations that agree are at least as
+    many as those that do not; else None (nothing to flag)."""
+    judged = [j for j, st in enumerate(stations) if len(st.profiles) >= 2 and st.candidates]
+    best = None
+    for k in judged:
+        st = stations[k]
+        if st.rank != 3 or len(st.candidates) != 1:
+            continue
+        R, diag = rotation_from_translations([st], (0,))
+        sv = diag["displacement_singular_values_mm"]
+        rotation_sd = max(diag["rms_mm"], _MIN_MOVE_SCALE_MM) / sv[-1]
+        own, own_move = _move_error(st, R)
+        if max(own, 2.0 * diag["rms_mm"]) > _gross_move_tolerance(own_move, 0.0):
+            continue  # its own moves disagree: a bad row of its own, not a reference
+        errors = {j: _move_error(stations[j], R) for j in judged if j != k}
+        off = {j: e for j, e in errors.items() if e[0] > _gross_move_tolerance(e[1], rotation_sd)}
+        agreeing = [st.label] + [stations[j].label for j in errors if j not in off]
+        key = (len(agreeing), sv[-1])
+        if best is None or key > best[0]:
+            best = (key, StationsOffTheRotation(st.label, agreeing, off))
+    if best is None or not best[1].off:
+        return None
+    found = best[1]
+    if len(found.agreeing) < 2 or len(found.agreeing) < len(found.off):
+        return None
+    return found
+
+
+def leave_out_stations_off_the_rotation(problem: Problem, fits: dict, flags: list[ObservationFlag],
+                                        budget: RejectionBudget) -> None:
+    """The stations :func:`stations_off_the_reference_rotation` finds, every row left out
+    (removed from ``fits``, counted in ``budget``) and flagged with the size of its
+    station's move error in mm: within a station of two rows nothing tells which row is
+    wrong."""
+    used = np.array(sorted(fits))
+    sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
+    sub_fits = {j: fits[i] for j, i in enumerate(used)}
+    stations = [station_centres(sub, sub_fits, k) for k in range(len(sub.station_labels))]
+    found = stations_off_the_reference_rotation(stations)
+    if found is None:
+        return
+    rotation = (f"the rotation the moves within station {found.reference} give (station(s) "
+                f"{', '.join(found.agreeing[1:])} agree with it)")
+    for j, (size, move) in found.off.items():
+        rows = [int(i) for i in stations[j].profiles]
+        if len(rows) != 2:
+            continue  # its rows are judged one by one against the pooled rotation, without these stations
+        for x, i in enumerate(rows):
+            flags.append(flag_shot(sub, i, (
+                f"inconsistent with observation {int(sub.obs_index[rows[1 - x]])} of its station under {rotation}: "
+                f"the robot moved {move:.3f} mm between them and the sphere centre moved {size:.3f} mm away from "
+                "where that puts it in the sensor frame (a pure translation moves both alike); a typo in one of the "
+                "two rows (a sign, swapped coordinates) and nothing tells which: both left out")))
+            del fits[int(used[i])]
+            budget.rejected += 1
+
+
 @dataclass
 class RejectionBudget:
     """How many shots the screening may leave out as inconsistent with the others
@@ -300,6 +417,52 @@ class RejectionBudget:
 
     max_reject: int
     rejected: int = 0
+
+
+#: A line sensor sees the side of the sphere that faces it: a profile's points lie above
+#: its circle's centre in z (z points towards the sensor, docs/conventions.md). A point
+#: whose direction from the centre dips below it by more than this sine (6 deg) is on the
+#: far side.
+FAR_SIDE_SINE = 0.1
+#: Share of the profiles' points on the far side beyond which the arcs face the wrong
+#: way. Simulated profiles (both mountings, 19.1 and 12.7 mm spheres, 25-48 mm lines,
+#: point noise 0.05 mm, strays on half the profiles, partial arcs): 0; the same with y and
+#: z swapped: 0.38-0.44.
+FAR_SIDE_SHARE = 0.2
+#: Points looked at, at most (every k-th point of each profile above it).
+FAR_SIDE_POINTS = 200_000
+
+
+def arcs_facing_away(problem: Problem, fits: dict) -> str | None:
+    """Why the profiles cannot have been measured as written, when their arcs face along
+    y instead of towards the sensor (+z): y and z swapped in every profile. The base-frame
+    points of such data are those of the sensor turned half a turn about its (0, 1, 1)
+    axis, which fits them exactly, so no residual shows it; where the arcs face does. None
+    when they face the sensor (or when too few points lie on the far side to say)."""
+    rows = [i for i, f in fits.items() if isinstance(f, CircleFit)]
+    if not rows:
+        return None
+    stride = max(1, -(-sum(int(fits[i].n_inliers) for i in rows) // FAR_SIDE_POINTS))
+    parts = [(problem.profiles[i][fits[i].inliers][::stride] - fits[i].centre_yz) for i in rows]
+    lengths = np.array([len(q) for q in parts])
+    q = np.concatenate(parts)
+    u = q / np.maximum(np.linalg.norm(q, axis=1), 1e-12)[:, None]
+    far = u[:, 1] < -FAR_SIDE_SINE
+    share = float(far.mean())
+    if share <= FAR_SIDE_SHARE:
+        return None
+    ends = np.cumsum(lengths) - lengths
+    facing = np.add.reduceat(u, ends) / lengths[:, None]  # each profile's mean direction from its centre
+    many_far = int(np.count_nonzero(np.add.reduceat(far.astype(float), ends) > FAR_SIDE_SHARE * lengths))
+    angle = float(np.degrees(np.arctan2(abs(float(median(facing[:, 0]))), float(median(facing[:, 1])))))
+    if not 45.0 < angle < 135.0:
+        return None  # not the signature of swapped coordinates
+    return (f"the profiles' arcs face along y, not towards the sensor: {share:.0%} of their points lie below their "
+            f"circle's centre in z, on the side of the sphere facing away from the sensor (more than "
+            f"{FAR_SIDE_SHARE:.0%} in {many_far} of {len(rows)} profiles), which a line sensor cannot see (z points towards the sensor, "
+            "docs/conventions.md); the arcs' median direction is "
+            f"{angle:.0f} deg from +z. y and z probably swapped in every profile (each point written (z, y)): write "
+            "the points as (y, z); a fit would give the sensor turned half a turn about its (0, 1, 1) axis")
 
 
 def unusable_profile_reason(points: np.ndarray, fit: CircleFit | None, opt, radius_mm: float) -> str | None:
@@ -350,6 +513,7 @@ def two_step_without_gross_outliers(problem: Problem, fits: dict, flags: list[Ob
     Removes them from ``fits``; returns the two-step result, the problem of the shots
     used and their fits (by row of that problem)."""
     nominal_R = opt.nominal_transform.rotation_matrix if opt.nominal_transform is not None else None
+    leave_out_stations_off_the_rotation(problem, fits, flags, budget)
     while True:
         used = np.array(sorted(fits))
         sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))

@@ -31,6 +31,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.errors import DegenerateDataError
 from spherecal.core.mapping import map_profile_list
+from spherecal.core.models import TRANSFORM_NAME
 from spherecal.estimation.circle import CircleFit, half_chord_depth
 from spherecal.estimation.problem import KIND_CIRCLE, KIND_PROFILE, KIND_SPHERE_CENTRE, Problem
 
@@ -179,6 +180,11 @@ def rotation_from_translations(stations: list[StationCentres], choice) -> tuple[
     A = np.vstack([st.candidates[ch] - st.candidates[ch].mean(axis=0) for st, ch in zip(stations, choice)])
     Bm = np.vstack([st.d for st in stations])
     sv = np.linalg.svd(Bm, compute_uv=False)
+    if len(Bm) < 2 or not sv[0] > 0:
+        raise DegenerateDataError(
+            "no station has two shots the robot moved between by a pure translation: the rotation is not "
+            "determined; each station needs shots at different positions of a pure-translation sweep"
+        )
     if sv[1] < RANK_TOLERANCE * sv[0] or sv[1] / np.sqrt(len(Bm)) < MIN_EXTENT_MM:
         raise DegenerateDataError(
             "the pure-translation moves are all along one line: the rotation is not determined; "
@@ -255,6 +261,19 @@ def translation_from_orientations(
         raise DegenerateDataError(_orientation_advice(problem, stations))
     sol = np.linalg.lstsq(M, np.concatenate(rhs), rcond=None)[0]
     return sol[:3], sol[3:], {"condition_number": float(cond), "singular_values": sv.tolist()}
+
+
+def rotation_determined(problem: Problem, stations: list[StationCentres], R: np.ndarray, diag: dict) -> str:
+    """What the moves within ``stations`` still give when the translation is not
+    determined: the rotation ``R`` (``diag``: :func:`rotation_from_translations`'), the
+    stations it comes from (those whose moves span 3-D, else all), and about how well:
+    the moves' residual RMS over their smallest singular value (rad), one sigma."""
+    spanning = [st.label for st in stations if st.rank == 3] or [st.label for st in stations]
+    q = geo.quat_wxyz_from_matrix(R)
+    sd_deg = float(np.degrees(diag["rms_mm"] / diag["displacement_singular_values_mm"][-1]))
+    return (f"the rotation is determined, by the moves within station(s) {', '.join(spanning)}, to about "
+            f"{sd_deg:.2g} deg: {TRANSFORM_NAME[problem.mounting]} quaternion_wxyz "
+            f"[{', '.join(f'{v:.5f}' for v in q)}]")
 
 
 def _orientation_advice(problem: Problem, stations: list[StationCentres]) -> str:
@@ -359,7 +378,12 @@ def two_step(
     solutions = []
     for choice in combos:
         R, diag1 = rotation_from_translations(stations, choice)
-        t, c, diag2 = translation_from_orientations(problem, R, stations, choice, inliers)
+        try:
+            t, c, diag2 = translation_from_orientations(problem, R, stations, choice, inliers)
+        except DegenerateDataError as exc:
+            if len(combos) > 1:
+                raise
+            raise DegenerateDataError(f"{exc}; {rotation_determined(problem, stations, R, diag1)}") from None
         solutions.append((point_rms(problem, R, t, c, inliers), R, t, c, choice, diag1, diag2))
     solutions.sort(key=lambda s: s[0])
     best = solutions[0]

@@ -181,7 +181,15 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
                 text += (": turned about the sensor's z axis. A sensor whose y axis runs the other way (its profile "
                          "points mirrored, y -> -y) fits such data exactly as one turned half a turn does; check the "
                          "sign of the sensor's y, or the nominal")
+            elif nominal.get("half_turn_about_sensor_yz"):
+                text += (": turned half a turn about the sensor's (0, 1, 1) axis, which is what data with y and z "
+                         "swapped in every profile or circle give (each written (z, y)); check the order of the "
+                         "coordinates, or the nominal")
             reasons.append((lvl, text))
+
+    twin = result.diagnostics.get("mirror_twin") or {}
+    if twin.get("excluded") is False:  # a result the data cannot tell from its twin: the user must choose
+        reasons.append(("amber", str(twin.get("text", "a mirror twin of the result cannot be excluded"))))
 
     joints = result.diagnostics.get("joints_vs_poses") or {}
     if joints.get("used") is False:  # the joints did not describe the poses: the robot's error model is the poorer one

@@ -81,3 +81,63 @@ def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(
     assert main(["solve", str(path), "--out", str(tmp_path / "forced"), "--no-report", "--force"]) == EXIT_RED
     verdict = dataio.read_result(tmp_path / "forced" / "result.json").diagnostics["verdict"]
     assert verdict["level"] == "red" and verdict["written_with_force"]
+
+
+def test_centre_rows_of_several_orientations_under_one_label_are_a_data_error(tmp_path, capsys):
+    """One sphere-centre row at each of five orientations, all labelled S1 (a table whose
+    station column was left at its default): a data error (exit 3) naming station S1 and
+    its orientations, never an internal error."""
+    from spherecal.cli import EXIT_DATA
+
+    cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
+    tilts = [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 20.0), (-20.0, 0.0, 0.0)]
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4, tilts_deg=tilts), kind="sphere_centre",
+                                 centre_noise_mm=0.02)
+    rows = [o.model_copy(update={"station": "S1", "index": k})
+            for k, o in enumerate(o for o in ds.observations if o.index % 4 == 0)]
+    path = tmp_path / "centres.dataset.jsonl"
+    dataio.write_dataset(path, ds.model_copy(update={"observations": rows}))
+    assert main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "internal error" not in err, err
+    assert "error: station S1: its 5 observations are at 5 different orientations" in err, err
+    assert "label each orientation a station of its own" in err, err
+
+
+def _swapped_circles(ds):
+    return ds.model_copy(update={"observations": [o.model_copy(update={"circle": o.circle.model_copy(update={
+        "centre_yz_mm": (o.circle.centre_yz_mm[1], o.circle.centre_yz_mm[0])})}) for o in ds.observations]})
+
+
+def test_a_circle_table_says_that_its_twin_with_y_and_z_swapped_cannot_be_excluded(tmp_path, capsys):
+    """Circles carry no arc: the sensor turned half a turn about its (0, 1, 1) axis fits a
+    circle table with y and z swapped exactly as the right transform fits it as given, and
+    without a nominal transform nothing tells them apart. The result is given, AMBER, and
+    says so in the terminal and in result.json with what would tell them apart; with a
+    nominal transform it is not said, and a swapped table is RED with the swap named."""
+    from spherecal.cli import EXIT_RED
+
+    cell = standard_cell("eye_to_hand", seed=9, noise=NOISE, fov=reference_fov())
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="circle", centre_noise_mm=0.02)
+    path, swapped = tmp_path / "circles.dataset.jsonl", tmp_path / "swapped.dataset.jsonl"
+    dataio.write_dataset(path, ds)
+    dataio.write_dataset(swapped, _swapped_circles(ds))
+    twin = "a twin of this result cannot be excluded: the sensor turned half a turn about its (0, 1, 1) axis fits this "
+    for name in (path, swapped):  # either way round, the data alone cannot tell
+        out = tmp_path / name.stem
+        assert main(["solve", str(name), "--out", str(out), "--no-report"]) == EXIT_OK
+        printed = capsys.readouterr().out
+        assert "verdict: AMBER" in printed and f"amber: {twin}table with y and z swapped in every circle" in printed
+        assert "Give a nominal transform (calibration.nominal_transform; spherecal solve --nominal)" in printed
+        result = dataio.read_result(out / "result.json")
+        assert result.diagnostics["mirror_twin"]["excluded"] is False
+        assert result.diagnostics["mirror_twin"]["text"].startswith(twin)
+    X = cell.true_transform
+    nominal = ",".join(str(v) for v in (*X.translation_mm, *X.quaternion_wxyz))
+    assert main(["solve", str(path), "--out", str(tmp_path / "nominal"), "--no-report", "--nominal", nominal]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert "twin" not in printed and "mirror_twin" not in dataio.read_result(tmp_path / "nominal" / "result.json").diagnostics
+    assert main(["solve", str(swapped), "--out", str(tmp_path / "caught"), "--no-report", "--nominal", nominal]) == EXIT_RED
+    printed = capsys.readouterr().out
+    assert "red: the result is 180.0 deg and " in printed, printed
+    assert "turned half a turn about the sensor's (0, 1, 1) axis, which is what data with y and z swapped" in printed

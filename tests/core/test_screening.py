@@ -352,6 +352,47 @@ def test_a_result_far_from_the_nominal_transform_is_red_and_a_mirrored_sensor_is
     assert not [t for _, t in v.reasons if "nominal" in t] and v.level == "green"
 
 
+def swap_y_and_z(ds: Dataset) -> Dataset:
+    """Every profile's points written (z, y) instead of (y, z)."""
+    return ds.model_copy(update={"observations": [o.model_copy(update={"profile": o.profile.model_copy(
+        update={"y_mm": o.profile.z_mm, "z_mm": o.profile.y_mm})}) for o in ds.observations]})
+
+
+@pytest.mark.parametrize("mounting", MOUNTINGS)
+def test_profiles_with_y_and_z_swapped_are_refused(mounting):
+    """Swapped, the base-frame points are those of the sensor turned half a turn about its
+    (0, 1, 1) axis, which fits them exactly (179.96 deg off, GREEN, with no nominal to
+    notice). A line sensor sees the side of the sphere that faces it, so its arcs face +z
+    (z points towards the sensor); swapped, they face +y and about 40 % of the points lie
+    on the far side. Refused, naming y and z as swapped."""
+    cell = standard_cell(mounting, seed=3, fov=reference_fov(n_columns=160))
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    with pytest.raises(DegenerateDataError) as caught:
+        solve(swap_y_and_z(ds))
+    said = str(caught.value)
+    share = int(re.search(r"(\d+)% of their points lie below their circle's centre in z", said).group(1))
+    assert 35 <= share <= 50 and "the arcs' median direction is 90 deg from +z" in said, said
+    assert "y and z probably swapped in every profile (each point written (z, y)): write the points as (y, z)" in said
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_partial_arcs_noise_and_strays_face_the_sensor(seed):
+    """Real profiles are not refused as swapped: a line narrower than the sphere's circle
+    (20-25 mm, partial arcs), a smaller sphere, point noise 0.05 mm, orientation noise,
+    strays on half the profiles: no point lies on the far side, the result is right; the
+    same data swapped are refused."""
+    noise = NoiseModel(point_noise_mm=0.05, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.01,
+                       stray_profile_fraction=0.5, strays_per_profile=20)
+    fov = reference_fov(n_columns=200, width_near_mm=20.0, width_far_mm=25.0)
+    cell = standard_cell(MOUNTINGS[seed % 2], seed=seed, noise=noise, fov=fov, sphere_radius_mm=(19.1, 12.7)[seed // 2])
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=8))
+    result = solve(ds).result
+    rot, trans = errors(cell, result)
+    assert rot < 0.2 and trans < 0.3, (rot, trans)
+    with pytest.raises(DegenerateDataError, match="y and z probably swapped in every profile"):
+        solve(swap_y_and_z(ds))
+
+
 @pytest.mark.parametrize("mounting, seed", [("eye_in_hand", 1), ("eye_in_hand", 6), ("eye_to_hand", 6),
                                            ("eye_to_hand", 9)])
 def test_orientation_readings_noisier_than_assumed_are_taken_as_the_stations_show_them(mounting, seed):
