@@ -5,7 +5,7 @@ fetched).
 
     python docs/build_api.py out/api      # then open out/api/index.html
 
-CI runs it (.ci/run); tests/core/test_api_reference.py checks what the pages hold."""
+CI runs it (.ci/run); tests/plugins/test_api_reference.py checks what the pages hold."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 The simulator knows no sensor: a cell is given the field of view of the sensor it
 simulates. The tests' cells use the nxSensor-I's, read from its sensor type through the
 plugin host as a run reads it (``spherecal.app.cell.sensor_field_of_view``); the reference
-results under tests/core/data were made with it. This module is the one place the tests
+results under tests/estimation/data were made with it. This module is the one place the tests
 name it. (It is importable from every test folder: pytest puts tests/ on the path for
 tests/conftest.py. Outside pytest, put it there yourself: ``PYTHONPATH=tests``.)
 """

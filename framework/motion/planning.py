@@ -140,7 +140,7 @@ def _station_poses(mounting, X: Pose, centre: np.ndarray, radius_mm: float, plan
                    offsets: np.ndarray, R_ref: np.ndarray) -> list[list[Pose]]:
     """The flange poses of :func:`station_flange_poses`, station by station, composed pose
     by pose as :class:`Pose` does it: the simulated datasets stay bit for bit those of
-    earlier versions (tests/core/test_profiles_unchanged.py)."""
+    earlier versions (tests/estimation/test_profiles_unchanged.py)."""
     X_inv = X.inverse()
     cs0 = sphere_centres_in_sensor(plan, radius_mm)
     out = []

@@ -568,6 +568,7 @@ def test_a_line_longer_than_the_bound_is_refused_unread(tmp_path, monkeypatch):
         dataio.read_dataset_header(head)
 
 
+@pytest.mark.slow
 def test_station_names_that_look_like_mathtext_do_not_break_the_report(tmp_path, capsys):
     """'$...$' in a station name crashed matplotlib's mathtext parser; the report shows
     names as they are. A name longer than the bound is refused when read (corpus)."""

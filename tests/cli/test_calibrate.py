@@ -27,6 +27,7 @@ def check_against_truth(out, k=5.0):
     return journal, result
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["sim-eye-in-hand.toml", "sim-eye-to-hand.toml"])
 def test_calibrate_end_to_end_in_both_modes(sim_config, name, capsys):
     import hashlib
@@ -89,6 +90,7 @@ def test_existing_journal_needs_resume(sim_config, capsys):
     assert "--resume" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path, capsys):
     """SIGKILL in the middle of the acquisition, then --resume: nothing taken is lost and
     the result equals that of an uninterrupted run."""

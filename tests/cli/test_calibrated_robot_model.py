@@ -82,6 +82,7 @@ def with_model(path, model: str | None):
     return target
 
 
+@pytest.mark.slow
 def test_validate_and_scan_through_the_calibrated_model(calibrated, tmp_path, monkeypatch):
     """The calibrated model given relative to the configuration (run from another folder)
     is the one the robot uses. With it the sphere fitted from each validation view lies

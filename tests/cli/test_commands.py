@@ -131,6 +131,7 @@ def test_hardware_example_is_valid_and_its_plan_is_reachable():
         seed = kin.joints_from_flange_pose(t.pose, seed_joints_deg=seed)
 
 
+@pytest.mark.slow
 def test_simulate_from_a_kinematic_configuration_uses_its_plan_and_records_joints(tmp_path):
     """simulate --config plans as calibrate does: the kinematic planner's stations, every
     shot with the arm's joints, so that solve --identify-kinematics can use the file."""

@@ -49,6 +49,7 @@ def test_a_confirmed_run_goes_on_to_the_devices(hardware_config, capsys, monkeyp
     assert bool(asked) == (how == "typed")
 
 
+@pytest.mark.slow
 def test_a_kinematic_calibration_shows_its_identification_before_the_motion(hardware_config, capsys, monkeypatch):
     """identify_kinematics on real hardware: the planner's stations and what they identify
     are in the motion's summary the operator confirms."""

@@ -66,6 +66,7 @@ def test_the_robots_own_workspace_is_checked_for_the_first_move_too(sim_config, 
     assert irb2400_controllers[0].controller.moves == 0
 
 
+@pytest.mark.slow
 def test_resume_checks_the_move_to_the_first_target_left(sim_config, irb2400_controllers, capsys):
     """Stopped after five shots, the arm was jogged away: --resume checks the move from
     there to target 5 (the first of station S2), not to target 0."""

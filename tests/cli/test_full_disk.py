@@ -4,6 +4,8 @@ before are kept, and the run resumes once there is space again."""
 
 import errno
 
+import pytest
+
 from spherecal.io import dataset as dataio
 from spherecal.cli import EXIT_DATA, EXIT_OK, main
 from spherecal.core.errors import FileWriteError
@@ -50,6 +52,7 @@ def test_the_writer_names_the_file_and_closes_on_a_full_disk(tmp_path):
         w2.close()
 
 
+@pytest.mark.slow
 def test_calibrate_on_a_full_disk_exits_3_naming_the_journal_and_resumes(sim_config, monkeypatch, capsys):
     path = sim_config()
     append = dataio.DatasetWriter.append

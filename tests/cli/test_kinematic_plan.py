@@ -36,6 +36,7 @@ def arm():
     return PluginHost().arm_kinematics({"type": "abb_irb2400"})
 
 
+@pytest.mark.slow
 def test_the_planner_is_used_when_no_stations_are_given(sim_config, capsys):
     """identify_kinematics and no acquisition.sweep.tilts_deg: the planner's 20 stations,
     its summary and the identification's (per joint) before anything moves."""
@@ -70,6 +71,7 @@ def test_kinematic_plan_settings_are_checked(sim_config):
         load_config(few)
 
 
+@pytest.mark.slow
 def test_the_plan_is_deterministic(sim_config, arm):
     """The same configuration and seed give the same stations; another seed others."""
     settings = "[acquisition.kinematic_plan]\nstations = 6\ncandidates = 40\nseed = {}\n\n[acquisition.workspace]"
@@ -117,6 +119,7 @@ def joint_spans(cfg, arm):
     return np.ptp(joints, axis=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tilts", [ONE_CONFIGURATION, TOO_FEW], ids=["one_configuration", "too_few"])
 def test_a_degenerate_plan_is_refused_saying_what_to_add(sim_config, capsys, arm, tilts):
     """Refused before anything moves, naming the parameters seen too weakly, the joints
@@ -156,6 +159,7 @@ def test_a_degenerate_plan_is_refused_saying_what_to_add(sim_config, capsys, arm
         assert all(abs(spans[j - 1] - d) <= 0.5 for j, d in said.items()), (spans, said)
 
 
+@pytest.mark.slow
 def test_a_planned_plan_too_small_says_how_many_stations_to_ask_for(sim_config, capsys):
     small = "[acquisition.kinematic_plan]\nstations = {}\n\n[acquisition.workspace]"
     path = sim_config(**IDENTIFY, **{r"^\[acquisition\.workspace\]$": small.format(4)})
@@ -168,6 +172,7 @@ def test_a_planned_plan_too_small_says_how_many_stations_to_ask_for(sim_config, 
     assert main(["calibrate", str(more), "--dry-run"]) == EXIT_OK
 
 
+@pytest.mark.slow
 def test_the_identification_is_checked_again_from_where_the_arm_stands(sim_config, arm, capsys):
     """Before connecting, the check assumes zero joints; an arm that stands with its wrist
     flipped keeps that configuration through the plan and sees its geometry from other

@@ -167,6 +167,7 @@ def test_writers_refuse_a_planted_symbolic_link(tmp_path):
     assert victim.read_text() == "precious\n"
 
 
+@pytest.mark.slow
 def test_the_report_and_exports_refuse_a_link(tmp_path, dataset_file):
     from spherecal.estimation import solve
     from spherecal.plugins.host import PluginHost
@@ -242,6 +243,7 @@ def test_a_full_disk_while_scanning_names_the_ply(tmp_path, monkeypatch):
         w.write(np.zeros((3, 3)), profile=np.zeros(3, dtype=int))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planted", ["report.html", "report_sphere_3d.png", "flange_from_sensor_4x4.txt"])
 def test_overwrite_with_a_planted_link_writes_nothing_at_all(tmp_path, dataset_file, capsys, planted):
     """--overwrite replaces a result's files, never through a link: the run is refused

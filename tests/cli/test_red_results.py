@@ -37,6 +37,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_a_red_result_exits_7_names_the_cause_and_writes_no_exports(tmp_path, clean, capsys, case):
     make, expected = CASES[case]
@@ -58,6 +59,7 @@ def test_a_red_result_exits_7_names_the_cause_and_writes_no_exports(tmp_path, cl
     assert ("the data fit nothing, screening skipped" in cap.err) == (case == "wrong_mounting")
 
 
+@pytest.mark.slow
 def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
     path = tmp_path / "data.jsonl"
     dataio.write_dataset(path, clean.model_copy(update={"sphere_radius_mm": 19.0}))
@@ -146,6 +148,7 @@ def test_the_terminal_verdict_lists_the_reasons_of_an_amber_one_too():
     assert format_verdict(Verdict("green", "Good.", [("green", "c")])) == "verdict: GREEN: Good."
 
 
+@pytest.mark.slow
 def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_path):
     """The likely-cause checks solve again (here: with the other mounting) with the run's
     options; when those identify the arm's geometry the re-solve needs the arm's
@@ -197,6 +200,7 @@ def test_quaternions_written_scalar_last_are_named(tmp_path, capsys, mounting):
     assert "internal error" not in text and "LinAlgError" not in text
 
 
+@pytest.mark.slow
 def test_eye_to_hand_data_labelled_eye_in_hand_is_named(tmp_path, capsys):
     """The reverse of the wrong-mounting case above: there the fit made no sense, here it
     can break down altogether; either way the mounting is named."""
@@ -211,6 +215,7 @@ def test_eye_to_hand_data_labelled_eye_in_hand_is_named(tmp_path, capsys):
     assert "internal error" not in text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_one_station_s_quaternions_written_scalar_last_are_named(tmp_path, capsys, mounting):
     """Station S2's poses written (x, y, z, w), the others w first (poses gathered from two

@@ -34,6 +34,7 @@ def solved(dataset_path):
     return out, proc.stdout, proc.stderr, proc.returncode
 
 
+@pytest.mark.slow
 def test_solve_json_is_the_only_stdout_and_its_transform_is_result_json(solved):
     out, stdout, stderr, code = solved
     assert code == EXIT_OK, stderr
@@ -71,6 +72,7 @@ def test_run_log_names_what_ran_its_input_and_what_was_measured(solved, dataset_
     assert "quaternion_wxyz = [" in text and "verdict: " in text  # what was measured
 
 
+@pytest.mark.slow
 def test_calibrate_run_log_names_the_configuration_and_appends(sim_config, capsys):
     cfg = sim_config()
     out = cfg.parent / "elsewhere"
@@ -188,6 +190,7 @@ def test_json_on_an_error_still_prints_one_summary(tmp_path, capsys):
     assert "spherecal: error:" in captured.err
 
 
+@pytest.mark.slow
 def test_validate_json(sim_config, capsys):
     from spherecal.config import load_config
     from tests.cli.cells import simulated_cell
@@ -209,6 +212,7 @@ def test_validate_json(sim_config, capsys):
         summary["verdict"]["headline"]
 
 
+@pytest.mark.slow
 def test_scan_records_the_result_it_used_with_out(sim_config, capsys):
     from spherecal.config import load_config
     from spherecal.io.ply import read_ply_header

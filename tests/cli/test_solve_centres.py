@@ -20,6 +20,7 @@ def within_truth(result, cell, k=5.0):
     return rot < k * np.linalg.norm(result.std_rotation_deg) and dt < k * np.linalg.norm(result.std_translation_mm)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting, kind", [("eye_in_hand", "sphere_centre"), ("eye_to_hand", "circle")])
 def test_solve_a_dataset_of_centres_with_its_report(tmp_path, capsys, mounting, kind):
     cell = standard_cell(mounting, seed=9, noise=NOISE, fov=reference_fov())
@@ -40,6 +41,7 @@ def test_solve_a_dataset_of_centres_with_its_report(tmp_path, capsys, mounting, 
     assert (out / "report_residuals_per_centre.png").exists() and (out / "report_sphere_3d.png").exists()
 
 
+@pytest.mark.slow
 def test_solve_a_file_mixing_profiles_and_circles(tmp_path, capsys):
     cell = standard_cell("eye_to_hand", seed=2, noise=NOISE, fov=reference_fov())
     profiles = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
@@ -56,6 +58,7 @@ def test_solve_a_file_mixing_profiles_and_circles(tmp_path, capsys):
         assert (out / f"report_{fig}.png").exists(), fig
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
 def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(tmp_path, capsys, kind):
     """Issue 10's rule on centre-only data: the noise estimated from the fit's residuals

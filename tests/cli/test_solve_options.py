@@ -165,6 +165,7 @@ def test_station_rotation_tolerance_in_the_configuration(sim_config):
     assert load_config(sim_config()).config.calibration.station_rotation_tolerance_deg is None
 
 
+@pytest.mark.slow
 def test_kinematic_calibration_plan_is_checked_before_anything_moves(sim_config, capsys):
     """identify_kinematics with the 4-station default plan listed: refused at --dry-run,
     saying what to add (tests/cli/test_kinematic_plan.py follows the advice); the kinematic

@@ -41,6 +41,7 @@ def _modules_after(argv: list[str]) -> set[str]:
     return set(modules)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("argv", [["--help"], ["plugins"]])
 def test_help_and_plugins_do_not_import_plotting_scipy_spatial_or_pinocchio(argv):
     modules = _modules_after(argv)
@@ -48,6 +49,7 @@ def test_help_and_plugins_do_not_import_plotting_scipy_spatial_or_pinocchio(argv
     assert not [m for m in HEAVY if m in modules]
 
 
+@pytest.mark.slow
 def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(tmp_path):
     from spherecal.io import dataset as dataio
     from spherecal.sim import SweepPlan, simulate_dataset, standard_cell

@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from spherecal.io import dataset as dataio
 from spherecal.core import geometry as geo
@@ -16,6 +17,7 @@ from spherecal.core.models import Pose
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
+@pytest.mark.slow
 def test_ur5_from_its_urdf_calibrates_end_to_end(sim_config, capsys):
     urdf = (EXAMPLES / "robots" / "ur5.urdf").as_posix()
     cfg = sim_config("sim-ur5-urdf-eye-in-hand.toml", exact_arm=True, **{

@@ -24,6 +24,7 @@ def _numbers(pose) -> str:
     return ",".join(f"{v:.10f}" for v in (*pose.translation_mm, *pose.quaternion_wxyz))
 
 
+@pytest.mark.slow
 def test_the_true_transform_passes_and_one_1_mm_off_fails(cfg_path, capsys):
     out = cfg_path.parent / "out"
     true = simulated_cell(load_config(cfg_path).config).true_transform

@@ -41,6 +41,7 @@ def cfg_path(sim_config):
     return sim_config("sim-eye-in-hand.toml", exact_arm=True)
 
 
+@pytest.mark.slow
 def test_validate_with_the_true_calibration_passes(cfg_path, capsys):
     out = cfg_path.parent / "out"
     cell = simulated_cell(load_config(cfg_path).config)
@@ -81,6 +82,7 @@ def noise_spread(cfg, X, seeds=10):
     return float(np.sqrt(np.mean(np.square(ps)))), float(np.sqrt(np.mean(np.square(sd))))
 
 
+@pytest.mark.slow
 def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, capsys):
     """X off by 0.3 mm: each view sees the sphere shifted by R0_k dt, so the fitted
     centres spread and the ball bar (balls seen from different views) changes length by
@@ -119,6 +121,7 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
     assert "the points were mapped with it (exit 5)" in cap.err and (out / "scan.ply").exists()
 
 
+@pytest.mark.slow
 def test_a_rotated_calibration_is_caught(cfg_path):
     """X off by 0.5 deg about the sensor's y. A laser-plane point (0, y, z) is then mapped
     off by delta * z along the sensor's x, so each view sees the sphere moved by about
@@ -170,6 +173,7 @@ step_mm = 1.0
 """
 
 
+@pytest.mark.slow
 def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
     """Eye-to-hand end to end: the sphere and a plate ride on the flange; validation
     and scan map points into the flange frame."""
@@ -217,6 +221,7 @@ def test_validate_needs_its_section(sim_config, capsys):
     assert "no [validation] section" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["binary_little_endian", "ascii"])
 def test_scan_a_flat_plate_into_ply(sim_config, fmt, capsys):
     cfg_path = sim_config("sim-eye-in-hand.toml", exact_arm=True, **{
@@ -243,6 +248,7 @@ def test_scan_a_flat_plate_into_ply(sim_config, fmt, capsys):
     assert main(["scan", str(cfg_path)]) == EXIT_DATA  # never overwrites
 
 
+@pytest.mark.slow
 def test_scan_the_car_door_panel(cfg_path, capsys):
     out = cfg_path.parent / "out"
     true = simulated_cell(load_config(cfg_path).config).true_transform

@@ -39,6 +39,7 @@ def example_plugins_host(monkeypatch):
 
 @pytest.mark.parametrize("page, device", [("writing-a-robot-plugin.md", "example_cartesian"),
                                           ("writing-a-sensor-plugin.md", "example_profiler")])
+@pytest.mark.slow
 def test_the_pages_configuration_calibrates_on_the_simulated_cell(page, device, example_plugins_host, tmp_path,
                                                                   capsys):
     from spherecal.cli import EXIT_OK, main

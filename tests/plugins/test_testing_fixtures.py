@@ -333,6 +333,7 @@ def _stations(cell):
                          field_of_view=cell.fov)
 
 
+@pytest.mark.slow
 def test_a_plugins_conftest_overrides_the_cell_fixture(tmp_path):
     """The documented way to give every test of a plugin its own cell: a fixture of the
     same name in the plugin's conftest.py; the other fixtures then use it."""

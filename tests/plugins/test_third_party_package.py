@@ -161,6 +161,7 @@ def children(installed):
     kids.close()
 
 
+@pytest.mark.slow
 def test_installed_package_is_discovered_and_its_config_validated(children):
     proc = children.result("discover")
     assert proc.returncode == 0, proc.stderr
@@ -182,6 +183,7 @@ def test_disabling_autoload_hides_the_installed_package(children):
     assert "example_cartesian" not in proc.stdout
 
 
+@pytest.mark.slow
 def test_installed_plugins_acquire_and_calibrate(children):
     """The worked example of the docs (calibrate_simulated.py), end to end in both
     mountings: host, config, simulated devices, planned stations, acquisition,
@@ -202,6 +204,7 @@ def test_installed_plugins_acquire_and_calibrate(children):
         assert out["rms_mm"] < 0.05, out
 
 
+@pytest.mark.slow
 def test_example_package_own_tests_pass_with_the_fixtures(children):
     proc = children.result("own_tests")
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -173,6 +173,7 @@ def test_bad_settings_name_the_key(host, settings, message):
         host.export_plan({"abb_rapid": settings}, "eye_in_hand", "ur5_urdf")
 
 
+@pytest.mark.slow
 def test_the_report_speaks_of_the_abb_controller_only_for_this_robot(solutions, host, tmp_path):
     solution = solutions["eye_to_hand"]
     texts = {}

@@ -183,6 +183,7 @@ def test_a_bad_socket_port_is_refused_by_the_configuration(port, message):
         AbbIrb2400Config(port=port)
 
 
+@pytest.mark.slow
 def test_a_run_stops_when_the_controller_closes_the_connection(tmp_path, monkeypatch, capsys):
     """A calibration over the socket server; the controller closes the connection during
     the 5th move. The run stops with the device exit code and --resume advice, the journal

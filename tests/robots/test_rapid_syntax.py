@@ -214,6 +214,7 @@ def rapidchecker():
     return check
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker calls old pyparsing names
 def test_rapidchecker_parses_every_module(rapidchecker, exported_modules):
     for name, text in {"SpherecalServer.mod": CORE, **LINKS, **exported_modules}.items():

@@ -94,6 +94,7 @@ def test_ur5_inverse_kinematics_returns_the_joints_nearest_the_seed(ur5_kin):
         ur5_kin.joints_from_flange_pose(Pose.from_rt(np.eye(3), [2000.0, 0.0, 0.0]), np.zeros(6))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_simulated_ur5_honours_the_robot_protocol(host, ur5_urdf, ur5_kin, mounting):
     from spherecal.plugins.testing import RobotHarness

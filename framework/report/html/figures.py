@@ -63,7 +63,7 @@ def _margins(fig: Figure, left: float, right: float, bottom: float, top: float, 
     every axis before the real draw measures them again: a sixth of the report's time on
     1 M points. The margins hold the longest labels the figures get (tick labels up to
     8 characters, such as -0.00075; observation numbers on their side; two-line titles),
-    which tests/core/test_report_layout.py checks on data from micrometre to millimetre
+    which tests/report/test_html_layout.py checks on data from micrometre to millimetre
     residuals."""
     width, height = fig.get_size_inches()
     axis_width = (width - left - right - (columns - 1) * gap) / columns

@@ -127,6 +127,7 @@ def _truth_in_identified_parameters(cell, kin, dataset, identified):
     return unpack(fit.x), float(np.abs(fit.fun).max())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_noise_free_identification_recovers_the_true_geometry(kin, mounting):
     """Noise-free data: in the identifiable subspace the identified geometric errors,
@@ -188,6 +189,7 @@ def _joint_spans(kin, targets):
     return np.ptp(joints, axis=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_planned_stations_calibrate_the_arm(kin, mounting, tmp_path):
     """identify_kinematics with no stations given: the planner's 20 stations lie in the
@@ -229,6 +231,7 @@ def test_planned_stations_calibrate_the_arm(kin, mounting, tmp_path):
     assert after <= 0.05 and before > 2.5 * after, (after, before)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_marginalised_arm_error_is_honest(kin, mounting):
     """Systematic arm error, default options with the arm's kinematics known: the
@@ -270,6 +273,7 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
     assert stated.result.robot_error.model == "kinematic" and stated.result.robot_error.model_choice is None
 
 
+@pytest.mark.slow
 def test_calibrated_urdf_reads_back_as_the_identified_model(kin, tmp_path):
     from spherecal.app.solving import write_calibrated_urdf
 

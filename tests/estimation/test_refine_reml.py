@@ -118,6 +118,7 @@ def test_station_model_on_centres_converges_with_systematic_robot_error(mounting
     assert np.linalg.norm(np.asarray(sol.result.transform.translation) - X.translation) < 2.5
 
 
+@pytest.mark.slow
 def test_kinematic_model_covariance_does_not_depend_on_the_order_of_the_observations():
     """The transform's covariance with the arm's parameters marginalised, from the joint
     normal matrix: the same shots in reverse order agree to 1e-9 of its largest element

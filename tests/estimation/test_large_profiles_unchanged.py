@@ -61,6 +61,7 @@ def test_results_on_many_points_a_profile_are_those_before_the_scale_work():
                                        atol=1e-12, err_msg=f"{name}: {key}")
 
 
+@pytest.mark.slow
 def test_normal_equations_reduced_per_shot_equal_the_dense_whitened_ones():
     """The per-shot reduction (nine sums a point, then 4 x 4 algebra a shot) gives
     J^T Cov^-1 J, -J^T Cov^-1 res, res^T Cov^-1 res and each profile's pose-subspace

@@ -62,6 +62,7 @@ def test_noise_free_with_free_radius(mounting):
     assert rot < 1e-6 and trans < 1e-6
 
 
+@pytest.mark.slow
 def test_noisy_data_lands_within_three_reported_standard_deviations(mounting):
     """Over many seeds the normalised errors behave like standard normal variables."""
     noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
@@ -103,6 +104,7 @@ def _one_sided_dataset(mounting, side):
     return cell, ds.model_copy(update={"observations": keep})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("side", [+1, -1])
 def test_centre_side_is_decided_on_each_side(mounting, side):
     cell, ds = _one_sided_dataset(mounting, side)

@@ -75,6 +75,7 @@ def test_the_provenance_names_what_was_calibrated_and_hashes_the_dataset(solutio
     assert p["sphere"] == {"radius_mm": 19.1} and p["software"].startswith("spherecal ")
 
 
+@pytest.mark.slow
 def test_the_report_shows_identity_traceability_and_a_signature_block(solution, report):
     _, text = report
     section = text[text.index('id="identity"'):text.index('id="advice"')]

@@ -77,6 +77,7 @@ def test_dataset_reader_on_random_bytes(tmp_path, raw):
     _read_dataset_expecting_only_its_error(path)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_dataset_reader_on_mutated_lines(tmp_path, data):

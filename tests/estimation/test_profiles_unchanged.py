@@ -59,6 +59,7 @@ def write_reference() -> None:
     REFERENCE.write_text(json.dumps(solve_cases(), indent=1) + "\n")
 
 
+@pytest.mark.slow
 def test_profile_only_results_are_those_before_centre_observations():
     before = json.loads(REFERENCE.read_text())
     now = solve_cases()

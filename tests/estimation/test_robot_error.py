@@ -108,6 +108,7 @@ def test_robot_error_model_rejects_bad_ranges():
 
 
 # --- the estimator under systematic robot error --------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_refinement_no_longer_pulls_the_robot_error_into_the_rotation(mounting, kin):
     """Without the station model the refined rotation is several times the two-step's
@@ -131,6 +132,7 @@ def test_refinement_no_longer_pulls_the_robot_error_into_the_rotation(mounting, 
         assert rms(old) > 2.5 * rms(ref)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_predicted_error_at_new_poses_matches_the_truth(mounting, kin):
     """Sphere centres fitted from sweeps at new orientations land where the prediction
@@ -153,6 +155,7 @@ def test_predicted_error_at_new_poses_matches_the_truth(mounting, kin):
     assert 1 / 1.5 < ratio < 1.5, ratio
 
 
+@pytest.mark.slow
 def test_verdict_tells_a_clean_cell_from_one_whose_robot_error_dominates(kin):
     for seed in range(3):
         _, clean = _solve("eye_in_hand", seed, kin, error=None)
@@ -175,6 +178,7 @@ def test_given_station_error_is_used_not_estimated(kin):
     assert re.estimated is False
 
 
+@pytest.mark.slow
 def test_the_common_robot_error_only_widens_the_uncertainty(kin):
     """The error every station shares is a consider parameter: it changes the reported
     covariance, never the estimate."""

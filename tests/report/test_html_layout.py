@@ -72,17 +72,20 @@ def _dataset(mounting, seed, noise=None):
                             PLAN)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
 def test_nothing_is_cut_off_on_ordinary_data(mounting, tmp_path, monkeypatch):
     _check(solve(_dataset(mounting, 5)), tmp_path, monkeypatch, expected=6)
 
 
+@pytest.mark.slow
 def test_nothing_is_cut_off_with_micrometre_residuals(tmp_path, monkeypatch):
     """Residuals of a few micrometres: the longest tick labels (-0.0025 and the like)."""
     noise = NoiseModel(point_noise_mm=0.001, pose_translation_noise_mm=0.0005)
     _check(solve(_dataset("eye_in_hand", 6, noise)), tmp_path, monkeypatch, expected=6)
 
 
+@pytest.mark.slow
 def test_nothing_is_cut_off_with_millimetre_residuals_and_flags(tmp_path, monkeypatch):
     """Large residuals, stray points and a pose read 3 mm off (flagged, annotated)."""
     ds = _dataset("eye_in_hand", 3, NoiseModel(point_noise_mm=0.3, stray_profile_fraction=0.3, strays_per_profile=8))
@@ -95,6 +98,7 @@ def test_nothing_is_cut_off_with_millimetre_residuals_and_flags(tmp_path, monkey
     _check(solution, tmp_path, monkeypatch, expected=6)
 
 
+@pytest.mark.slow
 def test_nothing_is_cut_off_with_bands_and_rotated_indices(tmp_path, monkeypatch):
     """Beyond MAX_BOXES (bands) and beyond 40 profiles (observation numbers turned on
     their side)."""
@@ -105,6 +109,7 @@ def test_nothing_is_cut_off_with_bands_and_rotated_indices(tmp_path, monkeypatch
     _check(solution, tmp_path, monkeypatch, expected=6)
 
 
+@pytest.mark.slow
 def test_nothing_is_cut_off_with_centre_observations(tmp_path, monkeypatch):
     """Profiles and circles mixed: the per-centre figure as well."""
     profiles = _dataset("eye_to_hand", 2)
@@ -114,6 +119,7 @@ def test_nothing_is_cut_off_with_centre_observations(tmp_path, monkeypatch):
     _check(solution, tmp_path, monkeypatch, expected=7)
 
 
+@pytest.mark.slow
 def test_nothing_is_cut_off_with_long_station_names_and_a_flagged_last_observation(tmp_path, monkeypatch):
     """Station names of 40 characters (a dataset may carry them; the figures shorten
     them, the tables do not) and six-digit observation numbers with the last one
@@ -133,6 +139,7 @@ def test_nothing_is_cut_off_with_long_station_names_and_a_flagged_last_observati
     assert solution.problem.station_labels[0] in html  # whole in the report's tables
 
 
+@pytest.mark.slow
 def test_nothing_is_cut_off_with_two_profiles_among_circles(tmp_path, monkeypatch):
     """Two profiles, the rest circles: the per-profile figure at its narrowest keeps its
     title inside."""

@@ -74,6 +74,7 @@ def turned_dataset(cell, turns: dict[tuple[str, int], tuple[float, float, float]
 
 
 # --- mis-paired and shifted shots ---------------------------------------------------------------
+@pytest.mark.slow
 def test_mis_paired_or_shifted_shots_are_flagged_never_a_crash():
     """The last shot or a mid-file shot paired with the pose of another shot of its
     station (1-5 shots away), or its pose shifted by several mm: no exception, the culprit
@@ -116,6 +117,7 @@ def test_shot_paired_with_another_stations_pose_is_flagged_as_turned():
         assert_close_to_truth(cell, res)
 
 
+@pytest.mark.slow
 def test_profile_losing_all_its_points_in_the_joint_fit_is_flagged(monkeypatch):
     """Without the check on the robot's moves before the joint fit, a mis-paired shot
     reaches the joint fit and loses (nearly) all its points as strays there: it is left
@@ -158,6 +160,7 @@ def test_derived_station_rotation_tolerance():
     assert station_rotation_tolerance_deg(CalibrationOptions(station_rotation_tolerance_deg=0.3)) == 0.3
 
 
+@pytest.mark.slow
 def test_orientation_read_noise_is_never_refused():
     """0.01 deg per axis of orientation read noise, the estimator told nothing about it:
     the tolerance follows the scatter the stations show, no shot is left out, and the
@@ -194,6 +197,7 @@ def test_shots_that_turned_at_the_end_of_a_station_are_flagged(mounting):
         assert_close_to_truth(cell, res)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mounting", MOUNTINGS)
 def test_station_turned_half_way_is_split(mounting):
     """S2 turned 0.2 deg after its 5th shot: solved as two stations, S2 and S2/b."""

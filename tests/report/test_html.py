@@ -59,6 +59,7 @@ def clean_solution():
 
 
 # --- the file -----------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_report_is_written_with_its_figures(bad_report):
     path, text = bad_report
     assert path.name == "report.html" and text.startswith("<!DOCTYPE html>")
@@ -127,6 +128,7 @@ def test_report_validation_table(bad_report):
     assert section.count('<tr class="bad">') == 1  # the row that did not pass
 
 
+@pytest.mark.slow
 def test_report_without_validation_and_other_mounting(clean_solution, tmp_path):
     path = write_report(clean_solution, tmp_path, filename="cal.html")
     text = path.read_text()

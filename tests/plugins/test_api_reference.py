@@ -8,6 +8,8 @@ import importlib.util
 import re
 from pathlib import Path
 
+import pytest
+
 import spherecal.plugins
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -17,6 +19,7 @@ def _has(page: str, name: str) -> bool:
     return bool(re.search(rf'id="{re.escape(name)}"|>{re.escape(name)}<', page))
 
 
+@pytest.mark.slow
 def test_the_api_reference_documents_the_plugin_api(tmp_path):
     spec = importlib.util.spec_from_file_location("build_api", DOCS / "build_api.py")
     build_api = importlib.util.module_from_spec(spec)
