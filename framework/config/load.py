@@ -134,4 +134,26 @@ def load_config(path: str | Path) -> LoadedConfig:
     except ValidationError as exc:
         lines = validation_error_lines(exc, model=RunConfig)
         raise ConfigError(f"{path}: invalid configuration:\n" + "\n".join(f"  {path}: {line}" for line in lines)) from None
+    _check_home_folders(cfg, path)
     return LoadedConfig(cfg, path.resolve())
+
+
+#: The configuration's path fields, by dotted name.
+PATH_FIELDS = ("output_dir", "replay", "validation.result", "scan.result", "scan.ply")
+
+
+def _check_home_folders(cfg: RunConfig, path: Path) -> None:
+    """A path starting ``~user`` must name a user this machine knows: the file is wrong
+    otherwise, and is refused here, naming the key, before anything runs."""
+    for name in PATH_FIELDS:
+        value: Any = cfg
+        for part in name.split("."):
+            value = getattr(value, part, None) if value is not None else None
+        if isinstance(value, str) and value.startswith("~"):
+            try:
+                Path(value).expanduser()
+            except RuntimeError:
+                user = value[1:].split("/", 1)[0] or "the current user"
+                raise ConfigError(f"{path}: invalid configuration:\n  {path}: {name}: {value!r}: no home folder "
+                                  f"for {user!r} on this machine to expand '~' into; give the folder "
+                                  "itself") from None
