@@ -12,8 +12,21 @@ transform with its uncertainty.
 
 Centre observations (a circle fitted on board, a sphere centre from a table) join every
 step beside the profiles; :mod:`.centres` checks a typed table row by row.
+
+The names below load on first use (PEP 562): a module that needs one light part of the
+estimator (the robust median, the circle fit) does not load the whole of it.
 """
 
-from spherecal.estimation.pipeline import CalibrationOptions, Solution, calibrate, solve
+from spherecal.core.lazy import lazy_attributes
 
-__all__ = ["CalibrationOptions", "Solution", "calibrate", "solve"]
+#: name -> the module that defines it
+_WHERE = {
+    "CalibrationOptions": "spherecal.config.sections",
+    "Solution": ".pipeline",
+    "calibrate": ".pipeline",
+    "solve": ".pipeline",
+}
+
+__all__ = sorted(_WHERE)
+
+__getattr__, __dir__ = lazy_attributes(__name__, _WHERE)

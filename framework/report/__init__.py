@@ -7,21 +7,26 @@
   :func:`write_exports` (:mod:`spherecal.io.exporters`) writes the files of any
   exporters, a robot plugin's included.
 - :mod:`.assess`: the green/amber/red verdict and the advice driven by the diagnostics.
-- :mod:`.html`: :func:`write_report`, a self-contained HTML report (imports matplotlib,
-  so it is loaded on first use).
+- :mod:`.html`: :func:`write_report`, a self-contained HTML report.
 
-See docs/results.md.
+See docs/results.md. The names below load on first use (PEP 562): the exports' formatting
+helpers a robot plugin uses do not load the verdict, and the verdict does not load
+matplotlib.
 """
 
-from spherecal.report.assess import Advice, Thresholds, Verdict, advice, verdict
-from spherecal.io.exporters import write_exports
+from spherecal.core.lazy import lazy_attributes
 
-__all__ = ["Advice", "Thresholds", "Verdict", "advice", "verdict", "write_exports", "write_report"]
+#: name -> the module that defines it
+_WHERE = {
+    "Advice": ".assess",
+    "Thresholds": ".assess",
+    "Verdict": ".assess",
+    "advice": ".assess",
+    "verdict": ".assess",
+    "write_exports": "spherecal.io.exporters",
+    "write_report": ".html",
+}
 
+__all__ = sorted(_WHERE)
 
-def __getattr__(name):
-    if name == "write_report":
-        from spherecal.report.html import write_report
-
-        return write_report
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_attributes(__name__, _WHERE)
