@@ -1,18 +1,15 @@
-"""The estimator's memory and time work (issue 13) changed how the joint refinement
-builds and sums its normal equations, not what it estimates (the pose-noise-only case,
-above 65,536 points, sums them a block of profiles at a time): the results of two simulated
-datasets with many points a profile (3,200 sensor columns, about 2,300 points a
-profile, 40 profiles: 93 k points, strays in a fifth of the profiles), solved by the
-code before that work (branch ``scale`` at commit 712ea57, stored in
-data/large_profile_results_before_scale.json by :func:`solve_cases`), are reproduced
-to 1e-9 (relative, and 1e-12 absolute). The station-model case was regenerated when the
-REML search of the station scales got exact gradients (issue 14; it moved by at most
-2e-7 relative, the finite-difference search's own precision): before that, its results
-were reproducible to only about 1e-7, and no reordering of the sums could meet 1e-9. Regenerated again when
-the station model's covariance took in the uncertainty of the station scales (session 10): only the station
-case's covariance moved, by 1.5e-3 of its largest element. A change that is meant to alter the results
-regenerates that file on purpose:
-``python -c "import tests.core.test_large_profiles_unchanged as t; t.write_reference()"``."""
+"""The joint refinement's memory and time savings change how it builds and sums its
+normal equations, not what it estimates (the pose-noise-only case, above 65,536 points,
+sums them a block of profiles at a time): the results of two simulated datasets with many
+points a profile (3,200 sensor columns, about 2,300 points a profile, 40 profiles: 93 k
+points, strays in a fifth of the profiles), stored in
+data/large_profile_results_reference.json by :func:`solve_cases`, are reproduced to 1e-9
+(relative, and 1e-12 absolute). The station-model case meets 1e-9 because the REML
+search of the station scales has exact gradients: a finite-difference search is precise
+to only about 2e-7 relative, and no reordering of the sums could then meet 1e-9. A
+change that is meant to alter the results rewrites that file on purpose, and says in its
+commit by how much each case moved:
+``PYTHONPATH=tests:tests/estimation python -c "import test_large_profiles_unchanged as t; t.write_reference()"``."""
 
 from __future__ import annotations
 
@@ -23,7 +20,7 @@ import numpy as np
 import pytest
 from reference_sensor import reference_fov
 
-REFERENCE = Path(__file__).parent / "data" / "large_profile_results_before_scale.json"
+REFERENCE = Path(__file__).parent / "data" / "large_profile_results_reference.json"
 
 
 def solve_cases() -> dict:
@@ -50,14 +47,14 @@ def write_reference() -> None:
     REFERENCE.write_text(json.dumps(solve_cases(), indent=1) + "\n")
 
 
-def test_results_on_many_points_a_profile_are_those_before_the_scale_work():
-    before = json.loads(REFERENCE.read_text())
-    now = solve_cases()
-    assert set(now) == set(before)
-    for name in before:
-        assert now[name]["n_points_used"] > 80_000, name  # the sets are as large as the docstring says
-        for key, value in before[name].items():
-            np.testing.assert_allclose(np.asarray(now[name][key], float), np.asarray(value, float), rtol=1e-9,
+def test_results_on_many_points_a_profile_are_the_reference_results():
+    expected = json.loads(REFERENCE.read_text())
+    got = solve_cases()
+    assert set(got) == set(expected)
+    for name in expected:
+        assert got[name]["n_points_used"] > 80_000, name  # the sets are as large as the docstring says
+        for key, value in expected[name].items():
+            np.testing.assert_allclose(np.asarray(got[name][key], float), np.asarray(value, float), rtol=1e-9,
                                        atol=1e-12, err_msg=f"{name}: {key}")
 
 

@@ -1,19 +1,14 @@
-"""Profile-only calibrations are unchanged by centre observations (issue 14): the
-results of a few simulated profile datasets, solved by the code before centre
-observations existed (main at commit 1977c88, stored in data/profile_results_before_centres.json
-by :func:`solve_cases`), are reproduced to 1e-9 relative (covariances: relative to their
-largest element). They were bit for bit until the rotation conversions stopped being
-SciPy's and the normal equations were reduced to each shot (issue 13), which move the
-last bits (1e-12). Regenerated on purpose twice: when the REML search of the station
-scales got exact derivatives (issue 14; the station case moved by at most 2e-7, the
-old search's precision), and when the kinematic model's covariance stopped being a
-difference of large terms (it moved by 1.1e-8 of its largest element: the old formula
-lost seven digits, and the same shots in reverse order moved it by 1.1e-7). Regenerated a third time
-when the station model's covariance took in the uncertainty of the station scales and the robot's common
-error took its own per-shot design (session 10): only the station case's covariance moved, by 2.1e-3 of its
-largest element; every estimate stayed within 1e-12. A change that is meant to alter
-profile results regenerates that file on purpose:
-``python -c "import tests.core.test_profiles_unchanged as t; t.write_reference()"``."""
+"""Profile-only calibrations are unaffected by centre observations: the results of a few
+simulated profile datasets, stored in data/profile_results_reference.json by
+:func:`solve_cases`, are reproduced to 1e-9 relative (covariances: relative to their
+largest element). Not bit for bit: the rotation conversions and the normal equations
+reduced to each shot move the last bits (1e-12). The station model's REML search has
+exact derivatives (a finite-difference search is precise to only about 2e-7), and the
+kinematic model's covariance is not a difference of large terms (that formula loses
+seven digits: the same shots in reverse order move it by 1.1e-7), so both reproduce
+well within 1e-9. A change that is meant to alter profile results rewrites that file
+on purpose, and says in its commit by how much each case moved:
+``PYTHONPATH=tests:tests/estimation python -c "import test_profiles_unchanged as t; t.write_reference()"``."""
 
 from __future__ import annotations
 
@@ -24,7 +19,7 @@ import numpy as np
 import pytest
 from reference_sensor import reference_fov
 
-REFERENCE = Path(__file__).parent / "data" / "profile_results_before_centres.json"
+REFERENCE = Path(__file__).parent / "data" / "profile_results_reference.json"
 
 
 def solve_cases() -> dict:
@@ -60,13 +55,13 @@ def write_reference() -> None:
 
 
 @pytest.mark.slow
-def test_profile_only_results_are_those_before_centre_observations():
-    before = json.loads(REFERENCE.read_text())
-    now = solve_cases()
-    assert set(now) == set(before)
-    for name in before:
-        for key, value in before[name].items():
+def test_profile_only_results_are_the_reference_results():
+    expected = json.loads(REFERENCE.read_text())
+    got = solve_cases()
+    assert set(got) == set(expected)
+    for name in expected:
+        for key, value in expected[name].items():
             value = np.asarray(value, float)
             atol = 1e-9 * np.abs(value).max() if key == "covariance" else 1e-12
-            np.testing.assert_allclose(np.asarray(now[name][key], float), value, rtol=1e-9, atol=atol,
+            np.testing.assert_allclose(np.asarray(got[name][key], float), value, rtol=1e-9, atol=atol,
                                        err_msg=f"{name}: {key}")
