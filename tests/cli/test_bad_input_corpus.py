@@ -1,4 +1,4 @@
-"""The bad-input corpus (issue 10): generated bad datasets, result files,
+"""The bad-input corpus: generated bad datasets, result files,
 configurations and command-line arguments, each run through the CLI's ``main`` in
 this process. Every case must give its documented exit code (docs/cli.md) and a
 message naming the culprit (the file, the key or the argument); none may crash
@@ -570,7 +570,7 @@ def test_a_line_longer_than_the_bound_is_refused_unread(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_station_names_that_look_like_mathtext_do_not_break_the_report(tmp_path, capsys):
-    """'$...$' in a station name crashed matplotlib's mathtext parser; the report shows
+    """'$...$' in a station name would crash matplotlib's mathtext parser; the report shows
     names as they are. A name longer than the bound is refused when read (corpus)."""
     from spherecal.sim import simulate_dataset
 

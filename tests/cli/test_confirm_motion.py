@@ -1,5 +1,5 @@
 """Before the first motion of a real robot: the plan summary and a typed 'yes', or
---yes (issue 10). Simulated cells move nothing real and ask nothing (the other tests)."""
+--yes. Simulated cells move nothing real and ask nothing (the other tests)."""
 
 import builtins
 import re

@@ -32,7 +32,7 @@ def dataset_file(tmp_path, dataset):
 
 
 class Recorder:
-    """A plugin of another robot brand and one written for the old two-argument hook."""
+    """A plugin of another robot brand and one written for the hook's two-argument form."""
 
     def __init__(self):
         self.calls = []

@@ -1,5 +1,5 @@
 """The first move, from wherever the arm stands, is checked like any other before
-anything moves (issue 10, "Confirmation before the first motion").
+anything moves.
 
 Every other move runs between two planned targets, both inside the workspace box, so its
 straight path is too; the first starts where the arm happens to be. The simulated arm

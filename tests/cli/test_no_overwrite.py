@@ -1,4 +1,4 @@
-"""Files are never overwritten or escaped (issue 10): solve into a calibration run's
+"""Files are never overwritten or escaped: solve into a calibration run's
 folder, calibrate into a folder with an unrelated result, --resume on a finished run,
 planted symbolic links, a PLY path outside the output folder, a full disk."""
 
@@ -247,7 +247,7 @@ def test_a_full_disk_while_scanning_names_the_ply(tmp_path, monkeypatch):
 @pytest.mark.parametrize("planted", ["report.html", "report_sphere_3d.png", "flange_from_sensor_4x4.txt"])
 def test_overwrite_with_a_planted_link_writes_nothing_at_all(tmp_path, dataset_file, capsys, planted):
     """--overwrite replaces a result's files, never through a link: the run is refused
-    before anything is written (it used to write the files before the link, then stop)."""
+    before anything is written, not after writing the files that precede the link."""
     out = tmp_path / "res"
     assert main(["solve", str(dataset_file), "--out", str(out)]) == EXIT_OK
     victim = tmp_path / "victim.txt"

@@ -1,7 +1,7 @@
 """A RED result never exits 0 silently: the verdict is printed with its likely cause,
 the exit code is 7, and result.json and the exports are written only with --force.
-Cases from issue 10: eye-in-hand data labelled eye-to-hand, one station's profiles
-shifted 2 mm, radius 19 given for 19.1. (The example cells' AMBER results exit 0:
+Cases: eye-in-hand data labelled eye-to-hand, one station's profiles shifted 2 mm,
+radius 19 given for 19.1. (The example cells' AMBER results exit 0:
 tests/cli/test_calibrate.py.)"""
 
 import numpy as np

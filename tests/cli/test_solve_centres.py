@@ -61,7 +61,7 @@ def test_solve_a_file_mixing_profiles_and_circles(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["sphere_centre", "circle"])
 def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(tmp_path, capsys, kind):
-    """Issue 10's rule on centre-only data: the noise estimated from the fit's residuals
+    """The rule on centre-only data: the noise estimated from the fit's residuals
     takes in any misfit, so the residuals are judged against the noise the centres show
     within their stations (pure translations, whatever the mounting) instead. A RED exit,
     the mounting named, and no result or exports without --force."""

@@ -65,7 +65,7 @@ def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(t
 
 
 def test_the_robot_plugin_still_builds_its_kinematics_when_asked():
-    """Loading pinocchio on first use: the plugin's arm model works as before."""
+    """Loading pinocchio on first use: the plugin's arm model works all the same."""
     from spherecal.plugins.host import PluginHost
 
     kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})

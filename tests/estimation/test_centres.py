@@ -94,8 +94,8 @@ def test_centres_from_the_true_geometry_plus_noise_give_the_known_answer(mountin
 def test_centres_cleaner_than_the_stated_pose_noise_converge_green(mounting):
     """Circles consistent with the reported poses to 0.01 mm, the pose noise stated at 0.02
     mm: the centres' estimated noise goes to its floor and their covariance is all pose
-    noise, which moves with the parameters. The refinement converges (it used to crawl
-    for 50 iterations, RED) and the clean cell is GREEN, with the known answer, but for the
+    noise, which moves with the parameters. The refinement converges (not a crawl of 50
+    iterations ending RED) and the clean cell is GREEN, with the known answer, but for the
     twin with y and z swapped that circles alone cannot exclude (amber, no nominal given)."""
     from spherecal.estimation.pipeline import CIRCLE_TWIN
     from spherecal.report.assess import verdict
@@ -570,7 +570,7 @@ def test_two_row_stations_that_moved_the_wrong_way_are_left_out_and_the_rest_sol
 
 @pytest.mark.parametrize("known", ["centre_std_mm", "radius_std_mm"])
 def test_a_circle_may_give_one_standard_deviation_and_the_other_is_estimated(mounting, known):
-    """Each of a circle's two standard deviations is optional on its own (issue 14): the
+    """Each of a circle's two standard deviations is optional on its own: the
     one not given is estimated from the data, the one given is used as it is."""
     cell = standard_cell(mounting, seed=7, noise=NOISE, fov=reference_fov())
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=6), kind="circle", centre_noise_mm=0.03,
@@ -600,8 +600,8 @@ def test_fill_unknown_sets_only_what_was_not_given():
 
 def test_medians_of_the_others_are_those_of_numpy():
     """The metres-among-millimetres check compares each row with the median of the
-    others; one sort gives all of them (it used to take a median per row: 1.2 s on
-    4,000 rows), exactly as numpy's, ties and both parities included."""
+    others; one sort gives all of them (a median per row takes 1.2 s on 4,000 rows),
+    exactly as numpy's, ties and both parities included."""
     from spherecal.estimation.centres import _medians_of_the_others
 
     rng = np.random.default_rng(0)

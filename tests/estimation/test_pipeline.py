@@ -82,8 +82,8 @@ def test_noisy_data_lands_within_three_reported_standard_deviations(mounting):
         z.append(np.concatenate([np.degrees(w), dt]) / sd)
     z = np.abs(np.array(z))
     assert (z < 3).mean() >= 0.97, z.max(axis=0)
-    # reported uncertainty neither far too small nor far too large. Cautious here by design since
-    # session 10: with the default robot error model (stations, no joints) the covariance is averaged
+    # reported uncertainty neither far too small nor far too large. Cautious here by design:
+    # with the default robot error model (stations, no joints) the covariance is averaged
     # over the station scales' posterior, and four stations cannot show that the station-to-station
     # error is zero, as this arm's is (mean z^2 0.39 in eye-to-hand, an SD 1.6 x the error's; in the
     # worlds with systematic error, NEES 4.4-5.4 against 6: docs/estimation.md)

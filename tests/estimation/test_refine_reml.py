@@ -1,9 +1,9 @@
 """The REML search of the robot-error scales (station offsets' spread, the kinematic
 prior's factor) uses exact gradients and stops at rounding level: the scales, and the
-transform through them, are a smooth function of the data. Before, a finite-difference
-search stopped anywhere within about 1e-7, Gauss-Newton around its jitter did not
-settle, and a scale that fell to its floor stayed there (issue 14: 5 of 40 centre
-solves in a world with systematic robot error came back RED, "did not converge")."""
+transform through them, are a smooth function of the data. Exact, because a
+finite-difference search stops anywhere within about 1e-7: Gauss-Newton around that
+jitter does not settle, and a scale that falls to its floor stays there (5 of 40 centre
+solves in a world with systematic robot error come back RED, "did not converge")."""
 
 from __future__ import annotations
 

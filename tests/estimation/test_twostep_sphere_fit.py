@@ -2,7 +2,7 @@
 points on one circle as large as the sphere (a laser plane through its centre) leave the
 distance from their plane free to first order. The fit must then leave that direction
 where it started (least squares, minimum norm), not take a large step along it from
-ill-conditioned normal equations (it once moved 17 mm there)."""
+ill-conditioned normal equations (up to 17 mm there)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def test_points_on_a_great_circle_leave_the_normal_direction_where_it_started(ci
     start = T.copy()  # in the plane, at the circle's centre
     c = fit_sphere_fixed_radius(points, r, start)
     normal = R[:, 0]
-    assert abs((c - start) @ normal) < 0.05  # (the old least squares: 0.012 mm; the normal equations moved 0.4-17 mm)
+    assert abs((c - start) @ normal) < 0.05  # (least squares: 0.012 mm; the normal equations: 0.4-17 mm)
     in_plane = (c - T) - ((c - T) @ normal) * normal
     assert np.linalg.norm(in_plane) < 0.2  # (a circle larger than the sphere pulls it toward the arc)
 

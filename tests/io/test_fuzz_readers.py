@@ -1,4 +1,4 @@
-"""Bounded hypothesis fuzzing of every reader of outside input (issue 10): the dataset,
+"""Bounded hypothesis fuzzing of every reader of outside input: the dataset,
 result and configuration readers and both wire parsers (the IRB 2400 line protocol and
 the nxSensor-I frame format). Whatever the bytes, a reader returns a valid value or
 raises its documented error; never anything else. ``max_examples`` keeps the whole

@@ -1,4 +1,4 @@
-"""wobj0 is the world frame, not the robot base (issue 10).
+"""wobj0 is the world frame, not the robot base.
 
 The RAPID server reads poses as tool0 in wobj0 (world); the plugin's kinematics,
 workspace box and path checks work in the robot base. A controller with a base frame

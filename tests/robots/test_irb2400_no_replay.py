@@ -1,12 +1,13 @@
 """The simulated controller's model of the RAPID server's read loop: a line is served
 once, when it is read, and a move is never run again without a new request.
 
-The old SpherecalServer.mod read with ``ReadStr`` without ``\\Time``: after 60 s without
-a request (ERR_DEV_MAXTIME), or after the program was stopped, the arm jogged and the
-program started again, the catch-all ``TRYNEXT`` in ``main`` went on with ``Serve line``
-and served the previous line again, so the last MOVL drove the arm back to its old
-target with nothing sent from the PC. :class:`OldServerModel` reproduces that loop here,
-inside the tests only, to show that the tests below fail against it.
+The fault guarded against: a server that reads with ``ReadStr`` without ``\\Time``.
+After 60 s without a request (ERR_DEV_MAXTIME), or after the program is stopped, the arm
+jogged and the program started again, its catch-all ``TRYNEXT`` in ``main`` goes on with
+``Serve line`` and serves the previous line again, so the last MOVL drives the arm back
+to its target with nothing sent from the PC. :class:`ReplayingServerModel`
+reproduces that loop here, inside the tests only, to show that the tests below fail
+against it.
 """
 
 import numpy as np
@@ -26,8 +27,8 @@ JOGGED_TO = Pose.from_rt(DOWN, [950.0, -50.0, 1000.0])
 SETTINGS = SimulatedControllerSettings(single_precision=False, transport="pty")
 
 
-class OldServerModel(SimulatedIrb2400):
-    """The loop of the server before the fix, for contrast only. The line is not cleared
+class ReplayingServerModel(SimulatedIrb2400):
+    """A server loop with the replay fault, for contrast only. The line is not cleared
     before a read; after a read that ends without a line, ``TRYNEXT`` goes on with
     ``Serve line`` and serves the previous line again; and a MOVL moves to its target
     every time it is served."""
@@ -35,7 +36,7 @@ class OldServerModel(SimulatedIrb2400):
     def _serve_read(self, line):
         if line is None:
             self.reads_without_line += 1
-            return self._serve(self.line)  # TRYNEXT: Serve line, with the old line
+            return self._serve(self.line)  # TRYNEXT: Serve line, with the previous line
         self.line = line
         return self._serve(line)
 
@@ -81,14 +82,14 @@ def test_a_served_move_is_never_run_again_without_a_request(event):
 
 
 @pytest.mark.parametrize("event", ["read timeout", "stop and start"])
-def test_the_old_server_model_fails_that_test(event):
-    """The same events against the old loop: the MOVL is served again, unasked, and the
-    arm goes back to its old target. (A PP to main reset the old server's data too, so it
-    did not replay then; the old model is not run for that event.)"""
-    ctl, jogged = _moved_then_jogged(OldServerModel)
+def test_a_replaying_server_model_fails_that_test(event):
+    """The same events against the replaying loop: the MOVL is served again, unasked, and
+    the arm goes back to that MOVL's target. (A PP to main resets the server's data too,
+    so that loop does not replay then; the model is not run for that event.)"""
+    ctl, jogged = _moved_then_jogged(ReplayingServerModel)
     moves, requests = ctl.moves, list(ctl.requests)
     sent = EVENTS[event](ctl)
-    assert P.decode_reply(sent).seq == 11  # a stale OK to the old MOVL
+    assert P.decode_reply(sent).seq == 11  # a stale OK to the earlier MOVL
     assert ctl.requests == [*requests, "MOVL"]
     assert ctl.moves == moves + 1
     assert not np.allclose(ctl.joints_deg, jogged)
@@ -109,10 +110,10 @@ def test_a_repeated_movl_answers_ok_without_moving_again():
     assert _reply(ctl, P.movl_request(14, 100.0, 13)).kind == "OK"
     assert ctl.moves == moves + 1
     np.testing.assert_allclose(ctl.true_flange_pose().translation_mm, TARGET.translation_mm, atol=1e-6)
-    # the old model moved on every MOVL naming the staged target
-    old, jogged = _moved_then_jogged(OldServerModel)
-    assert _reply(old, P.movl_request(12, 100.0, 10)).kind == "OK"
-    assert old.moves == 2 and not np.allclose(old.joints_deg, jogged)
+    # the replaying model moves on every MOVL naming the staged target
+    replaying, jogged = _moved_then_jogged(ReplayingServerModel)
+    assert _reply(replaying, P.movl_request(12, 100.0, 10)).kind == "OK"
+    assert replaying.moves == 2 and not np.allclose(replaying.joints_deg, jogged)
 
 
 def test_after_pp_to_main_no_target_is_staged():
@@ -123,12 +124,12 @@ def test_after_pp_to_main_no_target_is_staged():
     assert ctl.moves == 1
 
 
-@pytest.mark.parametrize("model", [SimulatedIrb2400, OldServerModel], ids=["server", "old-server-model"])
+@pytest.mark.parametrize("model", [SimulatedIrb2400, ReplayingServerModel], ids=["server", "replaying-server-model"])
 def test_read_timeouts_between_requests_over_the_wire(model):
     """Through the real driver on a pty: a move, a jog, two quiet spells long enough for
     the read to time out, then a PING. The server serves the PING and nothing else; the
-    old model replays the MOVL twice (its stale OKs reach the driver, which discards them)
-    and drives the arm back to the old target."""
+    replaying model replays the MOVL twice (its stale OKs reach the driver, which discards
+    them) and drives the arm back to the MOVL's target."""
     ctl = model(KIN, SETTINGS)
     config = AbbIrb2400Config(timeout_s=5.0, retries=0, move_timeout_extra_s=0.0)
     with SimulatorServer(ctl, "pty") as srv, AbbIrb2400Robot(config, url=srv.url, kinematics=KIN) as robot:

@@ -8,7 +8,7 @@ tests/robots/test_rapid_syntax.py.
 
 * no ``TRYNEXT`` or ``RETRY`` in the error handler of a routine that moves (one with a
   move instruction, or that calls such a routine of the module): either would run a move
-  again without a request, as the old ``main`` did after a ``ReadStr`` timeout;
+  again without a request, as a ``TRYNEXT`` in ``main`` does after a ``ReadStr`` timeout;
 * every read from a channel or socket, and every accept, has ``\\Time`` (without it
   ``ReadStr`` gives up after 60 s);
 * the variable a read assigns (``ReadStr``, or the line the server hands to

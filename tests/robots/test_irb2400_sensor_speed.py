@@ -1,8 +1,8 @@
-"""Speed is limited at the sensor, not only at the flange (issue 10): a MOVL carries the
+"""Speed is limited at the sensor, not only at the flange: a MOVL carries the
 flange speed and the reorientation speed, chosen by the driver so that the tool point
 (the sensor, 176 mm off the flange in the example cell) stays within the move's speed.
-With tool0 alone and the controller's 500 deg/s reorientation, that point reached
-about 1.4 m/s in a rotating move."""
+Limiting tool0 alone is not enough: with the controller's 500 deg/s reorientation, that
+point reaches about 1.4 m/s in a rotating move."""
 
 from importlib import resources
 
@@ -63,8 +63,9 @@ def test_the_sensor_stays_within_the_move_speed(server, deg, shift):
         assert move["speed_mm_s"] == pytest.approx(speed)  # a pure translation runs at the speed given
 
 
-def test_without_the_tool_point_only_the_flange_was_limited(server):
-    """The old behaviour, for contrast: the flange within the speed, the sensor far above."""
+def test_without_the_tool_point_only_the_flange_is_limited(server):
+    """A robot given no tool point, for contrast: the flange within the speed, the sensor
+    far above it."""
     with AbbIrb2400Robot(AbbIrb2400Config(timeout_s=0.5), url=server.url, kinematics=KIN) as robot:
         robot.move_linear(Pose.from_rt(DOWN, [1000.0, 100.0, 800.0]), 200.0)
         start = robot.read_flange_pose()

@@ -109,7 +109,7 @@ def test_a_serial_line_has_no_sessions():
 
 def test_a_late_reply_never_reaches_the_next_connection(server, monkeypatch):
     """Session A gives up on a late reply and closes; session B, even with the same seq
-    (the old fixed start), never sees A's reply: it went to A's connection. On a serial
+    (as a fixed start would give), never sees A's reply: it went to A's connection. On a serial
     line only the seq protects B (test_irb2400_stale_replies.py)."""
     from spherecal.robots.abb_irb2400 import driver as driver_module
 

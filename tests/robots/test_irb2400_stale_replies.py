@@ -195,7 +195,7 @@ def test_no_request_goes_before_the_session_is_open(server):
 
 def test_a_server_of_protocol_2_is_told_to_update(server, monkeypatch):
     """A server that knows no session token refuses the PING's extra field."""
-    monkeypatch.setitem(P.REQUEST_ARGS, "PING", 0)  # the old server's table
+    monkeypatch.setitem(P.REQUEST_ARGS, "PING", 0)  # the table of a protocol-2 server
     with connect(server) as robot:
         with pytest.raises(DeviceError, match=r"PING.*takes 0 arguments.*protocol version 2 or older refuses "
                                               r"the session token, or answers PING without it; this driver "

@@ -155,7 +155,7 @@ def test_a_dead_link_is_a_device_error_naming_the_port(host, ur5_urdf):
 
 
 def test_the_ur5_over_a_socket_server(host, ur5_urdf):
-    """issue 11's socket:// link on the urdf type, from the core alone: the TCP link, a
+    """The socket:// link on the urdf type, from the core alone: the TCP link, a
     socket server's sessions (a target staged over one connection is refused over the
     next) and a controller that closes the connection after serving a MOVL and before
     its reply (the robot says so at once and sends nothing again)."""

@@ -1,5 +1,5 @@
-"""Late sensor frames in a full simulated acquisition (issue 10, "Two late sensor frames
-pair every later profile with the wrong pose").
+"""Late sensor frames in a full simulated acquisition never pair a profile with
+another shot's pose.
 
 The example eye-in-hand cell, its devices behind their real protocols (the IRB 2400
 driver over the simulated controller, the nxSensor-I driver over the simulated pyusb
@@ -11,8 +11,9 @@ the profile's shot id, the frame counter), and the result must be that of a run 
 faults: the simulated cell draws its noise per pose, so the same shots give the same
 numbers.
 
-Before the fix, two late frames in one shot left one frame queued for good: every
-later profile was the previous shot's (exit 0, 2.07 deg and 2.75 mm off the truth).
+The case that matters most is two late frames in one shot: a frame left queued would
+make every later profile the previous shot's, a silent error (exit 0, 2.07 deg and
+2.75 mm off the truth in this cell).
 """
 
 import io
@@ -126,7 +127,7 @@ def test_every_profile_is_paired_with_its_own_pose(config_path, clean, tmp_path,
 
 def test_the_result_is_the_fault_free_one(config_path, clean, tmp_path):
     late = late_triggers(5, seed=3)
-    assert len(set(late)) < len(late)  # two late reads in one shot: the case that broke the old drain
+    assert len(set(late)) < len(late)  # two late reads in one shot: the case that can leave a frame queued
     dataset, cfg, cell, _sensor, _ = acquire_with_late_frames(config_path, tmp_path / "j.jsonl", late)
     result = solve(dataset, calibration_options(cfg)).result
     assert np.array_equal(result.transform.as_matrix(), clean[1].transform.as_matrix())

@@ -1,4 +1,4 @@
-"""Shot identity (issue 10): a profile is only ever the one measured by a trigger of its
+"""Shot identity: a profile is only ever the one measured by a trigger of its
 own shot, told by the frame counter, however many frames arrive late and however late.
 
 The simulated device records what it measured under each frame counter and where the
@@ -54,9 +54,9 @@ def test_profiles_carry_their_frame_counter(cell):
 
 @pytest.mark.parametrize("late", [2, 3])
 def test_a_frame_late_beyond_any_wait_is_never_paired_with_a_later_pose(cell, late):
-    """The frame of shot 1 stays late for ``late`` reads: longer than the old drain's wait
-    (which then gave up and left a frame queued for good, pairing every later profile
-    with the previous pose). With enough retries shot 1 takes its own first frame; the
+    """The frame of shot 1 stays late for ``late`` reads: longer than a drain with a fixed
+    wait allows (one that gives up then leaves a frame queued for good, pairing every later
+    profile with the previous pose). With enough retries shot 1 takes its own first frame; the
     leftovers are discarded by their counters at the next shot."""
     backend = SimulatedNxSensorBackend(cell)
     logs = []
