@@ -3,8 +3,8 @@
 Maps n profiles of m points (y, z) into base with one transform per profile and reports
 the median over repeats of: points per second, the ratio to a plain copy of the same
 number of output bytes (np.copyto: the memory-bound limit), and the ratio to the fastest
-profilers' rate (about 3,200 points at 16 kHz = 51.2 million points/s). The issue's
-target is at least 100 million points/s.
+profilers' rate (about 3,200 points at 16 kHz = 51.2 million points/s). The
+target is at least 100 million points/s (docs/validation-and-scanning.md).
 
 Run:  python benchmarks/bench_mapping.py [--profiles 2000] [--points 3200] [--repeats 15]
 """

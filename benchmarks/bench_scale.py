@@ -1,5 +1,5 @@
 """Speed and memory of ``solve`` as datasets grow, and the mapping throughput of the
-default install (issue 13). One core.
+default install, against the targets in docs/estimation.md. One core.
 
 Datasets come from the simulator (the standard eye-in-hand cell, 4 stations, about 460
 points a profile): 40, 400 and 4,000 profiles (18 k, 185 k and 1.85 M points) and, with
@@ -24,13 +24,13 @@ NumPy and pydantic alone.
 The mapping figures: :func:`spherecal.core.mapping.map_profiles` with the NumPy backend (the
 default install has no numba) on 2,000 profiles x 3,200 points, median of ``--repeats``,
 in million points per second and as a fraction of the speed of a plain copy of the same
-output (``np.copyto``, the memory-bound limit). The targets (issue 13): at least 100 M
+output (``np.copyto``, the memory-bound limit). The targets: at least 100 M
 points/s and 0.25 of a copy.
 
 The machine's load average is printed first: on a shared machine, times vary with it.
 
 With ``--report``: the HTML report (every figure) on about 1 M points (2,160 profiles),
-timed on its own after a solve; the target (issue 13) is under 3 s.
+timed on its own after a solve; the target is under 3 s.
 
 Run:  python benchmarks/bench_scale.py [--huge] [--report] [--repeats 9] [--cache DIR] [--skip-mapping]
 """
@@ -251,7 +251,7 @@ def mapping_table(repeats: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--huge", action="store_true", help="add the 5 M point set (minutes, several GB before issue 13)")
+    ap.add_argument("--huge", action="store_true", help="add the 5 M point set (minutes; about 0.5 GB peak)")
     ap.add_argument("--repeats", type=int, default=9, help="mapping: repeats per figure (median)")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "spherecal-bench-scale",
                     help="folder for the simulated dataset files (kept between runs)")

@@ -50,7 +50,7 @@ class Problem:
 
     @property
     def n_profiles(self) -> int:
-        """Shots (rows) of the problem, whatever their kind (historical name)."""
+        """Shots (rows) of the problem, whatever their kind (profiles and centres alike)."""
         return len(self.profiles)
 
     @property

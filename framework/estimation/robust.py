@@ -3,7 +3,7 @@
 :func:`median` gives exactly what ``np.median`` gives (the same middle elements, the
 mean of the middle two of an even count, NaN where a NaN is among the values) without
 ``np.median``'s NaN check, which imports ``numpy.ma`` on its first call: about 10-25 ms
-of a small ``solve`` (issue 13's start-up).
+of a small ``solve``, whose start-up tests/cli/test_startup_imports.py bounds.
 """
 
 from __future__ import annotations

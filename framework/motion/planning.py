@@ -139,8 +139,8 @@ def station_flange_poses(
 def _station_poses(mounting, X: Pose, centre: np.ndarray, radius_mm: float, plan: SweepPlan, tilts: np.ndarray,
                    offsets: np.ndarray, R_ref: np.ndarray) -> list[list[Pose]]:
     """The flange poses of :func:`station_flange_poses`, station by station, composed pose
-    by pose as :class:`Pose` does it: the simulated datasets stay bit for bit those of
-    earlier versions (tests/estimation/test_profiles_unchanged.py)."""
+    by pose as :class:`Pose` does it, so that the simulated datasets are bit for bit those
+    the reference results were solved from (tests/estimation/test_profiles_unchanged.py)."""
     X_inv = X.inverse()
     cs0 = sphere_centres_in_sensor(plan, radius_mm)
     out = []

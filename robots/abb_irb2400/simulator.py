@@ -18,7 +18,8 @@ adds the IRB 2400's kinematics and its RAPID server's read loop:
 :meth:`~SimulatedIrb2400.handle` is one turn of the loop (clear the line, read one, serve
 it), and :meth:`~SimulatedIrb2400.read_timeout` and :meth:`~SimulatedIrb2400.restart`
 model a read that ends without a line, so that tests can show a line is never served
-twice (the old server served its last line again).
+twice (a loop that goes on with ``Serve line`` after such a read serves its last line
+again: tests/robots/test_irb2400_no_replay.py).
 
 The controller's base frame (``settings.base_frame``, world_from_base), as a riser, an
 inverted mount or a multi-robot cell configures it, is the core controller's: the server
