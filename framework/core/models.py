@@ -8,6 +8,7 @@ points from frame B to frame A, quaternions (w, x, y, z) as ABB writes them.
 from __future__ import annotations
 
 import math
+import warnings
 from datetime import datetime, timezone
 from functools import cached_property
 from typing import Annotated, Any, Literal
@@ -69,6 +70,10 @@ MAX_STATION_LABEL = 200
 MAX_SHOT_ID = 64
 
 
+def _warn_renamed(old: str, new: str) -> None:
+    warnings.warn(f"{old} is renamed {new}; the old name goes in the next release", DeprecationWarning, stacklevel=3)
+
+
 class Pose(BaseModel):
     """A rigid transform ``A_from_B``: rotation as a unit quaternion (w, x, y, z) and a
     translation in mm. Which frames it links is said by the field or variable holding it
@@ -117,9 +122,16 @@ class Pose(BaseModel):
         return cls.from_rt(T[:3, :3], T[:3, 3])
 
     @classmethod
-    def from_abb(cls, xyz_mm, quat_wxyz) -> "Pose":
-        """From an ABB robtarget's ``trans`` (mm) and ``rot`` quaternion [q1..q4] = (w, x, y, z)."""
+    def from_xyz_quat_wxyz(cls, xyz_mm, quat_wxyz) -> "Pose":
+        """From a translation (x, y, z) in mm and a unit quaternion (w, x, y, z), scalar
+        first: the order of an ABB robtarget's ``trans`` and ``rot`` [q1..q4]."""
         return cls(translation_mm=tuple(float(c) for c in xyz_mm), quaternion_wxyz=tuple(float(c) for c in quat_wxyz))
+
+    @classmethod
+    def from_abb(cls, xyz_mm, quat_wxyz) -> "Pose":
+        """Deprecated alias of :meth:`from_xyz_quat_wxyz` (removed in the next release)."""
+        _warn_renamed("Pose.from_abb", "Pose.from_xyz_quat_wxyz")
+        return cls.from_xyz_quat_wxyz(xyz_mm, quat_wxyz)
 
     @classmethod
     def identity(cls) -> "Pose":
@@ -138,9 +150,15 @@ class Pose(BaseModel):
         """4x4 homogeneous matrix, mm."""
         return geo.matrix_from_rt(self.rotation_matrix, self.translation)
 
-    def as_abb(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """(xyz in mm, quaternion (w, x, y, z)) as an ABB robtarget wants them."""
+    def as_xyz_quat_wxyz(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """(xyz in mm, unit quaternion (w, x, y, z), scalar first): the inverse of
+        :meth:`from_xyz_quat_wxyz`, in the order an ABB robtarget takes them."""
         return self.translation_mm, self.quaternion_wxyz
+
+    def as_abb(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """Deprecated alias of :meth:`as_xyz_quat_wxyz` (removed in the next release)."""
+        _warn_renamed("Pose.as_abb", "Pose.as_xyz_quat_wxyz")
+        return self.as_xyz_quat_wxyz()
 
     # algebra ---------------------------------------------------------------------------
     def inverse(self) -> "Pose":

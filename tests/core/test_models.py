@@ -23,11 +23,11 @@ def test_pose_matrix_round_trip():
         assert np.allclose(q.as_matrix(), p.as_matrix(), atol=1e-12)
 
 
-def test_pose_abb_quaternion_is_w_first():
+def test_pose_quaternion_is_w_first():
     # 90 deg about z: ABB orient [cos 45, 0, 0, sin 45]
-    p = Pose.from_abb([1.0, 2.0, 3.0], [math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)])
+    p = Pose.from_xyz_quat_wxyz([1.0, 2.0, 3.0], [math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)])
     assert np.allclose(p.apply([1.0, 0.0, 0.0]), [1.0, 3.0, 3.0])
-    xyz, q = p.as_abb()
+    xyz, q = p.as_xyz_quat_wxyz()
     assert xyz == (1.0, 2.0, 3.0)
     assert np.allclose(q, [math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
     # SciPy order is the other way round
@@ -35,11 +35,20 @@ def test_pose_abb_quaternion_is_w_first():
     assert np.allclose(Rotation.from_quat(geo.quat_xyzw_from_wxyz(q)).as_matrix(), p.rotation_matrix)
 
 
+def test_the_brand_named_pose_constructors_warn_and_still_work():
+    """``from_abb`` and ``as_abb`` are deprecated aliases for one release."""
+    with pytest.warns(DeprecationWarning, match=r"Pose\.from_abb is renamed Pose\.from_xyz_quat_wxyz"):
+        p = Pose.from_abb([1.0, 2.0, 3.0], [0.0, 1.0, 0.0, 0.0])
+    assert p == Pose.from_xyz_quat_wxyz([1.0, 2.0, 3.0], [0.0, 1.0, 0.0, 0.0])
+    with pytest.warns(DeprecationWarning, match=r"Pose\.as_abb is renamed Pose\.as_xyz_quat_wxyz"):
+        assert p.as_abb() == p.as_xyz_quat_wxyz()
+
+
 def test_q_and_minus_q_are_one_rotation():
     q = np.array([0.3, -0.5, 0.1, 0.8])
     q /= np.linalg.norm(q)
-    a = Pose.from_abb([0, 0, 0], q)
-    b = Pose.from_abb([0, 0, 0], -q)
+    a = Pose.from_xyz_quat_wxyz([0, 0, 0], q)
+    b = Pose.from_xyz_quat_wxyz([0, 0, 0], -q)
     assert np.allclose(a.rotation_matrix, b.rotation_matrix)
     assert a.quaternion_wxyz == pytest.approx(b.quaternion_wxyz)
 
@@ -69,9 +78,9 @@ def test_pose_rejects_bad_rotations(R, message):
 
 def test_pose_rejects_non_unit_quaternion_and_nan():
     with pytest.raises(ValidationError, match="unit quaternion"):
-        Pose.from_abb([0, 0, 0], [1, 1, 0, 0])
+        Pose.from_xyz_quat_wxyz([0, 0, 0], [1, 1, 0, 0])
     with pytest.raises(ValidationError, match="NaN or infinite"):
-        Pose.from_abb([0, math.inf, 0], [1, 0, 0, 0])
+        Pose.from_xyz_quat_wxyz([0, math.inf, 0], [1, 0, 0, 0])
 
 
 def test_profile_validation():
