@@ -105,11 +105,11 @@ def _add_objects(cell: SimulatedCell, cfg: RunConfig) -> None:
         cell.add_object(BallBar(a, b, bb.ball_radius_mm, frame=frame, certified_distance_mm=bb.certified_distance_mm))
     if v is not None and v.flat is not None:
         f = v.flat
-        cell.add_object(FlatPlate(Pose.from_abb(f.centre_mm, f.quaternion_wxyz), f.length_mm, f.width_mm, frame=frame))
+        cell.add_object(FlatPlate(Pose.from_xyz_quat_wxyz(f.centre_mm, f.quaternion_wxyz), f.length_mm, f.width_mm, frame=frame))
     if sim.scan_object != "none":
         if cfg.scan is None:
             raise ConfigError("simulation.scan_object needs a [scan] section (its object_centre_mm places the object)")
-        at = Pose.from_abb(cfg.scan.object_centre_mm, (1.0, 0.0, 0.0, 0.0))
+        at = Pose.from_xyz_quat_wxyz(cfg.scan.object_centre_mm, (1.0, 0.0, 0.0, 0.0))
         if sim.scan_object == "flat_plate":
             cell.add_object(FlatPlate(at, 300.0, 200.0, frame=frame, name="scan_plate"))
         else:

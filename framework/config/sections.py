@@ -60,7 +60,7 @@ class TransformConfig(_Section):
     quaternion_wxyz: UnitQuaternion = Field(description="rotation, unit quaternion, scalar first (ABB order)")
 
     def pose(self) -> Pose:
-        return Pose.from_abb(self.translation_mm, self.quaternion_wxyz)
+        return Pose.from_xyz_quat_wxyz(self.translation_mm, self.quaternion_wxyz)
 
 
 class SphereConfig(_Section):

@@ -266,7 +266,7 @@ def getp_request(seq: int) -> bytes:
 
 
 def _pose_fields(pose: Pose) -> list[str]:
-    t, q = pose.as_abb()
+    t, q = pose.as_xyz_quat_wxyz()
     return [_fmt(v, POSITION_DECIMALS, "translation_mm") for v in t] + [
         _fmt(v, QUATERNION_DECIMALS, "quaternion_wxyz") for v in q
     ]
@@ -278,7 +278,7 @@ def _parse_pose(args: Sequence[str], what: str) -> Pose:
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > 1e-4:
         raise ProtocolError(f"{what}: quaternion (q1..q4 = w, x, y, z) {q.tolist()} has norm {norm:.6f}, not 1")
-    return Pose.from_abb(xyz, q / norm)
+    return Pose.from_xyz_quat_wxyz(xyz, q / norm)
 
 
 def target_request(seq: int, base_from_flange: Pose) -> bytes:

@@ -99,7 +99,7 @@ def parse_xyz_quat(text: str, what: str = "--transform") -> Pose:
     n = math.sqrt(sum(c * c for c in values[3:]))
     if abs(n - 1.0) > 1e-3:
         raise ConfigError(f"{usage}; the quaternion {values[3:]} has norm {n:.6f}, not 1")
-    return Pose.from_abb(values[:3], values[3:])
+    return Pose.from_xyz_quat_wxyz(values[:3], values[3:])
 
 
 def _parts(text: str) -> list[str]:

@@ -171,7 +171,7 @@ class SimulatedController:
             pose = self._reported
             if s.single_precision:
                 t, q = _f32(pose.translation_mm), _f32(pose.quaternion_wxyz)
-                pose = Pose.from_abb(t, q / np.linalg.norm(q))
+                pose = Pose.from_xyz_quat_wxyz(t, q / np.linalg.norm(q))
             return P.pose_reply(msg.seq, pose)
         if msg.kind == "TGT":
             target = P.parse_target_request(msg)

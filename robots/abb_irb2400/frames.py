@@ -171,7 +171,7 @@ def _pose(value, field: str) -> Pose:
     if abs(norm - 1.0) > 1e-3:
         raise InputError(f"{field}.rot: the quaternion {_show(value[1])} has norm {norm:.6f}; a RAPID orient "
                          "[q1, q2, q3, q4] (w first) must be a unit quaternion")
-    return Pose.from_abb(xyz, q)
+    return Pose.from_xyz_quat_wxyz(xyz, q)
 
 
 def _tooldata(items: list, name: str | None) -> ControllerFrame:

@@ -91,7 +91,7 @@ def test_the_robot_refuses_a_move_from_outside_its_box_at_move_time_too():
                            workspace={"min_mm": [-1600, -1600, 0], "max_mm": [1600, 1600, 1300]})
     robot = plugin.create_robot(cfg, DeviceContext(cell=cell, log=lambda m: None))
     with robot:
-        target = Pose.from_abb(FIRST_TARGET_MM, (0.0, 0.0, 1.0, 0.0))
+        target = Pose.from_xyz_quat_wxyz(FIRST_TARGET_MM, (0.0, 0.0, 1.0, 0.0))
         robot.check_target(target, 100.0)  # the target alone is fine
         for action in (robot.check_move, robot.move_linear):
             with pytest.raises(InputError, match=r"start flange position \[855\.0, 0\.0, 1370\.0\] mm is outside"):

@@ -210,7 +210,7 @@ def test_a_full_disk_names_the_journal_and_says_resume(tmp_path, monkeypatch):
 
     monkeypatch.setattr(w._file, "write", full)
     obs = Observation(index=0, station="S1", timestamp="2024-01-01T00:00:00+00:00",
-                      base_from_flange=Pose.from_abb((1, 2, 3), (1, 0, 0, 0)),
+                      base_from_flange=Pose.from_xyz_quat_wxyz((1, 2, 3), (1, 0, 0, 0)),
                       profile=Profile(y_mm=np.zeros(3), z_mm=np.zeros(3)))
     with pytest.raises(FileWriteError, match="journal.jsonl: cannot write .No space left on device") as exc:
         w.append(obs)

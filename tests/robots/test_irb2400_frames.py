@@ -8,7 +8,7 @@ from spherecal.core.models import Pose
 from spherecal.robots.abb_irb2400.frames import read_frame
 from reference_sensor import reference_fov
 
-X = Pose.from_abb((44.5123, -19.8, 166.25), (0.02714, -0.96565, 0.25663, 0.03026))
+X = Pose.from_xyz_quat_wxyz((44.5123, -19.8, 166.25), (0.02714, -0.96565, 0.25663, 0.03026))
 
 
 def test_a_tooldata_value_is_the_tool_frame_w_first():
@@ -30,8 +30,8 @@ def test_a_declaration_with_comments_and_without_the_load():
 
 
 def test_a_fixed_work_object_is_base_from_sensor_uframe_then_oframe():
-    u = Pose.from_abb((1250.0, -200.0, 900.0), (0.0, 0.70710678, 0.70710678, 0.0))
-    o = Pose.from_abb((1.0, 2.0, 3.0), (0.9659258, 0.0, 0.0, 0.2588190))
+    u = Pose.from_xyz_quat_wxyz((1250.0, -200.0, 900.0), (0.0, 0.70710678, 0.70710678, 0.0))
+    o = Pose.from_xyz_quat_wxyz((1.0, 2.0, 3.0), (0.9659258, 0.0, 0.0, 0.2588190))
     frame = read_frame('PERS wobjdata wobjSensor := [FALSE, TRUE, "", [[1250, -200, 900], [0, 0.70710678, '
                        '0.70710678, 0]], [[1, 2, 3], [0.9659258, 0, 0, 0.2588190]]];')
     assert frame.transform_name == "base_from_sensor" and frame.kind == "wobjdata"

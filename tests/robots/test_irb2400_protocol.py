@@ -37,7 +37,7 @@ def test_session_tokens_are_fresh_hex():
 
 
 def test_target_and_move_requests_round_trip():
-    pose = Pose.from_abb([1234.5678, -12.0, 0.25], [0.5, -0.5, 0.5, -0.5])
+    pose = Pose.from_xyz_quat_wxyz([1234.5678, -12.0, 0.25], [0.5, -0.5, 0.5, -0.5])
     msg = P.decode_request(P.target_request(999, pose))
     back = P.parse_target_request(msg)
     np.testing.assert_allclose(back.translation_mm, [1234.568, -12.0, 0.25], atol=1e-9)
@@ -54,7 +54,7 @@ def test_replies_round_trip_with_the_stated_precision():
     for _ in range(50):
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
-        pose = Pose.from_abb(rng.uniform(-1800, 1800, 3), q)
+        pose = Pose.from_xyz_quat_wxyz(rng.uniform(-1800, 1800, 3), q)
         line = P.pose_reply(17, pose)
         assert len(line) - 1 <= P.MAX_LINE_CHARS
         back = P.parse_pose_reply(P.decode_reply(line))
@@ -71,7 +71,7 @@ def _rotvec(R):
 
 
 def test_the_longest_pose_fits_one_rapid_string():
-    pose = Pose.from_abb([-1999.999, -1999.999, -1999.999], [0.000001, -0.577350, -0.577350, -0.577351])
+    pose = Pose.from_xyz_quat_wxyz([-1999.999, -1999.999, -1999.999], [0.000001, -0.577350, -0.577350, -0.577351])
     for line in (P.pose_reply(999, pose), P.target_request(999, pose)):
         assert len(line.rstrip(b"\n")) <= 80
 
