@@ -259,9 +259,9 @@ def test_an_exact_arm_gets_the_efficient_fit(kin, mounting):
     cell = standard_cell(mounting, seed=1, noise=NOISE, arm=kin, fov=reference_fov())
     ds = simulate_dataset(cell)
     sol = solve(ds, OPTIONS, kinematics=kin)
-    re = sol.result.robot_error
-    assert re.model == "none" and re.kinematic_parameters is None
-    assert re.model_choice.startswith("auto: the data show no geometric error of the arm")
+    robot_error = sol.result.robot_error
+    assert robot_error.model == "none" and robot_error.kinematic_parameters is None
+    assert robot_error.model_choice.startswith("auto: the data show no geometric error of the arm")
     assert sol.refined.diagnostics["kinematic_evidence"]["likelihood_ratio"] < 5.41
     X = cell.true_transform
     e = np.concatenate([geo.rotvec_from_matrix(sol.refined.R @ X.rotation_matrix.T), sol.refined.t - X.translation])

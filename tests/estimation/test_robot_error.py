@@ -165,17 +165,18 @@ def test_verdict_tells_a_clean_cell_from_one_whose_robot_error_dominates(kin):
         assert not robot_error_dominates(clean.result)
         assert robot_error_dominates(dirty.result)
         assert "Robot error dominates" in v_dirty.headline and v_dirty.level == "amber"
-        re = dirty.result.robot_error
-        assert re.dominant == "robot_station_to_station_mm"
-        assert clean.result.robot_error.point_error_k2_mm < re.point_error_k2_mm
+        robot_error = dirty.result.robot_error
+        assert robot_error.dominant == "robot_station_to_station_mm"
+        assert clean.result.robot_error.point_error_k2_mm < robot_error.point_error_k2_mm
 
 
 def test_given_station_error_is_used_not_estimated(kin):
     opt = OPTIONS.model_copy(update={"station_translation_error_mm": 0.2, "station_rotation_error_deg": 0.01})
     _, sol = _solve("eye_in_hand", 0, kin, options=opt)
-    re = sol.result.robot_error
-    assert re.station_translation_mm == pytest.approx(0.2) and re.station_rotation_deg == pytest.approx(0.01)
-    assert re.estimated is False
+    robot_error = sol.result.robot_error
+    assert robot_error.station_translation_mm == pytest.approx(0.2)
+    assert robot_error.station_rotation_deg == pytest.approx(0.01)
+    assert robot_error.estimated is False
 
 
 @pytest.mark.slow
