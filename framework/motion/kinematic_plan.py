@@ -146,7 +146,7 @@ class _Context:
     @classmethod
     def of(cls, acq: AcquisitionConfig, calibration: CalibrationOptions, mounting: MountingMode,
            nominal: TransformConfig, sphere: SphereConfig, arm) -> "_Context":
-        sweep = with_standoff(acq.sweep, None)  # as runner.for_sensor fitted it to the sensor (else: which setting)
+        sweep = with_standoff(acq.sweep, None)  # as app.cell.for_sensor fitted it to the sensor (else: which setting)
         return cls(mounting, nominal.pose(), np.asarray(acq.sphere_centre_mm, float),
                    sphere.radius_mm, sweep, geo.matrix_from_quat_wxyz(acq.reference_flange_quaternion_wxyz),
                    acq.workspace, arm, kinematic_effects(calibration, arm.chain).prior_sd,

@@ -142,10 +142,10 @@ class ValidationOutcome:
     centre_spread_passed: bool | None
     centres_mm: dict[str, list[float]]
     mpe_centre_spread_mm: float | None = None
-    #: the verdict with this validation (``report.assess.with_validation``), set by the runner
+    #: the verdict with this validation (``report.assess.with_validation``), set by ``app.validate``
     verdict: object | None = None
     #: the transform validated (``transform_name``, e.g. flange_from_sensor) and where it came from (a
-    #: result.json, --transform, --controller-frame), set by the runner
+    #: result.json, --transform, --controller-frame), set by ``app.validate``
     transform: Pose | None = None
     transform_name: str | None = None
     transform_source: str | None = None

@@ -527,7 +527,7 @@ def json_text(result: CalibrationResult) -> str:
 
 
 def read_json(text: str) -> CalibrationResult:
-    """Parse :func:`json_text` (or a file written by ``dataio.write_result``)."""
+    """Parse :func:`json_text` (or a file written by ``io.result.write_result``)."""
     return CalibrationResult.model_validate_json(text)
 
 

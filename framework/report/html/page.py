@@ -38,7 +38,7 @@ def write_report(
     it as ``<stem>_<figure>.png`` (:data:`FIGURE_NAMES`). ``validation`` is an optional
     mapping ``{figure name: value or {column: value}}`` shown as a table (a row whose
     ``passed`` is False is marked). ``verdict_override``: the verdict to show (e.g. with
-    the likely cause the runner found, or with the validation: ``assess.with_validation``),
+    the likely cause ``app.solving`` found, or with the validation: ``assess.with_validation``),
     else the result's own. ``notes``: what the run's exporters say about using the result
     on the controller (:class:`ExportNote`, from ``ExportPlan.notes(result)``; the robot's
     own exporter first), shown under the transform. ``validation_positions``: the
