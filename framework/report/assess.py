@@ -434,10 +434,22 @@ def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
         )]
     if is_absurd(result, th) or not robot_error_dominates(result, th):
         return []
-    todo = ("calibrate the robot's kinematics (or use its absolute-accuracy option), keep the stations' orientations "
-            "close to those the cell will work in, and give the robot's known accuracy (calibration.robot_accuracy_mm "
-            f"/ robot_accuracy_deg) if it is better than the assumed {err.common_translation_mm:g} mm / "
-            f"{err.common_rotation_deg:g} deg")
+    params = err.kinematic_parameters or []
+    if any(p.identified for p in params):
+        todo = ("measure through the calibrated model (robot_calibrated.urdf) and add stations spread over the "
+                "joints the cell works in (more of the arm's parameters identified)")
+    elif params:  # the arm's error modelled from its joints, not identified: spherecal can calibrate it
+        seen = sum(p.identifiable for p in params)
+        todo = ("calibrate the arm's geometry with spherecal and measure through the calibrated model ([calibration] "
+                "identify_kinematics = true: the planner chooses stations spread over the arm's joints and checks "
+                f"that they identify it; these data see {seen} of its {len(params)} geometric parameters)")
+    else:
+        todo = "calibrate the robot's kinematics (or use its absolute-accuracy option)"
+    todo += "; keep the stations' orientations close to those the cell will work in"
+    if err.model == "station" and (err.common_translation_mm > 0 or err.common_rotation_deg > 0):
+        todo += (". Give the robot's known accuracy (calibration.robot_accuracy_mm / robot_accuracy_deg) if it is "
+                 f"better than the assumed {err.common_translation_mm:g} mm / {err.common_rotation_deg:g} deg: it "
+                 "sets the uncertainty against the true frames")
     return [Advice(
         "robot_error_dominates", "amber", "The robot's own geometric error limits this calibration",
         f"The stations disagree by about {station_disagreement_text(err)}, more than the noise explains: the "

@@ -228,3 +228,28 @@ def test_kinematic_calibration_is_never_advised_for_an_implausible_disagreement(
         assert "0.000 mm and at least 5 deg per axis" in data[0].text, data[0].text
     else:
         assert f"{err.station_translation_mm:.3f} mm and" in data[0].text
+
+
+@pytest.mark.slow
+def test_the_robot_error_advice_asks_for_what_the_model_uses(kin):
+    """Robot error dominates; what the advice asks for depends on the model. The arm's
+    geometry modelled from its joints (no common error assumed): calibrate that geometry
+    with spherecal, and no 'robot accuracy better than the assumed 0 mm / 0 deg'. The
+    station model with the robot's accuracy given as exact: nothing to better either.
+    With the default accuracy assumed, it may be given."""
+    cell = standard_cell("eye_in_hand", seed=0, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                         fov=reference_fov(n_columns=160))
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    options = CalibrationOptions(pose_translation_noise_mm=0.02)
+    exact = options.model_copy(update={"robot_accuracy_mm": 0.0, "robot_accuracy_deg": 0.0})
+    texts = {}
+    for name, opt, k in [("kinematic", options, kin), ("station exact", exact, None), ("station", options, None)]:
+        result = solve(ds, opt, kinematics=k).result
+        assert robot_error_dominates(result), name
+        texts[name] = [a.text for a in advice(result) if a.key == "robot_error_dominates"][0]
+    assert "assumed 0 mm" not in texts["kinematic"] and "robot_accuracy" not in texts["kinematic"]
+    assert "calibrate the arm's geometry with spherecal" in texts["kinematic"]
+    assert "identify_kinematics = true" in texts["kinematic"]
+    assert "robot_accuracy" not in texts["station exact"] and "assumed 0 mm" not in texts["station exact"]
+    assert "calibrate the robot's kinematics" in texts["station exact"]
+    assert "if it is better than the assumed 0.75 mm / 0.06 deg" in texts["station"]
