@@ -228,6 +228,22 @@ def test_quaternions_written_scalar_last_in_a_centre_table_are_named_before_the_
 
 
 @pytest.mark.slow
+def test_a_diameter_given_as_the_radius_is_named_and_the_robot_not_blamed(tmp_path, clean, capsys):
+    """The sphere's diameter (38.2 mm) given as its radius: the per-station effects take in
+    the misfit (the stations then 'disagree' by tens of mm), and a fit with the radius
+    free breaks down from so far. The diameter is named (the data fit with half of it),
+    and no advice sends the user to the robot's geometry."""
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, clean.model_copy(update={"sphere_radius_mm": 38.2}))
+    assert main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"]) == EXIT_RED
+    out = capsys.readouterr().out
+    assert "Likely cause: the sphere's diameter is probably given as its radius." in out, out
+    assert "with 19.1 mm the same data fit with residual RMS 0.0" in out, out
+    assert "robot's own geometric error limits" not in out and "calibrate the robot" not in out, out
+    assert "a data error" in out and "the radius and not the diameter" in out
+
+
+@pytest.mark.slow
 def test_eye_to_hand_data_labelled_eye_in_hand_is_named(tmp_path, capsys):
     """The reverse of the wrong-mounting case above: there the fit made no sense, here it
     can break down altogether; either way the mounting is named."""
