@@ -19,7 +19,10 @@ from spherecal.estimation import diagnose
 from spherecal.io import files as safeio
 from spherecal.io.exporters import ExportPlan, red_warning, write_exports
 from spherecal.io.runlog import progress_log
-from spherecal.report.assess import Thresholds, Verdict, absurd_ratio, expected_rms_mm, is_absurd, verdict
+from spherecal.report.assess import (
+    Thresholds, Verdict, absurd_ratio, expected_rms_mm, implausible_disagreement, is_absurd, station_disagreement_text,
+    verdict,
+)
 
 if TYPE_CHECKING:
     from spherecal.config import ReportConfig, RunConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
@@ -146,29 +149,42 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     one, the likely cause named where the data can tell it
     (:mod:`spherecal.estimation.diagnose`):
 
-    - an absurd solution (residuals many times the noise) solved again with the other
-      mounting: when that fits, the dataset's mounting label is wrong;
-    - residuals above the expected with the certified radius: solved again with the
-      radius fitted; when the data prefer another radius, it is named.
+    - an absurd solution (residuals many times the noise), or one whose stations disagree
+      by more than any arm's geometry makes (the per-station effects took in a data
+      error, :func:`~spherecal.report.assess.implausible_disagreement`), solved again
+      with the quaternions read (x, y, z, w), with the other mounting, with one station's
+      quaternions read the other way: when one fits, it is named;
+    - residuals above the expected with the certified radius, or such a disagreement:
+      solved again with the radius fitted; when the data prefer another radius, it is named;
+    - stations that disagree by more than 0.1 mm: each left out in turn.
 
-    Each check costs one more solve, and only for a RED result. ``kinematics`` (the arm's,
+    Each check costs one more solve, and only for a RED result or such a disagreement (a
+    cause named makes the verdict RED). ``kinematics`` (the arm's,
     as given to :func:`solve`) is passed to every such solve: without it a solve that
     identifies the arm's geometry or uses the kinematic error model refuses to run, and
     the check would say nothing."""
     th = Thresholds()
-    v = verdict(solution.result, th)
-    if v.level != "red":
-        return v
     result = solution.result
+    v = verdict(result, th)
+    absurd = is_absurd(result, th)
+    implausible = not absurd and implausible_disagreement(result)
+    if v.level != "red" and not implausible:
+        return v
     ratio = result.residuals.rms_mm / expected_rms_mm(result, th)
     causes: list[str] = []
-    absurd = is_absurd(result, th)
     if absurd:
         cause = _breakdown_cause(dataset, options, fk, log, kinematics,
                                  f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected)")
         if cause is not None:
             causes.append(cause)
-    if not causes and not result.radius_fitted and ratio > th.residual_ratio_amber:
+    elif implausible:  # a reading of the data that fits must also make the stations agree as an arm's can
+        cause = diagnose.breakdown_cause(
+            dataset, options, fk, log, kinematics,
+            f"the stations disagree by {station_disagreement_text(result.robot_error)}, more than any arm",
+            fits=lambda res: not is_absurd(res, th) and not implausible_disagreement(res), ratio=absurd_ratio)
+        if cause is not None:
+            causes.append(cause)
+    if not causes and not result.radius_fitted and (ratio > th.residual_ratio_amber or implausible):
         cause = diagnose.radius_cause(result, dataset, options, fk, log, kinematics)
         if cause is not None:
             causes.append(cause)
@@ -176,7 +192,7 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     if not causes and robot_error is not None and len(dataset.observations) and robot_error.station_translation_mm > 0.1:
         cause = diagnose.odd_station(solution, dataset, options, fk, log, kinematics,
                                      level=lambda alt: verdict(alt, th).level)
-        if cause is None and not absurd:  # (an absurd result has had its stations read the other way already)
+        if cause is None and not absurd and not implausible:  # (those have had their stations read the other way)
             spread = robot_error.station_translation_mm
             cause = diagnose.station_quaternions_xyzw(
                 dataset, options, fk, log, kinematics, f"the stations disagree by {spread:.3f} mm",
@@ -184,7 +200,9 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
                 and alt.robot_error.station_translation_mm < spread / 3)
         if cause is not None:
             causes.append(cause)
-    if causes:
+    if causes:  # a data error named: whatever the grade of the result as it was read, it is wrong
+        if v.level != "red":
+            v.level, v.headline = "red", "Do not use yet: see the checks and the advice below."
         v.reasons.extend(("red", "likely cause: " + c) for c in causes)
         v.headline = f"{v.headline} Likely cause: {causes[0].split(':')[0]}."
     return v

@@ -90,19 +90,35 @@ def radius_cause(result: CalibrationResult, dataset: Dataset, options: Calibrati
                  log: Callable[[str], None], kinematics) -> str | None:
     """For residuals above the expected with the certified radius: the dataset solved
     again with the radius fitted (one solve); the sentence naming the radius the data
-    prefer when it differs clearly from the given one and fits clearly better, else None."""
+    prefer when it differs clearly from the given one and fits clearly better. When that
+    names none (a fit started from a diameter often breaks down), the dataset solved with
+    half the radius given (one more solve, profiles only): the sentence naming the
+    diameter given as the radius when that fits far better. Else None."""
     log("residuals above the expected: checking which sphere radius the data prefer")
+    given = result.sphere_radius_mm
     try:
         alt = solve(dataset, options.model_copy(update={"fit_radius": True}), fk, kinematics=kinematics).result
     except SpherecalError:
+        alt = None
+    if alt is not None and alt.std_sphere_radius_mm is not None:
+        fitted = alt.sphere_radius_mm
+        if (abs(fitted - given) > max(5 * alt.std_sphere_radius_mm, 0.01)
+                and alt.residuals.rms_mm < 0.7 * result.residuals.rms_mm):
+            return (f"the sphere radius is probably wrong: the data prefer {fitted:.3f} mm (1-sigma "
+                    f"{alt.std_sphere_radius_mm:.3f} mm; residual RMS then {alt.residuals.rms_mm:.4f} mm) but "
+                    f"{given:g} mm was given. Check the certificate (radius in mm, not the diameter)")
+    if not result.residuals.n_profiles_used:  # sphere centres do not depend on the radius
         return None
-    if alt.std_sphere_radius_mm is None:
+    log(f"checking whether {given:g} mm is the sphere's diameter")
+    try:
+        half = solve(dataset.model_copy(update={"sphere_radius_mm": given / 2}), options, fk,
+                     kinematics=kinematics).result
+    except SpherecalError:
         return None
-    given, fitted = result.sphere_radius_mm, alt.sphere_radius_mm
-    if abs(fitted - given) > max(5 * alt.std_sphere_radius_mm, 0.01) and alt.residuals.rms_mm < 0.7 * result.residuals.rms_mm:
-        return (f"the sphere radius is probably wrong: the data prefer {fitted:.3f} mm (1-sigma "
-                f"{alt.std_sphere_radius_mm:.3f} mm; residual RMS then {alt.residuals.rms_mm:.4f} mm) but "
-                f"{given:g} mm was given. Check the certificate (radius in mm, not the diameter)")
+    if half.residuals.rms_mm < 0.2 * result.residuals.rms_mm:
+        return (f"the sphere's diameter is probably given as its radius: with {given / 2:g} mm the same data fit "
+                f"with residual RMS {half.residuals.rms_mm:.4f} mm (with {given:g} mm, "
+                f"{result.residuals.rms_mm:.4f} mm). Give the certified radius, in mm")
     return None
 
 

@@ -21,6 +21,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from spherecal.config import POINT_DISTANCE_MM  # noqa: F401 (the report's default, imported from here)
+from spherecal.estimation.refine.reml import STATION_SCALE_CEILING_DEG, STATION_SCALE_CEILING_MM
 from spherecal.estimation.robust import median
 from spherecal.core.models import CalibrationResult
 
@@ -367,23 +368,96 @@ def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> l
     return out
 
 
+#: A station-to-station disagreement above either of these is more than any arm's geometry
+#: makes (an uncalibrated industrial arm: tenths of a millimetre to a few, hundredths of a
+#: degree to tenths): a data error, not the robot (deg, mm).
+IMPLAUSIBLE_STATION_DEG = 0.5
+IMPLAUSIBLE_STATION_MM = 5.0
+#: What makes stations disagree by more than an arm can, most common first; the radius
+#: only where profiles were fitted with it (sphere centres do not depend on it).
+_DATA_ERROR_CHECKS = (
+    "the quaternions' order (spherecal reads base_from_flange w first, as ABB writes it; SciPy and ROS write it "
+    "last)", "the mounting (eye_in_hand or eye_to_hand)", "the poses' units (mm and degrees, not metres or radians)",
+    "every pose read in one frame (tool0, wobj0)", "each observation paired with its own pose",
+)
+_RADIUS_CHECK = "the sphere radius (in mm, the radius and not the diameter)"
+
+
+def data_error_checks(result: CalibrationResult) -> str:
+    """What to check when the stations disagree by more than an arm can, as a phrase."""
+    checks = list(_DATA_ERROR_CHECKS)
+    if result.residuals.n_profiles_used:
+        checks.insert(2, _RADIUS_CHECK)
+    return ", ".join(checks[:-1]) + " and " + checks[-1]
+
+
+def _at_ceiling(value: float, ceiling: float) -> bool:
+    return value >= ceiling * (1.0 - 1e-6)
+
+
+def station_disagreement_text(err) -> str:
+    """How much the stations disagree, ``"0.048 mm and 0.0244 deg per axis"``; a scale at
+    the ceiling the fit puts on it is a bound, not a measurement: ``"at least 5 deg"``."""
+    mm, deg = err.station_translation_mm, err.station_rotation_deg
+    mm_text = f"at least {mm:g} mm" if _at_ceiling(mm, STATION_SCALE_CEILING_MM) else f"{mm:.3f} mm"
+    deg_text = f"at least {deg:g} deg" if _at_ceiling(deg, STATION_SCALE_CEILING_DEG) else f"{deg:.4f} deg"
+    return f"{mm_text} and {deg_text} per axis"
+
+
+def implausible_disagreement(result: CalibrationResult) -> bool:
+    """True when the stations disagree, as the data show it, by more than any arm's
+    geometry makes (:data:`IMPLAUSIBLE_STATION_DEG`, :data:`IMPLAUSIBLE_STATION_MM`):
+    the per-station effects took in a data error. Scales given in the options
+    (``station_*_error``, not estimated) are the user's, not evidence."""
+    err = result.robot_error
+    if err is None or (err.model == "station" and not err.estimated):
+        return False
+    return err.station_rotation_deg > IMPLAUSIBLE_STATION_DEG or err.station_translation_mm > IMPLAUSIBLE_STATION_MM
+
+
 def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
-    """The robot's own geometric error, when it limits the calibration."""
-    out: list[Advice] = []
-    if robot_error_dominates(result, th):
-        err = result.robot_error
-        out.append(Advice(
-            "robot_error_dominates", "amber", "The robot's own geometric error limits this calibration",
-            f"The stations disagree by about {err.station_translation_mm:.3f} mm and {err.station_rotation_deg:.4f} deg "
-            "per axis, more than the noise explains: the robot's flange is not where its controller says, by an "
-            "amount that changes with the joints. The result allows for it (its uncertainty includes it) and is "
-            f"as good as this robot allows; expect {err.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a "
-            "new pose like these. To do better: calibrate the robot's kinematics (or use its absolute-accuracy "
-            "option), keep the stations' orientations close to those the cell will work in, and give the robot's "
-            "known accuracy (calibration.robot_accuracy_mm / robot_accuracy_deg) if it is better than the "
-            f"assumed {err.common_translation_mm:g} mm / {err.common_rotation_deg:g} deg.",
-        ))
-    return out
+    """The robot's own geometric error, when it limits the calibration; stations that
+    disagree by more than any arm can, as the data error they are. None for an absurd
+    result without such a disagreement: its misfit is not the robot's (the residual
+    advice says what to check)."""
+    err = result.robot_error
+    if err is None:
+        return []
+    if implausible_disagreement(result):
+        return [Advice(
+            "stations_disagree_implausibly", "red",
+            "The stations disagree by more than any arm's geometry: a data error",
+            f"The stations disagree by {station_disagreement_text(err)}. An arm's geometry makes its stations "
+            "disagree by tenths of a millimetre to a few, hundredths of a degree to tenths; more than "
+            f"{IMPLAUSIBLE_STATION_MM:g} mm or {IMPLAUSIBLE_STATION_DEG:g} deg is a data error, not the robot, and "
+            f"calibrating the robot will not remove it. Check {data_error_checks(result)}.",
+        )]
+    if is_absurd(result, th) or not robot_error_dominates(result, th):
+        return []
+    params = err.kinematic_parameters or []
+    if any(p.identified for p in params):
+        todo = ("measure through the calibrated model (robot_calibrated.urdf) and add stations spread over the "
+                "joints the cell works in (more of the arm's parameters identified)")
+    elif params:  # the arm's error modelled from its joints, not identified: spherecal can calibrate it
+        seen = sum(p.identifiable for p in params)
+        todo = ("calibrate the arm's geometry with spherecal and measure through the calibrated model ([calibration] "
+                "identify_kinematics = true: the planner chooses stations spread over the arm's joints and checks "
+                f"that they identify it; these data see {seen} of its {len(params)} geometric parameters)")
+    else:
+        todo = "calibrate the robot's kinematics (or use its absolute-accuracy option)"
+    todo += "; keep the stations' orientations close to those the cell will work in"
+    if err.model == "station" and (err.common_translation_mm > 0 or err.common_rotation_deg > 0):
+        todo += (". Give the robot's known accuracy (calibration.robot_accuracy_mm / robot_accuracy_deg) if it is "
+                 f"better than the assumed {err.common_translation_mm:g} mm / {err.common_rotation_deg:g} deg: it "
+                 "sets the uncertainty against the true frames")
+    return [Advice(
+        "robot_error_dominates", "amber", "The robot's own geometric error limits this calibration",
+        f"The stations disagree by about {station_disagreement_text(err)}, more than the noise explains: the "
+        "robot's flange is not where its controller says, by an amount that changes with the joints. The result "
+        "allows for it (its uncertainty includes it) and is as good as this robot allows; expect "
+        f"{err.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a new pose like these. To do better: "
+        f"{todo}.",
+    )]
 
 
 def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: dict[str, float]) -> list[Advice]:

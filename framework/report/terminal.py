@@ -9,7 +9,7 @@ from spherecal.core.models import Dataset, Pose
 from spherecal.estimation import Solution
 from spherecal.estimation.pipeline import POINT_ERROR_PARTS
 from spherecal.io.exporters import CALIBRATED_URDF_NAME
-from spherecal.report.assess import Verdict, advice, verdict
+from spherecal.report.assess import Verdict, advice, station_disagreement_text, verdict
 
 
 def summary(solution: Solution, graded: Verdict | None = None) -> str:
@@ -92,8 +92,7 @@ def _robot_error_lines(robot_error) -> list[str]:
     else:
         lines.append(
             f"a point measured at a new pose: expected error {robot_error.point_error_k2_mm:.3f} mm (k = 2), mostly "
-            f"from {dominant}; the robot's error differs between stations by "
-            f"{robot_error.station_translation_mm:.3f} mm and {robot_error.station_rotation_deg:.4f} deg per axis"
+            f"from {dominant}; the robot's error differs between stations by {station_disagreement_text(robot_error)}"
         )
     return lines
 

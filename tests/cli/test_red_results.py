@@ -201,6 +201,49 @@ def test_quaternions_written_scalar_last_are_named(tmp_path, capsys, mounting):
 
 
 @pytest.mark.slow
+def test_quaternions_written_scalar_last_in_a_centre_table_are_named_before_the_robot_is_blamed(tmp_path, capsys):
+    """A sphere-centre table (no joints) whose quaternions are written (x, y, z, w). The
+    default robot error model takes the misfit into per-station effects, so the result is
+    not absurd; the stations disagree by degrees (the station rotation scale at the 5 deg
+    bound the fit puts on it, not a measurement). Such a disagreement is a data error: the
+    quaternion order is checked before the robot is blamed and named, kinematic
+    calibration is not advised, and the bound is printed as the bound it is."""
+    from spherecal.sim import NoiseModel, simulate_centre_dataset
+
+    noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+    cell = standard_cell("eye_in_hand", seed=1, noise=noise, fov=reference_fov())
+    plan = SweepPlan(profiles_per_station=4, tilts_deg=[(0, 0, 0), (20, 0, 0), (0, 20, 0), (0, 0, 20)])
+    ds = _quaternions_xyzw(simulate_centre_dataset(cell, plan, kind="sphere_centre", centre_noise_mm=0.02))
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, ds)
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    cap = capsys.readouterr()
+    text = cap.out + cap.err
+    assert code == EXIT_RED, (code, text)
+    assert "Likely cause: the poses' quaternions are probably written (x, y, z, w)" in text, text
+    assert "read that way the same data fit" in text
+    assert "calibrate the robot's kinematics" not in text and "robot's own geometric error limits" not in text, text
+    assert "advice: The stations disagree by more than any arm's geometry: a data error" in text
+    assert "the robot's error differs between stations by 0.000 mm and at least 5 deg per axis" in text, text
+
+
+@pytest.mark.slow
+def test_a_diameter_given_as_the_radius_is_named_and_the_robot_not_blamed(tmp_path, clean, capsys):
+    """The sphere's diameter (38.2 mm) given as its radius: the per-station effects take in
+    the misfit (the stations then 'disagree' by tens of mm), and a fit with the radius
+    free breaks down from so far. The diameter is named (the data fit with half of it),
+    and no advice sends the user to the robot's geometry."""
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, clean.model_copy(update={"sphere_radius_mm": 38.2}))
+    assert main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"]) == EXIT_RED
+    out = capsys.readouterr().out
+    assert "Likely cause: the sphere's diameter is probably given as its radius." in out, out
+    assert "with 19.1 mm the same data fit with residual RMS 0.0" in out, out
+    assert "robot's own geometric error limits" not in out and "calibrate the robot" not in out, out
+    assert "a data error" in out and "the radius and not the diameter" in out
+
+
+@pytest.mark.slow
 def test_eye_to_hand_data_labelled_eye_in_hand_is_named(tmp_path, capsys):
     """The reverse of the wrong-mounting case above: there the fit made no sense, here it
     can break down altogether; either way the mounting is named."""

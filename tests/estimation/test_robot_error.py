@@ -15,8 +15,10 @@ from spherecal.estimation.twostep import fit_sphere_fixed_radius
 from spherecal.core.kinematics import SerialChain
 from spherecal.core.models import Pose
 from spherecal.plugins.host import PluginHost
-from spherecal.report.assess import robot_error_dominates, verdict
-from spherecal.sim import NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_dataset, standard_cell
+from spherecal.report.assess import advice, robot_error_dominates, verdict
+from spherecal.sim import (
+    NoiseModel, RobotErrorModel, SimulatedArm, SweepPlan, simulate_centre_dataset, simulate_dataset, standard_cell,
+)
 from spherecal.motion.validation import points_in_object_frame
 from reference_sensor import reference_fov
 
@@ -189,3 +191,66 @@ def test_the_common_robot_error_only_widens_the_uncertainty(kin):
     assert np.allclose(a.refined.R, b.refined.R, atol=1e-12) and np.allclose(a.refined.t, b.refined.t, atol=1e-9)
     assert min(a.result.std_translation_mm) > 0.7  # the assumed 0.75 mm per axis moves base_from_sensor whole
     assert max(b.result.std_translation_mm) < 0.3
+
+
+# --- the advice ---------------------------------------------------------------------------------
+def _xyzw_centre_table(mounting: str):
+    """A sphere-centre table (no joints) of stations tilted 20 deg apart whose quaternions
+    are written (x, y, z, w) and read w first."""
+    noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+    cell = standard_cell(mounting, seed=1, noise=noise, fov=reference_fov())
+    plan = SweepPlan(profiles_per_station=4, tilts_deg=[(0, 0, 0), (20, 0, 0), (0, 20, 0), (0, 0, 20)])
+    ds = simulate_centre_dataset(cell, plan, kind="sphere_centre", centre_noise_mm=0.02)
+    return ds.model_copy(update={"observations": [
+        o.model_copy(update={"base_from_flange": o.base_from_flange.model_copy(update={
+            "quaternion_wxyz": np.roll(np.asarray(o.base_from_flange.quaternion_wxyz), -1)})})
+        for o in ds.observations]})
+
+
+@pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
+def test_kinematic_calibration_is_never_advised_for_an_implausible_disagreement(mounting):
+    """The advice to calibrate the robot's kinematics fits an arm whose stations disagree
+    by what an arm's geometry can do (tenths of a millimetre to a few, hundredths of a
+    degree to tenths). Stations of one table disagreeing by degrees (eye-in-hand: the
+    5 deg bound of the fit) or by tens of millimetres (eye-to-hand: 19 mm) point at the
+    data: the advice says so and what to check, never the robot's calibration, and a
+    scale at its bound is given as the bound."""
+    result = solve(_xyzw_centre_table(mounting), CalibrationOptions()).result
+    err = result.robot_error
+    assert err is not None and (err.station_rotation_deg > 1.0 or err.station_translation_mm > 10.0), err
+    said = advice(result)
+    text = " ".join(a.text for a in said)
+    assert "calibrate the robot's kinematics" not in text and "robot_error_dominates" not in [a.key for a in said]
+    data = [a for a in said if a.key == "stations_disagree_implausibly"]
+    assert len(data) == 1 and data[0].level == "red" and "a data error" in data[0].title, said
+    assert "the quaternions' order" in data[0].text and "the mounting" in data[0].text
+    assert "radius" not in data[0].text  # sphere centres do not depend on it
+    if mounting == "eye_in_hand":
+        assert "0.000 mm and at least 5 deg per axis" in data[0].text, data[0].text
+    else:
+        assert f"{err.station_translation_mm:.3f} mm and" in data[0].text
+
+
+@pytest.mark.slow
+def test_the_robot_error_advice_asks_for_what_the_model_uses(kin):
+    """Robot error dominates; what the advice asks for depends on the model. The arm's
+    geometry modelled from its joints (no common error assumed): calibrate that geometry
+    with spherecal, and no 'robot accuracy better than the assumed 0 mm / 0 deg'. The
+    station model with the robot's accuracy given as exact: nothing to better either.
+    With the default accuracy assumed, it may be given."""
+    cell = standard_cell("eye_in_hand", seed=0, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                         fov=reference_fov(n_columns=160))
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    options = CalibrationOptions(pose_translation_noise_mm=0.02)
+    exact = options.model_copy(update={"robot_accuracy_mm": 0.0, "robot_accuracy_deg": 0.0})
+    texts = {}
+    for name, opt, k in [("kinematic", options, kin), ("station exact", exact, None), ("station", options, None)]:
+        result = solve(ds, opt, kinematics=k).result
+        assert robot_error_dominates(result), name
+        texts[name] = [a.text for a in advice(result) if a.key == "robot_error_dominates"][0]
+    assert "assumed 0 mm" not in texts["kinematic"] and "robot_accuracy" not in texts["kinematic"]
+    assert "calibrate the arm's geometry with spherecal" in texts["kinematic"]
+    assert "identify_kinematics = true" in texts["kinematic"]
+    assert "robot_accuracy" not in texts["station exact"] and "assumed 0 mm" not in texts["station exact"]
+    assert "calibrate the robot's kinematics" in texts["station exact"]
+    assert "if it is better than the assumed 0.75 mm / 0.06 deg" in texts["station"]

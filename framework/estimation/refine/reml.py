@@ -10,8 +10,12 @@ if TYPE_CHECKING:
     from spherecal.estimation.refine.state import RefineState
 
 
+#: The largest station-to-station scales the fit estimates (deg, mm): a scale there is a
+#: bound, not a measurement (the stations disagree by at least that much).
+STATION_SCALE_CEILING_DEG = 5.0
+STATION_SCALE_CEILING_MM = 50.0
 #: Bounds of the estimated station-effect scales (rad, mm) and of the kinematic prior's factor.
-_SCALE_BOUNDS = ((1e-7, np.radians(5.0)), (1e-5, 50.0))
+_SCALE_BOUNDS = ((1e-7, np.radians(STATION_SCALE_CEILING_DEG)), (1e-5, STATION_SCALE_CEILING_MM))
 _KIN_SCALE_BOUNDS = (1.0, 30.0)  # the stated prior is a floor
 #: REML likelihood ratio (prior scale free against zero) above which the data show the
 #: arm's geometric error. Under no such error it follows a 50:50 mixture of chi^2_0 and
