@@ -48,16 +48,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-import pluggy
-
 from spherecal.core.lazy import lazy_attributes
-
-PROJECT_NAME = "spherecal"
-#: Entry-point group that built-in and third-party plugins are registered under.
-ENTRY_POINT_GROUP = "spherecal"
-
-hookspec = pluggy.HookspecMarker(PROJECT_NAME)
-hookimpl = pluggy.HookimplMarker(PROJECT_NAME)
+from spherecal.plugins.markers import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl, hookspec
 
 #: name -> the module that defines it (loaded on first use)
 _WHERE = {

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from spherecal.report.export import CORE_EXPORTERS
 
-from . import hookimpl
+from spherecal.plugins.markers import hookimpl
 
 
 @hookimpl

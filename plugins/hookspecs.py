@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from . import hookspec
+from spherecal.plugins.markers import hookspec
 
 if TYPE_CHECKING:  # pragma: no cover - imports for the annotations only
     from pathlib import Path

@@ -50,8 +50,8 @@ from spherecal.io.exporters import Exporter, ExportPlan, SelectedExporter
 
 from spherecal.config.sections import BASE_DIR_CONTEXT_KEY
 
-from . import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
-from . import hookspecs as _hookspec_module
+from spherecal.plugins import hookspecs as _hookspec_module
+from spherecal.plugins.markers import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl
 from .registry import (  # noqa: F401 - DeviceRegistry and ExporterRegistry: importable from the host too
     DISABLE_AUTOLOAD_ENV,
     EXPORT_RUN_KEY,
