@@ -1,5 +1,6 @@
 """Estimation: from (robot pose, profile) observations of a sphere to the calibrated
-transform with its uncertainty.
+transform with its uncertainty. Imports :mod:`spherecal.core`, :mod:`spherecal.io`,
+:mod:`spherecal.config` and :mod:`spherecal.devices`, nothing that moves a robot.
 
 1. :mod:`.problem`: both mounting modes as one problem, ``|A_i X p - c| = r``.
 2. :mod:`.circle`: a robust circle fit per profile.

@@ -1,4 +1,5 @@
-"""Reports and exports of calibration results.
+"""Reports and exports of calibration results. Imports the layers below it (core to sim),
+never the plugin host or the commands.
 
 - :mod:`.export`: the core's brand-free exports, the result as 4x4 matrices (both
   directions), xyz + quaternion (w, x, y, z), ROS 2 (static transform command, YAML,

@@ -1,5 +1,6 @@
 """The simulated cell: the reference for tests and benchmarks, and the world behind the
-simulated devices.
+simulated devices. Only the simulated world lives here; it imports the layers below it
+(core to motion: the simulated acquisition plans as a run does).
 
 The names below load on first use (PEP 562): a robot plugin's configuration includes
 the simulated controller's settings (:mod:`spherecal.sim.settings`), and importing them

@@ -1,4 +1,5 @@
-"""Joint refinement over every raw profile point, with its covariance.
+"""Joint refinement over every raw profile point, with its covariance. Part of
+:mod:`spherecal.estimation` (imports its layers, core to devices).
 
 Model: for profile i the sphere centre in the sensor frame is
 ``C_i = X^-1 A_i^-1 c`` (see :mod:`spherecal.estimation.problem`); the laser plane x = 0

@@ -1,4 +1,5 @@
 """A self-contained HTML report of a calibration (imports matplotlib): :func:`write_report`.
+Part of :mod:`spherecal.report`.
 
 The report is one HTML file that opens offline: the CSS is inlined and the figures (PNG,
 drawn with matplotlib's Agg renderer, no pyplot state touched) are embedded as base64
