@@ -23,6 +23,7 @@ def run(args, session: Session) -> int:
     loaded = load_config(args.config)
     out = Path(args.out) if args.out else loaded.output_dir
     session.run_folder(out)
+    session.resume_command = f"spherecal calibrate {quote(str(args.config))} --out {quote(str(out))} --resume"
     _log.debug("configuration %s", loaded.path)
     session.note_file("configuration", loaded.path, with_text=True)
     outcome = run_calibrate(
@@ -55,4 +56,5 @@ def after_failure(session: Session) -> str:
     """What to do after a calibration stopped half-way."""
     if not journal_holds_shots(session.out_dir):
         return "; no shot was taken yet: nothing to resume, run the same command again"
-    return "; what was taken is in the journal: continue with --resume"
+    return (f"; what was taken is in the journal ({session.out_dir / 'journal.jsonl'}): continue with "
+            f"{session.resume_command or '--resume'}")

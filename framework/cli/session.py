@@ -26,6 +26,8 @@ class Session:
     summary: dict = field(default_factory=dict)
     before: dict = field(default_factory=dict)
     out_existed: bool = False
+    #: The command that continues this run after an interruption (calibrate sets it).
+    resume_command: str = ""
 
     def say(self, text: str) -> None:
         """Human output: standard output (standard error with --json), and the run's record."""

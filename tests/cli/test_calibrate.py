@@ -227,7 +227,14 @@ def test_a_device_failure_advises_resume_only_when_shots_were_taken(sim_config, 
     assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_DEVICE
     err = capsys.readouterr().err
     assert "no frame within 1 s" in err
-    assert ("continue with --resume" in err) == resume_advised
+    out = cfg.parent / "out"
+    resume = f"spherecal calibrate {cfg} --out {out} --resume"
+    assert (f"continue with {resume}" in err) == resume_advised, err
     assert ("no shot was taken yet: nothing to resume, run the same command again" in err) == (not resume_advised)
     if resume_advised:
-        assert len(dataio.read_dataset(cfg.parent / "out" / "journal.jsonl").observations) == fail_at - 1
+        assert len(dataio.read_dataset(out / "journal.jsonl").observations) == fail_at - 1
+        # the command printed, run as it is, continues the same run to its end
+        monkeypatch.setattr(acq, "take_shot", real)
+        assert main([*resume.split()[1:], "--no-report"]) == EXIT_OK
+        assert (out / "result.json").exists()
+        assert len(dataio.read_dataset(out / "journal.jsonl").observations) == 40
