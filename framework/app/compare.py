@@ -45,7 +45,7 @@ def given_transform(host, *, transform: str | None, frames: list[tuple[str, str]
             raise ConfigError(f"--std-mm/--std-deg: {est.source} has its own covariance; give them only with a "
                               "transform given as numbers or a controller frame")
         est = cmp.TransformEstimate(est.pose, est.transform_name, cmp.covariance_from_std(std_mm or 0.0, std_deg or 0.0),
-                                    est.source, est.note)
+                                    est.source, est.note, est.arm_model)
     return est
 
 

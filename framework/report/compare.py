@@ -46,13 +46,17 @@ _XYZ_QUAT_USAGE = "x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)"
 class TransformEstimate:
     """A transform with its uncertainty: ``covariance`` (6 x 6) of the small rotation about
     the target frame's axes (rad) and the translation (mm); zeros when not known.
-    ``transform_name`` is None when the source does not say (numbers given by hand)."""
+    ``transform_name`` is None when the source does not say (numbers given by hand).
+    ``arm_model`` is the arm model the transform is relative to: ``"nominal"`` (the
+    controller's, as every pose it reports) or ``"calibrated"`` (the arm geometry a
+    kinematic calibration identified with it, through which its poses must be mapped)."""
 
     pose: Pose
     transform_name: str | None
     covariance: np.ndarray
     source: str
     note: str = ""
+    arm_model: str = "nominal"
 
     @classmethod
     def of_result(cls, result: CalibrationResult, source: str, uncertainty: str = "robot-frame"
@@ -67,10 +71,17 @@ class TransformEstimate:
             raise ConfigError(f"uncertainty: expected one of {', '.join(UNCERTAINTIES)}, got {uncertainty!r}")
         full = uncertainty == "full" or result.covariance_robot_frame is None
         cov = np.asarray(result.covariance if full else result.covariance_robot_frame, dtype=float)[:6, :6]
-        return cls(result.transform, result.transform_name, cov, source)
+        return cls(result.transform, result.transform_name, cov, source, arm_model=arm_model_of(result))
 
     def named(self, name: str) -> "TransformEstimate":
-        return TransformEstimate(self.pose, name, self.covariance, self.source, self.note)
+        return TransformEstimate(self.pose, name, self.covariance, self.source, self.note, self.arm_model)
+
+
+def arm_model_of(result: CalibrationResult) -> str:
+    """``"calibrated"`` when the result identified the arm's geometry (its transform holds
+    only through that calibrated model), else ``"nominal"``."""
+    params = result.robot_error.kinematic_parameters if result.robot_error is not None else None
+    return "calibrated" if params and any(p.identified for p in params) else "nominal"
 
 
 def covariance_from_std(std_mm: float = 0.0, std_deg: float = 0.0) -> np.ndarray:
@@ -216,6 +227,15 @@ def check_same_transform(a: TransformEstimate, b: TransformEstimate) -> Transfor
             f"cannot compare different transforms: {a.source} is {a.transform_name} "
             f"({mounting.get(a.transform_name, '?')}) but {b.source} is {b.transform_name} "
             f"({mounting.get(b.transform_name, '?')}); compare calibrations of the same mounting")
+    if a.arm_model != b.arm_model or a.arm_model == "calibrated":
+        def said(e: TransformEstimate) -> str:
+            return (f"{e.source} is relative to the arm geometry its own kinematic calibration identified"
+                    if e.arm_model == "calibrated" else f"{e.source} is relative to the controller's nominal arm model")
+        raise InputError(
+            f"cannot compare these transforms as they are: {said(a)}, {said(b)}; a transform holds only with the "
+            "arm model it was calibrated through, so their difference mixes the two arm models' difference with any "
+            "drift. Compare like with like: two calibrations without kinematic calibration, or validate each "
+            "through its own model (spherecal validate)")
     return b
 
 

@@ -158,3 +158,31 @@ def test_numbers_are_w_first():
     pose = parse_xyz_quat("10, 20, 30, 0.7071068, 0.7071068, 0, 0")
     np.testing.assert_allclose(pose.rotation_matrix @ [0, 1, 0], [0, 0, 1], atol=1e-6)  # 90 deg about x
     assert pose.translation_mm == (10.0, 20.0, 30.0)
+
+
+def _with_identified_arm(result):
+    """``result`` as a kinematic calibration gives it: the arm's geometry identified."""
+    from spherecal.core.models import KinematicParameter
+
+    joint = KinematicParameter(name="joint_2.zero_offset", unit="deg", value=0.03, std=0.002, identifiable=True,
+                               identified=True)
+    return result.model_copy(update={"robot_error": result.robot_error.model_copy(
+        update={"model": "kinematic", "kinematic_parameters": [joint]})})
+
+
+def test_a_kinematic_calibration_is_not_compared_with_one_on_the_nominal_arm(result):
+    """A transform found with the arm's geometry identified holds only through that
+    calibrated arm model: its difference from one on the controller's nominal model is
+    not drift, so the comparison is refused, naming which is which, rather than
+    reporting a many-sigma 'drift'."""
+    calibrated = _with_identified_arm(result)
+    a = TransformEstimate.of_result(result, "A")
+    b = TransformEstimate.of_result(calibrated, "B")
+    assert (a.arm_model, b.arm_model) == ("nominal", "calibrated")
+    with pytest.raises(InputError, match=r"B is relative to the arm geometry its own kinematic calibration identified"
+                                         r".*A is relative to the controller's nominal arm model|A is relative to the "
+                                         r"controller's nominal arm model.*B is relative"):
+        compare(a, b)
+    with pytest.raises(InputError, match="Compare like with like"):
+        compare(b, TransformEstimate.of_result(calibrated, "C"))
+    assert compare(a, TransformEstimate.of_result(result, "A again")).drift is False  # like with like still works
