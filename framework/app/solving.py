@@ -18,7 +18,7 @@ from spherecal.estimation import CalibrationOptions, Solution, solve
 from spherecal.estimation import diagnose
 from spherecal.io import files as safeio
 from spherecal.io.exporters import ExportPlan, red_warning, write_exports
-from spherecal.io.runlog import progress_log
+from spherecal.io.runlog import Notice, progress_log
 from spherecal.report.assess import (
     Thresholds, Verdict, absurd_ratio, expected_rms_mm, implausible_disagreement, is_absurd, station_disagreement_text,
     verdict,
@@ -92,6 +92,9 @@ def solve_and_write(
         "verdict": {"level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}}}))
     if written:
         write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
+        for note in exports.notes(solution.result):
+            if note.warning:
+                log(Notice(f"warning: {note.title}: {note.warning}"))
         urdf = write_calibrated_urdf(solution, kinematics, out)
         if urdf is not None:
             log(f"calibrated robot model: {urdf}")

@@ -68,11 +68,14 @@ class ExportNote:
     """What an exporter tells the reader of the report: ``text``, a short paragraph on how
     to use its files on the controller (or in the tool they are for), and ``code``, an
     optional snippet shown as preformatted text under it (a declaration to paste, a
-    command to run). Plain text; the report escapes it."""
+    command to run), and ``warning``, a line the terminal prints when the files are
+    written: what the files still lack before they can be used. Plain text; the report
+    escapes it."""
 
     title: str
     text: str
     code: str = ""
+    warning: str = ""
 
 
 #: The first comment line of every exported file of a result rated RED (written only

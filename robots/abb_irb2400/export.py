@@ -14,7 +14,7 @@ import math
 import re
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from spherecal.plugins import (
     MM_DECIMALS,
@@ -103,7 +103,7 @@ def rapid_declaration(
     result: CalibrationResult,
     name: str | None = None,
     *,
-    mass_kg: float = 1.0,
+    mass_kg: float | None = None,
     cog_mm: tuple[float, float, float] | None = None,
 ) -> str:
     """A RAPID ``PERS`` declaration with comments, every line at most
@@ -112,9 +112,11 @@ def rapid_declaration(
     Eye-in-hand: ``PERS tooldata <name> := [TRUE, [[x,y,z],[q1,q2,q3,q4]],
     [mass,[cog],[1,0,0,0],0,0,0]];`` -- the sensor frame as the tool frame (``tframe`` is
     ``flange_from_sensor``), robot-held. ``name`` defaults to ``tSensor``. The load is
-    the sensor and its bracket: ``mass_kg`` (default 1.0 kg, must be > 0) and ``cog_mm``
-    (in tool0, default half way from the flange to the sensor origin); both are rough
-    defaults to replace with the real values (LoadIdentify or the data sheet).
+    the sensor and its bracket: ``mass_kg`` (> 0) and ``cog_mm`` (in tool0), both from the
+    data sheet or LoadIdentify. spherecal does not invent them (a wrong load degrades the
+    controller's motion supervision): without them the load is written as mass 0 at the
+    flange, which the controller refuses for a robot-held tool, so the tooldata cannot be
+    used until the real values are filled in; the comment above it says so.
 
     Eye-to-hand: ``PERS wobjdata <name> := [FALSE, TRUE, "", [[x,y,z],[q1..q4]],
     [[0,0,0],[1,0,0,0]]];`` -- the sensor frame as a fixed user frame (``uframe`` is
@@ -128,16 +130,23 @@ def rapid_declaration(
     quat = "[" + ", ".join(rounded_quaternion_wxyz(result.transform)) + "]"
     if result.mounting == "eye_in_hand":
         name = check_rapid_identifier(name or "tSensor", "tooldata name")
-        if not (math.isfinite(mass_kg) and mass_kg > 0):
-            raise InputError(f"mass_kg = {mass_kg}: the tool load must have a mass > 0 kg (the controller rejects 0)")
-        cog = np.asarray(result.transform.translation_mm, dtype=float) / 2 if cog_mm is None else np.asarray(cog_mm, float)
-        if cog.shape != (3,) or not np.all(np.isfinite(cog)):
-            raise InputError(f"cog_mm must be 3 finite numbers (mm, in tool0), got {cog_mm!r}")
+        if (mass_kg is None) != (cog_mm is None):
+            raise InputError("the tool load needs both mass_kg and cog_mm (or neither, to be filled in later)")
+        if mass_kg is None:
+            mass_kg, cog = 0.0, np.zeros(3)
+            load_lines = ["! load NOT GIVEN: mass 0, which the controller refuses: fill in",
+                          "! the real mass (kg) and cog (mm, tool0) before use",
+                          "! (data sheet or LoadIdentify)"]
+        else:
+            if not (math.isfinite(mass_kg) and mass_kg > 0):
+                raise InputError(f"mass_kg = {mass_kg}: the tool load must have a mass > 0 kg (the controller "
+                                 "rejects 0)")
+            cog = np.asarray(cog_mm, float)
+            if cog.shape != (3,) or not np.all(np.isfinite(cog)):
+                raise InputError(f"cog_mm must be 3 finite numbers (mm, in tool0), got {cog_mm!r}")
+            load_lines = [f"! load: {fixed(mass_kg, 3)} kg at [{', '.join(fixed(v, 1) for v in cog)}] mm (tool0)"]
         cog_txt = "[" + ", ".join(fixed(v, 1) for v in cog) + "]"
-        comments = _rapid_comment_lines(result, [
-            f"! load: {fixed(mass_kg, 3)} kg at {cog_txt} mm (tool0): estimates, replace",
-            "! them with the real values (LoadIdentify or the data sheet)",
-        ])
+        comments = _rapid_comment_lines(result, load_lines)
         body = [
             f"PERS tooldata {name} := [TRUE,",
             f"    [{xyz},",
@@ -174,7 +183,7 @@ def rapid_module(
     name: str | None = None,
     *,
     module_name: str = "SpherecalSensor",
-    mass_kg: float = 1.0,
+    mass_kg: float | None = None,
     cog_mm: tuple[float, float, float] | None = None,
 ) -> str:
     """:func:`rapid_declaration` wrapped in ``MODULE <module_name> ... ENDMODULE``, a file
@@ -260,18 +269,26 @@ class AbbRapidExportSettings(BaseModel):
     tool_name: str = Field("tSensor", description="name of the tooldata (eye_in_hand), a RAPID identifier")
     wobj_name: str = Field("wobjSensor", description="name of the wobjdata (eye_to_hand), a RAPID identifier")
     module_name: str = Field("SpherecalSensor", description="name of the program module; the file is <module_name>.mod")
-    mass_kg: float = Field(
-        1.0, gt=0, le=MAX_TOOL_MASS_KG,
-        description="mass of the sensor and its bracket (tooldata tload.mass), kg; an estimate to replace with the "
-        "real value")
+    mass_kg: float | None = Field(
+        None, gt=0, le=MAX_TOOL_MASS_KG,
+        description="mass of the sensor and its bracket (tooldata tload.mass), kg, from the data sheet or "
+        "LoadIdentify; not given: the tooldata is written with mass 0, which the controller refuses until it is "
+        "filled in")
     cog_mm: tuple[float, float, float] | None = Field(
-        None, description="their centre of gravity in tool0 (tload.cog), mm; default half way from the flange to the "
-        "sensor origin")
+        None, description="their centre of gravity in tool0 (tload.cog), mm; given with mass_kg")
 
     @field_validator("tool_name", "wobj_name", "module_name")
     @classmethod
     def _rapid_name(cls, v, info):
         return _identifier(v, info.field_name)
+
+    @model_validator(mode="after")
+    def _load_whole(self):
+        if (self.mass_kg is None) != (self.cog_mm is None):
+            given, missing = ("mass_kg", "cog_mm") if self.cog_mm is None else ("cog_mm", "mass_kg")
+            raise ValueError(f"{given} without {missing}: the tool load needs both (the centre of gravity in tool0, mm, "
+                             "and the mass, kg), or neither")
+        return self
 
     @field_validator("cog_mm")
     @classmethod
@@ -293,16 +310,22 @@ def _write(result: CalibrationResult, s: AbbRapidExportSettings) -> dict[str, st
 
 def _note(result: CalibrationResult, s: AbbRapidExportSettings) -> ExportNote:
     name = _name(result, s)
+    warning = ""
     if result.mounting == "eye_in_hand":
         text = (f"On an ABB controller this is tooldata.tframe: load {s.module_name}.mod (FlexPendant: Program "
-                f"Editor, Modules, Load Module) and move with \\Tool:={name}. The load ({fixed(s.mass_kg, 3)} kg) is "
-                "an estimate: give the real mass and centre of gravity ([export.abb_rapid] mass_kg, cog_mm) or run "
-                "LoadIdentify.")
+                f"Editor, Modules, Load Module) and move with \\Tool:={name}.")
+        if s.mass_kg is None:
+            text += (" Its load is not given: it is written as mass 0, which the controller refuses for a robot-held "
+                     "tool; give the mass and centre of gravity ([export.abb_rapid] mass_kg, cog_mm) or run "
+                     "LoadIdentify before using it.")
+            warning = (f"{s.module_name}.mod: {name}'s load (mass, centre of gravity) is not given; the controller "
+                       "refuses the tooldata until it is filled in ([export.abb_rapid] mass_kg and cog_mm, or "
+                       "LoadIdentify); spherecal does not invent a load")
     else:
         text = (f"On an ABB controller this is wobjdata.uframe, read in world coordinates (equal to base unless "
                 f"the robot's base frame was moved): load {s.module_name}.mod and move with \\WObj:={name}.")
     return ExportNote(title="ABB controller (RAPID)", text=text,
-                      code=rapid_declaration(result, name, mass_kg=s.mass_kg, cog_mm=s.cog_mm))
+                      code=rapid_declaration(result, name, mass_kg=s.mass_kg, cog_mm=s.cog_mm), warning=warning)
 
 
 RAPID_EXPORTER = Exporter(

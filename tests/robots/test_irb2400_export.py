@@ -60,9 +60,9 @@ def test_rapid_tooldata_eye_in_hand(results):
     assert abs(np.linalg.norm(d["quaternion_wxyz"]) - 1) < 1e-7
     # the tool frame is flange_from_sensor: orient [q1..q4] is (w, x, y, z)
     np.testing.assert_allclose(_R_from_wxyz(d["quaternion_wxyz"]), r.transform.rotation_matrix, atol=1e-7)
-    # default load: 1 kg at half way from the flange to the sensor
-    assert d["mass_kg"] == 1.0
-    np.testing.assert_allclose(d["cog_mm"], np.asarray(r.transform.translation_mm) / 2, atol=0.05)
+    # no load given: none invented; mass 0 (refused by the controller) until it is filled in, and said
+    assert d["mass_kg"] == 0.0 and list(d["cog_mm"]) == [0.0, 0.0, 0.0]
+    assert "load NOT GIVEN" in text
     assert f"{r.std_rotation_deg[1]:.4f}" in text and f"{r.std_translation_mm[0]:.4f}" in text
 
 
@@ -112,9 +112,28 @@ def test_rapid_names_must_be_identifiers(results, name, message):
 
 def test_rapid_tool_load_must_have_mass(results):
     with pytest.raises(InputError, match="mass > 0"):
-        rapid.rapid_declaration(results["eye_in_hand"], mass_kg=0.0)
+        rapid.rapid_declaration(results["eye_in_hand"], mass_kg=0.0, cog_mm=(0.0, 0.0, 50.0))
     with pytest.raises(InputError, match="cog_mm must be 3 finite numbers"):
-        rapid.rapid_declaration(results["eye_in_hand"], cog_mm=(1.0, 2.0))
+        rapid.rapid_declaration(results["eye_in_hand"], mass_kg=1.2, cog_mm=(1.0, 2.0))
+    with pytest.raises(InputError, match="needs both mass_kg and cog_mm"):
+        rapid.rapid_declaration(results["eye_in_hand"], mass_kg=1.2)
+
+
+def test_a_tooldata_without_its_load_is_said_in_the_terminal(results):
+    """The export does not invent a load: the note the run prints when it writes the files
+    says the tooldata is unusable until the mass and centre of gravity are given, and a
+    load given whole is written as given, with no warning."""
+    from spherecal.robots.abb_irb2400.export import AbbRapidExportSettings, _note
+
+    r = results["eye_in_hand"]
+    note = _note(r, AbbRapidExportSettings())
+    assert "load (mass, centre of gravity) is not given" in note.warning and "does not invent" in note.warning
+    given = AbbRapidExportSettings(mass_kg=1.85, cog_mm=(0.0, 5.0, 60.0))
+    assert _note(r, given).warning == ""
+    d = rapid.read_rapid(_note(r, given).code)
+    assert d["mass_kg"] == 1.85 and list(d["cog_mm"]) == [0.0, 5.0, 60.0]
+    with pytest.raises(ValueError, match="mass_kg without cog_mm"):
+        AbbRapidExportSettings(mass_kg=1.85)
 
 
 def test_rapid_reader_ignores_comments_and_finds_nothing_else():
