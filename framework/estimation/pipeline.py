@@ -18,7 +18,7 @@ from spherecal.core.models import (
     RobotErrorSummary,
 )
 from spherecal.estimation.circle import CircleFit, fit_circles
-from spherecal.estimation.prediction import point_error_budget
+from spherecal.estimation.prediction import point_error_budget, station_prediction_summary
 from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
     derived_station_rotation_tolerance_deg, fill_unknown, screen_station_orientations,
@@ -539,6 +539,7 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
         point_error_k2_mm=budget["k2_mm"],
         point_error_parts_rms_mm=parts,
         dominant=max(parts, key=parts.get),
+        station_prediction=station_prediction_summary(clean, ref),
     )
 
 

@@ -10,6 +10,7 @@ from spherecal.core import geometry as geo
 from spherecal.core.kinematics import error_parameter_names, flange_error_jacobian
 from spherecal.estimation.problem import Problem
 from spherecal.estimation.refine.covariance import covariances_at_solution
+from spherecal.estimation.refine.crossval import station_cross_validation
 from spherecal.estimation.refine.effects import KinematicEffects, StationEffects, _effect_blocks
 from spherecal.estimation.refine.linearisation import NoiseAssumptions, _centre_variance
 from spherecal.estimation.refine.reml import KINEMATIC_EVIDENCE_LR, search_scales
@@ -51,6 +52,9 @@ class RefineResult:
     # per-axis standard deviation estimated for those given without a covariance (mm)
     centre_residuals: np.ndarray | None = None
     centre_noise_mm: float | None = None
+    # a kinematic calibration: each station predicted by the fit of the others
+    # (:func:`.crossval.station_cross_validation`), else None
+    station_prediction: dict | None = None
 
 
 #: A Gauss-Newton step the line search had to cut ends the iterations when the whole step
@@ -289,6 +293,7 @@ def _result(fit: RefineState) -> RefineResult:
         kinematic_errors=fit.kappa if ke is not None else None,
         kinematic_sd=covs.kinematic_sd if ke is not None else None, kinematic_terms=covs.kinematic_terms,
         centre_residuals=centre_res, centre_noise_mm=centre_noise,
+        station_prediction=station_cross_validation(fit, lin),
     )
 
 
