@@ -297,6 +297,27 @@ def _result(fit: RefineState) -> RefineResult:
     )
 
 
+def cost_at(problem: Problem, ref: RefineResult, noise: NoiseAssumptions, fit_radius: bool, scale: float,
+            station_effects: StationEffects | None = None, kinematic_effects: KinematicEffects | None = None) -> float:
+    """-2 log-likelihood (up to a constant) of ``ref``'s solution at the pose-noise scale
+    ``scale``: the whitened residuals plus the random effects against their prior (the
+    MAP objective :meth:`.RefineState.penalised_cost`), so that two solutions of one
+    problem are compared at one noise model."""
+    fit = RefineState(problem, ref.R, ref.t, ref.centre, noise, fit_radius, station_effects, kinematic_effects)
+    fit.r = float(ref.radius)
+    if fit.se is not None and ref.station_offsets is not None:
+        fit.delta = np.array(ref.station_offsets, dtype=float)
+        se = ref.diagnostics.get("station_effects") or {}
+        fit.s_hat = np.array([np.radians(se.get("rotation_deg", 0.01)), se.get("translation_mm", 0.1)])
+    if fit.ke is not None and ref.kinematic_errors is not None:
+        fit.kappa = np.array(ref.kinematic_errors, dtype=float)
+        fit.lam = float((ref.diagnostics.get("kinematic_effects") or {}).get("prior_scale", 1.0))
+    if fit.m_centres and ref.centre_noise_mm is not None:
+        fit.s2_centre = ref.centre_noise_mm**2
+    fit.scale = scale
+    return fit.penalised_cost(fit.linearise(scale), fit.s_hat, fit.lam)
+
+
 def _station_diagnostics(fit: RefineState) -> dict:
     """The station model's scales and each station's estimated offset."""
     se, s_hat, delta = fit.se, fit.s_hat, fit.delta
