@@ -401,6 +401,27 @@ class KinematicParameter(BaseModel):
     identified: bool = Field(description="estimated without prior (kinematic calibration)")
 
 
+class StationPrediction(BaseModel):
+    """A kinematic calibration's error at poses it did not see, measured: each station
+    left out in turn, the sphere placed through the calibrated arm and the transform fitted
+    to the other stations, against where the station's own profiles put it
+    (docs/estimation.md, "Kinematic calibration"). Invariant to how the transform and the
+    arm's parameters trade against each other: this is the figure a user relies on."""
+
+    model_config = ConfigDict(defer_build=True, extra="forbid")
+
+    rms_mm: float = Field(description="RMS over the stations of the 3-D distance, mm")
+    expected_rms_mm: float = Field(description="what it should be if the model holds: the station's own noise and "
+                                   "the prediction's uncertainty, RMS 3-D, mm")
+    per_station_mm: dict[str, float] = Field(description="the distance at each station, mm")
+    worst_station: str
+    unpredictable_stations: list[str] = Field(
+        default=[], description="stations the others cannot predict (without one of them the data do not determine "
+        "the arm's geometry); left out of the figures above")
+    in_sample_rms_mm: float = Field(description="the same against the fit of every station (the station included), "
+                                    "mm: much smaller than rms_mm means the fit follows its own data (overfitting)")
+
+
 class RobotErrorSummary(BaseModel):
     """The robot's systematic error as the fit saw it, and what it means for a point.
 
@@ -438,6 +459,9 @@ class RobotErrorSummary(BaseModel):
     )
     point_error_parts_rms_mm: dict[str, float] = Field(description="its parts, RMS 3-D, k = 1, mm")
     dominant: str = Field(description="the part that dominates the point error")
+    station_prediction: StationPrediction | None = Field(
+        None, description="kinematic calibration: each station predicted by the fit of the others (what the verdict "
+        "judges there: the transform's own uncertainty trades with the arm's parameters)")
 
 
 class ParameterCorrelation(BaseModel):

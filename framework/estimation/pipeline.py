@@ -18,13 +18,13 @@ from spherecal.core.models import (
 )
 from spherecal.config import CalibrationOptions
 from spherecal.estimation.circle import CircleFit, fit_circles
-from spherecal.estimation.prediction import point_error_budget
+from spherecal.estimation.prediction import point_error_budget, station_prediction_summary
 from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
     fill_unknown, screen_station_orientations, several_stations_under_one_label,
 )
 from spherecal.estimation.options import kinematic_effects, station_effects
-from spherecal.estimation.refine import NoiseAssumptions, RefineResult, refine
+from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
 from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
@@ -33,6 +33,7 @@ from spherecal.estimation.screening import (
     RejectionBudget, arcs_facing_away, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots,
     require_usable_stations, trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
 )
+from spherecal.estimation.starts import settle_alternative_starts
 from spherecal.estimation.twostep import CentreShot, TwoStepResult
 
 @dataclass
@@ -265,7 +266,14 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
                                for j, p in enumerate(sub.profiles)])
     say(f"joint refinement over {sum(len(p) for p in clean.profiles)} points"
         + (f" and {int(np.count_nonzero(clean.kinds != KIND_PROFILE))} centre observations" if clean.has_centres else ""))
-    ref = refit(clean, ts)
+    if ts.alternatives:
+        # starts that fit nearly alike through the nominal poses: the joint model decides
+        def cost(r: RefineResult, scale: float) -> float:
+            return cost_at(clean, r, noise, opt.fit_radius, scale, **robot_effects)
+
+        ts, ref = settle_alternative_starts(clean, ts, refit, cost, say)
+    else:
+        ref = refit(clean, ts)
     # data that fit nothing (another mounting's data, poses in other units): the refinement
     # does not converge and leaves residuals many times the noise. Screening them would
     # only refit, once per profile left out, each refit as slow and as futile (minutes);
@@ -467,6 +475,7 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
         point_error_k2_mm=budget["k2_mm"],
         point_error_parts_rms_mm=parts,
         dominant=max(parts, key=parts.get),
+        station_prediction=station_prediction_summary(clean, ref),
     )
 
 

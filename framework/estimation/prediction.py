@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from spherecal.core import geometry as geo
+from spherecal.core.models import StationPrediction
 from spherecal.estimation.problem import Problem
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, _pose_cov
 
@@ -102,3 +103,25 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
     total = float(np.sqrt(sum(v**2 for v in parts.values())))
     return {"k2_mm": 2.0 * total, "rms_mm": total, "parts_rms_mm": parts,
             "sensor_point_mm": p.tolist(), "shots_averaged": shots_averaged}
+
+
+def station_prediction_summary(problem: Problem, ref: RefineResult) -> StationPrediction | None:
+    """The leave-one-station-out figures of a kinematic calibration
+    (:func:`.refine.crossval.station_cross_validation`) as the result keeps them, or None."""
+    sp = ref.station_prediction
+    if sp is None:
+        return None
+    dist = np.linalg.norm(sp["offset_mm"], axis=1)
+    expected = np.trace(sp["expected_cov_mm2"], axis1=1, axis2=2)
+    ok = np.isfinite(dist) & np.isfinite(expected)
+    labels = list(problem.station_labels)
+    per = {label: float(d) for label, d, good in zip(labels, dist, ok) if good}
+    lost = [label for label, good in zip(labels, ok) if not good]
+    return StationPrediction(
+        rms_mm=float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else 0.0,
+        expected_rms_mm=float(np.sqrt(np.mean(expected[ok]))) if ok.any() else 0.0,
+        per_station_mm=per,
+        worst_station=lost[0] if lost else max(per, key=per.get),
+        unpredictable_stations=lost,
+        in_sample_rms_mm=float(np.sqrt(np.mean(np.sum(sp["in_sample_mm"] ** 2, axis=1)))),
+    )

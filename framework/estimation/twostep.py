@@ -94,6 +94,10 @@ class TwoStepResult:
     stations: list[StationCentres]
     choice: tuple[int, ...]
     diagnostics: dict = field(default_factory=dict)
+    # with no nominal transform: other choices of the sides of the laser plane that fit
+    # nearly as well and give a rotation more than 1 deg away, best first; the joint
+    # model decides between them (:mod:`.starts`)
+    alternatives: list[TwoStepResult] = field(default_factory=list)
 
 
 def _abs_fit_costs(a: np.ndarray, u: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -173,6 +177,39 @@ def station_centres(problem: Problem, fits: dict[int, CircleFit], label_index: i
     if centres:
         candidates = _apply_known_x(candidates, x_known)
     return StationCentres(label, idx, d, candidates, k)
+
+
+def _consistent_choices(stations: list[StationCentres]) -> list[tuple[int, ...]]:
+    """Choices of each station's side of the laser plane that agree on one rotation,
+    for when every combination is too many to try (20 stations of coplanar moves: 2^20).
+    Each candidate of each station whose moves span a plane gives a rotation of its own
+    (Procrustes on its moves alone); taking it as the rotation, every station keeps the
+    candidate its moves fit best, and the choice is redone with the pooled rotation of
+    that choice until it settles. The mirror candidates of a station differ by half a
+    turn, so the true side agrees across stations and a wrong one does not."""
+    anchors = [(k, ch) for k, st in enumerate(stations) if st.rank >= 2 for ch in range(len(st.candidates))]
+    out: list[tuple[int, ...]] = []
+
+    def pick(R):
+        return tuple(int(np.argmin([np.sum(((c - c.mean(axis=0)) @ R.T - st.d) ** 2) for c in st.candidates]))
+                     for st in stations)
+
+    for k, ch in anchors:
+        st = stations[k]
+        A = st.candidates[ch] - st.candidates[ch].mean(axis=0)
+        choice = pick(geo.proper_procrustes(A.T, st.d.T))
+        for _ in range(5):
+            try:
+                R, _ = rotation_from_translations(stations, choice)
+            except DegenerateDataError:
+                break
+            settled = pick(R)
+            if settled == choice:
+                break
+            choice = settled
+        if choice not in out:
+            out.append(choice)
+    return out
 
 
 def rotation_from_translations(stations: list[StationCentres], choice) -> tuple[np.ndarray, dict]:
@@ -358,7 +395,10 @@ def two_step(
     fit the sphere best is kept. When stations' moves are coplanar, solutions that differ
     by a large rotation can fit equally well (within ``ambiguity_ratio`` of the best
     RMS); ``nominal_R`` (the rough rotation of X, e.g. from the configuration) then picks
-    one, and without it a :class:`DegenerateDataError` says what to add."""
+    one, and without it they are returned as ``alternatives`` for the joint model to
+    decide (:func:`.starts.settle_alternative_starts`). With more combinations than
+    ``max_combinations``, only those whose stations agree on one rotation are tried
+    (:func:`_consistent_choices`)."""
     inliers = [fits[i].inlier_points(p) if isinstance(fits.get(i), CircleFit) else p[:0]
                for i, p in enumerate(problem.profiles)]
     # a start and a choice of signs: on very many points, every k-th point of each
@@ -374,7 +414,10 @@ def two_step(
             "profiles taken at different positions of a pure-translation sweep across the sphere"
         )
     options = [range(len(st.candidates)) for st in stations]
-    combos = list(itertools.islice(itertools.product(*options), max_combinations))
+    n_combos = int(np.prod([len(o) for o in options], dtype=float))
+    combos = (list(itertools.product(*options)) if n_combos <= max_combinations
+              else _consistent_choices(stations)[:max_combinations])
+    combos = combos or list(itertools.islice(itertools.product(*options), max_combinations))
     solutions = []
     for choice in combos:
         R, diag1 = rotation_from_translations(stations, choice)
@@ -389,27 +432,24 @@ def two_step(
     best = solutions[0]
     rivals = [s for s in solutions[1:] if s[0] <= ambiguity_ratio * best[0] + 1e-9
               and geo.rotation_angle_deg(s[1], best[1]) > 1.0]
-    if rivals:
-        if nominal_R is None:
-            angle = geo.rotation_angle_deg(rivals[0][1], best[1])
-            raise DegenerateDataError(
-                f"two solutions {angle:.1f} deg apart fit the data equally well: the moves within each station "
-                "are coplanar, so the side of the laser plane the sphere centre is on cannot be decided; add moves "
-                "out of that plane (vary the stand-off and the position along the line during each sweep), or give "
-                "a nominal transform to choose between them"
-            )
+    if rivals and nominal_R is not None:
         pool = [best] + rivals
         best = min(pool, key=lambda s: geo.rotation_angle_deg(s[1], nominal_R))
-    score, R, t, c, choice, diag1, diag2 = best
-    return TwoStepResult(
-        R, t, c, stations, choice,
-        {
-            "rotation_step": diag1,
-            "translation_step": diag2,
-            "point_rms_mm": score,
-            "station_move_rank": {st.label: st.rank for st in stations},
-            "sign_combinations_tried": len(combos),
-            "equally_good_alternatives": len(rivals),
-            "obs_index": problem.obs_index.tolist(),
-        },
-    )
+
+    def result(sol, alternatives=()):
+        score, R, t, c, choice, diag1, diag2 = sol
+        return TwoStepResult(
+            R, t, c, stations, choice,
+            {
+                "rotation_step": diag1,
+                "translation_step": diag2,
+                "point_rms_mm": score,
+                "station_move_rank": {st.label: st.rank for st in stations},
+                "sign_combinations_tried": len(combos),
+                "equally_good_alternatives": len(rivals),
+                "obs_index": problem.obs_index.tolist(),
+            },
+            list(alternatives),
+        )
+
+    return result(best, [result(s) for s in rivals] if nominal_R is None else [])

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from spherecal.config import POINT_DISTANCE_MM  # noqa: F401 (the report's default, imported from here)
 from spherecal.estimation.refine.reml import STATION_SCALE_CEILING_DEG, STATION_SCALE_CEILING_MM
 from spherecal.estimation.robust import median
-from spherecal.core.models import CalibrationResult
+from spherecal.core.models import CalibrationResult, StationPrediction
 
 Level = Literal["green", "amber", "red"]
 _RANK = {"green": 0, "amber": 1, "red": 2}
@@ -78,6 +78,15 @@ class Thresholds(BaseModel):
     robot_error_floor_mm: float = Field(
         0.03, ge=0, description="... when it is also above this RMS, mm (below it the robot is as good as clean)"
     )
+    prediction_amber_mm: float = Field(
+        0.1, gt=0, description="kinematic calibration: the sphere at each station, predicted through the calibrated "
+        "arm and transform by the fit of the other stations, misses where the station sees it by more than this "
+        "(RMS 3-D over the stations): amber, mm")
+    prediction_red_mm: float = Field(0.3, gt=0, description="... and by more than this: red, mm")
+    prediction_ratio_amber: float = Field(
+        1.5, gt=0, description="... or by more than this many times what the noise and the fit's uncertainty "
+        "explain: amber (the arm's error is not what its geometric model holds)")
+    prediction_ratio_red: float = Field(3.0, gt=0, description="... and this many times: red")
 
 
 @dataclass
@@ -118,8 +127,9 @@ def _n_observations(result: CalibrationResult) -> int:
 
 def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> Verdict:
     """Grade ``result``: the worst of the residual check (RMS against the expected RMS),
-    the uncertainty checks (largest rotation and translation 1-sigma), the share of
-    flagged observations and the convergence of the refinement."""
+    the uncertainty checks (largest rotation and translation 1-sigma; for a kinematic
+    calibration the prediction of a point at a new pose instead, :func:`_uncertainty_reasons`),
+    the share of flagged observations and the convergence of the refinement."""
     th = thresholds or Thresholds()
     reasons: list[tuple[Level, str]] = []
 
@@ -140,20 +150,8 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     if absurd:
         reasons.append(("red", ABSURD_CAUSES))
 
-    # what the calibration determines: relative to the robot's own frame (the error the
-    # robot shares over every station is its accuracy, reported apart, not graded here)
     err = result.robot_error
-    std_rot, std_tr = calibration_std(result)
-    rel = " relative to the robot's frame" if err else ""
-    rot = max(std_rot)
-    lvl = "red" if rot > th.rotation_std_red_deg else "amber" if rot > th.rotation_std_amber_deg else "green"
-    reasons.append((lvl, f"largest rotation uncertainty{rel} {rot:.4f} deg (1-sigma; amber above "
-                         f"{th.rotation_std_amber_deg}, red above {th.rotation_std_red_deg})"))
-
-    tr = max(std_tr)
-    lvl = "red" if tr > th.translation_std_red_mm else "amber" if tr > th.translation_std_amber_mm else "green"
-    reasons.append((lvl, f"largest translation uncertainty{rel} {tr:.4f} mm (1-sigma; amber above "
-                         f"{th.translation_std_amber_mm}, red above {th.translation_std_red_mm})"))
+    reasons += _uncertainty_reasons(result, th)
 
     robot_dominates = robot_error_dominates(result, th)
     if err is not None:
@@ -208,6 +206,9 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         "amber": "Usable with care: see the checks and the advice below.",
         "red": "Do not use yet: see the checks and the advice below.",
     }[level]
+    if level == "green" and station_prediction(result) is not None:
+        headline = ("Good: residuals as expected, and a point at a new pose placed through the calibrated arm as "
+                    "well as the noise allows.")
     if absurd:
         headline = ("Wrong: the data do not fit the model at all (residuals "
                     f"{absurd_ratio(result, th):.3g} x the expected); a setting or the data are wrong, not the noise.")
@@ -286,6 +287,73 @@ def is_absurd(result: CalibrationResult, thresholds: Thresholds | None = None) -
     th = thresholds or Thresholds()
     rms = result.residuals.rms_mm
     return not math.isfinite(rms) or absurd_ratio(result, th) > th.residual_ratio_absurd
+
+
+def _uncertainty_reasons(result: CalibrationResult, th: Thresholds) -> list[tuple[Level, str]]:
+    """The checks of what the calibration determines. Relative to the robot's own frame
+    (the error the robot shares over every station is its accuracy, reported apart, not
+    graded here): the largest rotation and translation 1-sigma; or, for a kinematic
+    calibration (the arm's geometry identified), the prediction of a point at a new pose
+    through the calibrated arm and the transform together (:func:`station_prediction`),
+    with the transform's own 1-sigmas given but not graded: they depend on how the
+    transform and the arm's parameters share what the data determine together."""
+    err = result.robot_error
+    std_rot, std_tr = calibration_std(result)
+    rel = " relative to the robot's frame" if err else ""
+    rot, tr = max(std_rot), max(std_tr)
+    pred = station_prediction(result)
+    if pred is not None:
+        return [*_prediction_reasons(pred, th), (
+            "green", f"the transform alone{rel}: largest rotation uncertainty {rot:.4f} deg, translation {tr:.4f} mm "
+                     "(1-sigma): not graded, gauge-dependent: with the arm's geometry identified, the transform "
+                     "trades with the arm's parameters and the data determine the two together (a point placed "
+                     "through both is known far better than either alone); use the transform with the calibrated "
+                     "arm model")]
+    lvl: Level = "red" if rot > th.rotation_std_red_deg else "amber" if rot > th.rotation_std_amber_deg else "green"
+    out: list[tuple[Level, str]] = [(lvl, f"largest rotation uncertainty{rel} {rot:.4f} deg (1-sigma; amber above "
+                                          f"{th.rotation_std_amber_deg}, red above {th.rotation_std_red_deg})")]
+    lvl = "red" if tr > th.translation_std_red_mm else "amber" if tr > th.translation_std_amber_mm else "green"
+    out.append((lvl, f"largest translation uncertainty{rel} {tr:.4f} mm (1-sigma; amber above "
+                     f"{th.translation_std_amber_mm}, red above {th.translation_std_red_mm})"))
+    return out
+
+
+def station_prediction(result: CalibrationResult) -> StationPrediction | None:
+    """The measured error of a point at a new pose of a kinematic calibration (each
+    station predicted by the fit of the others), when the arm's geometry was identified
+    and the result carries it; else None."""
+    err = result.robot_error
+    if err is None or err.station_prediction is None or not err.kinematic_parameters:
+        return None
+    if not any(p.identified for p in err.kinematic_parameters):
+        return None
+    return err.station_prediction
+
+
+def _prediction_reasons(pred: StationPrediction, th: Thresholds) -> list[tuple[Level, str]]:
+    """The verdict's lines on a kinematic calibration's prediction at new poses: its size,
+    and whether the noise and the fit's uncertainty explain it."""
+    rms, exp = pred.rms_mm, pred.expected_rms_mm
+    if pred.unpredictable_stations:
+        return [("red", "a point at a new pose, through the calibrated arm: station(s) "
+                        f"{', '.join(pred.unpredictable_stations)} cannot be predicted from the other stations "
+                        "(without one of them the data do not determine the arm's geometry): the plan does not "
+                        "identify it; add stations that spread the joints")]
+    worst = pred.per_station_mm[pred.worst_station]
+    lvl: Level = "red" if rms > th.prediction_red_mm else "amber" if rms > th.prediction_amber_mm else "green"
+    out: list[tuple[Level, str]] = [(lvl, (
+        f"a point at a new pose, through the calibrated arm and the transform: the sphere at each station, predicted "
+        f"from the other stations, lies {rms:.4f} mm RMS from where that station sees it (worst {worst:.4f} mm at "
+        f"station {pred.worst_station}; amber above {th.prediction_amber_mm:g}, red above {th.prediction_red_mm:g} mm)"
+    ))]
+    ratio = rms / exp if exp > 0 else math.inf
+    lvl = "red" if ratio > th.prediction_ratio_red else "amber" if ratio > th.prediction_ratio_amber else "green"
+    out.append((lvl, f"the stations' prediction errors are {ratio:.2f} x the {exp:.4f} mm RMS the noise and the fit's "
+                     f"uncertainty explain (amber above {th.prediction_ratio_amber:g} x, red above "
+                     f"{th.prediction_ratio_red:g} x)"
+                     + ("" if lvl == "green" else ": the arm's error is not all geometric (the calibrated model does "
+                        "not hold it), or some stations' data are wrong")))
+    return out
 
 
 def calibration_std(result: CalibrationResult) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -509,6 +577,8 @@ def _station_advice(result: CalibrationResult, bad_stations: dict[str, float]) -
 
 def _uncertainty_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
     """A rotation axis, every rotation axis or the translation poorly determined."""
+    if station_prediction(result) is not None:
+        return _prediction_advice(station_prediction(result), th)
     out: list[Advice] = []
     a = result.transform_name.split("_from_")[0]
     # uncertainty per rotation axis: one weak axis calls for a tilt about it; all axes
@@ -543,6 +613,34 @@ def _uncertainty_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
             "per sweep.",
         ))
     return out
+
+
+def _prediction_advice(pred: StationPrediction, th: Thresholds) -> list[Advice]:
+    """A kinematic calibration that predicts new poses worse than it should: the plan does
+    not identify the arm's geometry, or the arm's error is not geometric."""
+    rms, exp = pred.rms_mm, pred.expected_rms_mm
+    ratio = rms / exp if exp > 0 else math.inf
+    lost = bool(pred.unpredictable_stations)
+    if not lost and rms <= th.prediction_amber_mm and ratio <= th.prediction_ratio_amber:
+        return []
+    level: Level = "red" if lost or rms > th.prediction_red_mm or ratio > th.prediction_ratio_red else "amber"
+    worst = pred.per_station_mm.get(pred.worst_station, math.inf)
+    if lost or exp > 2 * th.prediction_amber_mm or (rms > 3 * max(pred.in_sample_rms_mm, 1e-9)
+                                                     and ratio <= th.prediction_ratio_amber):
+        cause = ("The stations do not determine the arm's geometry: each is fitted well by the others' model "
+                 f"({pred.in_sample_rms_mm:.4f} mm RMS with it included) but predicted poorly without it. Add stations "
+                 "that spread the joints (leave acquisition.sweep.tilts_deg out and let the kinematic planner choose "
+                 "them; its check says whether a plan identifies the arm).")
+    else:
+        cause = (f"That is {ratio:.1f} x what the noise and the fit's uncertainty explain: the arm's error is not all "
+                 "geometric (gravity sag, thermal drift between stations, backlash), or some stations' poses or "
+                 f"joints are wrong. Look at station {pred.worst_station} first; re-acquire with the arm warm and the "
+                 "poses read after it settled.")
+    return [Advice(
+        "prediction_poor", level, "Points at new poses are predicted poorly through the calibrated arm",
+        (f"Station(s) {', '.join(pred.unpredictable_stations)} cannot be predicted from the others at all. " if lost
+         else f"Each station predicted from the others misses where it sees the sphere by {rms:.4f} mm RMS (worst "
+              f"{worst:.4f} mm at station {pred.worst_station}). ") + cause)]
 
 
 def _flagged_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:

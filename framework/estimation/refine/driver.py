@@ -10,6 +10,7 @@ from spherecal.core import geometry as geo
 from spherecal.core.kinematics import error_parameter_names, flange_error_jacobian
 from spherecal.estimation.problem import Problem
 from spherecal.estimation.refine.covariance import covariances_at_solution
+from spherecal.estimation.refine.crossval import station_cross_validation
 from spherecal.estimation.refine.effects import KinematicEffects, StationEffects, _effect_blocks
 from spherecal.estimation.refine.linearisation import NoiseAssumptions, _centre_variance
 from spherecal.estimation.refine.reml import KINEMATIC_EVIDENCE_LR, search_scales
@@ -51,6 +52,9 @@ class RefineResult:
     # per-axis standard deviation estimated for those given without a covariance (mm)
     centre_residuals: np.ndarray | None = None
     centre_noise_mm: float | None = None
+    # a kinematic calibration: each station predicted by the fit of the others
+    # (:func:`.crossval.station_cross_validation`), else None
+    station_prediction: dict | None = None
 
 
 #: A Gauss-Newton step the line search had to cut ends the iterations when the whole step
@@ -289,7 +293,29 @@ def _result(fit: RefineState) -> RefineResult:
         kinematic_errors=fit.kappa if ke is not None else None,
         kinematic_sd=covs.kinematic_sd if ke is not None else None, kinematic_terms=covs.kinematic_terms,
         centre_residuals=centre_res, centre_noise_mm=centre_noise,
+        station_prediction=station_cross_validation(fit, lin),
     )
+
+
+def cost_at(problem: Problem, ref: RefineResult, noise: NoiseAssumptions, fit_radius: bool, scale: float,
+            station_effects: StationEffects | None = None, kinematic_effects: KinematicEffects | None = None) -> float:
+    """-2 log-likelihood (up to a constant) of ``ref``'s solution at the pose-noise scale
+    ``scale``: the whitened residuals plus the random effects against their prior (the
+    MAP objective :meth:`.RefineState.penalised_cost`), so that two solutions of one
+    problem are compared at one noise model."""
+    fit = RefineState(problem, ref.R, ref.t, ref.centre, noise, fit_radius, station_effects, kinematic_effects)
+    fit.r = float(ref.radius)
+    if fit.se is not None and ref.station_offsets is not None:
+        fit.delta = np.array(ref.station_offsets, dtype=float)
+        se = ref.diagnostics.get("station_effects") or {}
+        fit.s_hat = np.array([np.radians(se.get("rotation_deg", 0.01)), se.get("translation_mm", 0.1)])
+    if fit.ke is not None and ref.kinematic_errors is not None:
+        fit.kappa = np.array(ref.kinematic_errors, dtype=float)
+        fit.lam = float((ref.diagnostics.get("kinematic_effects") or {}).get("prior_scale", 1.0))
+    if fit.m_centres and ref.centre_noise_mm is not None:
+        fit.s2_centre = ref.centre_noise_mm**2
+    fit.scale = scale
+    return fit.penalised_cost(fit.linearise(scale), fit.s_hat, fit.lam)
 
 
 def _station_diagnostics(fit: RefineState) -> dict:

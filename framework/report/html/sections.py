@@ -16,7 +16,7 @@ from spherecal.core.errors import InputError
 from spherecal.core.models import SPHERE_FRAME, CalibrationResult
 from spherecal.io.exporters import ExportNote
 from spherecal.report import export
-from spherecal.report.assess import Thresholds, expected_rms_mm, inconsistent_stations
+from spherecal.report.assess import Thresholds, expected_rms_mm, inconsistent_stations, station_prediction
 from spherecal.report.html.data import K_EXPANDED, interactive_points, point_uncertainty
 
 
@@ -155,10 +155,29 @@ def uncertainty_html(result: CalibrationResult) -> str:
                 + " deg; translation "
                 + ", ".join(f"{_n(v)} / {_n(K_EXPANDED * v)}" for v in robot.std_translation_mm_robot_frame)
                 + " mm.</p>")
+    pred = station_prediction(result)
+    if pred is not None:
+        note += _gauge_note(pred)
     return (_table(["quantity", "value", "1-sigma", f"expanded U (k = {K_EXPANDED:g})", "unit"], rows)
             + "<p class=\"muted\">1-sigma is the standard uncertainty; U = 2 sigma the expanded uncertainty, about "
               "95 % coverage for a normal distribution. Both include the robot's accuracy (its error shared by every "
               "station, which no data from one sphere location can see; docs/estimation.md).</p>" + note)
+
+
+def _gauge_note(pred) -> str:
+    """A kinematic calibration: the transform's own uncertainties are gauge-dependent;
+    what a point at a new pose gets, through the calibrated arm and the transform."""
+    worst = ("station(s) " + ", ".join(pred.unpredictable_stations) + " cannot be predicted from the others"
+             if pred.unpredictable_stations else
+             f"worst {_n(pred.per_station_mm[pred.worst_station])} mm at station {_e(pred.worst_station)}")
+    return ("<p><strong>Gauge-dependent.</strong> The arm's geometry was identified with the transform: the two trade "
+            "against each other along directions the data see only together, so the transform's 1-sigmas above "
+            "(and relative to the robot's frame) depend on how that trade is fixed (the arm's parameters no data "
+            "from one sphere can see are kept at their nominal values) and are not graded. Use the transform only "
+            "with the calibrated arm model (robot_calibrated.urdf). What a point at a new pose gets through both: "
+            f"each station predicted from the others misses where it sees the sphere by {_n(pred.rms_mm)} mm RMS "
+            f"(3-D; {worst}), against {_n(pred.expected_rms_mm)} mm that the noise and the fit's uncertainty "
+            "explain. This is what the verdict grades.</p>")
 
 
 def _short_label(label: str) -> str:
