@@ -95,7 +95,8 @@ def test_calibrate_run_log_names_the_configuration_and_appends(sim_config, capsy
 def test_quiet_verbose_and_debug_also_after_the_command(dataset_path, tmp_path, capsys):
     assert main(["solve", str(dataset_path), "-o", str(tmp_path / "q"), "-q", "--no-report"]) == EXIT_OK
     q = capsys.readouterr()
-    assert q.err == "" and "results in" in q.out
+    # -q leaves out progress, not warnings: only the export's missing tool load is said
+    assert [ln for ln in q.err.splitlines() if not ln.startswith("warning: ")] == [] and "results in" in q.out
     assert "spherecal.run: fitting circles" in (tmp_path / "q" / "run.log").read_text()  # recorded all the same
     assert main(["-v", "solve", str(dataset_path), "-o", str(tmp_path / "v"), "--no-report"]) == EXIT_OK
     v = capsys.readouterr()

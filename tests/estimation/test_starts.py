@@ -14,6 +14,7 @@ import pytest
 
 from spherecal.core import geometry as geo
 from spherecal.estimation import solve
+from spherecal.estimation.options import kinematic_effects
 from spherecal.estimation.refine import NoiseAssumptions, cost_at, refine
 from spherecal.estimation.starts import settle_alternative_starts
 from spherecal.motion.kinematic_plan import plan_kinematic_stations
@@ -36,7 +37,7 @@ def coplanar(kin, tmp_path_factory):
     """The kinematic planner's 20 eye-in-hand stations, each swept along two parallel
     straight lines (no wander: the moves of a station are coplanar), on an arm off its
     nominal geometry: the cell and the dataset."""
-    sweep = plan_kinematic_stations(planned_config(tmp_path_factory.mktemp("plan"), "eye_in_hand"), kin).sweep
+    sweep = _plan(planned_config(tmp_path_factory.mktemp("plan"), "eye_in_hand"), kin).sweep
     cell = standard_cell("eye_in_hand", seed=1, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
                          fov=reference_fov())
     lines = [simulate_dataset(cell, sweep.model_copy(update={"lateral_amplitude_mm": 0.0, "profiles_per_station": 4,
@@ -73,7 +74,7 @@ def test_starts_that_fit_alike_are_decided_by_the_joint_likelihood(kin, coplanar
     ts, problem = sol.two_step, sol.problem
     noise = NoiseAssumptions(sol.result.diagnostics["noise"]["point_noise_mm"], KINEMATIC.pose_translation_noise_mm,
                              KINEMATIC.pose_rotation_noise_deg)
-    effects = {"station_effects": None, "kinematic_effects": KINEMATIC.kinematic_effects(kin.chain)}
+    effects = {"station_effects": None, "kinematic_effects": kinematic_effects(KINEMATIC, kin.chain)}
 
     def refit(p, start):
         return refine(p, start.R, start.t, start.centre, noise, False, True, **effects)
@@ -97,3 +98,9 @@ def test_starts_that_fit_alike_are_decided_by_the_joint_likelihood(kin, coplanar
         else:
             assert choice["distinct_solutions"] == 2 and choice["neg2_log_likelihood_margin"] > 1e3
             assert said[-1].startswith("the joint model prefers one of them by a -2 log-likelihood margin of")
+
+
+def _plan(cfg, kin):
+    """The kinematic planner's stations for the configuration ``cfg``, on the arm ``kin``."""
+    return plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere,
+                                   kin)

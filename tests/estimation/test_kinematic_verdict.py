@@ -32,7 +32,7 @@ def kin():
 @pytest.fixture(scope="module")
 def planned_e2h(kin, tmp_path_factory):
     """The kinematic planner's 20 stations for the eye-to-hand example cell."""
-    return plan_kinematic_stations(planned_config(tmp_path_factory.mktemp("plan"), "eye_to_hand"), kin).sweep
+    return _plan(planned_config(tmp_path_factory.mktemp("plan"), "eye_to_hand"), kin).sweep
 
 
 def _calibrate(kin, sweep, transform=None, seed=11):
@@ -102,6 +102,7 @@ def _radius_off(mm: float):
     return lambda ds: ds.model_copy(update={"sphere_radius_mm": ds.sphere_radius_mm + mm})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case, level", [("four stations", "red"), ("arm error not geometric", "amber"),
                                          ("radius 0.2 mm off", "red")])
 def test_a_wrong_kinematic_calibration_is_not_green(kin, planned_e2h, case, level):
@@ -131,3 +132,9 @@ def test_a_wrong_kinematic_calibration_is_not_green(kin, planned_e2h, case, leve
     if case == "arm error not geometric":
         assert pred.rms_mm > 0.1 and pred.rms_mm / pred.expected_rms_mm > 2
         assert "the arm's error is not all geometric" in adv.text
+
+
+def _plan(cfg, kin):
+    """The kinematic planner's stations for the configuration ``cfg``, on the arm ``kin``."""
+    return plan_kinematic_stations(cfg.acquisition, cfg.calibration, cfg.mounting, cfg.nominal_transform, cfg.sphere,
+                                   kin)
