@@ -89,6 +89,14 @@ def _robot_error_lines(robot_error) -> list[str]:
             f"a point measured at a new pose through the calibrated model ({CALIBRATED_URDF_NAME}): expected "
             f"error {robot_error.point_error_k2_mm:.3f} mm (k = 2), mostly from {dominant}"
         )
+        pred = robot_error.station_prediction
+        if pred is not None:
+            lines.append(
+                f"  measured: each station predicted from the others through the calibrated arm and the transform: "
+                f"{pred.rms_mm:.4f} mm RMS ({pred.rms_mm / pred.expected_rms_mm:.2f} x what the noise explains; "
+                f"worst {pred.worst_station} {pred.per_station_mm[pred.worst_station]:.4f} mm). This is what the "
+                "verdict grades; the transform's std relative to the robot's frame above depends on how the arm's "
+                "identified geometry and the transform share the error, and holds only with that calibrated model")
     else:
         lines.append(
             f"a point measured at a new pose: expected error {robot_error.point_error_k2_mm:.3f} mm (k = 2), mostly "
