@@ -30,11 +30,13 @@ dotted path (``robot.workspace.max_x_mm: ...``).
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import inspect
 import os
 import re
 import types
+import typing
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Iterable, Literal, Mapping, Sequence
@@ -97,8 +99,9 @@ class PluginInfo:
 
 @dataclass(frozen=True)
 class FieldDescription:
-    """One configuration field of a device type. Nested models are flattened with
-    dotted names (``workspace.max_x_mm``)."""
+    """One configuration field of a device type. Nested models, optional ones
+    (``WorkspaceBox | None``) too, are flattened with dotted names (``workspace.min_mm``);
+    ``type`` names the annotation without module paths."""
 
     name: str
     type: str
@@ -171,13 +174,30 @@ def _module_name(plugin: object) -> str:
     return getattr(plugin, "__module__", None) or type(plugin).__module__
 
 
+#: A dotted module path before a name (``spherecal.core.workspace.``), or a quoted
+#: string (a ``Literal`` value), which is kept as it is.
+_MODULE_PATH = re.compile(r"""('[^']*'|"[^"]*")|\b(?:[A-Za-z_]\w*\.)+(?=[A-Za-z_])""")
+
+
 def _field_type_name(annotation: Any) -> str:
+    """The annotation as a reader writes it: ``WorkspaceBox | None``, ``tuple[JointSpec, ...]``,
+    without module paths (``spherecal.core.workspace.``, ``typing.``)."""
     if annotation is None:
         return "None"
     if isinstance(annotation, type) and not getattr(annotation, "__args__", None):
         return annotation.__name__
-    text = repr(annotation)
-    return re.sub(r"\b(typing|typing_extensions|pathlib|datetime)\.", "", text)
+    return _MODULE_PATH.sub(lambda m: m.group(1) or "", repr(annotation))
+
+
+def _nested_model(annotation: Any) -> type[BaseModel] | None:
+    """The model a field holds, ``X`` or ``X | None`` (``Optional[X]``); None otherwise."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        if len(args) == 1 and isinstance(args[0], type) and issubclass(args[0], BaseModel):
+            return args[0]
+    return None
 
 
 def _constraints_text(metadata_items: Iterable[Any]) -> str:
@@ -191,30 +211,50 @@ def _constraints_text(metadata_items: Iterable[Any]) -> str:
     return ", ".join(parts)
 
 
-def _describe_fields(model: type[BaseModel], prefix: str = "") -> list[FieldDescription]:
+_NO_PARENT = object()
+
+
+def _field_default(info) -> Any:
+    if info.default is not PydanticUndefined:
+        return info.default
+    if info.default_factory is not None:
+        try:
+            return info.default_factory()
+        except Exception:  # noqa: BLE001 - a description must not fail on a factory
+            return "<computed>"
+    return None
+
+
+def _describe_fields(model: type[BaseModel], prefix: str = "", parent: Any = _NO_PARENT) -> list[FieldDescription]:
+    """The fields of ``model``, nested models (``X``, or ``X | None`` alike) opened into
+    dotted names. ``parent`` is the default of the field holding ``model`` when it has
+    one (a model instance, or None: the table may be left out): the nested fields are then
+    not required and their defaults are the parent default's values. An optional table's
+    own description (what leaving it out means) follows its first field's."""
     out: list[FieldDescription] = []
     for fname, info in model.model_fields.items():
-        ann = info.annotation
         dotted = prefix + fname
-        if isinstance(ann, type) and issubclass(ann, BaseModel):
-            out.extend(_describe_fields(ann, dotted + "."))
+        required = info.is_required()
+        default = _field_default(info)
+        if parent is not _NO_PARENT:
+            required = False
+            default = getattr(parent, fname, None) if isinstance(parent, BaseModel) else None
+        nested = _nested_model(info.annotation)
+        if nested is not None:
+            fields = _describe_fields(nested, dotted + ".", _NO_PARENT if required else default)
+            if nested is not info.annotation and info.description and fields:  # X | None
+                first = fields[0]
+                text = f"{first.description}; {dotted}: {info.description}" if first.description else info.description
+                fields[0] = dataclasses.replace(first, description=text)
+            out.extend(fields)
             continue
-        if info.default is not PydanticUndefined:
-            default = info.default
-        elif info.default_factory is not None:
-            try:
-                default = info.default_factory()
-            except Exception:  # noqa: BLE001 - a description must not fail on a factory
-                default = "<computed>"
-        else:
-            default = None
         if isinstance(default, BaseModel):
             default = default.model_dump()
         out.append(
             FieldDescription(
                 name=dotted,
-                type=_field_type_name(ann),
-                required=info.is_required(),
+                type=_field_type_name(info.annotation),
+                required=required,
                 default=default,
                 description=info.description or "",
                 constraints=_constraints_text(info.metadata),

@@ -32,7 +32,8 @@ from spherecal.plugins import (
     standard_cell,
 )
 
-ROBOT_SECTION = {"type": "example_cartesian", "max_speed_mm_s": 200.0, "workspace": {"max_z_mm": 1400.0}}
+ROBOT_SECTION = {"type": "example_cartesian", "max_speed_mm_s": 200.0,
+                 "workspace": {"min_mm": [0.0, -1000.0, 0.0], "max_mm": [2000.0, 1000.0, 1400.0]}}
 SENSOR_SECTION = {"type": "example_profiler", "min_points": 20}
 
 

@@ -29,6 +29,17 @@ The kinematics must have ``flange_pose_from_joints(joints_deg, check_limits)`` a
 ``joints_from_flange_pose(pose, seed_joints_deg)``, raising an
 :class:`~spherecal.core.errors.InputError` when a pose is out of reach (an
 :class:`~spherecal.core.kinematics.ArmKinematics` has both).
+
+What the checks raise: a move refused by a limit (the speed, the workspace box, the
+reach) is an :class:`~spherecal.core.errors.InputError` (the command line's exit 3, "data
+error"), raised before anything is sent. The request is at fault, not the device: the
+robot works, and the plan, the configured limits or the target must change. It is the
+class the run's plan check raises for a plan outside the limits, so a move refused
+mid-run and a plan refused before the first motion read alike. A
+:class:`~spherecal.core.errors.DeviceError` (exit 4) is for the device itself: a closed
+connection (:meth:`MotionSafety.check_open`), a controller working in another frame
+(:meth:`MotionSafety.check_controller_frame`), and a subclass's timeouts, disconnects and
+protocol errors.
 """
 
 from __future__ import annotations
@@ -178,8 +189,9 @@ class MotionSafety:
 
     def check_move_from_here(self, target: Pose, speed_mm_s: float) -> tuple[Pose, np.ndarray]:
         """The checks of a move from the arm's current joints (:meth:`check_move`);
-        returns (the start pose, the target's joints, the solution nearest the start),
-        for ``move_linear`` to send."""
+        returns two values, ``(start, target_joints)``: the start pose (where the arm
+        stands) and the target's joints (deg, the solution nearest the start), for
+        ``move_linear`` to send."""
         self.check_open()
         self.check_speed(speed_mm_s)
         self.check_workspace(target, "target")

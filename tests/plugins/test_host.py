@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import re
+from typing import Literal, Optional
 
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
@@ -12,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from spherecal.devices.contract import DeviceContext, RobotType
 from spherecal.core.errors import ConfigError, DeviceError, PluginError
 from spherecal.core.models import Observation, Pose, Profile
+from spherecal.core.workspace import WorkspaceBox
 from spherecal.plugins import hookimpl
 from spherecal.plugins.host import DISABLE_AUTOLOAD_ENV, PluginHost, autoload_disabled
 
@@ -431,6 +433,61 @@ def test_describe_lists_types_and_fields(nested_host, toy_host):
     text = toy_host.format_description()
     assert "robot type 'toy_robot' (plugin 'toys'): toy robot toy_robot" in text
     assert "speed_mm_s (float, default 100.0, > 0): speed, mm/s" in text
+
+
+class Frame(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    origin_mm: tuple[float, float, float] = Field(description="origin, mm")
+    turns: int = Field(0, ge=0, description="turns")
+
+
+class OptionalNestedConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    box: WorkspaceBox | None = Field(None, description="allowed flange positions; absent: the arm's reach")
+    frame: Frame = Field(default_factory=lambda: Frame(origin_mm=(1.0, 2.0, 3.0)), description="a frame")
+    pose: Pose = Field(description="a pose")
+
+
+def test_describe_opens_optional_models_and_names_types_without_modules():
+    """``X | None`` opens like X (the urdf robot's ``workspace``); a table that may be left
+    out, or has a default, has no required fields and gives its fields their defaults; no
+    type name carries a module path."""
+    def spherecal_register_devices(registry):
+        registry.add_robot(RobotType(name="opt", config_model=OptionalNestedConfig, factory=lambda c, ctx: None))
+
+    host = PluginHost(plugins=[("opt", make_plugin("opt", spherecal_register_devices=spherecal_register_devices))],
+                      load_entry_points=False)
+    (d,) = host.describe()
+    fields = {f.name: f for f in d.fields}
+    assert list(fields) == ["box.min_mm", "box.max_mm", "frame.origin_mm", "frame.turns",
+                            "pose.translation_mm", "pose.quaternion_wxyz"]
+    box_min = fields["box.min_mm"]
+    assert (box_min.type, box_min.required, box_min.default) == ("tuple[float, float, float]", False, None)
+    assert box_min.description == ("lower corner (x, y, z) in base, mm; "
+                                   "box: allowed flange positions; absent: the arm's reach")
+    assert fields["box.max_mm"].description == "upper corner (x, y, z) in base, mm"
+    assert (fields["frame.origin_mm"].required, fields["frame.origin_mm"].default) == (False, (1.0, 2.0, 3.0))
+    assert fields["pose.translation_mm"].required  # a required table keeps its required fields
+    text = host.format_description()
+    assert "    box.min_mm (tuple[float, float, float], default None): lower corner" in text
+    assert "    frame.origin_mm (tuple[float, float, float], default (1.0, 2.0, 3.0)): origin, mm" in text
+    assert "spherecal." not in text and "WorkspaceBox" not in text
+
+    # the built-in urdf robot, the reviewer's case; and no module path anywhere in the listing
+    listing = PluginHost(environ={DISABLE_AUTOLOAD_ENV: "1"}).format_description()
+    assert "    workspace.min_mm (tuple[float, float, float], default None): lower corner" in listing
+    assert "workspace (" not in listing
+    types_shown = re.findall(r"^    \S+ \(([^,]*)", listing, re.M)
+    assert types_shown and not [t for t in types_shown if "spherecal." in t]
+    assert "geometry.joints (tuple[JointSpec, JointSpec" in listing
+
+
+def test_type_names_keep_literal_values_with_dots():
+    from spherecal.plugins.host import _field_type_name
+
+    assert _field_type_name(Literal["a.b", "c"]) == "Literal['a.b', 'c']"
+    assert _field_type_name(WorkspaceBox | None) == "WorkspaceBox | None"
+    assert _field_type_name(Optional[WorkspaceBox]) == "Optional[WorkspaceBox]"
 
 
 @pytest.mark.parametrize("option, read_frame, message", [

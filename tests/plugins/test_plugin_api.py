@@ -25,6 +25,17 @@ def test_every_listed_name_resolves(name):
     assert name in dir(api)
 
 
+def test_the_docs_table_names_every_listed_name():
+    """docs/plugins.md's table of the API's names is complete (``Vec3`` was once missing)."""
+    import re
+
+    text = (REPO / "docs" / "plugins.md").read_text()
+    section = text[text.index("## What a plugin may rely on"):text.index("## How plugins are found")]
+    table = "\n".join(line for line in section.splitlines() if line.startswith("| "))
+    named = set(re.findall(r"`([A-Za-z_][A-Za-z0-9_]*)`", table))
+    assert sorted(set(api.__all__) - named) == []
+
+
 def test_the_names_are_the_objects_at_their_homes():
     from spherecal.core.field_of_view import SensorFieldOfView
     from spherecal.core.workspace import WorkspaceBox

@@ -62,3 +62,22 @@ def test_the_pages_configuration_calibrates_on_the_simulated_cell(page, device, 
     assert np.linalg.norm(t - true.translation_mm) < 0.2  # mm; the cell's noise is 0.01-0.02 mm
     q = np.asarray(result["transform"]["quaternion_wxyz"])
     assert abs(abs(float(q @ np.asarray(true.quaternion_wxyz))) - 1.0) < 1e-6  # well under 0.2 deg
+
+
+def test_the_robot_pages_plugin_listing_is_what_the_host_prints(example_plugins_host):
+    """Section 7's sample of `spherecal plugins`: the built-in plugins' lines and the
+    example robot's are those the host prints today (the example's plugin lines say
+    "entry point" when installed; registered here, they are checked by name)."""
+    text = (REPO / "docs" / "writing-a-robot-plugin.md").read_text()
+    section = text[text.index("## 7. Install it and see it"):text.index("## 8.")]
+    sample = re.findall(r"```\n(plugins:\n.*?)```", section, re.S)[0].splitlines()
+    listing = example_plugins_host().format_description().splitlines()
+    builtins = [line for line in listing if ": built-in, " in line]
+    assert [line for line in sample if ": built-in, " in line] == builtins
+    assert [line.split(":")[0] for line in sample if ": entry point, " in line] == [
+        "  example_cartesian", "  example_profiler"]
+    start = listing.index("robot type 'example_cartesian' (plugin 'example_cartesian'): "
+                          "simulated Cartesian robot with a wrist (example plugin)")
+    end = next(i for i in range(start + 1, len(listing)) if not listing[i].startswith("    "))
+    block = listing[start:end]
+    assert sample[sample.index(block[0]):sample.index(block[0]) + len(block)] == block

@@ -83,7 +83,8 @@ host = PluginHost()
 out = {"plugins": {i.name: [i.source, i.distribution] for i in host.plugins},
        "robots": sorted(host.registry.robots), "sensors": sorted(host.registry.sensors)}
 try:
-    host.validate_robot_config("example_cartesian", {"workspace": {"max_x_mm": "far"}, "max_speed_mm_s": 0})
+    host.validate_robot_config("example_cartesian", {"workspace": {"min_mm": [0, -1000, 0], "max_mm": ["far", 1000, 1500]},
+                                                     "max_speed_mm_s": 0})
 except ConfigError as exc:
     out["robot_error"] = str(exc)
 out["fields"] = [f.name for d in host.describe() if d.name == "example_profiler" for f in d.fields]
@@ -173,7 +174,7 @@ def test_installed_package_is_discovered_and_its_config_validated(children):
     lines = out["robot_error"].splitlines()
     assert lines[0].startswith("invalid configuration for robot type 'example_cartesian' (plugin 'example_cartesian'), 2 errors")
     assert "robot.max_speed_mm_s: Input should be greater than 0 (got 0)" in lines[1:][0] + lines[1:][1]
-    assert any("robot.workspace.max_x_mm: Input should be a valid number" in line for line in lines)
+    assert any("robot.workspace.max_mm[0]: Input should be a valid number" in line for line in lines)
 
 
 def test_disabling_autoload_hides_the_installed_package(children):
@@ -195,7 +196,7 @@ def test_installed_plugins_acquire_and_calibrate(children):
     for out, name in zip(outs, ["flange_from_sensor", "base_from_sensor"]):
         assert out["stations"] == ["S1", "S2", "S3", "S4"]
         assert out["n_observations"] >= 36  # 40 planned, a few may graze the edge of the view
-        assert out["robot_config"]["workspace"]["max_z_mm"] == 1400.0
+        assert out["robot_config"]["workspace"]["max_mm"] == [2000.0, 1000.0, 1400.0]
         assert out["transform_name"] == name
         # The nominal transform used for planning was off by ~2 mm and ~1 deg; the
         # calibration must land far closer to the cell's true transform than that.

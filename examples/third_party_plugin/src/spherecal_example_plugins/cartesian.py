@@ -11,60 +11,86 @@ Poses are ``base_from_flange``: translation in mm, rotation as a quaternion
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+import numpy as np
+from pydantic import ConfigDict, Field
 
-from spherecal.plugins import DeviceContext, DeviceError, Pose, RobotType, hookimpl
+from spherecal.plugins import (
+    DeviceContext,
+    DeviceError,
+    MotionLimits,
+    MotionSafety,
+    Pose,
+    RobotType,
+    WorkspaceBox,
+    hookimpl,
+    matrix_from_rotvec,
+    rotvec_from_matrix,
+)
 
 TYPE_NAME = "example_cartesian"
 
 
-class Workspace(BaseModel):
-    """The box the flange centre must stay in, base frame, mm."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    min_x_mm: float = Field(0.0, description="lowest flange x in the base frame, mm")
-    max_x_mm: float = Field(2000.0, description="highest flange x in the base frame, mm")
-    min_y_mm: float = Field(-1000.0, description="lowest flange y in the base frame, mm")
-    max_y_mm: float = Field(1000.0, description="highest flange y in the base frame, mm")
-    min_z_mm: float = Field(0.0, description="lowest flange z in the base frame, mm")
-    max_z_mm: float = Field(1500.0, description="highest flange z in the base frame, mm")
-
-    @model_validator(mode="after")
-    def _check_order(self):
-        for axis in "xyz":
-            lo, hi = getattr(self, f"min_{axis}_mm"), getattr(self, f"max_{axis}_mm")
-            if lo >= hi:
-                raise ValueError(f"min_{axis}_mm ({lo}) must be below max_{axis}_mm ({hi})")
-        return self
-
-
-class CartesianConfig(BaseModel):
+class CartesianConfig(MotionLimits):
     """Configuration section of an ``example_cartesian`` robot::
 
         [robot]
         type = "example_cartesian"
         max_speed_mm_s = 250
         [robot.workspace]
-        max_z_mm = 1200
+        min_mm = [0, -1000, 0]
+        max_mm = [2000, 1000, 1200]
+
+    The limits are the core's :class:`~spherecal.plugins.MotionLimits` (``max_speed_mm_s``,
+    ``orientation_speed_deg_s``, ``path_check_samples``, ``workspace``); this robot only
+    gives the workspace box a default, the travel of its linear axes.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    max_speed_mm_s: float = Field(
-        250.0, gt=0, le=2000, description="highest linear speed a move may ask for, mm/s"
+    workspace: WorkspaceBox = Field(
+        default=WorkspaceBox(min_mm=(0.0, -1000.0, 0.0), max_mm=(2000.0, 1000.0, 1500.0)),
+        description="the linear axes' travel: the box the flange centre stays in, base frame, mm",
     )
-    workspace: Workspace = Field(
-        default_factory=Workspace, description="box the flange centre must stay in, base frame, mm"
-    )
+
+
+class CartesianAxes:
+    """The arm's kinematics as :class:`~spherecal.plugins.MotionSafety` needs them. The
+    axis readings are the flange position (x, y, z in mm: the three linear axes) and the
+    wrist's rotation vector (deg). The wrist turns any way, so every pose whose position
+    the linear axes reach is reachable: the workspace box is the whole reach check."""
+
+    def flange_pose_from_joints(self, axes, check_limits: bool = True) -> Pose:
+        a = np.asarray(axes, dtype=float)
+        return Pose.from_rt(matrix_from_rotvec(np.radians(a[3:])), a[:3])
+
+    def joints_from_flange_pose(self, pose: Pose, seed_joints_deg=None) -> np.ndarray:
+        return np.concatenate([pose.translation, np.degrees(rotvec_from_matrix(pose.rotation_matrix))])
+
+
+class AxisChecks(MotionSafety):
+    """The core's motion checks on the cell's axes: the speed, both ends of a move in the
+    workspace box, the reach along the path. It reads the axes for itself, because the
+    robot reports no joints (:meth:`ExampleCartesianRobot.read_joints_deg`). Every
+    refusal is an :class:`~spherecal.plugins.InputError` naming the limit, raised before
+    anything moves."""
+
+    name = TYPE_NAME
+
+    def __init__(self, config: CartesianConfig, cell, tool_point_mm=None) -> None:
+        super().__init__(config, CartesianAxes(), tool_point_mm=tool_point_mm)
+        self._cell = cell
+
+    def read_joints_deg(self) -> np.ndarray:
+        return self.kin.joints_from_flange_pose(self._cell.current_base_from_flange)
 
 
 class ExampleCartesianRobot:
     """The :class:`spherecal.plugins.Robot` of ``example_cartesian`` on a simulated cell."""
 
-    def __init__(self, config: CartesianConfig, cell) -> None:
+    def __init__(self, config: CartesianConfig, cell, tool_point_mm=None) -> None:
         self.config = config
         self._cell = cell
+        self._checks = AxisChecks(config, cell, tool_point_mm)
         self._open = True
         self._reported = None  # the pose reported at this standstill
 
@@ -85,24 +111,23 @@ class ExampleCartesianRobot:
         self._require_open()
         return None
 
+    def check_target(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """One planned target against the limits (speed, box), without moving: the
+        run's plan check calls it for every target before the first motion."""
+        self._require_open()
+        self._checks.check_target(base_from_flange, speed_mm_s)
+
+    def check_move(self, base_from_flange: Pose, speed_mm_s: float) -> None:
+        """The move from where the flange is now, as :meth:`move_linear` checks it,
+        without moving: the run's first move is checked before the first motion."""
+        self._require_open()
+        self._checks.check_move(base_from_flange, speed_mm_s)
+
     def move_linear(self, base_from_flange: Pose, speed_mm_s: float) -> None:
         """Move to ``base_from_flange`` (mm, quaternion (w, x, y, z)); checks the speed
-        and the workspace first, so a refused move does not move."""
+        and the workspace box at both ends first, so a refused move does not move."""
         self._require_open()
-        limit = self.config.max_speed_mm_s
-        if not (0 < speed_mm_s <= limit):
-            raise DeviceError(
-                f"{TYPE_NAME}: speed_mm_s = {speed_mm_s} is outside (0, {limit}] mm/s "
-                f"(robot.max_speed_mm_s); ask for a slower move or raise the limit"
-            )
-        ws = self.config.workspace
-        for axis, value in zip("xyz", base_from_flange.translation_mm):
-            lo, hi = getattr(ws, f"min_{axis}_mm"), getattr(ws, f"max_{axis}_mm")
-            if not (lo <= value <= hi):
-                raise DeviceError(
-                    f"{TYPE_NAME}: target flange {axis} = {value:.3f} mm is outside the workspace "
-                    f"[{lo}, {hi}] mm (robot.workspace.min_{axis}_mm / max_{axis}_mm); nothing was moved"
-                )
+        self._checks.check_move_from_here(base_from_flange, speed_mm_s)  # raises InputError before moving
         self._cell.move_flange_to(base_from_flange)
         self._reported = None  # a new standstill, a new reading
 
@@ -119,7 +144,7 @@ def create_robot(config: CartesianConfig, context: DeviceContext) -> ExampleCart
             f"run it on a simulated cell (DeviceContext(cell=spherecal.plugins.standard_cell(fov=...)))"
         )
     context.log(f"{TYPE_NAME}: simulated Cartesian robot on a {context.cell.mounting} cell")
-    return ExampleCartesianRobot(config, context.cell)
+    return ExampleCartesianRobot(config, context.cell, context.tool_point_mm)
 
 
 @hookimpl
