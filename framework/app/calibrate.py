@@ -22,7 +22,8 @@ from spherecal.devices.contract import SensorFieldOfView, device_identity
 from spherecal.io import dataset as dataio
 from spherecal.io.exporters import ExportPlan
 from spherecal.io.runlog import progress_log
-from spherecal.motion.acquisition import Progress, acquire, acquire_manual, describe_plan, plan_targets
+from spherecal.motion.acquisition import (Progress, SensorBlindError, acquire, acquire_manual, describe_plan,
+                                         plan_targets)
 from spherecal.estimation.options import station_rotation_tolerance_deg
 from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 
@@ -266,9 +267,15 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
                 return acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
                                       rotation_tolerance_deg=station_rotation_tolerance_deg(cfg.calibration),
                                       first_station=resumed.first_station)
-            return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
-                           Progress(len(plan.targets), progress_stream),
-                           taken=resumed.previous.observations if resumed.done else ())
+            try:
+                return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
+                               Progress(len(plan.targets), progress_stream),
+                               taken=resumed.previous.observations if resumed.done else (),
+                               min_points=cfg.calibration.min_points_per_profile)
+            except SensorBlindError as exc:
+                q = ", ".join(f"{v:g}" for v in cfg.nominal_transform.quaternion_wxyz)
+                raise SensorBlindError(f"{exc}. This configuration: mounting = \"{cfg.mounting}\", "
+                                       f"[nominal_transform] quaternion_wxyz = [{q}]") from None
 
 
 def _solved(run: _Calibration, dataset: Dataset, source: Path, outcome: Outcome, *, report: bool, force: bool,
