@@ -183,7 +183,7 @@ def _planned(run: _Calibration, manual: bool) -> _Plan:
         plan.targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
     log(f"plan: {len(plan.targets)} shots in {len(set(t.station for t in plan.targets))} stations")
     log(describe_plan(plan.targets))
-    check_plan(plan.targets, cfg.acquisition, "plan")
+    check_plan(plan.targets, cfg.acquisition, "plan", setup=(cfg.mounting, cfg.nominal_transform))
     check_plan_solvable(plan.targets)
     if cfg.calibration.identify_kinematics:
         plan.identification = check_plan_identifies_kinematics(
@@ -201,7 +201,8 @@ def _check_dry_run(run: _Calibration, plan: _Plan) -> None:
         return
     cell = make_cell(run.cfg, run.arm, run.fov)
     with open_devices(run.loaded, run.host, cell, run.log) as (robot, _sensor):
-        check_plan(plan.targets, run.cfg.acquisition, "plan", robot=robot)
+        check_plan(plan.targets, run.cfg.acquisition, "plan", robot=robot,
+                   setup=(run.cfg.mounting, run.cfg.nominal_transform))
         check_identification_from_here(robot, plan.targets, run.cfg, run.arm, plan.planned, run.log)
     run.log("plan checked against the robot's own limits too")
 
@@ -252,7 +253,8 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
     cfg, acq, log = run.cfg, run.cfg.acquisition, run.log
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         if not plan.manual:
-            check_plan(plan.targets, acq, "plan", robot=robot, done=resumed.done)
+            check_plan(plan.targets, acq, "plan", robot=robot, done=resumed.done,
+                       setup=(cfg.mounting, cfg.nominal_transform))
             check_identification_from_here(robot, plan.targets, cfg, run.arm, plan.planned, log)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         if resumed.previous is not None:
