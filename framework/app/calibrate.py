@@ -22,7 +22,8 @@ from spherecal.devices.contract import SensorFieldOfView, device_identity
 from spherecal.io import dataset as dataio
 from spherecal.io.exporters import ExportPlan
 from spherecal.io.runlog import progress_log
-from spherecal.motion.acquisition import Progress, acquire, acquire_manual, describe_plan, plan_targets
+from spherecal.motion.acquisition import (Progress, SensorBlindError, acquire, acquire_manual, describe_plan,
+                                         plan_targets)
 from spherecal.estimation.options import station_rotation_tolerance_deg
 from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 
@@ -182,7 +183,7 @@ def _planned(run: _Calibration, manual: bool) -> _Plan:
         plan.targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
     log(f"plan: {len(plan.targets)} shots in {len(set(t.station for t in plan.targets))} stations")
     log(describe_plan(plan.targets))
-    check_plan(plan.targets, cfg.acquisition, "plan")
+    check_plan(plan.targets, cfg.acquisition, "plan", setup=(cfg.mounting, cfg.nominal_transform))
     check_plan_solvable(plan.targets)
     if cfg.calibration.identify_kinematics:
         plan.identification = check_plan_identifies_kinematics(
@@ -200,7 +201,8 @@ def _check_dry_run(run: _Calibration, plan: _Plan) -> None:
         return
     cell = make_cell(run.cfg, run.arm, run.fov)
     with open_devices(run.loaded, run.host, cell, run.log) as (robot, _sensor):
-        check_plan(plan.targets, run.cfg.acquisition, "plan", robot=robot)
+        check_plan(plan.targets, run.cfg.acquisition, "plan", robot=robot,
+                   setup=(run.cfg.mounting, run.cfg.nominal_transform))
         check_identification_from_here(robot, plan.targets, run.cfg, run.arm, plan.planned, run.log)
     run.log("plan checked against the robot's own limits too")
 
@@ -251,7 +253,8 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
     cfg, acq, log = run.cfg, run.cfg.acquisition, run.log
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         if not plan.manual:
-            check_plan(plan.targets, acq, "plan", robot=robot, done=resumed.done)
+            check_plan(plan.targets, acq, "plan", robot=robot, done=resumed.done,
+                       setup=(cfg.mounting, cfg.nominal_transform))
             check_identification_from_here(robot, plan.targets, cfg, run.arm, plan.planned, log)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         if resumed.previous is not None:
@@ -266,9 +269,15 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
                 return acquire_manual(robot, sensor, writer, acq, ask=ask, log=log, on_observation=notify,
                                       rotation_tolerance_deg=station_rotation_tolerance_deg(cfg.calibration),
                                       first_station=resumed.first_station)
-            return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
-                           Progress(len(plan.targets), progress_stream),
-                           taken=resumed.previous.observations if resumed.done else ())
+            try:
+                return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
+                               Progress(len(plan.targets), progress_stream),
+                               taken=resumed.previous.observations if resumed.done else (),
+                               min_points=cfg.calibration.min_points_per_profile)
+            except SensorBlindError as exc:
+                q = ", ".join(f"{v:g}" for v in cfg.nominal_transform.quaternion_wxyz)
+                raise SensorBlindError(f"{exc}. This configuration: mounting = \"{cfg.mounting}\", "
+                                       f"[nominal_transform] quaternion_wxyz = [{q}]") from None
 
 
 def _solved(run: _Calibration, dataset: Dataset, source: Path, outcome: Outcome, *, report: bool, force: bool,

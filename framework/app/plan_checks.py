@@ -24,17 +24,54 @@ def plan_digest(targets) -> str:
     return h.hexdigest()[:16]
 
 
-def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset()) -> None:
+#: Farther than this from the flange, a sensor (eye_in_hand) or a sphere on its stylus
+#: (eye_to_hand) is not mounted on the arm (mm).
+FAR_FROM_FLANGE_MM = 500.0
+#: Nearer than this to the robot's base origin, a sphere (eye_in_hand) or a sensor
+#: (eye_to_hand) would sit inside the robot's foot (mm).
+NEAR_BASE_MM = 300.0
+
+
+def mounting_hint(mounting, nominal, acq) -> str | None:
+    """The configuration's geometry read in ``mounting``'s frames, when it is not a cell's
+    (a sensor or sphere far from the flange, or one at the robot's base): the usual
+    cause is the other mounting. None when it looks like a cell."""
+    on_arm, fixed = ((np.asarray(nominal.translation_mm, float), np.asarray(acq.sphere_centre_mm, float))
+                     if mounting == "eye_in_hand" else
+                     (np.asarray(acq.sphere_centre_mm, float), np.asarray(nominal.translation_mm, float)))
+    arm_name, fixed_name = ("sensor", "sphere") if mounting == "eye_in_hand" else ("sphere", "sensor")
+    arm_key, fixed_key = (("[nominal_transform] translation_mm", "acquisition.sphere_centre_mm")
+                          if mounting == "eye_in_hand" else
+                          ("acquisition.sphere_centre_mm", "[nominal_transform] translation_mm"))
+    odd = []
+    if np.linalg.norm(on_arm) > FAR_FROM_FLANGE_MM:
+        odd.append(f"the {arm_name} {np.linalg.norm(on_arm) / 1000:.2f} m from the flange ({arm_key}, "
+                   "in the flange frame)")
+    if np.linalg.norm(fixed) < NEAR_BASE_MM:
+        odd.append(f"the {fixed_name} {np.linalg.norm(fixed):.0f} mm from the robot's base origin ({fixed_key}, "
+                   "in base)")
+    if not odd:
+        return None
+    other = "eye_to_hand" if mounting == "eye_in_hand" else "eye_in_hand"
+    return (f"mounting = \"{mounting}\" puts {' and '.join(odd)}: is the mounting right? ({other} reads the "
+            f"sphere's centre in {'the flange frame' if other == 'eye_to_hand' else 'base'} and the nominal "
+            f"transform as {'base_from_sensor' if other == 'eye_to_hand' else 'flange_from_sensor'})")
+
+
+def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset(), setup=None) -> None:
     """Raise before any motion when a target breaks the configured limits (or, with
     ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
-    stands to the first target not in ``done``, breaks either)."""
+    stands to the first target not in ``done``, breaks either). ``setup``: (mounting,
+    nominal transform), to name a likely wrong mounting once, before the list."""
     problems = check_targets(targets, acq, robot)
     todo = [t for t in targets if t.index not in done]
     if robot is not None and todo:
         problems += check_first_move(robot, todo[0], acq)
     if problems:
         limits = "the robot's limits" if robot is not None else "the limits"
-        raise InputError(f"the {what} breaks {limits}; nothing was moved:\n  " + "\n  ".join(problems))
+        hint = mounting_hint(setup[0], setup[1], acq) if setup is not None else None
+        head = f"the {what} breaks {limits}; nothing was moved"
+        raise InputError(head + (f". {hint}" if hint else "") + ":\n  " + "\n  ".join(problems))
 
 
 def check_identification_from_here(robot, targets, cfg, arm, planned, log: Callable[[str], None]) -> None:

@@ -226,6 +226,34 @@ def configuration_change(joints_deg, before_deg) -> str | None:
     return ", ".join(f"joint {k + 1} {'moved ' if i == 0 else ''}{d[k]:.1f} deg" for i, k in enumerate(jumped))
 
 
+#: Shots in a row that see nothing (no profile, or fewer points than a profile needs)
+#: before the acquisition stops: the plan puts the line across the sphere on every
+#: target, and the example plans see it on all of them (196 points or more), so a run of
+#: blind shots means the plan and the cell disagree.
+BLIND_SHOTS_IN_A_ROW = 3
+
+
+class SensorBlindError(DeviceError):
+    """The sensor saw nothing on several planned targets in a row: the acquisition stopped,
+    the shots taken are in the journal."""
+
+
+def _blind_stop(blind: list[tuple[Target, int]], min_points: int, done: int, total: int, acq: AcquisitionConfig,
+                taken: int) -> SensorBlindError:
+    """The stop after ``blind`` (target, points seen) in a row, naming the likely causes."""
+    seen = ", ".join(f"{t.index} ({t.station}): {n} points" for t, n in blind)
+    return SensorBlindError(
+        f"the sensor saw nothing on {len(blind)} targets in a row where the plan puts the laser line across the "
+        f"sphere (target {seen}; a profile needs {min_points}): the acquisition stopped after {done} of {total} "
+        f"targets; the {taken} shots taken this run are kept in the journal. Likely causes: the nominal transform "
+        "([nominal_transform] quaternion_wxyz is (w, x, y, z), w first: one written (x, y, z, w) turns the sensor "
+        f"away), the sphere's position (acquisition.sphere_centre_mm = {list(acq.sphere_centre_mm)}), the mounting "
+        "(eye_in_hand or eye_to_hand). A fixed configuration is a new plan: start it in a new output "
+        "folder; --resume continues this plan only, after a fix of the cell itself (the sphere moved back, the "
+        "sensor's cable or window)"
+    )
+
+
 def acquire(
     robot,
     sensor,
@@ -237,14 +265,18 @@ def acquire(
     log: Callable[[str], None] = _LOG,
     progress: Progress | None = None,
     taken: Sequence[Observation] = (),
+    min_points: int = 20,
 ) -> AcquisitionReport:
     """Take every target not in ``done_targets``; each observation goes to the journal
     (flushed, fsync'ed by the writer) before the next move. ``taken``: the journal's
     observations of a resumed run. A shot whose joints show the arm in another
     configuration than the station's shot before it (:func:`configuration_change`; on a
     resume the arm comes from elsewhere and may take the other wrist solution) is kept
-    and said as a warning: its robot error is not its station's."""
+    and said as a warning: its robot error is not its station's. Raises
+    :class:`SensorBlindError` after :data:`BLIND_SHOTS_IN_A_ROW` targets in a row see no
+    profile or fewer than ``min_points`` points (those taken stay in the journal)."""
     report = AcquisitionReport()
+    blind: list[tuple[Target, int]] = []
     todo = [t for t in targets if t.index not in done_targets]
     progress = progress or Progress(len(targets))
     progress.update(len(targets) - len(todo), "resumed" if done_targets else "")
@@ -278,6 +310,10 @@ def acquire(
             if on_observation is not None:
                 on_observation(obs)
         progress.update(n, t.station)
+        seen = 0 if profile is None else len(profile)
+        blind = blind + [(t, seen)] if seen < min_points else []
+        if len(blind) >= BLIND_SHOTS_IN_A_ROW:
+            raise _blind_stop(blind, min_points, n, len(targets), acq, report.taken)
     return report
 
 
