@@ -156,7 +156,7 @@ def run(mounting: str, scenario: str, plan_name: str, seeds: int, kin, model: st
         P = sol.refined.covariance[:6, :6]
         nees.append(float(e @ np.linalg.solve(P, e)))
         z.append(np.abs(e) / np.sqrt(np.diag(P)))
-        nz = NoiseAssumptions(sol.result.diagnostics["noise"]["point_noise_mm"], POSE_NOISE_MM, opts.pose_rotation_noise_deg)
+        nz = NoiseAssumptions(sol.result.diagnostics.noise["point_noise_mm"], POSE_NOISE_MM, opts.pose_rotation_noise_deg)
         pred.append(point_error_budget(sol.problem, sol.refined, nz, shots_averaged=NEW_VIEWS.profiles_per_station)["rms_mm"])
         meas.extend(new_view_errors(cell, sol))
     out = {

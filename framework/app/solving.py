@@ -87,9 +87,9 @@ def solve_and_write(
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
     # the verdict travels with the result: a RED one written with --force says so in result.json
-    solution = replace(solution, result=solution.result.model_copy(update={"diagnostics": {
-        **solution.result.diagnostics,
-        "verdict": {"level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}}}))
+    solution = replace(solution, result=solution.result.model_copy(update={
+        "diagnostics": solution.result.diagnostics.model_copy(update={"verdict": {
+            "level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}})}))
     if written:
         write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
         for note in exports.notes(solution.result):

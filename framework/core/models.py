@@ -21,6 +21,7 @@ from pydantic import (
     PlainSerializer,
     PlainValidator,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
@@ -497,6 +498,60 @@ def correlation_matrix(covariance) -> np.ndarray:
     return np.clip(corr, -1.0, 1.0)
 
 
+class ResultDiagnostics(BaseModel):
+    """How the estimate was obtained, in ``result.json``'s ``diagnostics``: figures from
+    the solve (``estimation.pipeline``) and the verdict (``app.solving``). Every field is
+    optional; those never set are left out of the file, so that a result writes the same
+    document as when this was a free dict. Keys this version does not know (a result of
+    another version, a plugin's figures) are kept (``extra="allow"``). Nested objects whose
+    shape varies (keyed by station, by solve) stay plain dicts; their keys are described
+    here."""
+
+    model_config = ConfigDict(defer_build=True, extra="allow")
+
+    orientations: int | None = Field(
+        None, description="number of orientations (stations) in the fit, after splitting turned stations; count")
+    two_step: dict[str, Any] | None = Field(
+        None, description="the two-step start's figures: rotation_step (displacement_singular_values_mm, "
+        "rms_mm), translation_step (condition_number, singular_values), point_rms_mm (mm), station_move_rank "
+        "(per station), sign_combinations_tried, equally_good_alternatives (counts); the keys vary with the data")
+    two_step_vs_refined: dict[str, Any] | None = Field(
+        None, description="how far the two-step start lies from the refined transform: rotation_deg (deg), "
+        "translation_mm (mm)")
+    station_consistency: dict[str, Any] | None = Field(
+        None, description="per station label: n_profiles (count), rms_mm and max_mm (mm), the deviation of the "
+        "station's measured sphere centres from the predicted ones after removing their means")
+    refinement: dict[str, Any] | None = Field(
+        None, description="the joint fit: iterations (count), converged (bool), information_condition_number "
+        "(1), profile_variance_factor (chi^2/dof of the profiles, 1)")
+    noise: dict[str, Any] | None = Field(
+        None, description="the noise the fit used: point_noise_mm (mm), pose_translation_noise_mm (mm), "
+        "pose_rotation_noise_deg (deg), pose_noise_estimated (bool); with centre observations also "
+        "centre_noise_mm and centre_noise_within_stations_mm (mm)")
+    station_orientation: dict[str, Any] | None = Field(
+        None, description="the screening of each station's orientations: tolerance_deg (deg), tolerance_derived "
+        "(bool), rotation_noise_seen_deg (deg), max_angle_to_station_mean_deg (deg per station), split_stations "
+        "(station to its parts), turned_observations (indices), notes (text); the keys vary with the data")
+    mirror_twin: dict[str, Any] | None = Field(
+        None, description="set when the data (circles only, no nominal transform) cannot tell the result from "
+        "its mirror twin: excluded (bool, false), text (what to do)")
+    joints_vs_poses: dict[str, Any] | None = Field(
+        None, description="set when the joints were recorded but not used: used (bool, false), reason (text)")
+    nominal_transform: dict[str, Any] | None = Field(
+        None, description="set when a nominal transform was given: how far the result lies from it, "
+        "rotation_deg (deg), translation_mm (mm), half_turn_about_sensor_z and half_turn_about_sensor_yz (bool)")
+    verdict: dict[str, Any] | None = Field(
+        None, description="the verdict written with the result: level (green, amber, red), headline (text), "
+        "written_with_force (bool: a RED result written only because of --force)")
+
+    @model_serializer(mode="wrap")
+    def _given_only(self, handler):
+        """Only the fields that were set and the extra keys, as the free dict had them."""
+        data = handler(self)
+        given = self.model_fields_set | set(self.__pydantic_extra__ or ())
+        return {k: v for k, v in data.items() if k in given}
+
+
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.
 
@@ -538,7 +593,8 @@ class CalibrationResult(BaseModel):
     method: str
     two_step_transform: Pose | None = None
     robot_error: RobotErrorSummary | None = None
-    diagnostics: dict[str, Any] = Field(default={})
+    diagnostics: ResultDiagnostics = Field(
+        default_factory=ResultDiagnostics, description="how the estimate was obtained (ResultDiagnostics)")
     provenance: dict[str, Any] = Field(default={})
 
     @model_validator(mode="after")

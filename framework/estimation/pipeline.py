@@ -14,7 +14,7 @@ from spherecal.core.errors import DegenerateDataError, FitBreakdownError, InputE
 from spherecal.core.kinematics import ArmKinematics
 from spherecal.core.models import (
     SPHERE_FRAME, TRANSFORM_NAME, CalibrationResult, Dataset, KinematicParameter, ObservationFlag, Pose, ResidualStats,
-    RobotErrorSummary,
+    ResultDiagnostics, RobotErrorSummary,
 )
 from spherecal.config import CalibrationOptions
 from spherecal.estimation.circle import CircleFit, fit_circles
@@ -104,9 +104,9 @@ def solve(
     about_z = bool(angle > 90.0 and abs(turn[2]) > 0.95 * np.linalg.norm(turn))
     # half a turn about (0, 1, 1) maps the laser plane's (y, z) to (z, y): y and z swapped in the data
     about_yz = bool(angle > 90.0 and abs(turn[1] + turn[2]) / np.sqrt(2.0) > 0.95 * np.linalg.norm(turn))
-    diag = {**solution.result.diagnostics, "nominal_transform": {
+    diag = solution.result.diagnostics.model_copy(update={"nominal_transform": {
         "rotation_deg": angle, "translation_mm": float(np.linalg.norm(X.translation - nominal.translation)),
-        "half_turn_about_sensor_z": about_z, "half_turn_about_sensor_yz": about_yz}}
+        "half_turn_about_sensor_z": about_z, "half_turn_about_sensor_yz": about_yz}})
     return replace(solution, result=solution.result.model_copy(update={"diagnostics": diag}))
 
 
@@ -173,7 +173,7 @@ def _solve_dataset(dataset, options, flange_pose_from_joints, progress, kinemati
     # two rows of a station that disagree, nothing within it telling which is wrong: the
     # solution of the other observations may tell; the row that agrees with it is used
     ref = solution.refined
-    noise_mm = ref.centre_noise_mm or float(solution.result.diagnostics["noise"]["point_noise_mm"])
+    noise_mm = ref.centre_noise_mm or float(solution.result.diagnostics.noise["point_noise_mm"])
     settled = settle_pairs(problem, pairs, ref.R, ref.t, ref.centre, np.hypot(noise_mm, opt.pose_translation_noise_mm),
                            opt.profile_outlier_chi2)
     if not settled:
@@ -199,7 +199,7 @@ def _with_joints_note(solution: Solution, note: str | None) -> Solution:
     the joints were not used: the verdict says so."""
     if note is None:
         return solution
-    diag = {**solution.result.diagnostics, "joints_vs_poses": {"used": False, "reason": note}}
+    diag = solution.result.diagnostics.model_copy(update={"joints_vs_poses": {"used": False, "reason": note}})
     return replace(solution, result=solution.result.model_copy(update={"diagnostics": diag}))
 
 
@@ -295,10 +295,10 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
-    diagnostics = {**result.diagnostics, "station_orientation": ori.diagnostics}
+    added = {"station_orientation": ori.diagnostics}
     if opt.nominal_transform is None and (clean.kinds == KIND_CIRCLE).all():
-        diagnostics["mirror_twin"] = {"excluded": False, "text": CIRCLE_TWIN}
-    result = result.model_copy(update={"diagnostics": diagnostics})
+        added["mirror_twin"] = {"excluded": False, "text": CIRCLE_TWIN}
+    result = result.model_copy(update={"diagnostics": result.diagnostics.model_copy(update=added)})
     return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
 
 
@@ -536,21 +536,21 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
         "(generalised least squares with robot pose noise, stray points and inconsistent profiles rejected)"
         + (" and centre observations, each with its covariance" if clean.has_centres else ""),
         two_step_transform=Pose.from_rt(ts.R, ts.t),
-        diagnostics={
-            "orientations": orientations,
-            "two_step": {k: v for k, v in ts.diagnostics.items() if k != "obs_index"},
-            "two_step_vs_refined": {
+        diagnostics=ResultDiagnostics(
+            orientations=orientations,
+            two_step={k: v for k, v in ts.diagnostics.items() if k != "obs_index"},
+            two_step_vs_refined={
                 "rotation_deg": geo.rotation_angle_deg(ts.R, ref.R),
                 "translation_mm": float(np.linalg.norm(ts.t - ref.t)),
             },
-            "station_consistency": station_consistency(clean, ts, ref),
-            "refinement": {
+            station_consistency=station_consistency(clean, ts, ref),
+            refinement={
                 "iterations": ref.iterations,
                 "converged": ref.converged,
                 "information_condition_number": ref.diagnostics["information_condition_number"],
                 "profile_variance_factor": ref.diagnostics["profile_variance_factor"],
             },
-            "noise": {
+            noise={
                 "point_noise_mm": noise.point_noise_mm,
                 "pose_translation_noise_mm": noise.pose_translation_noise_mm * np.sqrt(ref.pose_noise_scale),
                 "pose_rotation_noise_deg": noise.pose_rotation_noise_deg * np.sqrt(ref.pose_noise_scale),
@@ -558,7 +558,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
                 **({"centre_noise_mm": ref.centre_noise_mm,
                     "centre_noise_within_stations_mm": within_station_noise(clean)} if centre_res is not None else {}),
             },
-        },
+        ),
         provenance={"dataset": dataset.provenance.get("source", "unknown")},
     )
 

@@ -89,7 +89,7 @@ def red_warning(result: CalibrationResult) -> str:
     """:data:`RED_WARNING` when ``result`` was rated RED (its ``diagnostics.verdict``),
     else "". An exporter puts it, when not empty, in a comment at the top of each file it
     writes, so that a RED result written with ``--force`` says so wherever it is copied."""
-    verdict = (result.diagnostics or {}).get("verdict") if isinstance(result.diagnostics, dict) else None
+    verdict = result.diagnostics.verdict
     return RED_WARNING if isinstance(verdict, dict) and verdict.get("level") == "red" else ""
 
 

@@ -117,7 +117,7 @@ def _worse(a: Level, b: Level) -> Level:
 def expected_rms_mm(result: CalibrationResult, thresholds: Thresholds | None = None) -> float:
     """``sqrt(point_noise^2 + robot_repeatability^2)`` (see the module docstring)."""
     th = thresholds or Thresholds()
-    point = float(result.diagnostics.get("noise", {}).get("point_noise_mm", 0.0) or 0.0)
+    point = float((result.diagnostics.noise or {}).get("point_noise_mm", 0.0) or 0.0)
     return math.hypot(point, th.robot_repeatability_mm)
 
 
@@ -142,7 +142,7 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     absurd = is_absurd(result, th)
     ref = centre_noise_reference_mm(result, th)
     if absurd and ref is not None and ref < exp:
-        within = float(result.diagnostics["noise"]["centre_noise_within_stations_mm"])
+        within = float(result.diagnostics.noise["centre_noise_within_stations_mm"])
         reasons.append(("red", f"the centre observations lie {rms:.4f} mm RMS from the fit, {absurd_ratio(result, th):.3g} x "
                                f"the {ref:.4f} mm they should (their noise within stations, where the robot only "
                                f"translated, {within:.4f} mm, and robot repeatability {th.robot_repeatability_mm} mm): "
@@ -169,7 +169,7 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         lvl = "amber" if share > th.flagged_fraction_amber else "green"
         reasons.append((lvl, f"{n_flag} of {_n_observations(result)} observations flagged and left out ({share:.0%})"))
 
-    nominal = result.diagnostics.get("nominal_transform") or {}
+    nominal = result.diagnostics.nominal_transform or {}
     if nominal:
         angle, dist = float(nominal.get("rotation_deg", 0.0)), float(nominal.get("translation_mm", 0.0))
         if angle > th.nominal_rotation_amber_deg or dist > th.nominal_translation_amber_mm:
@@ -186,15 +186,15 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
                          "coordinates, or the nominal")
             reasons.append((lvl, text))
 
-    twin = result.diagnostics.get("mirror_twin") or {}
+    twin = result.diagnostics.mirror_twin or {}
     if twin.get("excluded") is False:  # a result the data cannot tell from its twin: the user must choose
         reasons.append(("amber", str(twin.get("text", "a mirror twin of the result cannot be excluded"))))
 
-    joints = result.diagnostics.get("joints_vs_poses") or {}
+    joints = result.diagnostics.joints_vs_poses or {}
     if joints.get("used") is False:  # the joints did not describe the poses: the robot's error model is the poorer one
         reasons.append(("amber", str(joints.get("reason", "the joint readings were not used"))))
 
-    refinement = result.diagnostics.get("refinement", {})
+    refinement = result.diagnostics.refinement or {}
     if refinement.get("converged") is False:
         reasons.append(("red", f"the refinement did not converge in {refinement.get('iterations')} iterations"))
 
@@ -261,7 +261,7 @@ def centre_noise_reference_mm(result: CalibrationResult, thresholds: Thresholds 
     rule). None otherwise (the point noise of the profiles, or the given covariances,
     anchor the expected RMS)."""
     th = thresholds or Thresholds()
-    noise = result.diagnostics.get("noise", {}) or {}
+    noise = result.diagnostics.noise or {}
     within = noise.get("centre_noise_within_stations_mm")
     if result.residuals.n_profiles_used or noise.get("centre_noise_mm") is None or within is None:
         return None
@@ -384,7 +384,7 @@ def inconsistent_stations(result: CalibrationResult, thresholds: Thresholds | No
     """Stations whose consistency RMS (mm) stands out: above ``factor`` x the median over
     stations and above the floor. ``{label: rms_mm}``."""
     th = thresholds or Thresholds()
-    cons = result.diagnostics.get("station_consistency", {}) or {}
+    cons = result.diagnostics.station_consistency or {}
     if len(cons) < 2:
         return {}
     rms = {label: float(v["rms_mm"]) for label, v in cons.items()}
@@ -531,7 +531,7 @@ def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
 def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: dict[str, float]) -> list[Advice]:
     """Residuals larger than expected at every station alike, and robot poses that scatter."""
     out: list[Advice] = []
-    noise = result.diagnostics.get("noise", {}) or {}
+    noise = result.diagnostics.noise or {}
     exp = expected_rms_mm(result, th)
     ratio = result.residuals.rms_mm / exp
     if ratio > th.residual_ratio_amber and not bad_stations:
@@ -561,7 +561,7 @@ def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: di
 def _station_advice(result: CalibrationResult, bad_stations: dict[str, float]) -> list[Advice]:
     """Stations whose sphere centre does not move as the robot says it moved."""
     out: list[Advice] = []
-    cons = result.diagnostics.get("station_consistency", {}) or {}
+    cons = result.diagnostics.station_consistency or {}
     if bad_stations:
         typical = float(median([float(v["rms_mm"]) for v in cons.values()]))
         listing = ", ".join(f"{k} ({v:.3f} mm)" for k, v in sorted(bad_stations.items()))
@@ -682,7 +682,7 @@ def _estimator_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]
     """The two-step start far from the refined result, or a refinement that did not converge."""
     out: list[Advice] = []
     diag = result.diagnostics
-    tsr = diag.get("two_step_vs_refined", {}) or {}
+    tsr = diag.two_step_vs_refined or {}
     if tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm:
         out.append(Advice(
             "start_disagrees", "amber", "Two-step start and refinement disagree",
@@ -690,7 +690,7 @@ def _estimator_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]
             "With good data they agree to a few hundredths; a large difference points at bad observations "
             "that were not caught, or at too little rotation between stations.",
         ))
-    if (diag.get("refinement", {}) or {}).get("converged") is False:
+    if (diag.refinement or {}).get("converged") is False:
         out.append(Advice(
             "not_converged", "red", "Refinement did not converge",
             "The estimate may be wrong. Check the dataset (units in mm, one orientation per station) and add "

@@ -65,7 +65,7 @@ def _check_the_red_mark(solution, kinematics, out, red_out):
     assert RED_WARNING not in (out / "robot_calibrated.urdf").read_text()
     verdict = {"level": "red", "headline": "forced", "written_with_force": True}
     red = replace(solution, result=solution.result.model_copy(
-        update={"diagnostics": {**solution.result.diagnostics, "verdict": verdict}}))
+        update={"diagnostics": solution.result.diagnostics.model_copy(update={"verdict": verdict})}))
     red_out.mkdir()
     text = write_calibrated_urdf(red, kinematics, red_out).read_text()
     assert text.splitlines()[2].strip() == RED_WARNING  # the first line of the header comment

@@ -70,7 +70,7 @@ def test_force_writes_a_red_result_and_still_exits_7(tmp_path, clean, capsys):
     assert "likely cause" in (out / "report.html").read_text()  # the report shows the run's verdict
     assert "written with --force" in capsys.readouterr().out
     # result.json itself says it is RED, written with --force
-    verdict = dataio.read_result(out / "result.json").diagnostics["verdict"]
+    verdict = dataio.read_result(out / "result.json").diagnostics.verdict
     assert verdict["level"] == "red" and verdict["written_with_force"] and "likely cause" in verdict["headline"].lower()
     # and so does every exported file, at the top, in its own comment syntax; each still reads back
     assert_every_export_warns(out, True)

@@ -82,7 +82,7 @@ def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(
     assert not (out / "result.json").exists() and not list(out.glob("*4x4*")) and not list(out.glob("*.mod"))
     # --force writes it, still RED, and the file says so
     assert main(["solve", str(path), "--out", str(tmp_path / "forced"), "--no-report", "--force"]) == EXIT_RED
-    verdict = dataio.read_result(tmp_path / "forced" / "result.json").diagnostics["verdict"]
+    verdict = dataio.read_result(tmp_path / "forced" / "result.json").diagnostics.verdict
     assert verdict["level"] == "red" and verdict["written_with_force"]
 
 
@@ -133,13 +133,13 @@ def test_a_circle_table_says_that_its_twin_with_y_and_z_swapped_cannot_be_exclud
         assert "verdict: AMBER" in printed and f"amber: {twin}table with y and z swapped in every circle" in printed
         assert "Give a nominal transform (calibration.nominal_transform; spherecal solve --nominal)" in printed
         result = dataio.read_result(out / "result.json")
-        assert result.diagnostics["mirror_twin"]["excluded"] is False
-        assert result.diagnostics["mirror_twin"]["text"].startswith(twin)
+        assert result.diagnostics.mirror_twin["excluded"] is False
+        assert result.diagnostics.mirror_twin["text"].startswith(twin)
     X = cell.true_transform
     nominal = ",".join(str(v) for v in (*X.translation_mm, *X.quaternion_wxyz))
     assert main(["solve", str(path), "--out", str(tmp_path / "nominal"), "--no-report", "--nominal", nominal]) == EXIT_OK
     printed = capsys.readouterr().out
-    assert "twin" not in printed and "mirror_twin" not in dataio.read_result(tmp_path / "nominal" / "result.json").diagnostics
+    assert "twin" not in printed and dataio.read_result(tmp_path / "nominal" / "result.json").diagnostics.mirror_twin is None
     assert main(["solve", str(swapped), "--out", str(tmp_path / "caught"), "--no-report", "--nominal", nominal]) == EXIT_RED
     printed = capsys.readouterr().out
     assert "red: the result is 180.0 deg and " in printed, printed

@@ -152,7 +152,7 @@ def test_station_rotation_tolerance_from_the_command_line(tmp_path):
     result = dataio.read_result(tmp_path / "b" / "result.json")
     assert [f.index for f in result.flagged] == [10, 11]
     assert all("inconsistent with the other profiles" in f.reason and "turned" not in f.reason for f in result.flagged)
-    assert result.diagnostics["station_orientation"]["tolerance_deg"] == 0.5
+    assert result.diagnostics.station_orientation["tolerance_deg"] == 0.5
     with pytest.raises(SystemExit) as exc:
         main(["solve", str(path), "--station-rotation-tolerance-deg", "0"])
     assert exc.value.code == EXIT_USAGE

@@ -81,13 +81,13 @@ def test_centres_from_the_true_geometry_plus_noise_give_the_known_answer(mountin
     sol = solve(ds, CalibrationOptions(robot_error_model="none"))
     res = sol.result
     assert_known_answer(res, cell)
-    est = res.diagnostics["noise"]["centre_noise_mm"]
+    est = res.diagnostics.noise["centre_noise_mm"]
     if given:
         assert est is None
     else:  # the variance component finds the centres' noise (pose noise apart)
         assert 0.02 < est < 0.045, est
     # the pure-translation consistency per station, on centres
-    cons = res.diagnostics["station_consistency"]
+    cons = res.diagnostics.station_consistency
     assert set(cons) == {"S1", "S2", "S3", "S4"} and max(c["rms_mm"] for c in cons.values()) < 0.2
 
 
@@ -421,7 +421,7 @@ def test_rows_of_several_orientations_under_one_label_are_split_and_solved_as_la
     taken for orientation read noise)."""
     labelled, one, cell = one_label_for_five_orientations(4)
     res, ref = solve(one).result, solve(labelled).result
-    orientation = res.diagnostics["station_orientation"]
+    orientation = res.diagnostics.station_orientation
     assert orientation["split_stations"] == {"S1": ["S1", "S1/b", "S1/c", "S1/d", "S1/e"]}
     assert orientation["rotation_noise_seen_deg"] < 0.01, orientation
     assert res.flagged == ref.flagged == []
@@ -581,7 +581,7 @@ def test_a_circle_may_give_one_standard_deviation_and_the_other_is_estimated(mou
     assert all(getattr(o.circle, known) is not None and getattr(o.circle, other) is None for o in ds.observations)
     res = solve(ds, CalibrationOptions(robot_error_model="none")).result
     assert_known_answer(res, cell)
-    est = res.diagnostics["noise"]["centre_noise_mm"]
+    est = res.diagnostics.noise["centre_noise_mm"]
     assert est is not None and 0.01 < est < 0.06, est  # (the missing one: 0.03 mm simulated)
 
 

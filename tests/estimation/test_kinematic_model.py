@@ -330,7 +330,7 @@ def test_joints_that_do_not_describe_the_poses_are_not_used(kin):
     for name, joints_of in faults.items():
         sol = solve(_with_joints(ds, joints_of), OPTIONS, kinematics=kin)
         assert sol.result.robot_error.model == "station", name
-        reason = sol.result.diagnostics["joints_vs_poses"]["reason"]
+        reason = sol.result.diagnostics.joints_vs_poses["reason"]
         assert reason.startswith(f"the joint readings do not match the reported flange poses: for {len(obs)} of "
                                  f"{len(obs)} shots the robot's model puts the flange"), reason
         from spherecal.report.assess import verdict
@@ -349,5 +349,5 @@ def test_joints_that_do_not_describe_the_poses_are_not_used(kin):
     assert "from the pose given with them" in flag.reason and "joints read at another moment" in flag.reason
     # the joints as taken: nothing flagged for them
     clean = solve(ds, OPTIONS, kinematics=kin)
-    assert "joints_vs_poses" not in clean.result.diagnostics
+    assert clean.result.diagnostics.joints_vs_poses is None
     assert not [f for f in clean.result.flagged if "joints" in f.reason]

@@ -197,11 +197,11 @@ def test_a_pose_read_at_the_wrong_moment_is_flagged_and_dropped(mounting):
 
 def test_diagnostics_report_station_consistency_and_conditioning(mounting):
     res = calibrate(simulate_dataset(standard_cell(mounting, seed=1, fov=reference_fov())))
-    cons = res.diagnostics["station_consistency"]
+    cons = res.diagnostics.station_consistency
     assert set(cons) == {"S1", "S2", "S3", "S4"}
     assert all(0 < v["rms_mm"] < 0.1 for v in cons.values())
-    assert res.diagnostics["two_step"]["translation_step"]["condition_number"] < 100
-    assert res.diagnostics["refinement"]["converged"]
+    assert res.diagnostics.two_step["translation_step"]["condition_number"] < 100
+    assert res.diagnostics.refinement["converged"]
 
 
 # --- degenerate data -------------------------------------------------------------------------------

@@ -143,7 +143,7 @@ def test_predicted_error_at_new_poses_matches_the_truth(mounting, kin):
     for seed in range(6):
         cell, sol = _solve(mounting, seed, kin)
         ref = sol.refined
-        nz = NoiseAssumptions(sol.result.diagnostics["noise"]["point_noise_mm"], 0.02, 0.0)
+        nz = NoiseAssumptions(sol.result.diagnostics.noise["point_noise_mm"], 0.02, 0.0)
         pred.append(point_error_budget(sol.problem, ref, nz, shots_averaged=NEW_VIEWS.profiles_per_station)["rms_mm"])
         by: dict[str, list] = {}
         for o in simulate_dataset(cell, NEW_VIEWS).observations:

@@ -171,7 +171,7 @@ def test_orientation_read_noise_is_never_refused():
         ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
         res = solve(ds).result
         assert not any("turned" in f.reason for f in res.flagged), (seed, res.flagged)
-        assert res.diagnostics["station_orientation"]["tolerance_deg"] > 0.05
+        assert res.diagnostics.station_orientation["tolerance_deg"] > 0.05
         assert_counts_true(ds, res)
         X = cell.true_transform
         w = geo.rotvec_from_matrix(X.rotation_matrix @ res.transform.rotation_matrix.T)
@@ -192,7 +192,7 @@ def test_shots_that_turned_at_the_end_of_a_station_are_flagged(mounting):
         assert sorted(f.index for f in res.flagged) == [17, 18, 19]
         for f in res.flagged:
             assert f.station == "S2" and re.match(r"turned 0\.(19|20)\d deg", f.reason) and "only translate" in f.reason
-        assert res.diagnostics["station_orientation"]["turned_observations"] == [17, 18, 19]
+        assert res.diagnostics.station_orientation["turned_observations"] == [17, 18, 19]
         assert_counts_true(ds, res)
         assert_close_to_truth(cell, res)
 
@@ -206,8 +206,8 @@ def test_station_turned_half_way_is_split(mounting):
         ds = turned_dataset(cell, {("S2", k): (0.0, 0.2, 0.0) for k in range(5, 10)})
         sol = solve(ds)
         res = sol.result
-        assert res.diagnostics["station_orientation"]["split_stations"] == {"S2": ["S2", "S2/b"]}
-        assert "S2/b" in res.residuals.per_station_rms_mm and res.diagnostics["orientations"] == 5
+        assert res.diagnostics.station_orientation["split_stations"] == {"S2": ["S2", "S2/b"]}
+        assert "S2/b" in res.residuals.per_station_rms_mm and res.diagnostics.orientations == 5
         assert sorted(sol.problem.obs_index[sol.problem.station_of == sol.problem.station_labels.index("S2/b")]) == \
             list(range(15, 20))
         assert res.flagged == [] or len(res.flagged) <= 1
@@ -224,7 +224,7 @@ def test_two_orientations_under_one_label_are_split_not_refused(mounting):
         o.model_copy(update={"station": "S1"}) if o.station == "S2" else o for o in ds.observations]})
     res = solve(relabelled).result
     ref = solve(ds).result
-    assert res.diagnostics["station_orientation"]["split_stations"] == {"S1": ["S1", "S1/b"]}
+    assert res.diagnostics.station_orientation["split_stations"] == {"S1": ["S1", "S1/b"]}
     assert res.flagged == ref.flagged == []
     assert geo.rotation_angle_deg(res.transform.rotation_matrix, ref.transform.rotation_matrix) < 1e-6
     assert np.allclose(res.transform.translation, ref.transform.translation, atol=1e-6)
@@ -262,7 +262,7 @@ def test_station_rotation_tolerance_is_settable():
     assert sorted(f.index for f in solve(ds).result.flagged) == [18, 19]
     res = solve(ds, CalibrationOptions(station_rotation_tolerance_deg=0.5)).result
     assert not any("turned" in f.reason for f in res.flagged)
-    assert res.diagnostics["station_orientation"]["tolerance_deg"] == 0.5
+    assert res.diagnostics.station_orientation["tolerance_deg"] == 0.5
 
 
 def test_a_profile_flagged_near_the_spheres_edge_is_explained_by_the_edge_not_the_pairing():
@@ -413,7 +413,7 @@ def test_orientation_readings_noisier_than_assumed_are_taken_as_the_stations_sho
     (line,) = [s for s in said if s.startswith("the orientation readings scatter by ")]
     seen = float(line.split()[5])
     assert 0.015 < seen < 0.025 and "more than the assumed pose_rotation_noise_deg = 0.002" in line
-    assert result.diagnostics["refinement"]["converged"] is True
+    assert result.diagnostics.refinement["converged"] is True
     rot, trans = errors(cell, result)  # (0.16 deg with this noise: within its stated uncertainty, and said)
     assert rot < 3 * np.linalg.norm(result.std_rotation_deg) and trans < 3 * np.linalg.norm(result.std_translation_mm)
     assert trans < 0.3, trans

@@ -72,7 +72,7 @@ def test_starts_that_fit_alike_are_decided_by_the_joint_likelihood(kin, coplanar
     cell, ds = coplanar
     sol = solve(ds, KINEMATIC, kinematics=kin)
     ts, problem = sol.two_step, sol.problem
-    noise = NoiseAssumptions(sol.result.diagnostics["noise"]["point_noise_mm"], KINEMATIC.pose_translation_noise_mm,
+    noise = NoiseAssumptions(sol.result.diagnostics.noise["point_noise_mm"], KINEMATIC.pose_translation_noise_mm,
                              KINEMATIC.pose_rotation_noise_deg)
     effects = {"station_effects": None, "kinematic_effects": kinematic_effects(KINEMATIC, kin.chain)}
 

@@ -31,6 +31,7 @@ from spherecal.core.models import (
     Pose,
     Profile,
     ResidualStats,
+    ResultDiagnostics,
 )
 from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
 from reference_sensor import reference_fov
@@ -546,7 +547,7 @@ def test_result_round_trip(tmp_path):
     path = tmp_path / "cal.result.json"
     write_result(path, result)
     back = read_result(path)
-    expected = result.model_copy(update={"diagnostics": {**result.diagnostics, "history": [1.5, 0.2, 0.01]}})
+    expected = result.model_copy(update={"diagnostics": result.diagnostics.model_copy(update={"history": [1.5, 0.2, 0.01]})})
     assert back == expected
     text = path.read_text(encoding="utf-8")
     assert text.startswith('{\n  "format": "spherecal-result",\n  "version": 2,\n')
@@ -601,7 +602,7 @@ def test_result_with_nan_is_refused_with_its_field(tmp_path):
     bad = hand_made_result().model_copy(update={"variance_factor": math.nan})
     with pytest.raises(InputError, match=r"variance_factor is nan: a file cannot hold NaN or infinity"):
         write_result(tmp_path / "r.json", bad)
-    bad = hand_made_result().model_copy(update={"diagnostics": {"steps": [1.0, math.inf]}})
+    bad = hand_made_result().model_copy(update={"diagnostics": ResultDiagnostics.model_validate({"steps": [1.0, math.inf]})})
     with pytest.raises(InputError, match=r"diagnostics\.steps\[1\] is inf"):
         write_result(tmp_path / "r.json", bad)
     assert not list(tmp_path.iterdir())

@@ -96,7 +96,7 @@ def test_report_shows_the_key_numbers(bad_solution, bad_report):
     for v in r.std_rotation_deg + r.std_translation_mm + r.std_sphere_centre_mm:
         assert f"{v:.4f}" in text
     assert f"{r.residuals.rms_mm:.4f}" in text
-    for label, cons in r.diagnostics["station_consistency"].items():
+    for label, cons in r.diagnostics.station_consistency.items():
         assert f"<td>{label}</td>" in text and f"{cons['rms_mm']:.4f}" in text
     section = text[text.index('id="controller"'):text.index('id="advice"')]
     # the exporters' notes in their order, escaped: the report itself names no controller
@@ -183,7 +183,7 @@ def test_a_station_read_before_settling_is_named():
         if o.station == "S2" else o for o in ds.observations]
     res = solve(ds.model_copy(update={"observations": obs})).result
     items = {a.key: a for a in advice(res)}
-    if "S2" in res.diagnostics["station_consistency"]:  # kept: named as inconsistent
+    if "S2" in res.diagnostics.station_consistency:  # kept: named as inconsistent
         assert list(inconsistent_stations(res)) == ["S2"]
         assert "S2" in items["station_inconsistent"].text and "before the" in items["station_inconsistent"].text
     else:  # its shifted shots left out one by one, then the station for want of shots: every one flagged

@@ -243,7 +243,7 @@ def _fig_per_station(solution, result, colours) -> Figure:
 def _fig_histogram(solution, result) -> Figure:
     res = station_residuals(solution, np.arange(solution.problem.n_profiles))
     rms = result.residuals.rms_mm
-    point = float(result.diagnostics.get("noise", {}).get("point_noise_mm", 0.0) or 0.0)
+    point = float((result.diagnostics.noise or {}).get("point_noise_mm", 0.0) or 0.0)
     fig = Figure(figsize=(6.5, 3.8))
     ax = fig.add_subplot()
     lim = max(float(np.max(np.abs(res))), 4 * rms)

@@ -83,7 +83,7 @@ def headline_html(result: CalibrationResult, ver, th: Thresholds, notes: Sequenc
     sr, st = result.std_rotation_deg, result.std_translation_mm
     reasons = "".join(f'<li><span class="dot {lv}"></span>{_e(text)}</li>' for lv, text in ver.reasons)
     exp = expected_rms_mm(result, th)
-    point = result.diagnostics.get("noise", {}).get("point_noise_mm")
+    point = (result.diagnostics.noise or {}).get("point_noise_mm")
     cards = [
         ("translation (mm)", f"{_n(x)}, {_n(y)}, {_n(z)}"),
         ("quaternion (w, x, y, z)", ", ".join(_n(v, 6) for v in q)),
@@ -235,7 +235,7 @@ def point_html(result: CalibrationResult, distance_mm: float) -> str:
 
 
 def stations_html(result: CalibrationResult, th: Thresholds) -> str:
-    cons = result.diagnostics.get("station_consistency", {}) or {}
+    cons = result.diagnostics.station_consistency or {}
     per = result.residuals.per_station_rms_mm
     bad = inconsistent_stations(result, th)
     flagged_by_station: dict[str, int] = {}
@@ -357,15 +357,15 @@ def signature_html() -> str:
 
 def details_html(result: CalibrationResult) -> str:
     d = result.diagnostics
-    ref = d.get("refinement", {}) or {}
-    noise = d.get("noise", {}) or {}
-    tsr = d.get("two_step_vs_refined", {}) or {}
+    ref = d.refinement or {}
+    noise = d.noise or {}
+    tsr = d.two_step_vs_refined or {}
     rows = [
         ["method", _e(result.method)],
         ["variance factor (chi&sup2;/dof)", _n(result.variance_factor, 3)],
         ["refinement", f"{ref.get('iterations', '?')} iterations, converged: {ref.get('converged', '?')}"],
         ["information condition number", f"{ref.get('information_condition_number', float('nan')):.3g}"],
-        ["orientations (stations)", str(d.get("orientations", "?"))],
+        ["orientations (stations)", str("?" if d.orientations is None else d.orientations)],
         ["two-step vs refined", f"{_n(tsr.get('rotation_deg'))} deg, {_n(tsr.get('translation_mm'))} mm"],
         ["noise used (point / pose translation / pose rotation)",
          f"{_n(noise.get('point_noise_mm'))} mm / {_n(noise.get('pose_translation_noise_mm'))} mm / "
