@@ -551,6 +551,23 @@ class ResultDiagnostics(BaseModel):
         given = self.model_fields_set | set(self.__pydantic_extra__ or ())
         return {k: v for k, v in data.items() if k in given}
 
+    def __getitem__(self, key: str) -> Any:
+        """``diagnostics["noise"]``, as when this was a dict: kept for one release for
+        plugins that read it so; use the attribute (``diagnostics.noise``)."""
+        warnings.warn("result.diagnostics is typed: read diagnostics.<name> instead of diagnostics['<name>']",
+                      DeprecationWarning, stacklevel=2)
+        value = getattr(self, key, None) if key in type(self).model_fields else (self.__pydantic_extra__ or {}).get(key)
+        if value is None:
+            raise KeyError(key)
+        return value
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """``diagnostics.get("noise")``, as when this was a dict (deprecated, as ``[]``)."""
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
 
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.

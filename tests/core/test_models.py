@@ -120,3 +120,18 @@ def test_dataset_rejects_unknown_mounting_and_fields():
         Dataset(mounting="eye_on_hand", sphere_radius_mm=19.1)
     with pytest.raises(ValidationError, match="Extra inputs"):
         Dataset(mounting="eye_in_hand", sphere_radius_mm=19.1, radius=3)
+
+
+def test_result_diagnostics_read_as_a_dict_still_work_with_a_warning():
+    """Plugins written when diagnostics was a free dict keep working for one release:
+    ``diagnostics["x"]`` and ``.get`` give the attribute (or the extra key) and warn."""
+    from spherecal.core.models import ResultDiagnostics
+
+    d = ResultDiagnostics(orientations=4, plugin_figure=1.5)
+    with pytest.warns(DeprecationWarning, match="diagnostics.<name>"):
+        assert d["orientations"] == 4
+    with pytest.warns(DeprecationWarning):
+        assert d.get("plugin_figure") == 1.5 and d.get("noise", "none") == "none"
+    with pytest.warns(DeprecationWarning), pytest.raises(KeyError):
+        d["noise"]
+    assert d.model_dump() == {"orientations": 4, "plugin_figure": 1.5}
