@@ -5,6 +5,7 @@ logging set up for its length, map its errors to exit codes, and write run.log a
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import logging
 import os
@@ -32,11 +33,26 @@ _PLUGIN_OPTIONS = frozenset({"compare", "validate"})
 
 def console() -> int:
     """The ``spherecal`` program (its console script): :func:`main` with the process's
-    arguments."""
-    return main()
+    arguments. Python's cyclic garbage collector stays off while the command's modules
+    are imported (they allocate many long-lived objects, which it would scan again and
+    again) and is back on, with what was imported frozen out of its scans, before the
+    command reads or computes anything: about 45 ms (9 %) of a small ``solve``, measured
+    on the README's install. :func:`main`, the library's entry, leaves the collector as
+    it found it."""
+    gc.disable()
+    try:
+        return main(_collector_held=True)
+    finally:
+        _collector_back()
 
 
-def main(argv: list[str] | None = None) -> int:
+def _collector_back() -> None:
+    if not gc.isenabled():
+        gc.freeze()
+        gc.enable()
+
+
+def main(argv: list[str] | None = None, _collector_held: bool = False) -> int:
     """Run one command; returns its exit code (:data:`spherecal.cli.output.EXIT_CODES_HELP`).
     Logging is set up for the command's length only (:func:`_logging`): nothing stays
     installed afterwards. Only the chosen command's modules are imported."""
@@ -45,6 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(frame_options)
     args = parser.parse_args(argv)
     args._argv = argv
+    args._collector_held = _collector_held
     session = Session(json=args.json, quiet=args.quiet, record=RunRecord(), host=host)
     session.summary.update(schema=JSON_SCHEMA, spherecal=__version__, command=args.command)
     started = time.time()
@@ -85,6 +102,8 @@ def _run(args, session: Session) -> int:
     command = None
     try:
         command = importlib.import_module(f"spherecal.cli.{args.command}")
+        if getattr(args, "_collector_held", False):
+            _collector_back()
         return command.run(args, session)
     except BrokenPipeError:
         raise

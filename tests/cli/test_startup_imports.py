@@ -72,3 +72,43 @@ def test_the_robot_plugin_still_builds_its_kinematics_when_asked():
     pose = kin.flange_pose_from_joints([0.0, 0.0, 0.0, 0.0, 30.0, 0.0])
     assert "pinocchio" in sys.modules
     assert 500.0 < pose.translation_mm[0] < 1500.0 and abs(pose.translation_mm[1]) < 1e-9  # ahead, in the x-z plane
+
+
+def test_the_program_holds_the_garbage_collector_off_for_its_imports_only(tmp_path):
+    """The ``spherecal`` program keeps Python's cyclic garbage collector off while the
+    command's modules are imported and on, with the start-up frozen, from before the data
+    is read; ``cli.main``, the library's entry, leaves the collector as it found it."""
+    from spherecal.io import dataset as dataio
+    from spherecal.sim import SweepPlan, simulate_dataset, standard_cell
+
+    path = tmp_path / "small.jsonl"
+    dataio.write_dataset(path, simulate_dataset(standard_cell("eye_in_hand", seed=3, fov=reference_fov()),
+                                                SweepPlan(profiles_per_station=6)))
+    code = (
+        "import gc, json, sys\n"
+        "from spherecal import cli\n"
+        "from spherecal.io import dataset\n"
+        "seen = {}\n"
+        "real_read = dataset.read_dataset\n"
+        "def read(p):\n"
+        "    seen['read'] = gc.isenabled()\n"
+        "    return real_read(p)\n"
+        "dataset.read_dataset = read\n"
+        "argv = json.loads(sys.argv[1])\n"
+        "if sys.argv[2] == 'console':\n"
+        "    sys.argv = ['spherecal', *argv]\n"
+        "    exit_code = cli.console()\n"
+        "else:\n"
+        "    exit_code = cli.main(argv)\n"
+        "print('SEEN ' + json.dumps([exit_code, seen, gc.isenabled(), gc.get_freeze_count() > 0]))\n"
+    )
+    outcomes = {}
+    for entry in ("console", "main"):
+        argv = ["solve", str(path), "--no-report", "--out", str(tmp_path / entry)]
+        proc = subprocess.run([sys.executable, "-c", code, json.dumps(argv), entry], capture_output=True, text=True,
+                              timeout=300)
+        line = [ln for ln in proc.stdout.splitlines() if ln.startswith("SEEN ")]
+        assert line, proc.stderr
+        outcomes[entry] = json.loads(line[-1][len("SEEN "):])
+    assert outcomes["console"] == [0, {"read": True}, True, True]  # on for the data, start-up frozen
+    assert outcomes["main"] == [0, {"read": True}, True, False]  # the library: never off, nothing frozen
