@@ -90,9 +90,10 @@ def solve_and_write(
     solution = replace(solution, result=solution.result.model_copy(update={
         "diagnostics": solution.result.diagnostics.model_copy(update={"verdict": {
             "level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}})}))
+    notes = exports.notes(solution.result)  # the exporters' notes: their warnings here, their text in the report
     if written:
         write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
-        for note in exports.notes(solution.result):
+        for note in notes:
             if note.warning:
                 log(Notice(f"warning: {note.title}: {note.warning}"))
         urdf = write_calibrated_urdf(solution, kinematics, out)
@@ -104,7 +105,7 @@ def solve_and_write(
         from spherecal.report.html import write_report
 
         chosen = {} if report_settings is None else {"point_distance_mm": report_settings.point_distance_mm}
-        write_report(solution, out, verdict_override=graded, notes=exports.notes(solution.result), **chosen)
+        write_report(solution, out, verdict_override=graded, notes=notes, **chosen)
     return solution, graded, written
 
 

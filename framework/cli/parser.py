@@ -103,6 +103,8 @@ def flag(name: str) -> str:
 
 
 OUT_HELP = "the run's output folder: {what} (default: {default})"
+#: The help of --yes, for every command that moves a robot.
+YES_HELP = "confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')"
 
 
 def _common_options(p: argparse.ArgumentParser, default) -> None:
@@ -165,7 +167,7 @@ def _calibrate(sub, common, as_json) -> None:
                    "RED (the exit code is still 7)")
     c.add_argument("--operator", metavar="NAME", help="who runs the calibration, for the report and the result "
                    "(default: [report] operator of the configuration)")
-    c.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
+    c.add_argument("--yes", action="store_true", help=YES_HELP)
 
 
 def _solve(sub, common, as_json) -> None:
@@ -240,7 +242,7 @@ def _validate(sub, common, as_json, frame_options) -> None:
     v.add_argument("--no-report", action="store_true", help="do not rewrite the HTML report")
     _transform_options(v, "to validate instead of the calibration's result.json (e.g. the controller's current "
                        "tool)", frame_options, with_std=False)
-    v.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
+    v.add_argument("--yes", action="store_true", help=YES_HELP)
 
 
 def _scan(sub, common, as_json) -> None:
@@ -252,7 +254,7 @@ def _scan(sub, common, as_json) -> None:
     n.add_argument("-o", "--out", metavar="DIR", help=OUT_HELP.format(
         what="its result.json maps the points, and the PLY and run.log are written there",
         default="output_dir of the configuration"))
-    n.add_argument("--yes", action="store_true", help="confirm the motion of a real robot without being asked (default: print the plan and ask for a typed 'yes')")
+    n.add_argument("--yes", action="store_true", help=YES_HELP)
 
 
 def _compare(sub, common, as_json, frame_options) -> None:
