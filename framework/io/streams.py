@@ -224,6 +224,15 @@ def _shape_text(shape: tuple[int, ...]) -> str:
     return f"{shape[0]} rows of {shape[1]} numbers" if len(shape) == 2 else f"shape {shape}"
 
 
+def _within_limit(a: np.ndarray) -> bool:
+    """Every value finite and at most MAX_ABS_VALUE in magnitude (max and min carry a NaN
+    through, so two passes decide it)."""
+    if not a.size:
+        return True
+    hi, lo = float(a.max()), float(a.min())
+    return hi <= MAX_ABS_VALUE and -lo <= MAX_ABS_VALUE  # False for NaN
+
+
 def _check_quaternions(q: np.ndarray, field: str) -> np.ndarray:
     """Unit quaternions (w, x, y, z) to rounding, normalised, w >= 0."""
     norm = np.linalg.norm(q, axis=1)
@@ -488,7 +497,7 @@ class _Reader:
         for chunk, s in zip(self.prof_bytes, start[:-1].tolist()):
             pts[s:s + len(chunk) // 8] = np.frombuffer(chunk, dtype="<f4").reshape(-1, 2)
         self.prof_bytes = []
-        within = bool(np.isfinite(pts).all()) and (not pts.size or max(pts.max(), -pts.min()) <= MAX_ABS_VALUE)
+        within = _within_limit(pts)
         bad = None if within else ~(np.abs(pts) <= MAX_ABS_VALUE).all(axis=1)  # NaN, infinity, or beyond 1e6 mm
         if bad is not None:
             i = int(np.flatnonzero(bad)[0])
@@ -835,26 +844,34 @@ class RecordingWriter:
             _check_stamps(t, self._last_profile_t, "t_sensor_s", "sensor")
         except FieldError as exc:
             raise InputError(f"{name}: profile.{exc}") from None
-        if not (np.isfinite(pts).all() and (not pts.size or max(pts.max(), -pts.min()) <= MAX_ABS_VALUE)):
-            i = int(np.flatnonzero(~(np.abs(pts) <= MAX_ABS_VALUE).all(axis=1))[0])
-            j = int(np.searchsorted(start, i, side="right") - 1)
-            raise InputError(f"{name}: profile {j} of this call (t_sensor_s {t[j]!r}): point {i - start[j]} is "
-                             f"{pts[i].tolist()} mm: not a finite number of at most {MAX_ABS_VALUE:g} mm; not written")
-        raw = memoryview(np.ascontiguousarray(pts, dtype="<f4")).cast("B")
         frames = extras["frame"].tolist() if "frame" in extras else None
         sweeps_ = extras["sweep"].tolist() if "sweep" in extras else None
-        b = (start * 8).tolist()
+        bounds = start.tolist()
         ts = t.tolist()
-        chunk: list[str] = []
-        for i in range(m):
-            b64 = _b64encode(raw[b[i]:b[i + 1]]).decode("ascii")
-            mid = (f', "frame": {frames[i]}' if frames is not None else "") + \
-                (f', "sweep": {sweeps_[i]}' if sweeps_ is not None else "")
-            chunk.append(f'{{"profile": {{"t_sensor_s": {ts[i]!r}{mid}, "points_yz_mm_f32le": "{b64}"}}}}\n')
-            if len(chunk) == 512:  # bounded memory, few writes
-                self._write("".join(chunk).encode("ascii"), flush=False)
-                chunk = []
-        self._write("".join(chunk).encode("ascii"))
+        begin = self._file.tell()
+        try:
+            for a in range(0, m, 256):  # in batches: checked and converted in the cache, written as they go
+                b = min(m, a + 256)
+                batch = pts[bounds[a]:bounds[b]]
+                if not _within_limit(batch):
+                    i = bounds[a] + int(np.flatnonzero(~(np.abs(batch) <= MAX_ABS_VALUE).all(axis=1))[0])
+                    j = int(np.searchsorted(start, i, side="right") - 1)
+                    raise InputError(f"{name}: profile {j} of this call (t_sensor_s {ts[j]!r}): point {i - bounds[j]} "
+                                     f"is {pts[i].tolist()} mm: not a finite number of at most {MAX_ABS_VALUE:g} mm; "
+                                     "nothing of this call was written")
+                raw = memoryview(np.ascontiguousarray(batch, dtype="<f4")).cast("B")
+                base = bounds[a]
+                parts: list[bytes] = []
+                for i in range(a, b):
+                    mid = (f', "frame": {frames[i]}' if frames is not None else "") + \
+                        (f', "sweep": {sweeps_[i]}' if sweeps_ is not None else "")
+                    parts += (f'{{"profile": {{"t_sensor_s": {ts[i]!r}{mid}, "points_yz_mm_f32le": "'.encode("ascii"),
+                              _b64encode(raw[8 * (bounds[i] - base):8 * (bounds[i + 1] - base)]), b'"}}\n')
+                self._write(b"".join(parts), flush=b == m)
+        except InputError:
+            self._file.truncate(begin)  # a refused call leaves the file as it was
+            self._file.seek(begin)
+            raise
         self._last_profile_t = float(t[-1])
         self._has_frame = "frame" in extras
         self._has_sweep = "sweep" in extras
