@@ -55,7 +55,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.errors import DatasetFileError, InputError
 from spherecal.core.streams import PoseStream, ProfileStream, Recording
-from spherecal.io.streams import MAX_STAMP_STEP_S, _check_mounting_radius
+from spherecal.io.streams import MAX_STAMP_STEP_S, PointBuffer, _check_mounting_radius
 
 __all__ = [
     "BagCloudError",
@@ -372,8 +372,7 @@ def read_bag(
             static = None
         wanted = prof.connections + pose.connections + (static.connections if static else [])
         parse_cloud = _CloudParser()
-        clouds: list[tuple[bytes, _Cloud]] = []
-        cloud_log: list[int] = []
+        decoder = _CloudDecoder(name, profile_topic, line_axis, prof.count)
         pose_raw: list[bytes] = []
         pose_log: list[int] = []
         static_raw: list[bytes] = []
@@ -383,9 +382,8 @@ def read_bag(
                 try:
                     cloud = parse_cloud(raw)
                 except Exception as exc:  # noqa: BLE001 - big-endian or unusual (struct.error, ValueError...)
-                    cloud, raw = _cloud_from_typestore(raw, exc, name, profile_topic, len(clouds))
-                clouds.append((raw, cloud))
-                cloud_log.append(log_ns)
+                    cloud, raw = _cloud_from_typestore(raw, exc, name, profile_topic, len(decoder.meta))
+                decoder.add(raw, cloud, log_ns)
             elif topic == pose_topic:
                 pose_raw.append(raw)
                 pose_log.append(log_ns)
@@ -394,11 +392,9 @@ def read_bag(
     finally:
         reader.close()
 
-    if not clouds:
+    if not decoder.meta:
         raise BagCloudError(f"{name}: {profile_topic} has no messages")
-    t_sensor, profiles, start, cloud_info = _decode_clouds(clouds, np.asarray(cloud_log, np.int64), line_axis, name,
-                                                            profile_topic)
-    del clouds
+    t_sensor, profiles, start, cloud_info = decoder.finish()
     log_pose = np.asarray(pose_log, np.int64)
     if pose.msgtype == POSE_STAMPED:
         t_robot, R, t_mm, joints, pose_info, log_pose = _poses_from_pose_stamped(pose_raw, log_pose, name, pose_topic,
@@ -413,7 +409,7 @@ def read_bag(
         raise BagTopicError(f"{name}: {pose_topic} gives {len(t_robot)} flange poses; a recording needs at least 2")
     _check_flange_units(t_mm, name, pose_topic)
     _check_time_spans(t_sensor, t_robot, name, profile_topic, pose_topic)
-    clocks, clock_info = _clocks(t_sensor, np.asarray(cloud_log, np.int64), t_robot, log_pose, profile_topic,
+    clocks, clock_info = _clocks(t_sensor, np.asarray(decoder.log_ns, np.int64), t_robot, log_pose, profile_topic,
                                  pose_topic, name)
     provenance = {
         "source": "rosbag2",
@@ -485,121 +481,150 @@ def _layout(c: _Cloud, axes: tuple[str, str, str], name: str, topic: str, index:
     return c.point_step, offsets, dtype, c.row_step == c.width * c.point_step
 
 
-#: Clouds are decoded in runs of about this many bytes (a run's passes stay in the cache).
+#: Clouds are decoded in runs of about this many bytes (a run's passes stay in the cache,
+#: and the messages' memory is reused by the next run's).
 _RUN_BYTES = 1 << 20
 
 
-def _decode_clouds(clouds: list[tuple[bytes, _Cloud]], log_ns: np.ndarray, line_axis: str, name: str, topic: str):
-    """Profiles (y, z) mm from the clouds, with their stamps (s) and what the conversion
-    saw. Runs of consecutive clouds of one layout are decoded at once (one join, strided
-    views of the three coordinates); each message's bytes are let go once decoded."""
-    m = len(clouds)
-    meta = [c for _, c in clouds]
-    sec = np.fromiter((c.sec for c in meta), np.int64, m)
-    nsec = np.fromiter((c.nanosec for c in meta), np.int64, m)
-    _check_stamps(sec * 1_000_000_000 + nsec, log_ns, name, topic, "profiles")
-    t = _seconds(sec, nsec)
-    frames = sorted({c.frame_id for c in meta})
-    if len(frames) > 1:
-        raise BagCloudError(f"{name}: {topic}: clouds in {len(frames)} frames ({', '.join(map(repr, frames[:5]))}): "
-                            "one sensor's profiles come in one frame")
-    axes = ("x", "y", "z") if line_axis == "y" else ("y", "x", "z")  # (normal, line, range)
-    cache: dict[tuple, tuple] = {}
-    layouts = []
-    for i, c in enumerate(meta):
-        key = (id(c.fields), c.point_step, c.row_step, c.width, c.height, c.data_len, c.is_bigendian)
-        lay = cache.get(key)
+class _CloudDecoder:
+    """Profiles (y, z) mm from PointCloud2 messages, decoded as they are read: runs of
+    consecutive clouds of one layout at once (one join, strided views of the three
+    coordinates), each message's bytes let go once its run is decoded."""
+
+    def __init__(self, name: str, topic: str, line_axis: str, n_expected: int):
+        self.name, self.topic, self.line_axis = name, topic, line_axis
+        self.axes = ("x", "y", "z") if line_axis == "y" else ("y", "x", "z")  # (normal, line, range)
+        self.n_expected = n_expected
+        self.points: PointBuffer | None = None
+        self.meta: list[_Cloud] = []
+        self.log_ns: list[int] = []
+        self._layouts: dict[tuple, tuple] = {}
+        self._run: list[tuple[bytes, _Cloud]] = []
+        self._run_layout: tuple | None = None
+        self._run_bytes = 0
+        self._bad_runs: list[tuple[int, np.ndarray]] = []  # (first point, finite mask) of runs with invalid points
+        self._extent_mm: dict[int, float] = {}  # a sample of profiles: the largest |coordinate| of the finite points
+
+    def add(self, raw: bytes, cloud: _Cloud, log_ns: int) -> None:
+        i = len(self.meta)
+        key = (id(cloud.fields), cloud.point_step, cloud.row_step, cloud.width, cloud.height, cloud.data_len,
+               cloud.is_bigendian)
+        lay = self._layouts.get(key)
         if lay is None:
-            lay = cache[key] = _layout(c, axes, name, topic, i, t[i])
-        layouts.append(lay)
-    dense = np.fromiter((c.is_dense for c in meta), bool, m)
-    counts = np.fromiter((c.width * c.height for c in meta), np.int64, m)
-    start = np.zeros(m + 1, np.int64)
-    np.cumsum(counts, out=start[1:])
-    out = np.empty((int(start[-1]), 2))
-    extent_mm = np.zeros(m)  # largest |coordinate| of a sample of profiles' finite points
-    sampled = np.zeros(m, bool)
-    finite: np.ndarray | None = None  # per point, made only when a point is not finite
-    j = 0
-    while j < m:
-        lay = layouts[j]
-        step = lay[0]
-        k, size = j + 1, meta[j].data_len
-        while k < m and size < _RUN_BYTES and layouts[k] == lay:
-            size += meta[k].data_len
-            k += 1
-        _, offsets, dtype, packed = lay
+            lay = self._layouts[key] = _layout(cloud, self.axes, self.name, self.topic, i,
+                                               cloud.sec + cloud.nanosec * 1e-9)
+        if self.points is None:
+            self.points = PointBuffer(self.n_expected * cloud.width * cloud.height)
+        if self._run and (lay != self._run_layout or self._run_bytes >= _RUN_BYTES):
+            self._decode_run()
+        self._run.append((raw, cloud))
+        self._run_layout = lay
+        self._run_bytes += cloud.data_len
+        self.meta.append(cloud)
+        self.log_ns.append(log_ns)
+
+    def _decode_run(self) -> None:
+        run, (step, offsets, dtype, packed) = self._run, self._run_layout
+        first_msg = len(self.meta) - len(run)
         if packed:
-            buf = b"".join(memoryview(raw)[c.data_start:c.data_start + c.data_len] for raw, c in clouds[j:k])
+            buf = b"".join(memoryview(raw)[c.data_start:c.data_start + c.data_len] for raw, c in run)
         else:  # rows padded beyond width * point_step: keep each row's points only
-            buf = b"".join(
-                np.frombuffer(raw, np.uint8, c.data_len, c.data_start).reshape(c.height, c.row_step)
-                [:, :c.width * step].tobytes() for raw, c in clouds[j:k])
-        clouds[j:k] = [(b"", c) for c in meta[j:k]]
-        a, b = int(start[j]), int(start[k])
-        n = b - a
+            buf = b"".join(np.frombuffer(raw, np.uint8, c.data_len, c.data_start).reshape(c.height, c.row_step)
+                           [:, :c.width * step].tobytes() for raw, c in run)
+        counts = [c.width * c.height for _, c in run]
+        self._run, self._run_bytes = [], 0
+        n = sum(counts)
+        points = self.points
+        base = points.n
+        block = points.reserve(n)
         if n:
             normal, line, rng = (np.ndarray((n,), dtype, buf, o, (step,)) for o in offsets)
-            pair = np.ndarray((n, 2), dtype, buf, offsets[1], (step, offsets[2] - offsets[1]))  # (line, range)
-            block = out[a:b]
-            np.multiply(pair, 1000.0, out=block, dtype=np.float64)  # m -> mm, in double precision
+            block[:, 0] = line  # column by column: NumPy's fastest strided cast
+            block[:, 1] = rng
+            block *= 1000.0  # m -> mm, in double precision
             # sums of squares (strided BLAS dot products) carry a NaN or an infinity through, and bound the
             # largest off-plane coordinate: the point-by-point look is needed only when one says so
             normal_sq = float(np.dot(normal, normal))
             fin = None
             if not math.isfinite(normal_sq + float(np.dot(line, line)) + float(np.dot(rng, rng))):
                 fin = np.isfinite(normal) & np.isfinite(line) & np.isfinite(rng)
-                if finite is None:
-                    finite = np.ones(len(out), bool)
-                finite[a:b] = fin
+                self._bad_runs.append((base, fin))
                 normal_max = float(np.abs(normal[fin]).max(initial=0.0))
             elif normal_sq > MAX_OFF_PLANE_M ** 2:
                 normal_max = max(float(normal.max()), -float(normal.min()))
             else:
                 normal_max = 0.0
-            nz = np.flatnonzero(counts[j:k])
-            idx = start[j:k][nz] - a
+            local = np.zeros(len(counts) + 1, np.int64)
+            np.cumsum(counts, out=local[1:])
+            nz = np.flatnonzero(np.diff(local))
             if normal_max > MAX_OFF_PLANE_M:
-                off = np.maximum.reduceat(np.abs(normal) if fin is None else np.where(fin, np.abs(normal), 0.0), idx)
-                i = j + int(nz[np.argmax(off > MAX_OFF_PLANE_M)])
-                _off_plane(name, topic, line_axis, i, t[i], float(off.max()))
+                absn = np.abs(normal) if fin is None else np.where(fin, np.abs(normal), 0.0)
+                off = np.maximum.reduceat(absn, local[nz])
+                i = first_msg + int(nz[np.argmax(off > MAX_OFF_PLANE_M)])
+                c = self.meta[i]
+                _off_plane(self.name, self.topic, self.line_axis, i, c.sec + c.nanosec * 1e-9, float(off.max()))
             # the units check needs a typical profile's reach: the run's first non-empty profile stands for it
             if nz.size:
-                first = slice(int(idx[0]), int(start[j + nz[0] + 1]) - a)
-                reach = np.abs(block[first]) if fin is None else np.abs(block[first][fin[first]])
-                extent_mm[j + nz[0]] = float(reach.max(initial=0.0))
-                sampled[j + nz[0]] = True
-        j = k
-    # non-finite points: an error in a cloud that says it has none, dropped otherwise
-    n_dropped = 0
-    if finite is not None:
-        bad_msg = np.unique(np.searchsorted(start, np.flatnonzero(~finite), side="right") - 1)
-        dense_bad = bad_msg[dense[bad_msg]]
-        if dense_bad.size:
-            i = int(dense_bad[0])
-            k = int(np.flatnonzero(~finite[start[i]:start[i + 1]])[0])
-            raise BagCloudError(f"{name}: {topic}: message {i} (stamp {t[i]:.6f} s) says is_dense (no invalid points) "
-                                f"but point {k} is not finite; {dense_bad.size} such clouds")
-        n_dropped = int((~finite).sum())
-        owner = np.repeat(np.arange(m), counts)  # each point's message
-        out = out[finite]
-        counts = np.bincount(owner[finite], minlength=m).astype(np.int64)
-        start = np.zeros(m + 1, np.int64)
-        np.cumsum(counts, out=start[1:])
-        warnings.warn(f"{name}: {topic}: dropped {n_dropped} invalid (NaN or infinite) points from "
-                      f"{bad_msg.size} clouds that say they may hold some (is_dense false)", BagWarning, stacklevel=3)
-    nonempty = counts > 0
-    if not nonempty.any():
-        raise BagCloudError(f"{name}: {topic}: all {m} clouds are empty (no finite point): the sensor saw nothing, "
-                            "or the topic is not the profiles")
-    typical = float(np.median(extent_mm[sampled & nonempty] if (sampled & nonempty).any() else [0.0])) / 1000.0
-    if typical > MAX_PROFILE_EXTENT_M:
-        raise BagUnitsError(f"{name}: {topic}: the points look like millimetres, not metres: a typical profile "
-                            f"reaches {typical:.4g} from the sensor, more than {MAX_PROFILE_EXTENT_M:g} if that were "
-                            "metres. ROS clouds are in metres (REP 103); have the driver publish metres")
-    info = {"sensor_frame_id": frames[0], "n_clouds": m, "n_empty_clouds": int((~nonempty).sum()),
-            "n_invalid_points_dropped": n_dropped}
-    return t, out, start, info
+                lo, hi = int(local[nz[0]]), int(local[nz[0] + 1])
+                reach = np.abs(block[lo:hi]) if fin is None else np.abs(block[lo:hi][fin[lo:hi]])
+                self._extent_mm[first_msg + int(nz[0])] = float(reach.max(initial=0.0))
+        for k in counts:
+            points.added(k)
+
+    def finish(self):
+        """(stamps s, points (N, 2) mm, starts, what the conversion saw), after the checks
+        that need every profile."""
+        if self._run:
+            self._decode_run()
+        name, topic, meta = self.name, self.topic, self.meta
+        m = len(meta)
+        sec = np.fromiter((c.sec for c in meta), np.int64, m)
+        nsec = np.fromiter((c.nanosec for c in meta), np.int64, m)
+        _check_stamps(sec * 1_000_000_000 + nsec, np.asarray(self.log_ns, np.int64), name, topic, "profiles")
+        t = _seconds(sec, nsec)
+        frames = sorted({c.frame_id for c in meta})
+        if len(frames) > 1:
+            raise BagCloudError(f"{name}: {topic}: clouds in {len(frames)} frames "
+                                f"({', '.join(map(repr, frames[:5]))}): one sensor's profiles come in one frame")
+        out = self.points.array()
+        start = np.asarray(self.points.starts, np.int64)
+        counts = np.diff(start)
+        # non-finite points: an error in a cloud that says it has none, dropped otherwise
+        n_dropped = 0
+        if self._bad_runs:
+            finite = np.ones(len(out), bool)
+            for base, fin in self._bad_runs:
+                finite[base:base + len(fin)] = fin
+            dense = np.fromiter((c.is_dense for c in meta), bool, m)
+            bad_msg = np.unique(np.searchsorted(start, np.flatnonzero(~finite), side="right") - 1)
+            dense_bad = bad_msg[dense[bad_msg]]
+            if dense_bad.size:
+                i = int(dense_bad[0])
+                k = int(np.flatnonzero(~finite[start[i]:start[i + 1]])[0])
+                raise BagCloudError(f"{name}: {topic}: message {i} (stamp {t[i]:.6f} s) says is_dense (no invalid "
+                                    f"points) but point {k} is not finite; {dense_bad.size} such clouds")
+            n_dropped = int((~finite).sum())
+            owner = np.repeat(np.arange(m), counts)  # each point's message
+            out = out[finite]
+            counts = np.bincount(owner[finite], minlength=m).astype(np.int64)
+            start = np.zeros(m + 1, np.int64)
+            np.cumsum(counts, out=start[1:])
+            warnings.warn(f"{name}: {topic}: dropped {n_dropped} invalid (NaN or infinite) points from "
+                          f"{bad_msg.size} clouds that say they may hold some (is_dense false)", BagWarning,
+                          stacklevel=3)
+        nonempty = counts > 0
+        if not nonempty.any():
+            raise BagCloudError(f"{name}: {topic}: all {m} clouds are empty (no finite point): the sensor saw "
+                                "nothing, or the topic is not the profiles")
+        sample = [v for i, v in self._extent_mm.items() if nonempty[i]]
+        typical = float(np.median(sample)) / 1000.0 if sample else 0.0
+        if typical > MAX_PROFILE_EXTENT_M:
+            raise BagUnitsError(f"{name}: {topic}: the points look like millimetres, not metres: a typical profile "
+                                f"reaches {typical:.4g} from the sensor, more than {MAX_PROFILE_EXTENT_M:g} if that "
+                                "were metres. ROS clouds are in metres (REP 103); have the driver publish metres")
+        info = {"sensor_frame_id": frames[0], "n_clouds": m, "n_empty_clouds": int((~nonempty).sum()),
+                "n_invalid_points_dropped": n_dropped}
+        return t, out, start, info
 
 
 def _off_plane(name: str, topic: str, line_axis: str, index: int, t: float, worst_m: float) -> None:

@@ -277,6 +277,39 @@ def _check_stamps(t: np.ndarray, previous: float | None, field: str, clock: str)
 # ---------------------------------------------------------------------------------------
 
 
+class PointBuffer:
+    """Profile points (y, z) appended profile by profile into one float64 array, with the
+    profiles' starts. The array grows by doubling; ``np.empty`` only reserves address
+    space (a page costs when it is first written), so a generous first capacity, such as
+    an upper bound from a file's size, is free, and no point is copied twice."""
+
+    def __init__(self, capacity: int):
+        self._a = np.empty((max(int(capacity), 1024), 2))
+        self.n = 0
+        self.starts = [0]
+
+    def reserve(self, k: int) -> np.ndarray:
+        """Room for k more points; returns the (k, 2) block to fill (then call :meth:`added`)."""
+        need = self.n + k
+        if need > len(self._a):
+            grown = np.empty((max(need, 2 * len(self._a)), 2))
+            grown[:self.n] = self._a[:self.n]
+            self._a = grown
+        return self._a[self.n:need]
+
+    def added(self, k: int) -> None:
+        self.n += k
+        self.starts.append(self.n)
+
+    def append_f32le(self, raw: bytes) -> None:
+        k = len(raw) // 8
+        self.reserve(k)[:] = np.frombuffer(raw, dtype="<f4").reshape(k, 2)
+        self.added(k)
+
+    def array(self) -> np.ndarray:
+        return self._a[:self.n]
+
+
 class _Reader:
     """Reads a stream recording line by line (the file is never held whole)."""
 
@@ -298,7 +331,7 @@ class _Reader:
         self.prof_t: list[float] = []
         self.prof_frame: list[int] = []
         self.prof_sweep: list[int] = []
-        self.prof_bytes: list[bytes] = []
+        self.points = PointBuffer(0)
         self.prof_line: list[int] = []
         self.first_profile_line = 0
         self.has_frame = self.has_sweep = False
@@ -475,7 +508,7 @@ class _Reader:
                                            f"(line {self.prof_line[-1]}, sensor clock): more than {MAX_STAMP_STEP_S:g} s "
                                            "between two profiles is a clock jump (a reset, or stamps in another unit)")
         self.prof_t.append(t)
-        self.prof_bytes.append(raw)
+        self.points.append_f32le(raw)
         self.prof_line.append(lineno)
 
     # -- the recording ---------------------------------------------------------------------
@@ -490,13 +523,8 @@ class _Reader:
         if not self.prof_t:
             raise DatasetFileError(f"{name}: holds no profiles ({n_poses} pose samples); the acquisition stopped "
                                    "before the sensor's first profile, or the sensor saw nothing")
-        counts = np.fromiter((len(b) // 8 for b in self.prof_bytes), dtype=np.int64, count=len(self.prof_bytes))
-        start = np.zeros(len(counts) + 1, dtype=np.int64)
-        np.cumsum(counts, out=start[1:])
-        pts = np.empty((int(start[-1]), 2))
-        for chunk, s in zip(self.prof_bytes, start[:-1].tolist()):
-            pts[s:s + len(chunk) // 8] = np.frombuffer(chunk, dtype="<f4").reshape(-1, 2)
-        self.prof_bytes = []
+        start = np.asarray(self.points.starts, dtype=np.int64)
+        pts = self.points.array()
         within = _within_limit(pts)
         bad = None if within else ~(np.abs(pts) <= MAX_ABS_VALUE).all(axis=1)  # NaN, infinity, or beyond 1e6 mm
         if bad is not None:
@@ -559,6 +587,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     try:
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size
+            reader.points = PointBuffer(size * 3 // 32 + 16)  # base64 takes at least 32/3 bytes a point
             if size == 0:
                 raise DatasetFileError(f"{name}: the file is empty; expected a stream recording (header line first)")
             # mapped, not read: the base64 is decoded straight from the page cache
@@ -853,13 +882,14 @@ class RecordingWriter:
             for a in range(0, m, 256):  # in batches: checked and converted in the cache, written as they go
                 b = min(m, a + 256)
                 batch = pts[bounds[a]:bounds[b]]
-                if not _within_limit(batch):
+                f32 = np.ascontiguousarray(batch, dtype="<f4")
+                if not _within_limit(f32):  # (a value beyond float32's range becomes infinite: refused too)
                     i = bounds[a] + int(np.flatnonzero(~(np.abs(batch) <= MAX_ABS_VALUE).all(axis=1))[0])
                     j = int(np.searchsorted(start, i, side="right") - 1)
                     raise InputError(f"{name}: profile {j} of this call (t_sensor_s {ts[j]!r}): point {i - bounds[j]} "
                                      f"is {pts[i].tolist()} mm: not a finite number of at most {MAX_ABS_VALUE:g} mm; "
                                      "nothing of this call was written")
-                raw = memoryview(np.ascontiguousarray(batch, dtype="<f4")).cast("B")
+                raw = memoryview(f32).cast("B")
                 base = bounds[a]
                 parts: list[bytes] = []
                 for i in range(a, b):

@@ -266,6 +266,8 @@ def test_missing_topics_and_wrong_types_list_what_the_bag_has(tmp_path):
                                             r"geometry_msgs/msg/PoseStamped or tf2_msgs/msg/TFMessage or "
                                             r"sensor_msgs/msg/JointState"):
         read(bag, pose_topic="/profiles")
+    with pytest.raises(BagTopicError, match=r"/pose: the poses are in frame 'base_link', not base_frame 'world'"):
+        read(bag, base_frame="world")
 
 
 def test_not_a_bag(tmp_path):
