@@ -1,2 +1,3 @@
-"""Files at the edges: datasets, results, PLY point clouds, the run log, safe writes and
-the exporters' contract. Imports :mod:`spherecal.core` only."""
+"""Files at the edges: datasets, stream recordings and ROS 2 bags in, results, PLY point
+clouds, the run log, safe writes and the exporters' contract. Imports :mod:`spherecal.core`
+only."""
