@@ -311,7 +311,7 @@ class PointBuffer:
 
 
 class _Reader:
-    """Reads a stream recording line by line (the file is never held whole)."""
+    """Reads a stream recording line by line (the file is mapped, never read whole into memory)."""
 
     def __init__(self, name: str):
         self.name = name
