@@ -25,6 +25,7 @@ from spherecal.estimation.problem import (
 )
 from spherecal.estimation.options import kinematic_effects, station_effects
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
+from spherecal.estimation.refine.timing import with_start
 from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
@@ -219,11 +220,12 @@ def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> 
     return replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
 
 
-def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) -> Solution:
+def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None) -> Solution:
     """Solve ``problem`` (the table's screening done, its flags in ``table_flags``): the
     orientation screening, a circle per profile, the two-step start without the gross
     outliers, the joint refinement, then the stray points and the inconsistent shots
-    left out (:mod:`.screening`), and the result."""
+    left out (:mod:`.screening`), and the result. With ``time_effects`` (a recording) the
+    clock relation is estimated in the joint refinement (:mod:`.refine.timing`)."""
     robot_effects = {
         "station_effects": station_effects(opt, joints_known),
         "kinematic_effects": kinematic_effects(opt, kinematics.chain)
@@ -259,8 +261,9 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     noise = _noise_assumptions(opt, sub_fits, ori.diagnostics, say)
 
     def refit(clean_: Problem, start) -> RefineResult:
+        timing = {} if time_effects is None else {"time_effects": with_start(time_effects, getattr(start, "timing", None))}
         return refine(clean_, start.R, start.t, start.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                      **robot_effects)
+                      **robot_effects, **timing)
 
     clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
                                for j, p in enumerate(sub.profiles)])
@@ -269,7 +272,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     if ts.alternatives:
         # starts that fit nearly alike through the nominal poses: the joint model decides
         def cost(r: RefineResult, scale: float) -> float:
-            return cost_at(clean, r, noise, opt.fit_radius, scale, **robot_effects)
+            return cost_at(clean, r, noise, opt.fit_radius, scale, **robot_effects, time_effects=time_effects)
 
         ts, ref = settle_alternative_starts(clean, ts, refit, cost, say)
     else:
