@@ -100,9 +100,16 @@ class SimulatedArm:
         """Model angles (rad) of controller joints (deg), (J,) or (N, J) row by row
         through the robot plugin's conversion."""
         J = np.asarray(joints_deg, dtype=float)
+        convert = self.kinematics.model_joints_rad
         if J.ndim == 1:
-            return np.asarray(self.kinematics.model_joints_rad(J), dtype=float)
-        return np.array([self.kinematics.model_joints_rad(row) for row in J]).reshape(J.shape)
+            return np.asarray(convert(J), dtype=float)
+        if len(J) > 2 * J.shape[1]:  # an affine conversion (most are: radians, a coupled axis) as one product
+            b = np.asarray(convert(np.zeros(J.shape[1])), dtype=float)
+            A = np.array([np.asarray(convert(e), dtype=float) - b for e in np.eye(J.shape[1])])
+            probe = J[[0, len(J) // 2, -1]]
+            if np.allclose(probe @ A + b, [convert(row) for row in probe], rtol=0.0, atol=1e-12):
+                return J @ A + b
+        return np.array([convert(row) for row in J]).reshape(J.shape)
 
     def nominal_flange_matrices(self, joints_deg) -> np.ndarray:
         """What the controller reports at many joint vectors (N, J), deg: its nominal

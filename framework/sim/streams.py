@@ -345,33 +345,52 @@ def _sphere_centres_in_sensor(cell: SimulatedCell, R: np.ndarray, t: np.ndarray)
     return (np.einsum("nij,j->ni", R, c) + t - t_x) @ R_x  # the sphere on the flange, into base, into the sensor
 
 
-def _fan_on_sphere(cell: SimulatedCell, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Noise-free fan hits on the reference sphere alone for many sphere centres in the
-    sensor frame (m, 3): points (N, 2) and per-profile starts (m + 1,). The arithmetic of
+def _fan_on_sphere(cell: SimulatedCell, centres: np.ndarray, point_noise_mm: float = 0.0) -> \
+        tuple[np.ndarray, np.ndarray]:
+    """Fan hits on the reference sphere alone for many sphere centres in the sensor frame
+    (m, 3): points (N, 2) and per-profile starts (m + 1,). The arithmetic of
     :meth:`SimulatedCell.cast_fan` (the laser plane cuts a circle from the sphere, the rays
-    meet it in 2-D, hits outside the measuring range are dropped), for all at once."""
+    meet it in 2-D, hits outside the measuring range are dropped), for all at once; with
+    ``point_noise_mm`` the cell's generator adds Gaussian noise to y and z of every point
+    (chunk by chunk, so that the points are never held twice)."""
     apex, d = cell.fan_rays()
-    a_yz, d_yz = apex[1:], d[:, 1:]
+    (a_y, a_z), d_yz = apex[1:], d[:, 1:]
     r = cell.sphere_radius_mm
-    fov = cell.fov
-    pts, counts = [], []
-    for lo in range(0, len(centres), CHUNK_PROFILES):
-        c = centres[lo:lo + CHUNK_PROFILES]
-        rho2 = r * r - c[:, 0] ** 2
-        w = a_yz - c[:, 1:]  # (k, 2)
-        b = w @ d_yz.T  # (k, n_columns)
-        disc = b * b - (np.einsum("kj,kj->k", w, w) - rho2)[:, None]
-        hit = (disc > 0) & (np.abs(c[:, 0]) < r)[:, None]
-        s = np.where(hit, -b - np.sqrt(np.where(hit, disc, 0.0)), -1.0)
+    near, far = cell.fov.z_near_mm, cell.fov.z_far_mm
+    counts = np.zeros(len(centres), dtype=np.int64)
+    cut = np.flatnonzero(np.abs(centres[:, 0]) < r)  # the profiles whose laser plane cuts the sphere
+    # room for every column of every such profile: pages never written take no memory, and
+    # the array is cut to the points found at the end (in place), so the points exist once
+    out = np.empty((len(cut) * len(d), 2))
+    n = 0
+    for lo in range(0, len(cut), CHUNK_PROFILES):
+        rows = cut[lo:lo + CHUNK_PROFILES]
+        c = centres[rows]
+        w = apex[1:] - c[:, 1:]  # (k, 2)
+        b = w @ d_yz.T  # (k, n_columns); the arrays below reuse their buffers
+        disc = b * b
+        disc -= (np.einsum("kj,kj->k", w, w) - (r * r - c[:, 0] ** 2))[:, None]
+        hit = disc > 0
+        np.sqrt(np.maximum(disc, 0.0, out=disc), out=disc)
+        s = np.negative(b, out=b)
+        s -= disc  # the nearer root
         hit &= s > 0
-        y = a_yz[0] + s * d_yz[:, 0]
-        z = a_yz[1] + s * d_yz[:, 1]
-        hit &= (z <= fov.z_near_mm) & (z >= fov.z_far_mm)
-        counts.append(hit.sum(axis=1))
-        pts.append(np.column_stack([y[hit], z[hit]]))  # row-major: profile by profile, in column order
-    counts = np.concatenate(counts) if counts else np.zeros(0, dtype=np.int64)
+        z = np.multiply(s, d_yz[:, 1], out=disc)
+        z += a_z
+        hit &= (z <= near) & (z >= far)
+        y = np.multiply(s, d_yz[:, 0], out=s)
+        y += a_y
+        counts[rows] = hit.sum(axis=1)
+        k = int(counts[rows].sum())
+        chunk = out[n:n + k]
+        chunk[:, 0], chunk[:, 1] = y[hit], z[hit]  # row-major: profile by profile, in column order
+        if point_noise_mm > 0:
+            chunk += cell.rng.normal(0.0, point_noise_mm, chunk.shape)
+        n += k
+    chunk = None  # no view of ``out`` outlives its cut
+    out.resize((n, 2), refcheck=False)
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return (np.concatenate(pts) if pts else np.zeros((0, 2))), start
+    return out, start
 
 
 def _measure(cell: SimulatedCell, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -380,10 +399,8 @@ def _measure(cell: SimulatedCell, R: np.ndarray, t: np.ndarray) -> tuple[np.ndar
     once, with the cell's noise model and generator; any other scene pose by pose
     through :meth:`SimulatedCell.measure_profile`."""
     if len(cell.objects) == 1 and isinstance(cell.objects[0], Sphere):
-        pts, start = _fan_on_sphere(cell, _sphere_centres_in_sensor(cell, R, t))
         n = cell.noise
-        if n.point_noise_mm > 0:
-            pts = pts + cell.rng.normal(0.0, n.point_noise_mm, pts.shape)
+        pts, start = _fan_on_sphere(cell, _sphere_centres_in_sensor(cell, R, t), n.point_noise_mm)
         if n.strays_per_profile and n.stray_profile_fraction > 0:
             counts = np.diff(start)
             stray = (cell.rng.random(len(counts)) < n.stray_profile_fraction) & (counts > 0)

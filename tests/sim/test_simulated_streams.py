@@ -340,3 +340,17 @@ def test_the_recording_is_complete_and_its_provenance_is_json(quick):
 def test_a_bad_plan_is_refused_naming_the_field(update, match):
     with pytest.raises(ValueError, match=match):
         OnTheFlyPlan(**update)
+
+
+def test_the_arm_s_vectorised_poses_are_its_pose_by_pose_ones():
+    from spherecal.plugins.host import PluginHost
+
+    kin = PluginHost(autoload=False).arm_kinematics({"type": "abb_irb2400"})
+    cell = standard_cell("eye_in_hand", seed=2, fov=reference_fov(), arm=kin,
+                         robot_error=RobotErrorModel(joint_compliance_deg_per_m=(0.01, 0.03)))
+    q = np.random.default_rng(1).uniform(-40.0, 40.0, (6, 6))
+    nominal, true = cell.arm.nominal_flange_matrices(q), cell.arm.true_flange_matrices(q)
+    for k in range(len(q)):
+        np.testing.assert_allclose(nominal[k], cell.arm.nominal_flange_pose(q[k]).as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(true[k], cell.arm.true_flange_pose(q[k]).as_matrix(), atol=1e-9)
+    assert np.abs(true[:, :3, 3] - nominal[:, :3, 3]).max() > 0.1  # the arm's error and sag are in
