@@ -219,7 +219,11 @@ class SweepInfo:
 
 @dataclass(frozen=True)
 class Recording:
-    """A pose stream and a profile stream of one calibration (see module docstring)."""
+    """A pose stream and a profile stream of one calibration (see module docstring).
+
+    ``clocks`` names the clock of each stream: ``robot`` the pose stream's, ``sensor``
+    the profile stream's (e.g. ``"abb-egm"``, ``"nxsensor-i"``). Equal names say that one
+    clock stamped both streams, so no drift between them can be seen."""
 
     mounting: str
     sphere_radius_mm: float
@@ -227,6 +231,7 @@ class Recording:
     profiles: ProfileStream
     sweeps: list[SweepInfo] = field(default_factory=list)
     provenance: dict[str, Any] = field(default_factory=dict)
+    clocks: dict[str, str] = field(default_factory=lambda: {"robot": "robot", "sensor": "sensor"})
 
     @property
     def t_sensor0_s(self) -> float:

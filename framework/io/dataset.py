@@ -67,6 +67,9 @@ __all__ = [
 #: Newest dataset format version this module reads and the one it writes. Version 2 adds
 #: centre observations (``circle``, ``sphere_centre_mm``) beside ``profile``.
 DATASET_VERSION = 2
+#: Dataset format version of the stream form (``"form": "stream"``), which
+#: :mod:`spherecal.io.streams` reads and writes; :func:`read_dataset` names it and refuses it.
+STREAM_DATASET_VERSION = 3
 #: Longest line of a dataset file (a profile of 3200 points is about 130 kB).
 MAX_LINE_BYTES = 64 << 20
 
@@ -123,6 +126,12 @@ def _header_from_json(obj: Any, name: str) -> DatasetHeader:
     version = obj.get("version")
     if type(version) is not int or version < 1:
         raise DatasetFileError(f"{where}: version must be a whole number >= 1, found {json.dumps(version)}")
+    if version == STREAM_DATASET_VERSION and obj.get("form") == "stream":
+        raise DatasetFileError(
+            f"{name}: a stream recording (dataset format version {version}, form 'stream': a pose stream and a "
+            "profile stream on two clocks), not a dataset of observations: read it with "
+            "spherecal.io.streams.read_recording (spherecal.io.streams.recording_kind tells the two apart)"
+        )
     if version > DATASET_VERSION:
         raise DatasetFileError(
             f"{name}: dataset format version {version} is newer than this spherecal ({__version__}) "
