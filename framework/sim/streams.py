@@ -57,7 +57,7 @@ from spherecal.core.models import Pose
 from spherecal.core.streams import PoseStream, ProfileStream, Recording, SweepInfo
 from spherecal.motion.planning import plan_stations, with_standoff
 from spherecal.sim.cell import SimulatedCell
-from spherecal.sim.objects import Sphere
+from spherecal.sim.objects import BallBar, Sphere
 
 __all__ = ["Segment", "StreamTruth", "plan_segments", "simulate_recording", "simulate_recording_with_truth"]
 
@@ -66,7 +66,9 @@ __all__ = ["Segment", "StreamTruth", "plan_segments", "simulate_recording", "sim
 #: a micrometre on an arm of a metre's reach.
 KNOT_MM = 5.0
 KNOT_DEG = 1.0
-#: Profiles ray-cast at once on the fast path (bounds the temporary arrays' memory).
+#: The recording's clock names (:attr:`Recording.clocks`): two clocks, so a drift is there to see.
+CLOCK_NAMES = {"robot": "spherecal simulated controller", "sensor": "spherecal simulated profiler"}
+#: Poses ray-cast at once (bounds the temporary arrays' memory).
 CHUNK_PROFILES = 256
 
 
@@ -334,88 +336,136 @@ def _with_noise(R: np.ndarray, t: np.ndarray, noise: np.ndarray) -> tuple[np.nda
     return geo.matrix_from_rotvec(-noise[:, 3:]) @ R, t - noise[:, :3]
 
 
-def _sphere_centres_in_sensor(cell: SimulatedCell, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The reference sphere's centre in the sensor frame (n, 3) at true flange poses."""
+def _frame_from_sensor(cell: SimulatedCell, frame: str, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R (m, 3, 3), t (m, 3)) of ``base_from_sensor`` or ``flange_from_sensor`` (``frame``)
+    at true flange poses (R, t): :meth:`SimulatedCell.frame_from_sensor` for many."""
     X = cell.true_transform
     R_x, t_x = X.rotation_matrix, X.translation
-    c = cell.sphere_centre_mm
-    if cell.mounting == "eye_in_hand":  # sensor_from_base = (R R_x)^T (p - R t_x - t)
-        p = c - t - R @ t_x
-        return np.einsum("ji,nj->ni", R_x, np.einsum("nji,nj->ni", R, p))
-    return (np.einsum("nij,j->ni", R, c) + t - t_x) @ R_x  # the sphere on the flange, into base, into the sensor
+    m = len(R)
+    fixed = (np.broadcast_to(R_x, (m, 3, 3)), np.broadcast_to(t_x, (m, 3)))
+    if frame not in ("base", "flange"):
+        raise ValueError(f"frame must be 'base' or 'flange', got {frame!r}")
+    if cell.mounting == "eye_in_hand":
+        return (R @ R_x, R @ t_x + t) if frame == "base" else fixed
+    if frame == "base":
+        return fixed
+    Rt = np.swapaxes(R, 1, 2)  # flange_from_base X
+    return Rt @ R_x, np.einsum("nij,nj->ni", Rt, t_x - t)
 
 
-def _fan_on_sphere(cell: SimulatedCell, centres: np.ndarray, point_noise_mm: float = 0.0) -> \
+def _sphere_centres_in_sensor(cell: SimulatedCell, R: np.ndarray, t: np.ndarray, sphere: Sphere | None = None) -> \
+        np.ndarray:
+    """A sphere's centre (default the reference sphere's) in the sensor frame (m, 3) at
+    true flange poses (R, t)."""
+    sphere = sphere or cell.reference_sphere
+    Rf, tf = _frame_from_sensor(cell, sphere.frame, R, t)
+    return np.einsum("nji,nj->ni", Rf, sphere.centre_mm - tf)
+
+
+def _spheres_of(obj) -> list[Sphere]:
+    """The spheres an object is made of (a sphere, a ball bar's two), or none."""
+    return [obj] if isinstance(obj, Sphere) else [obj.sphere_a, obj.sphere_b] if isinstance(obj, BallBar) else []
+
+
+def _may_reach(obj, Rf: np.ndarray, tf: np.ndarray, apex_z_mm: float, far_z_mm: float) -> np.ndarray:
+    """Which poses' laser fans may meet ``obj`` within the measuring range (k,): all of
+    them for an object that gives no bounding sphere; else those whose laser plane cuts
+    the sphere, with part of it below the fan's apex and above the far end of the range.
+    A hit beyond the far end would be dropped, and would hide nothing nearer: skipping
+    it changes no profile. ``Rf``, ``tf``: frame_from_sensor of the object's frame."""
+    bounds = getattr(obj, "bounding_sphere_mm", None)
+    if bounds is None:
+        return np.ones(len(Rf), dtype=bool)
+    centre, radius = bounds()
+    c = np.einsum("kji,kj->ki", Rf, np.asarray(centre, dtype=float) - tf)  # in the sensor frame
+    return (np.abs(c[:, 0]) < radius) & (c[:, 2] - radius < apex_z_mm) & (c[:, 2] + radius > far_z_mm)
+
+
+def _cast_fan(cell: SimulatedCell, R: np.ndarray, t: np.ndarray, point_noise_mm: float = 0.0) -> \
         tuple[np.ndarray, np.ndarray]:
-    """Fan hits on the reference sphere alone for many sphere centres in the sensor frame
-    (m, 3): points (N, 2) and per-profile starts (m + 1,). The arithmetic of
-    :meth:`SimulatedCell.cast_fan` (the laser plane cuts a circle from the sphere, the rays
-    meet it in 2-D, hits outside the measuring range are dropped), for all at once; with
-    ``point_noise_mm`` the cell's generator adds Gaussian noise to y and z of every point
-    (chunk by chunk, so that the points are never held twice)."""
+    """Fan hits at many true flange poses (R (m, 3, 3), t (m, 3)): points (N, 2) and
+    per-profile starts (m + 1,). What :meth:`SimulatedCell.cast_fan` does pose by pose,
+    for a chunk of poses at a time: the nearest surface along each ray over all the
+    scene's objects, spheres cut in the laser plane (a circle met in 2-D), other objects
+    through their ``intersect``, hits outside the measuring range dropped. With
+    ``point_noise_mm`` the cell's generator adds Gaussian noise to y and z of every
+    point. In a scene of spheres alone, only the poses whose laser plane cuts one are cast."""
     apex, d = cell.fan_rays()
     (a_y, a_z), d_yz = apex[1:], d[:, 1:]
-    r = cell.sphere_radius_mm
     near, far = cell.fov.z_near_mm, cell.fov.z_far_mm
-    counts = np.zeros(len(centres), dtype=np.int64)
-    cut = np.flatnonzero(np.abs(centres[:, 0]) < r)  # the profiles whose laser plane cuts the sphere
-    # room for every column of every such profile: pages never written take no memory, and
-    # the array is cut to the points found at the end (in place), so the points exist once
-    out = np.empty((len(cut) * len(d), 2))
+    m, n_col = len(R), len(d)
+    counts = np.zeros(m, dtype=np.int64)
+    spheres = [[(sph, _sphere_centres_in_sensor(cell, R, t, sph)) for sph in _spheres_of(obj)] for obj in cell.objects]
+    if all(spheres):  # spheres alone: a pose sees something only where its laser plane cuts one
+        cut = np.flatnonzero(np.any([np.abs(c[:, 0]) < sph.radius_mm for per in spheres for sph, c in per], axis=0))
+    else:
+        cut = np.arange(m)
+    # room for every column of every pose cast: pages never written take no memory, and the
+    # array is cut to the points found at the end (in place), so the points exist once
+    out = np.empty((len(cut) * n_col, 2))
     n = 0
     for lo in range(0, len(cut), CHUNK_PROFILES):
         rows = cut[lo:lo + CHUNK_PROFILES]
-        c = centres[rows]
-        w = apex[1:] - c[:, 1:]  # (k, 2)
-        b = w @ d_yz.T  # (k, n_columns); the arrays below reuse their buffers
-        disc = b * b
-        disc -= (np.einsum("kj,kj->k", w, w) - (r * r - c[:, 0] ** 2))[:, None]
-        hit = disc > 0
-        np.sqrt(np.maximum(disc, 0.0, out=disc), out=disc)
-        s = np.negative(b, out=b)
-        s -= disc  # the nearer root
-        hit &= s > 0
-        z = np.multiply(s, d_yz[:, 1], out=disc)
-        z += a_z
+        dist = np.full((len(rows), n_col), np.inf)
+        for obj, per in zip(cell.objects, spheres):
+            for sph, centres in per:
+                c = centres[rows]
+                w = apex[1:] - c[:, 1:]  # (k, 2)
+                b = w @ d_yz.T  # (k, n_columns)
+                disc = b * b
+                disc -= (np.einsum("kj,kj->k", w, w) - (sph.radius_mm ** 2 - c[:, 0] ** 2))[:, None]
+                hit = disc > 0
+                np.sqrt(np.maximum(disc, 0.0, out=disc), out=disc)
+                s = np.negative(b, out=b)
+                s -= disc  # the nearer root
+                hit &= s > 0
+                np.minimum(dist, np.where(hit, s, np.inf), out=dist)
+            if not per:  # any other object: its own ray intersection, the rays in its frame
+                Rf, tf = _frame_from_sensor(cell, obj.frame, R[rows], t[rows])
+                reach = _may_reach(obj, Rf, tf, apex[2], far)
+                if not reach.any():
+                    continue
+                Rf, tf = Rf[reach], tf[reach]
+                origins = np.einsum("kij,j->ki", Rf, apex) + tf
+                dirs = np.einsum("kij,cj->kci", Rf, d)
+                s = obj.intersect(np.repeat(origins, n_col, axis=0), dirs.reshape(-1, 3))
+                dist[reach] = np.minimum(dist[reach], np.asarray(s, dtype=float).reshape(len(Rf), n_col))
+        hit = np.isfinite(dist)
+        dist[~hit] = 0.0
+        z = a_z + dist * d_yz[:, 1]
         hit &= (z <= near) & (z >= far)
-        y = np.multiply(s, d_yz[:, 0], out=s)
+        y = np.multiply(dist, d_yz[:, 0], out=dist)
         y += a_y
         counts[rows] = hit.sum(axis=1)
         k = int(counts[rows].sum())
         chunk = out[n:n + k]
-        chunk[:, 0], chunk[:, 1] = y[hit], z[hit]  # row-major: profile by profile, in column order
+        chunk[:, 0], chunk[:, 1] = y[hit], z[hit]  # row-major: pose by pose, in column order
         if point_noise_mm > 0:
             chunk += cell.rng.normal(0.0, point_noise_mm, chunk.shape)
         n += k
     chunk = None  # no view of ``out`` outlives its cut
     out.resize((n, 2), refcheck=False)
-    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return out, start
+    return out, np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
 
 def _measure(cell: SimulatedCell, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Noisy profiles at true flange poses (R (m, 3, 3), t (m, 3)): points (N, 2) and
-    starts (m + 1,). A scene of the reference sphere alone is ray-cast for all poses at
-    once, with the cell's noise model and generator; any other scene pose by pose
-    through :meth:`SimulatedCell.measure_profile`."""
-    if len(cell.objects) == 1 and isinstance(cell.objects[0], Sphere):
-        n = cell.noise
-        pts, start = _fan_on_sphere(cell, _sphere_centres_in_sensor(cell, R, t), n.point_noise_mm)
-        if n.strays_per_profile and n.stray_profile_fraction > 0:
-            counts = np.diff(start)
-            stray = (cell.rng.random(len(counts)) < n.stray_profile_fraction) & (counts > 0)
-            if stray.any():
-                profiles = [pts[start[j]:start[j + 1]] for j in range(len(counts))]
-                for j in np.flatnonzero(stray):
-                    profiles[j] = np.vstack([profiles[j], cell._strays(profiles[j])])
-                counts = np.array([len(p) for p in profiles])
-                pts = np.concatenate(profiles)
-                start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        return pts, start
-    profiles = [cell.measure_profile(Pose.from_rt(Ri, ti)) for Ri, ti in zip(R, t)]
-    counts = np.array([len(p) for p in profiles], dtype=np.int64)
-    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return (np.concatenate(profiles) if len(profiles) else np.zeros((0, 2))), start
+    starts (m + 1,), with the cell's noise model and generator (point noise on every
+    point; stray points on a share of the profiles that see something, as
+    :meth:`SimulatedCell.measure_profile` adds them)."""
+    n = cell.noise
+    pts, start = _cast_fan(cell, R, t, n.point_noise_mm)
+    if n.strays_per_profile and n.stray_profile_fraction > 0:
+        counts = np.diff(start)
+        stray = (cell.rng.random(len(counts)) < n.stray_profile_fraction) & (counts > 0)
+        if stray.any():
+            profiles = [pts[start[j]:start[j + 1]] for j in range(len(counts))]
+            for j in np.flatnonzero(stray):
+                profiles[j] = np.vstack([profiles[j], cell._strays(profiles[j])])
+            counts = np.array([len(p) for p in profiles])
+            pts = np.concatenate(profiles)
+            start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return pts, start
 
 
 def simulate_recording(cell: SimulatedCell, plan: OnTheFlyPlan | None = None, settings: StreamSimSettings | None = None,
@@ -467,7 +517,7 @@ def simulate_recording_with_truth(cell: SimulatedCell, plan: OnTheFlyPlan | None
     R_c, t_c, q, sample_sweep = motion.at(Tk)
     if cell.arm is not None:
         M = cell.arm.nominal_flange_matrices(q)
-        R_c, t_c = M[:, :3, :3], M[:, :3, 3]
+        R_c, t_c = np.ascontiguousarray(M[:, :3, :3]), np.ascontiguousarray(M[:, :3, 3])
     poses = PoseStream(
         t_robot_s=clk.robot_epoch_s + robot_clock[sample_kept] + sample_jitter[sample_kept],
         R=R_c, t_mm=t_c, joints_deg=q if (q is not None and ps.joints) else None,
@@ -478,7 +528,7 @@ def simulate_recording_with_truth(cell: SimulatedCell, plan: OnTheFlyPlan | None
     R_rep, t_rep, qj, profile_sweep = motion.at(Tj)
     if cell.arm is not None:
         M = cell.arm.nominal_flange_matrices(qj)
-        R_rep, t_rep = M[:, :3, :3], M[:, :3, 3]
+        R_rep, t_rep = np.ascontiguousarray(M[:, :3, :3]), np.ascontiguousarray(M[:, :3, 3])
         A = cell.arm.true_flange_matrices(qj)
         R_true, t_true = _with_noise(A[:, :3, :3], A[:, :3, 3], expo_noise)
     else:
@@ -527,7 +577,7 @@ def simulate_recording_with_truth(cell: SimulatedCell, plan: OnTheFlyPlan | None
                            "flange_error_mm_range": [float(err_t.min()), float(err_t.max())],
                            "flange_error_deg_range": [float(err_r.min()), float(err_r.max())]})
     recording = Recording(mounting=cell.mounting, sphere_radius_mm=cell.sphere_radius_mm, poses=poses,
-                          profiles=profiles, sweeps=sweeps, provenance=provenance)
+                          profiles=profiles, sweeps=sweeps, provenance=provenance, clocks=dict(CLOCK_NAMES))
     truth = StreamTruth(profile_T_s=Tj, profile_robot_time_s=robot_time, profile_R=R_true, profile_t_mm=t_true,
                         profile_reported_R=R_rep, profile_reported_t_mm=t_rep, sample_T_s=sample_T,
                         sample_kept=sample_kept, sample_noise=sample_noise, segments=segments)

@@ -11,9 +11,9 @@ from spherecal.core import geometry as geo
 from spherecal.core.models import Pose
 from spherecal.core.streams import PoseStream, sensor_to_robot_time
 from spherecal.sim import NoiseModel, RobotErrorModel, SweepPlan, plan_stations, standard_cell
-from spherecal.sim.objects import FlatPlate, Sphere
+from spherecal.sim.objects import BallBar, FlatPlate
 from spherecal.sim.streams import (
-    _fan_on_sphere,
+    _cast_fan,
     _sphere_centres_in_sensor,
     plan_segments,
     simulate_recording,
@@ -285,27 +285,36 @@ def test_the_segments_cross_the_stations_of_the_stop_and_go_plan():
     assert len(sweeps) == 16
 
 
-def test_the_fast_ray_cast_is_the_cell_s_and_other_scenes_take_the_cell_s_path():
-    cell = _cell(noise=NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0))
+@pytest.mark.parametrize("mounting", ["eye_in_hand", "eye_to_hand"])
+def test_casting_many_poses_at_once_sees_what_the_cell_sees_pose_by_pose(mounting):
+    """The batch ray cast against SimulatedCell.cast_fan, on the sphere alone and on a
+    scene where a plate under the sphere and a ball bar beside it are seen and occlude."""
+    quiet = NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0)
+    cell = _cell(mounting, noise=quiet)
     poses = [p for _, ps in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm,
                                          cell.sphere_radius_mm, SweepPlan(profiles_per_station=20),
                                          field_of_view=cell.fov) for p in ps]
     R = np.array([p.rotation_matrix for p in poses])
     t = np.array([p.translation for p in poses])
-    pts, start = _fan_on_sphere(cell, _sphere_centres_in_sensor(cell, R, t))
-    for j, p in enumerate(poses):
-        ref = cell.ideal_profile(p)
-        assert start[j + 1] - start[j] == len(ref)
-        np.testing.assert_allclose(pts[start[j]:start[j + 1]], ref, atol=1e-9)
-    # a scene with another object (out of view) goes pose by pose through measure_profile: the same profiles
-    settings = StreamSimSettings(pose=PoseStreamSettings(translation_noise_mm=0.0, rotation_noise_deg=0.0))
-    plain = simulate_recording(cell, QUICK, settings)
-    other = _cell(noise=NoiseModel(point_noise_mm=0.0, pose_translation_noise_mm=0.0))
-    other.add_object(FlatPlate(Pose.from_rt(np.eye(3), [0.0, 0.0, -500.0]), 100.0, 100.0))  # far below
-    assert not (len(other.objects) == 1 and isinstance(other.objects[0], Sphere))
-    scene = simulate_recording(other, QUICK, settings)
-    np.testing.assert_array_equal(plain.profiles.start, scene.profiles.start)
-    np.testing.assert_allclose(plain.profiles.points_yz_mm, scene.profiles.points_yz_mm, atol=1e-9)
+
+    def same(cell):
+        pts, start = _cast_fan(cell, R, t)
+        seen = 0
+        for j, p in enumerate(poses):
+            ref = cell.ideal_profile(p)
+            assert start[j + 1] - start[j] == len(ref), j
+            np.testing.assert_allclose(pts[start[j]:start[j + 1]], ref, atol=1e-9)
+            seen += len(ref) > 0
+        return seen, len(pts)
+
+    assert same(cell)[0] > 0.9 * len(poses)
+    c = cell.sphere_centre_mm
+    frame = "base" if mounting == "eye_in_hand" else "flange"
+    # the plate on the sphere's far side from the sensor: below it in base, towards the flange on the flange
+    cell.add_object(FlatPlate(Pose.from_rt(np.eye(3), c - [0.0, 0.0, 30.0]), 200.0, 200.0, frame=frame))
+    cell.add_object(BallBar(c + [0.0, 32.0, 0.0], c + [0.0, 120.0, 0.0], 8.0, frame=frame))
+    _, n_points = same(cell)
+    assert n_points > same(_cell(mounting, noise=quiet))[1] * 1.2  # the other objects are seen too
 
 
 # the recording ------------------------------------------------------------------------------
