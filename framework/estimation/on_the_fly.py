@@ -72,6 +72,9 @@ def solve_recording(
     the recording's length. The result's ``timing`` holds the clock relation."""
     opt = options or CalibrationOptions()
     say = progress or (lambda msg: None)
+    recording, epochs = _rebased(recording)
+    if offset_ms is not None:
+        offset_ms -= 1e3 * (epochs[1] - epochs[0])
     ps, stream = recording.profiles, recording.poses
     seen = ps.counts >= opt.min_points_per_profile
     if not seen.any():
@@ -94,22 +97,106 @@ def solve_recording(
     drift = _drift_visible(recording) if estimate_drift is None else estimate_drift
     te = TimeEffects(stream, recording.t_sensor0_s, offset_ms, drift_ppm if drift else 0.0, drift, q_model)
     rows = np.flatnonzero(seen & (labels >= 0))
-    problem, flags = _problem(recording, rows, labels, names, te, q_model is not None)
+    problem, flags = _problem(recording, rows, labels, names, te, q_model is not None, epochs)
     for f in flags[:5]:
         say(f"profile {f.index}: {f.reason}")
     if len(flags) > 5:
         say(f"... {len(flags) - 5} more profiles without a pose left out")
     dataset = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
                       provenance=recording.provenance)
-    solution = _solve(dataset, problem, opt, say, kinematics, problem.q_rad is not None, flags, time_effects=te)
+    inflation = {}
+
+    def widen(clean: Problem, ref):
+        factor, detail = correlation_inflation(clean, ref)
+        inflation.update(detail)
+        if factor > 1.0:
+            say(f"the residuals are correlated in time (integrated autocorrelation {factor:.2f} shots): "
+                f"the covariance is widened by that factor")
+        return widened(ref, factor)
+
+    solution = _solve(dataset, problem, opt, say, kinematics, problem.q_rad is not None, flags, time_effects=te,
+                      adjust=widen)
     ref = solution.refined
-    timing = timing_estimate(solution.problem, ref, te, opt, start_info.get("offset_ms", offset_ms))
+    timing = timing_estimate(solution.problem, ref, te, opt, start_info.get("offset_ms", offset_ms), epochs)
+    diag = solution.result.diagnostics.model_copy(update={"refinement": {
+        **(solution.result.diagnostics.refinement or {}), "time_correlation": inflation}})
     result = solution.result.model_copy(update={
-        "timing": timing,
+        "timing": timing, "diagnostics": diag,
         "provenance": {**solution.result.provenance, "recording": recording.provenance.get("source", "unknown")},
     })
     final = shots_at(solution.problem, replace(te), np.array([timing.offset_ms, timing.drift_ppm])).problem
     return replace(solution, result=result, problem=final)
+
+
+def _rebased(recording: Recording) -> tuple[Recording, tuple[float, float]]:
+    """``recording`` with each clock counted from a whole second near its start, and those
+    seconds (sensor, robot). A clock counting from 1970 resolves 0.24 us at best; the fit's
+    steps are finer, and the difference of two such epochs finer still: the fit works in
+    these small numbers, the result is said in the clocks' own."""
+    s0 = float(np.floor(recording.profiles.t_sensor_s[0]))
+    r0 = float(np.floor(recording.poses.t_robot_s[0]))
+    ps, st = recording.profiles, recording.poses
+    return replace(recording, profiles=replace(ps, t_sensor_s=ps.t_sensor_s - s0),
+                   poses=replace(st, t_robot_s=st.t_robot_s - r0)), (s0, r0)
+
+
+def correlation_inflation(problem: Problem, ref) -> tuple[float, dict]:
+    """How much the residuals' correlation in time widens the covariance: the integrated
+    autocorrelation time (in shots) of each profile's mean residual and of its circle's
+    shift along y and z (the pose noise as each profile sees it), along each run of
+    consecutive profiles, the largest of the three; 1 for white noise.
+
+    The fit weighs every profile's pose noise as independent; a robot's repeatability
+    error is smooth over tens of milliseconds, so profiles taken at hundreds per second
+    share it, and the data hold fewer independent looks than profiles. Widening the
+    covariance by the number of profiles per independent look keeps the stated
+    uncertainty honest (the estimate itself stays the least-squares one)."""
+    n = problem.n_profiles
+    signals = np.zeros((n, 3))
+    C = ref.predicted
+    for i, (p, res) in enumerate(zip(problem.profiles, ref.residuals)):
+        if len(res) == 0:
+            continue
+        d = p - C[i, 1:]
+        u = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        signals[i] = [res.mean(), (res * u[:, 0]).mean(), (res * u[:, 1]).mean()]
+    order = np.argsort(problem.t_sensor_s)
+    t = problem.t_sensor_s[order]
+    period = float(np.median(np.diff(t))) if n > 1 else 1.0
+    breaks = np.flatnonzero((np.diff(t) > 3 * period) | (np.diff(problem.station_of[order]) != 0)) + 1
+    runs = [r for r in np.split(order, breaks) if len(r) >= 8]
+    if not runs:
+        return 1.0, {"integrated_autocorrelation_shots": 1.0, "runs": 0}
+    max_lag = min(200, max(len(r) for r in runs) // 2)
+    taus = []
+    for k in range(3):
+        num = np.zeros(max_lag + 1)
+        for r in runs:
+            x = signals[r, k] - signals[r, k].mean()
+            for lag in range(min(max_lag, len(x) - 1) + 1):
+                num[lag] += float(x[:len(x) - lag] @ x[lag:])
+        if num[0] <= 0:
+            continue
+        rho = num / num[0]
+        tau = 1.0
+        for lag in range(1, max_lag + 1):
+            if rho[lag] < 0.05:
+                break
+            tau += 2.0 * rho[lag]
+        taus.append(tau)
+    factor = max(taus) if taus else 1.0
+    return float(factor), {"integrated_autocorrelation_shots": float(factor), "runs": len(runs)}
+
+
+def widened(ref, factor: float):
+    """``ref`` (a RefineResult) with every covariance times ``factor``."""
+    if factor <= 1.0:
+        return ref
+    scaled = {name: getattr(ref, name) * factor for name in (
+        "covariance", "covariance_without_robot_error", "covariance_robot_frame", "covariance_robot_frame_at_scales")
+        if getattr(ref, name) is not None}
+    timing = None if ref.timing is None else {**ref.timing, "covariance": ref.timing["covariance"] * factor}
+    return replace(ref, timing=timing, **scaled)
 
 
 def _station_labels(recording: Recording, seen: np.ndarray) -> tuple[np.ndarray | None, list[str]]:
@@ -141,10 +228,11 @@ def _labels_by_orientation(recording: Recording, seen: np.ndarray, offset_ms: fl
 
 
 def _problem(recording: Recording, rows: np.ndarray, labels: np.ndarray, names: list[str], te: TimeEffects,
-             with_joints: bool) -> tuple[Problem, list[ObservationFlag]]:
+             with_joints: bool, epochs: tuple[float, float] = (0.0, 0.0)) -> tuple[Problem, list[ObservationFlag]]:
     """The problem of profiles ``rows`` with their poses read at ``te``'s start; the
     profiles whose time falls outside the pose stream or in a gap of it left out and
-    flagged (never interpolated across)."""
+    flagged (never interpolated across; the times said in the clocks' own counts,
+    ``epochs`` added back)."""
     ps = recording.profiles
     t_r = te.robot_times(ps.t_sensor_s[rows], te.start())
     ok = recording.poses.at(t_r).ok
@@ -153,10 +241,12 @@ def _problem(recording: Recording, rows: np.ndarray, labels: np.ndarray, names: 
     for j in rows[~ok]:
         t = float(te.robot_times(ps.t_sensor_s[j:j + 1], te.start())[0])
         gap = next(((a, b) for a, b in gaps if a < t < b), None)
-        where = (f"in a gap of the pose stream ({gap[0]:.3f} to {gap[1]:.3f} s, robot clock)" if gap is not None
-                 else "outside the pose stream's time span")
+        s0, r0 = epochs
+        where = (f"in a gap of the pose stream ({gap[0] + r0:.3f} to {gap[1] + r0:.3f} s, robot clock)"
+                 if gap is not None else "outside the pose stream's time span")
         flags.append(ObservationFlag(index=int(j), station=names[labels[j]] if labels[j] >= 0 else "-",
-                                     reason=f"sensor time {ps.t_sensor_s[j]:.6f} s maps to robot time {t:.6f} s, "
+                                     reason=f"sensor time {ps.t_sensor_s[j] + s0:.6f} s maps to robot time "
+                                            f"{t + r0:.6f} s, "
                                             f"{where}: no measured pose, left out"))
     rows = rows[ok]
     if not len(rows):
@@ -321,9 +411,12 @@ def _subsample(rows: np.ndarray, labels: np.ndarray) -> np.ndarray:
     return np.sort(np.concatenate(out))
 
 
-def timing_estimate(problem: Problem, ref, te: TimeEffects, opt, start_offset_ms: float) -> TimingEstimate:
-    """The result's clock relation with its identifiability (module docstring, step 4)."""
+def timing_estimate(problem: Problem, ref, te: TimeEffects, opt, start_offset_ms: float,
+                    epochs: tuple[float, float] = (0.0, 0.0)) -> TimingEstimate:
+    """The result's clock relation with its identifiability (module docstring, step 4),
+    in the clocks' own counts (``epochs``: the seconds :func:`_rebased` took off each)."""
     tm = ref.timing
+    shift_ms = 1e3 * (epochs[1] - epochs[0])
     cov = np.asarray(tm["covariance"], dtype=float)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = float(cov[0, 1] / (sd[0] * sd[1])) if sd[0] > 0 and sd[1] > 0 else 0.0
@@ -339,6 +432,7 @@ def timing_estimate(problem: Problem, ref, te: TimeEffects, opt, start_offset_ms
                    else "") + "): a constant offset moves every profile along its sweep, which a shifted sphere "
                 "explains as well. Add sweeps in the opposite direction (forth and back) and at a second speed")
     return TimingEstimate(
-        offset_ms=tm["offset_ms"], offset_std_ms=float(sd[0]), drift_ppm=tm["drift_ppm"], drift_std_ppm=float(sd[1]),
-        drift_estimated=bool(tm["drift_estimated"]), t_sensor0_s=te.t_sensor0_s, offset_drift_correlation=corr,
-        identifiable=identifiable, identifiability=text, start_offset_ms=start_offset_ms)
+        offset_ms=tm["offset_ms"] + shift_ms, offset_std_ms=float(sd[0]), drift_ppm=tm["drift_ppm"],
+        drift_std_ppm=float(sd[1]), drift_estimated=bool(tm["drift_estimated"]), t_sensor0_s=te.t_sensor0_s + epochs[0],
+        offset_drift_correlation=corr, identifiable=identifiable, identifiability=text,
+        start_offset_ms=start_offset_ms + shift_ms)

@@ -220,12 +220,15 @@ def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> 
     return replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
 
 
-def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None) -> Solution:
+def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None,
+           adjust=None) -> Solution:
     """Solve ``problem`` (the table's screening done, its flags in ``table_flags``): the
     orientation screening, a circle per profile, the two-step start without the gross
     outliers, the joint refinement, then the stray points and the inconsistent shots
     left out (:mod:`.screening`), and the result. With ``time_effects`` (a recording) the
-    clock relation is estimated in the joint refinement (:mod:`.refine.timing`)."""
+    clock relation is estimated in the joint refinement (:mod:`.refine.timing`); ``adjust``
+    (problem, refined) -> refined: what the caller changes in the final refinement before
+    the result is made of it (a recording's covariance widened for noise correlated in time)."""
     robot_effects = {
         "station_effects": station_effects(opt, joints_known),
         "kinematic_effects": kinematic_effects(opt, kinematics.chain)
@@ -250,7 +253,11 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         require_usable_stations(problem, fits, flags, opt, hint)
         say("two-step solution (rotation from translations, translation from orientations)")
         budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
-        ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+        # a recording's poses are read at each profile's time, not paired with it: no shot
+        # is mis-paired, and the profiles near the sphere's rim, whose centres the two-step
+        # sees poorly, would pass for such
+        ts, sub, sub_fits = two_step_without_gross_outliers(
+            problem, fits, flags, opt, hint, RejectionBudget(0) if time_effects is not None else budget)
     except DegenerateDataError as exc:
         scattered = ori.diagnostics.get("scattered_stations")
         if not scattered:
@@ -289,7 +296,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
             "mounting's data, poses in other units, another sphere?)")
     else:
         clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit)
-        clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit)
+        clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit, batch=time_effects is not None)
 
     if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
         # no profile shows the sensor's point noise: the centres' per-axis noise stands in
@@ -297,6 +304,8 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         noise = replace(noise, point_noise_mm=_typical_centre_sd(clean, ref))
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
+    if adjust is not None:
+        ref = adjust(clean, ref)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     added = {"station_orientation": ori.diagnostics}
     if opt.nominal_transform is None and (clean.kinds == KIND_CIRCLE).all():
