@@ -1,5 +1,5 @@
 """``spherecal simulate``: a dataset from the simulated cell, the standard one or the one
-a configuration describes."""
+a configuration describes; stop-and-go observations or an on-the-fly recording."""
 
 from __future__ import annotations
 
@@ -9,13 +9,15 @@ from pathlib import Path
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.plugin_host import robot_arm
-from spherecal.config import load_config
+from spherecal.config import PoseStreamSettings, StreamSimSettings, load_config
 from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Dataset
+from spherecal.core.streams import Recording
 from spherecal.devices.contract import SensorFieldOfView
 from spherecal.io import dataset as dataio
+from spherecal.io.streams import write_recording
 from spherecal.motion.kinematic_plan import plan_kinematic_stations, uses_planner
-from spherecal.sim import NoiseModel, SimulatedCell, SweepPlan, simulate_dataset, standard_cell
+from spherecal.sim import NoiseModel, SimulatedCell, SweepPlan, simulate_dataset, simulate_recording, standard_cell
 
 
 def configured_cell(config: str | Path, seed: int | None = None) -> tuple[SimulatedCell, SweepPlan]:
@@ -89,3 +91,24 @@ def write_simulated(cell: SimulatedCell, plan: SweepPlan, out: str | Path, force
     ds = simulate_dataset(cell, plan)
     dataio.write_dataset(out, ds, overwrite=force)
     return ds
+
+
+def stream_settings_for(cell: SimulatedCell) -> StreamSimSettings:
+    """The on-the-fly simulation's settings for ``cell``: the defaults, with the cell's
+    pose noise (its standard deviations) as the pose stream's smooth repeatability noise."""
+    n = cell.noise
+    return StreamSimSettings(pose=PoseStreamSettings(translation_noise_mm=n.pose_translation_noise_mm,
+                                                     rotation_noise_deg=n.pose_rotation_noise_deg))
+
+
+def write_simulated_recording(cell: SimulatedCell, stations: SweepPlan, out: str | Path, force: bool = False,
+                              settings: StreamSimSettings | None = None) -> Recording:
+    """The on-the-fly recording ``cell`` gives at the stations of ``stations`` (the
+    default sweeps, :class:`~spherecal.config.OnTheFlyPlan`; ``settings`` default
+    :func:`stream_settings_for`), written to ``out`` in the stream form (replacing a file
+    there only with ``force``)."""
+    if not force and os.path.lexists(out):
+        raise InputError(f"{out} already exists; give --force to replace it, or another file name")
+    rec = simulate_recording(cell, settings=settings or stream_settings_for(cell), stations=stations)
+    write_recording(out, rec, overwrite=force)
+    return rec

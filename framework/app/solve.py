@@ -14,6 +14,8 @@ from spherecal.app.provenance import provenance_type, traceability
 from spherecal.app.solving import Outcome, solve_and_write
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.core.models import Dataset
+from spherecal.core.streams import Recording
+from spherecal.estimation.on_the_fly import solve_recording
 from spherecal.estimation import CalibrationOptions
 from spherecal.io.runlog import logger, progress_log
 from spherecal.report.compare import parse_xyz_quat
@@ -63,6 +65,41 @@ def run_solve(dataset: Dataset, dataset_path: Path, out: Path, *, nominal: str |
     host.calibration_finished(result=solution.result, dataset=dataset, out_dir=out, exports_written=written,
                               robot_type=robot_type, sensor_type=sensor_type)
     return Outcome(solution=solution, verdict=graded, exports_written=written, dataset=dataset)
+
+
+def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal: str | None = None,
+                        robot_type: str | None = None, robot_config: Path | None = None, fit_radius: bool = False,
+                        robot_error_model: str = "auto", offset_ms: float | None = None, overwrite: bool = False,
+                        report: bool = True, force: bool = False, operator: str | None = None,
+                        log: Callable[[str], None] = _LOG) -> Outcome:
+    """``spherecal solve`` of a recording (a pose stream and a profile stream,
+    :mod:`spherecal.core.streams`) read from ``path``: the clock relation estimated with
+    the transform (:func:`spherecal.estimation.on_the_fly.solve_recording`); ``offset_ms``
+    a known start for the clock offset. Otherwise as :func:`run_solve`."""
+    nominal_pose = parse_xyz_quat(nominal, "--nominal") if nominal is not None else None
+    header = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
+                     provenance=recording.provenance)
+    host = plugin_host.make_host()
+    arm = None
+    robot_type = robot_type or solve_robot_type(header, robot_type, robot_config)
+    if robot_type is not None and recording.poses.joints_deg is not None and robot_error_model != "station":
+        _, _, arm = solve_kinematics(header, robot_type, robot_config, "reported", host=host)
+    exports = host.export_plan(None, recording.mounting, robot_type)
+    options = CalibrationOptions(fit_radius=fit_radius, nominal_transform=nominal_pose,
+                                 robot_error_model=robot_error_model)
+    if not overwrite:
+        check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
+                            "exports and report", exports)
+
+    def solver():
+        return solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
+
+    solution, graded, written = solve_and_write(header, options, out, exports, None, log=log, report=report,
+                                                force=force, kinematics=arm, solver=solver,
+                                                provenance=traceability(header, path, operator=operator))
+    host.calibration_finished(result=solution.result, dataset=header, out_dir=out, exports_written=written,
+                              robot_type=robot_type, sensor_type=provenance_type(header, "sensor"))
+    return Outcome(solution=solution, verdict=graded, exports_written=written, dataset=header)
 
 
 def solve_robot_type(dataset: Dataset, robot_type: str | None = None, robot_config: Path | None = None) -> str | None:

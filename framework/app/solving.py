@@ -63,6 +63,7 @@ def solve_and_write(
     kinematics=None,
     provenance: dict | None = None,
     report_settings: ReportConfig | None = None,
+    solver: Callable[[], Solution] | None = None,
 ) -> tuple[Solution, Verdict, bool]:
     """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
     ``result.json``, the exports and the HTML report in ``out``. A RED result's
@@ -72,10 +73,11 @@ def solve_and_write(
     (``PluginHost.export_plan``); ``kinematics``: the robot's arm model, for the
     kinematic robot error model; ``provenance``: the result's
     (:func:`spherecal.app.provenance.traceability`); ``report_settings``: the
-    configuration's ``[report]``."""
+    configuration's ``[report]``; ``solver``: what solves instead of :func:`solve` of
+    ``dataset`` (a recording's solve; ``dataset`` then holds its header and provenance)."""
     check_output_targets(out, exports)  # a planted link: refuse before solving, write nothing
     try:
-        solution = solve(dataset, options, fk, progress=log, kinematics=kinematics)
+        solution = solver() if solver is not None else solve(dataset, options, fk, progress=log, kinematics=kinematics)
     except FitBreakdownError as exc:
         cause = _breakdown_cause(dataset, options, fk, log, kinematics)
         if cause is None:
@@ -142,7 +144,10 @@ def write_calibrated_urdf(solution: Solution, kinematics, out: Path) -> Path | N
 def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kinematics,
                      what: str = "the fit broke down") -> str | None:
     """When the fit broke down or is absurd (``what``): the reading of the dataset that is
-    not absurd, if there is one (:func:`spherecal.estimation.diagnose.breakdown_cause`)."""
+    not absurd, if there is one (:func:`spherecal.estimation.diagnose.breakdown_cause`);
+    None for a recording (its re-readings are a dataset's)."""
+    if not dataset.observations:
+        return None
     return diagnose.breakdown_cause(dataset, options, fk, log, kinematics, what,
                                     fits=lambda res: not is_absurd(res), ratio=absurd_ratio)
 
@@ -170,6 +175,8 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     th = Thresholds()
     result = solution.result
     v = verdict(result, th)
+    if not dataset.observations:  # a recording: the re-readings below are a dataset's
+        return v
     absurd = is_absurd(result, th)
     implausible = not absurd and implausible_disagreement(result)
     if v.level != "red" and not implausible:

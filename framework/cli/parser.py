@@ -209,7 +209,8 @@ def _solve(sub, common, as_json) -> None:
 def _simulate(sub, common, as_json) -> None:
     """simulate OUT: a dataset from the simulated cell."""
     m = sub.add_parser("simulate", parents=[common], help="write a dataset from the simulated cell")
-    m.add_argument("out", help="dataset file to write (.jsonl)")
+    m.add_argument("out", help="dataset file to write (.jsonl): stop-and-go observations, or with --on-the-fly a "
+                   "recording of pose and profile streams")
     m.add_argument("--config", help="take the cell and plan from this configuration's [simulation] and [acquisition]")
     m.add_argument("--sensor", metavar="TYPE", help="the sensor type to simulate (its registered name, as in "
                    "`spherecal plugins`): the cell measures with its declared field of view and the plan fits it "
@@ -225,6 +226,12 @@ def _simulate(sub, common, as_json) -> None:
     m.add_argument("--pose-noise-mm", type=_non_negative_float, help=f"default {d['pose_noise_mm']}")
     m.add_argument("--stray-fraction", type=_fraction,
                    help=f"share of profiles with stray points (0 to 1, default {d['stray_fraction']:g})")
+    m.add_argument("--on-the-fly", action="store_true",
+                   help="write an on-the-fly recording instead (dataset format version 3, stream form): at each "
+                   "station continuous sweeps forth and back at 50 and 100 mm/s along two directions, a 250 Hz pose "
+                   "stream on the robot's clock with smooth repeatability noise (the pose noise), losses and "
+                   "jitter, a 300 Hz profile stream on the sensor's clock, the clocks 35 ppm apart; the true time "
+                   "offset and drift go into its provenance. --profiles does not apply")
     m.add_argument("--force", action="store_true", help="overwrite an existing file")
 
 

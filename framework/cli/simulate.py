@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from spherecal.app.simulate import configured_cell, standard_cell_for, write_simulated
+from spherecal.app.simulate import configured_cell, standard_cell_for, write_simulated, write_simulated_recording
 from spherecal.cli.output import EXIT_OK
 from spherecal.cli.parser import SIMULATE_DEFAULTS, flag
 from spherecal.cli.session import Session
@@ -10,6 +10,9 @@ from spherecal.core.errors import ConfigError
 
 
 def run(args, session: Session) -> int:
+    if args.on_the_fly and args.profiles is not None:
+        raise ConfigError("--profiles: profiles per station are for stop-and-go shots; an on-the-fly recording "
+                          "sweeps continuously and takes a profile at every exposure; leave --profiles out")
     if args.config:
         # the configuration gives the cell and the plan: an option that would change them is refused, never ignored
         clash = [flag(name) for name in ("sensor", *SIMULATE_DEFAULTS) if name != "seed"
@@ -23,6 +26,12 @@ def run(args, session: Session) -> int:
         given = {name: default if getattr(args, name) is None else getattr(args, name)
                  for name, default in SIMULATE_DEFAULTS.items()}
         cell, plan = standard_cell_for(args.sensor, **given)
+    if args.on_the_fly:
+        rec = write_simulated_recording(cell, plan, args.out, force=args.force)
+        session.say(f"wrote an on-the-fly recording ({cell.mounting}) to {args.out}: {rec.poses.n} poses, "
+                    f"{rec.profiles.n} profiles, {len(rec.sweeps)} sweeps, "
+                    f"{rec.provenance['duration_s']:.1f} s")
+        return EXIT_OK
     ds = write_simulated(cell, plan, args.out, force=args.force)
     session.say(f"wrote {len(ds.observations)} observations ({cell.mounting}) to {args.out}")
     return EXIT_OK

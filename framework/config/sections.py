@@ -422,6 +422,147 @@ class RobotErrorModel(_Section):
         return self
 
 
+class OnTheFlyPlan(_Section):
+    """Continuous sweeps for an on-the-fly recording: at each station of a stop-and-go
+    plan (:class:`SweepPlan`: its flange orientation, and where in the field of view the
+    sphere crosses the laser plane) the robot makes straight MoveL sweeps that carry the
+    laser plane through the sphere, each forth and back, at every speed of ``speeds_mm_s``
+    and along every direction of ``directions_in_sensor``, with a trapezoidal speed
+    profile and a standstill of ``pause_s`` after each sweep.
+
+    Forth and back at two speeds is what separates a time offset from the sphere's
+    position (an offset moves every profile of a sweep by speed x offset along it); two
+    directions per station let each station span a plane of moves. A sweep cruises at
+    full speed while the laser plane is within ``crossing_fraction`` radii of the sphere
+    centre, so the sphere is crossed at constant speed and the ramps lie outside it."""
+
+    speeds_mm_s: tuple[float, ...] = Field(
+        (50.0, 100.0), min_length=1, max_length=4,
+        description="sweep speeds at the tool point, mm/s: every direction is swept forth and back at each")
+    acceleration_mm_s2: float = Field(800.0, ge=10, le=20_000,
+                                      description="acceleration and deceleration of every move, mm/s^2")
+    directions_in_sensor: list[Vec3] = Field(
+        default_factory=lambda: [(1.0, 0.0, 0.0), (0.866, 0.354, 0.354)], min_length=1, max_length=6,
+        validate_default=True,
+        description="directions in which the sphere centre moves in the sensor frame during a forth sweep "
+        "(normalised; the back sweep reverses it); each needs a component along the sensor's x (the laser "
+        "plane's normal) of at least 0.25 of its length (default: along x, and 30 deg off x towards y and z)")
+    crossing_fraction: float = Field(1.25, ge=1.0, le=5.0, description="half the range of the sensor's x "
+                                     "swept at full speed, in sphere radii (above 1: the laser plane leaves the "
+                                     "sphere before the ramps, so profiles at the sweep's ends see nothing)")
+    pause_s: float = Field(0.2, ge=0.0, le=60.0, description="standstill after each sweep and each transit, s")
+    transit_speed_mm_s: float = Field(200.0, gt=0, le=2000, description="speed of the moves between sweeps, mm/s")
+    transit_speed_deg_s: float = Field(30.0, gt=0, le=360, description="reorientation speed of the moves "
+                                       "between stations, deg/s")
+    stations: int | None = Field(None, ge=1, le=1000, description="sweep only the first this many stations of "
+                                 "the stop-and-go plan (None: all of them)")
+
+    @field_validator("speeds_mm_s")
+    @classmethod
+    def _speeds(cls, v):
+        for s in v:
+            if not (np.isfinite(s) and 0 < s <= 2000):
+                raise ValueError(f"speed {s} mm/s: expected 0 < speed <= 2000 mm/s")
+        return v
+
+    @field_validator("directions_in_sensor")
+    @classmethod
+    def _directions(cls, v):
+        out = []
+        for d in v:
+            a = np.asarray(d, dtype=float)
+            n = float(np.linalg.norm(a))
+            if not (np.all(np.isfinite(a)) and n > 1e-9):
+                raise ValueError(f"direction {list(d)}: expected a non-zero finite vector (x, y, z), sensor frame")
+            if abs(a[0]) < 0.25 * n:
+                raise ValueError(f"direction {list(d)}: its component along the sensor's x (the laser plane's "
+                                 f"normal) is {abs(a[0]) / n:.3f} of its length, below 0.25; a sweep along it "
+                                 "would barely cross the laser plane")
+            out.append(tuple(float(c) for c in a / n))
+        return out
+
+    @classmethod
+    def quick(cls, **update) -> "OnTheFlyPlan":
+        """A short plan for tests: one station, both directions, both speeds, short sweeps
+        and pauses (about 9 s of motion, 2,700 profiles at the default 300 Hz)."""
+        values = {"stations": 1, "crossing_fraction": 1.15, "pause_s": 0.05, **update}
+        return cls(**values)
+
+
+class PoseStreamSettings(_Section):
+    """The simulated robot's pose stream: what the controller samples, stamps and loses.
+
+    The pose noise is the robot's repeatability: the true flange moves off the pose the
+    controller reports by an error that is smooth in time, a first-order Gauss-Markov
+    process per base axis (standard deviation ``*_noise_*``, correlation time
+    ``noise_correlation_s``: its autocorrelation after dt is exp(-dt / correlation)).
+    At 0.02 mm over 50 ms this looks, at 100 mm/s, like 0.1-0.4 ms of timing error."""
+
+    period_s: float = Field(0.004, ge=1e-4, le=1.0, description="sample period on the robot's clock, s "
+                            "(ABB EGM and KUKA RSI 0.004, UR RTDE 0.002 or 0.008)")
+    translation_noise_mm: float = Field(0.02, ge=0, le=10, description="repeatability noise, SD per base axis, mm")
+    rotation_noise_deg: float = Field(0.002, ge=0, le=1, description="repeatability noise, SD about each base "
+                                      "axis, deg")
+    noise_correlation_s: float = Field(0.05, gt=0, le=100, description="correlation time of the noise, s")
+    stamp_jitter_s: float = Field(2e-5, ge=0, le=1e-2, description="SD of the difference between a sample's "
+                                  "stamp and the instant its pose was taken, s (cut at a quarter period)")
+    drop_rate: float = Field(0.001, ge=0, le=0.5, description="share of samples lost one at a time")
+    burst_rate_per_s: float = Field(0.02, ge=0, le=100, description="bursts of lost samples per second")
+    burst_length: tuple[int, int] = Field((2, 5), description="samples lost in a burst: drawn uniformly in "
+                                          "this range, both ends included")
+    joints: bool = Field(True, description="send the joints with each pose (when the cell has an arm)")
+    first_seq: int = Field(1000, ge=0, le=2**62, description="sequence number of the first sample")
+
+    @field_validator("burst_length")
+    @classmethod
+    def _burst(cls, v):
+        if not 1 <= v[0] <= v[1] <= 10_000:
+            raise ValueError(f"burst_length {list(v)}: expected 1 <= low <= high <= 10000 samples")
+        return v
+
+
+class SensorStreamSettings(_Section):
+    """The simulated profiler's stream: it exposes at its own rate on its own clock."""
+
+    rate_hz: float = Field(300.0, gt=0, le=20_000, description="profile rate on the sensor's clock, Hz")
+    stamp_jitter_s: float = Field(1e-5, ge=0, le=1e-2, description="SD of the difference between a profile's "
+                                  "stamp and its exposure's middle (less the latencies), s (cut at a quarter period)")
+    latency_s: float = Field(0.0, ge=0, le=10, description="constant delay of every stamp after the exposure's "
+                             "middle, s (a sensor that stamps at readout); part of the true offset")
+    extra_latency_s: float = Field(0.0, ge=-1, le=10, description="a further constant delay of the stamps that "
+                                   "the recording does not declare (an unmodelled latency), s; part of the true "
+                                   "offset too, and given apart in the provenance")
+    frame_drop_rate: float = Field(0.0, ge=0, le=0.5, description="share of profiles lost (their frame numbers "
+                                   "are missing)")
+    first_frame: int = Field(0, ge=0, le=2**62, description="frame counter of the first exposure")
+
+
+class ClockSettings(_Section):
+    """The two clocks against true time T (s, 0 at the recording's start): the robot's
+    reads ``robot_epoch_s + (1 + robot_rate_error_ppm 1e-6) T``, the sensor's
+    ``sensor_epoch_s + (1 + sensor_rate_error_ppm 1e-6) T``. Crystal clocks differ by
+    20-100 ppm. Defaults: the robot counting from power-on an hour ago, the sensor from
+    1970 (2026-01-01 UTC), 35 ppm apart."""
+
+    robot_epoch_s: float = Field(3725.25, ge=0, le=1e10, description="robot clock at the recording's start, s")
+    robot_rate_error_ppm: float = Field(20.0, ge=-1000, le=1000, description="robot clock's rate error, ppm")
+    sensor_epoch_s: float = Field(1767225600.0, ge=0, le=1e10, description="sensor clock at the recording's start, s")
+    sensor_rate_error_ppm: float = Field(-15.0, ge=-1000, le=1000, description="sensor clock's rate error, ppm")
+
+
+class StreamSimSettings(_Section):
+    """Everything an on-the-fly simulation draws that the plan does not say (defaults:
+    an EGM-like 250 Hz pose stream with 0.02 mm of smooth noise, a 300 Hz profiler, two
+    free-running clocks 35 ppm apart)."""
+
+    pose: PoseStreamSettings = Field(default_factory=PoseStreamSettings, description="the robot's pose stream")
+    sensor: SensorStreamSettings = Field(default_factory=SensorStreamSettings, description="the profiler's stream")
+    clocks: ClockSettings = Field(default_factory=ClockSettings, description="the two clocks")
+    lead_in_s: float = Field(0.2, ge=0, le=60, description="standstill before the first sweep, s")
+    seed: int | None = Field(None, ge=0, le=2**63 - 1, description="seed of the streams' noise, jitter and "
+                             "losses (None: the cell's seed)")
+
+
 class SimulationConfig(_Section):
     """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
 

@@ -569,6 +569,26 @@ class ResultDiagnostics(BaseModel):
             return default
 
 
+class TimingEstimate(BaseModel):
+    """The clock relation of a recording (docs/conventions.md, "Time"): a profile stamped
+    ``t_sensor`` on the sensor's clock was exposed at robot-clock time
+    ``t_sensor + offset + drift (t_sensor - t_sensor0)``, ``t_sensor0`` the first
+    profile's stamp. Standard deviations are 1 sigma, from the joint fit."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    offset_ms: float = Field(description="robot clock minus sensor clock at t_sensor0, ms (epochs and latency included)")
+    offset_std_ms: float
+    drift_ppm: float = Field(description="rate of the robot clock relative to the sensor clock, minus 1, in 1e-6")
+    drift_std_ppm: float
+    drift_estimated: bool = Field(description="False: held at drift_ppm (the recording cannot show it)")
+    t_sensor0_s: float = Field(description="the first profile's sensor stamp, s (sensor clock)")
+    offset_drift_correlation: float = 0.0
+    identifiable: bool = Field(description="the data separate the offset from the sphere's position and the transform")
+    identifiability: str = Field(description="what the data show of the timing, in words; what to add if not enough")
+    start_offset_ms: float | None = Field(None, description="where the fit started (the robust search's offset), ms")
+
+
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.
 
@@ -610,6 +630,7 @@ class CalibrationResult(BaseModel):
     method: str
     two_step_transform: Pose | None = None
     robot_error: RobotErrorSummary | None = None
+    timing: TimingEstimate | None = Field(None, description="a recording's clock relation (TimingEstimate)")
     diagnostics: ResultDiagnostics = Field(
         default_factory=ResultDiagnostics, description="how the estimate was obtained (ResultDiagnostics)")
     provenance: dict[str, Any] = Field(default={})

@@ -71,13 +71,16 @@ class PoseStream:
 
     ``R`` (n, 3, 3) and ``t_mm`` (n, 3): base_from_flange; ``joints_deg`` (n, J) or None;
     ``seq`` (n,) the controller's sequence numbers if it sends them (lost samples are
-    the gaps in them), else None."""
+    the gaps in them), else None; ``sweep`` (n,) the sweep each sample was taken in (an
+    index into :attr:`Recording.sweeps`), -1 outside a sweep, or None when the recording
+    does not say."""
 
     t_robot_s: np.ndarray
     R: np.ndarray
     t_mm: np.ndarray
     joints_deg: np.ndarray | None = None
     seq: np.ndarray | None = None
+    sweep: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.t_robot_s)
@@ -87,6 +90,10 @@ class PoseStream:
             raise ValueError(f"pose stream: {n} stamps but rotations {self.R.shape} and translations {self.t_mm.shape}")
         if self.joints_deg is not None and len(self.joints_deg) != n:
             raise ValueError(f"pose stream: {n} stamps but {len(self.joints_deg)} joint samples")
+        for name in ("seq", "sweep"):
+            a = getattr(self, name)
+            if a is not None and len(a) != n:
+                raise ValueError(f"pose stream: {n} stamps but {len(a)} {name} entries")
         dt = np.diff(self.t_robot_s)
         if not np.all(np.isfinite(self.t_robot_s)):
             raise ValueError("pose stream: a stamp is not finite")
@@ -96,12 +103,14 @@ class PoseStream:
                              f"({self.t_robot_s[k]:.6f} s then {self.t_robot_s[k + 1]:.6f} s, robot clock)")
 
     @classmethod
-    def from_quaternions(cls, t_robot_s, translation_mm, quaternion_wxyz, joints_deg=None, seq=None) -> "PoseStream":
+    def from_quaternions(cls, t_robot_s, translation_mm, quaternion_wxyz, joints_deg=None, seq=None,
+                         sweep=None) -> "PoseStream":
         """From stamps, translations (n, 3) mm and quaternions (n, 4) in (w, x, y, z) order."""
         return cls(np.asarray(t_robot_s, dtype=float), geo.matrix_from_quat_wxyz(np.asarray(quaternion_wxyz, float)),
                    np.asarray(translation_mm, dtype=float),
                    None if joints_deg is None else np.asarray(joints_deg, dtype=float),
-                   None if seq is None else np.asarray(seq, dtype=np.int64))
+                   None if seq is None else np.asarray(seq, dtype=np.int64),
+                   None if sweep is None else np.asarray(sweep, dtype=np.int64))
 
     @property
     def n(self) -> int:

@@ -25,6 +25,7 @@ from spherecal.estimation.problem import (
 )
 from spherecal.estimation.options import kinematic_effects, station_effects
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
+from spherecal.estimation.refine.timing import with_start
 from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
@@ -219,11 +220,15 @@ def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> 
     return replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
 
 
-def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) -> Solution:
+def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None,
+           adjust=None) -> Solution:
     """Solve ``problem`` (the table's screening done, its flags in ``table_flags``): the
     orientation screening, a circle per profile, the two-step start without the gross
     outliers, the joint refinement, then the stray points and the inconsistent shots
-    left out (:mod:`.screening`), and the result."""
+    left out (:mod:`.screening`), and the result. With ``time_effects`` (a recording) the
+    clock relation is estimated in the joint refinement (:mod:`.refine.timing`); ``adjust``
+    (problem, refined) -> refined: what the caller changes in the final refinement before
+    the result is made of it (a recording's covariance widened for noise correlated in time)."""
     robot_effects = {
         "station_effects": station_effects(opt, joints_known),
         "kinematic_effects": kinematic_effects(opt, kinematics.chain)
@@ -248,7 +253,11 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         require_usable_stations(problem, fits, flags, opt, hint)
         say("two-step solution (rotation from translations, translation from orientations)")
         budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
-        ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+        # a recording's poses are read at each profile's time, not paired with it: no shot
+        # is mis-paired, and the profiles near the sphere's rim, whose centres the two-step
+        # sees poorly, would pass for such
+        ts, sub, sub_fits = two_step_without_gross_outliers(
+            problem, fits, flags, opt, hint, RejectionBudget(0) if time_effects is not None else budget)
     except DegenerateDataError as exc:
         scattered = ori.diagnostics.get("scattered_stations")
         if not scattered:
@@ -259,8 +268,9 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     noise = _noise_assumptions(opt, sub_fits, ori.diagnostics, say)
 
     def refit(clean_: Problem, start) -> RefineResult:
+        timing = {} if time_effects is None else {"time_effects": with_start(time_effects, getattr(start, "timing", None))}
         return refine(clean_, start.R, start.t, start.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                      **robot_effects)
+                      **robot_effects, **timing)
 
     clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
                                for j, p in enumerate(sub.profiles)])
@@ -269,7 +279,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
     if ts.alternatives:
         # starts that fit nearly alike through the nominal poses: the joint model decides
         def cost(r: RefineResult, scale: float) -> float:
-            return cost_at(clean, r, noise, opt.fit_radius, scale, **robot_effects)
+            return cost_at(clean, r, noise, opt.fit_radius, scale, **robot_effects, time_effects=time_effects)
 
         ts, ref = settle_alternative_starts(clean, ts, refit, cost, say)
     else:
@@ -286,7 +296,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
             "mounting's data, poses in other units, another sphere?)")
     else:
         clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit)
-        clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit)
+        clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit, batch=time_effects is not None)
 
     if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
         # no profile shows the sensor's point noise: the centres' per-axis noise stands in
@@ -294,6 +304,8 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags) ->
         noise = replace(noise, point_noise_mm=_typical_centre_sd(clean, ref))
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
+    if adjust is not None:
+        ref = adjust(clean, ref)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     added = {"station_orientation": ori.diagnostics}
     if opt.nominal_transform is None and (clean.kinds == KIND_CIRCLE).all():

@@ -47,6 +47,9 @@ class Problem:
     kind: np.ndarray | None = None  # (n,) KIND_PROFILE, KIND_CIRCLE or KIND_SPHERE_CENTRE
     centre_meas: np.ndarray | None = None  # (n, 3) circle (y, z, radius) or sphere centre (x, y, z), mm; NaN for profiles
     centre_cov: np.ndarray | None = None  # (n, 3, 3) its given covariance, mm^2; NaN where not given (estimated)
+    # a recording (:mod:`spherecal.core.streams`): each shot's sensor-clock stamp, s; the
+    # poses above are the pose stream's at the clock relation of the moment
+    t_sensor_s: np.ndarray | None = None
 
     @property
     def n_profiles(self) -> int:
@@ -84,6 +87,7 @@ class Problem:
             [self.station_labels[i] for i in labels_used],
             None if self.q_rad is None else self.q_rad[keep],
             self._take(keep, "kind"), self._take(keep, "centre_meas"), self._take(keep, "centre_cov"),
+            self._take(keep, "t_sensor_s"),
         )
 
     def with_profiles(self, profiles: list[np.ndarray]) -> "Problem":

@@ -587,16 +587,30 @@ def trim_stray_points(clean: Problem, ref: RefineResult, noise: NoiseAssumptions
 
 
 def reject_inconsistent_shots(clean: Problem, ref: RefineResult, opt, flags: list[ObservationFlag],
-                              budget: RejectionBudget, refit: Refit) -> tuple[Problem, RefineResult]:
+                              budget: RejectionBudget, refit: Refit, batch: bool = False) -> tuple[Problem, RefineResult]:
     """Shots inconsistent with the rest (a pose read at the wrong moment, a bad pairing, a
     typo in a centre row): while the worst one's whitened chi^2 exceeds
     ``opt.profile_outlier_chi2``, it is left out and flagged and the rest refitted,
-    within the ``budget``."""
+    within the ``budget``. With ``batch`` (thousands of profiles of a recording, where a
+    refit per shot would take minutes) every shot beyond the threshold goes at once, worst
+    first within the budget, before each refit."""
     while budget.rejected < budget.max_reject:
         chi2 = np.asarray(ref.diagnostics["profile_chi2"])
-        worst = int(np.argmax(chi2))
-        if chi2[worst] <= opt.profile_outlier_chi2:
+        beyond = np.flatnonzero(chi2 > opt.profile_outlier_chi2)
+        if not len(beyond):
             break
+        if batch:
+            worst_first = beyond[np.argsort(-chi2[beyond])][:budget.max_reject - budget.rejected]
+            keep = np.ones(clean.n_profiles, dtype=bool)
+            keep[worst_first] = False
+            for j in worst_first:
+                flags.append(flag_shot(clean, int(j), f"inconsistent with the other profiles (chi2 {chi2[j]:.1f} on 3 "
+                                                      "dof): its pose and its profile disagree"))
+            clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
+            budget.rejected += len(worst_first)
+            ref = refit(clean, ref)
+            continue
+        worst = int(np.argmax(chi2))
         if clean.kinds[worst] == KIND_PROFILE:
             shift = float(np.sqrt(chi2[worst] * np.trace(ref.centre_cov[worst]) / 3))
             flags.append(flag_shot(clean, worst, f"inconsistent with the other profiles (chi2 {chi2[worst]:.1f} on 3 dof, "

@@ -186,6 +186,12 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
                          "coordinates, or the nominal")
             reasons.append((lvl, text))
 
+    timing = result.timing
+    if timing is not None:
+        # a clock offset the sweeps cannot tell from the sphere's position: the transform's
+        # uncertainty carries it, the advice says what to record
+        reasons.append(("green" if timing.identifiable else "amber", f"clock relation: {timing.identifiability}"))
+
     twin = result.diagnostics.mirror_twin or {}
     if twin.get("excluded") is False:  # a result the data cannot tell from its twin: the user must choose
         reasons.append(("amber", str(twin.get("text", "a mirror twin of the result cannot be excluded"))))

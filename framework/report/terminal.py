@@ -39,8 +39,13 @@ def summary(solution: Solution, graded: Verdict | None = None) -> str:
     ]
     if r.robot_error is not None:
         lines.extend(_robot_error_lines(r.robot_error))
-    for f in r.flagged:
-        lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
+    if r.timing is not None:
+        lines.extend(_timing_lines(r.timing))
+    what = "profile" if r.timing is not None else "observation"
+    for f in r.flagged[:MAX_FLAG_LINES]:
+        lines.append(f"flagged {what} {f.index} (station {f.station}): {f.reason}")
+    if len(r.flagged) > MAX_FLAG_LINES:
+        lines.append(f"... and {len(r.flagged) - MAX_FLAG_LINES} more flagged {what}s (result.json, 'flagged')")
     graded = graded or verdict(r)
     lines.append(format_verdict(graded))
     if graded.level in ("red", "amber"):  # what to do, as the report gives it (its headline points here)
@@ -49,6 +54,21 @@ def summary(solution: Solution, graded: Verdict | None = None) -> str:
         if len(todo) > 4:
             lines.append(f"  advice: {len(todo) - 4} more in the report")
     return "\n".join(lines)
+
+
+#: Flagged observations listed one per line; the rest are counted (all are in result.json).
+MAX_FLAG_LINES = 12
+
+
+def _timing_lines(timing) -> list[str]:
+    """A recording's clock relation (docs/conventions.md, "Time")."""
+    drift = (f"drift {timing.drift_ppm:.3f} +/- {timing.drift_std_ppm:.3f} ppm" if timing.drift_estimated
+             else f"drift held at {timing.drift_ppm:.3f} ppm (the recording is too short to show it)")
+    return [
+        f"clock relation: t_robot = t_sensor + offset + drift (t_sensor - {timing.t_sensor0_s:.6f} s):",
+        f"  offset {timing.offset_ms:.4f} +/- {timing.offset_std_ms:.4f} ms (robot clock minus sensor clock); {drift}",
+        f"  {'identified' if timing.identifiable else 'NOT identified'}: {timing.identifiability}",
+    ]
 
 
 def _robot_error_lines(robot_error) -> list[str]:
@@ -124,4 +144,13 @@ def truth_check(solution: Solution, dataset: Dataset) -> str | None:
     X = solution.result.transform
     rot = geo.rotation_angle_deg(true.rotation_matrix, X.rotation_matrix)
     dt = float(np.linalg.norm(true.translation - X.translation))
-    return f"simulated truth: error {rot:.4f} deg, {dt:.4f} mm"
+    text = f"simulated truth: error {rot:.4f} deg, {dt:.4f} mm"
+    timing = solution.result.timing
+    if timing is not None and "true_offset_s" in prov:
+        e_off = timing.offset_ms - 1e3 * float(prov["true_offset_s"])
+        text += (f"; clock offset error {e_off:+.4f} ms ({e_off / max(timing.offset_std_ms, 1e-12):+.1f} sd, true "
+                 f"{1e3 * float(prov['true_offset_s']):.4f} ms)")
+        if "true_drift" in prov:
+            e_drift = timing.drift_ppm - 1e6 * float(prov["true_drift"])
+            text += f", drift error {e_drift:+.3f} ppm (true {1e6 * float(prov['true_drift']):.3f} ppm)"
+    return text

@@ -28,6 +28,10 @@ _WHERE = {
     "simulate_centre_dataset": ".datasets",
     "simulate_dataset": ".datasets",
     "RobotErrorModel": "spherecal.config",
+    "OnTheFlyPlan": "spherecal.config",
+    "StreamSimSettings": "spherecal.config",
+    "simulate_recording": ".streams",
+    "simulate_recording_with_truth": ".streams",
     "SimulatedArm": ".robot_error",
 }
 

@@ -11,7 +11,9 @@ object's frame; the answer is the distance along each ray to its first hit on th
 object (a ray meets the object at ``origin + distance * direction``), ``inf`` where the
 ray misses or where the object lies behind the origin. Distances do not depend on the
 frame, so the cell can compare the answers of objects fixed in different frames and keep
-the nearest (occlusion).
+the nearest (occlusion). An object may also tell the sphere it lies within,
+``centre_mm, radius_mm = obj.bounding_sphere_mm()`` (in its frame): casting many poses
+at once (:mod:`spherecal.sim.streams`) then skips the poses whose laser fan cannot reach it.
 
 Objects:
 
@@ -191,6 +193,10 @@ class FlatPlate:
         """Unit normal of the plate (its local z) in ``frame``."""
         return self.frame_from_plate.rotation_matrix[:, 2].copy()
 
+    def bounding_sphere_mm(self) -> tuple[np.ndarray, float]:
+        """The sphere the plate lies within: (centre (3,), radius), ``frame``, mm."""
+        return self.frame_from_plate.translation.copy(), 0.5 * float(np.hypot(self.length_mm, self.width_mm))
+
     def intersect(self, origins_mm, directions) -> np.ndarray:
         o, d = _in_local(self.frame_from_plate, *_rays(origins_mm, directions))
         out = np.full(len(o), np.inf)
@@ -303,6 +309,12 @@ class CarDoorPanel:
         return self.frame_from_panel.apply(local)
 
     # ray casting -----------------------------------------------------------------------
+    def bounding_sphere_mm(self) -> tuple[np.ndarray, float]:
+        """The sphere the panel lies within (around its bounding box): (centre (3,), radius), ``frame``, mm."""
+        z_mid = 0.5 * (self._z_min + self._z_max)
+        half = 0.5 * np.array([self.length_mm, self.height_mm, self._z_max - self._z_min])
+        return self.frame_from_panel.apply(np.array([0.0, 0.0, z_mid])), float(np.linalg.norm(half))
+
     def intersect(self, origins_mm, directions) -> np.ndarray:
         o, d = _in_local(self.frame_from_panel, *_rays(origins_mm, directions))
         n = len(o)

@@ -81,18 +81,48 @@ class SimulatedArm:
 
     def _sag_rad(self, q: np.ndarray) -> np.ndarray:
         """Each joint's gravity sag (rad): compliance x the gravity moment of a load at
-        the flange about the joint's axis (lever in mm), signed to turn with gravity."""
+        the flange about the joint's axis (lever in mm), signed to turn with gravity.
+        ``q`` (n,) or (N, n) model angles (rad); the sag has the same shape."""
         chain = self.true_chain
-        p_f = chain.flange_matrices(q)[:3, 3]
-        T = np.eye(4)
-        sag = np.zeros(chain.n_joints)
+        Q = np.atleast_2d(q)
+        p_f = chain.flange_matrices(Q)[:, :3, 3]
+        T = np.broadcast_to(np.eye(4), (len(Q), 4, 4)).copy()
+        sag = np.zeros(Q.shape)
         down = np.array([0.0, 0.0, -1.0])
         for i in range(chain.n_joints):
             T = T @ chain.placements[i]
-            axis = T[:3, :3] @ chain.axes[i]
-            sag[i] = self.compliance_rad_per_mm[i] * float(axis @ np.cross(p_f - T[:3, 3], down))
-            T[:3, :3] = T[:3, :3] @ geo.matrix_from_rotvec(chain.axes[i] * q[i])
-        return sag
+            axis = T[:, :3, :3] @ chain.axes[i]
+            sag[:, i] = self.compliance_rad_per_mm[i] * np.einsum("nj,nj->n", axis, np.cross(p_f - T[:, :3, 3], down))
+            T[:, :3, :3] = T[:, :3, :3] @ geo.matrix_from_rotvec(np.outer(Q[:, i], chain.axes[i]))
+        return sag[0] if np.ndim(q) == 1 else sag
+
+    def model_joints_rad(self, joints_deg) -> np.ndarray:
+        """Model angles (rad) of controller joints (deg), (J,) or (N, J) row by row
+        through the robot plugin's conversion."""
+        J = np.asarray(joints_deg, dtype=float)
+        convert = self.kinematics.model_joints_rad
+        if J.ndim == 1:
+            return np.asarray(convert(J), dtype=float)
+        if len(J) > 2 * J.shape[1]:  # an affine conversion (most are: radians, a coupled axis) as one product
+            b = np.asarray(convert(np.zeros(J.shape[1])), dtype=float)
+            A = np.array([np.asarray(convert(e), dtype=float) - b for e in np.eye(J.shape[1])])
+            probe = J[[0, len(J) // 2, -1]]
+            if np.allclose(probe @ A + b, [convert(row) for row in probe], rtol=0.0, atol=1e-12):
+                return J @ A + b
+        return np.array([convert(row) for row in J]).reshape(J.shape)
+
+    def nominal_flange_matrices(self, joints_deg) -> np.ndarray:
+        """What the controller reports at many joint vectors (N, J), deg: its nominal
+        chain's ``base_from_flange`` (N, 4, 4), mm (:meth:`nominal_flange_pose` at each)."""
+        return self.kinematics.chain.flange_matrices(np.atleast_2d(self.model_joints_rad(joints_deg)))
+
+    def true_flange_matrices(self, joints_deg) -> np.ndarray:
+        """Where the flange really is at many joint vectors (N, J), deg: (N, 4, 4), mm
+        (:meth:`true_flange_pose` at each)."""
+        q = np.atleast_2d(self.model_joints_rad(joints_deg)) + self.zero_offsets_rad
+        if np.any(self.compliance_rad_per_mm):
+            q = q + self._sag_rad(q)
+        return self.true_chain.flange_matrices(q)
 
     def joints_for(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
         """The joints the controller chooses for a target (nominal inverse kinematics)."""

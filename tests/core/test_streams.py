@@ -62,6 +62,17 @@ def test_stamps_that_do_not_increase_are_refused_with_the_sample():
         PoseStream(ts, np.tile(np.eye(3), (4, 1, 1)), np.zeros((4, 3)))
 
 
+def test_sequence_and_sweep_entries_must_match_the_samples():
+    ts = np.array([0.0, 0.004, 0.008])
+    R, t = np.tile(np.eye(3), (3, 1, 1)), np.zeros((3, 3))
+    s = PoseStream.from_quaternions(ts, t, np.tile([1.0, 0, 0, 0], (3, 1)), seq=[4, 5, 7], sweep=[-1, 0, 0])
+    assert s.sweep.tolist() == [-1, 0, 0] and s.seq.dtype == np.int64
+    with pytest.raises(ValueError, match="3 stamps but 2 sweep entries"):
+        PoseStream(ts, R, t, sweep=np.array([0, 0]))
+    with pytest.raises(ValueError, match="3 stamps but 4 seq entries"):
+        PoseStream(ts, R, t, seq=np.arange(4))
+
+
 def test_clock_relation_is_offset_plus_drift_from_the_first_profile():
     t = np.array([100.0, 160.0])
     np.testing.assert_allclose(sensor_to_robot_time(t, 2.5, 50e-6, 100.0), [102.5, 162.5 + 60 * 50e-6])

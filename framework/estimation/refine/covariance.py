@@ -135,7 +135,7 @@ def covariances_at_solution(fit: RefineState, lin: _Linearisation) -> Covariance
     if fit.se is not None and fit.ke is None:
         cov, cov_robot_frame, cov_at_scales = _with_common_error(fit, lin, At, As, blocks, cov, Cinv)
     if len(fit.id_cols):
-        kin_sd[fit.id_cols] = np.sqrt(np.maximum(np.diag(cov)[fit.n_geo:], 0.0))
+        kin_sd[fit.id_cols] = np.sqrt(np.maximum(np.diag(cov)[fit.n_geo:fit.n_geo + len(fit.id_cols)], 0.0))
     return Covariances(cov, cov_fixed, cov_robot_frame, cov_at_scales, condition, kin_sd, kinematic_terms, evidence)
 
 
@@ -212,7 +212,7 @@ def _kinematic_terms(fit: RefineState, cov, cov_robot_frame, A_tr, A_rr, Cinv, o
         return {
             "identified_design": flange_error_jacobian(chain_with_errors(ke.chain, fit.kappa),
                                                        fit.problem.q_rad)[:, :, fit.id_cols],
-            "covariance": cov_robot_frame, "n_geo": fit.n_geo,
+            "covariance": cov_robot_frame[:fit.n_par - fit.n_time, :fit.n_par - fit.n_time], "n_geo": fit.n_geo,
         }
     if ke is not None and len(fit.rand_cols):
         # how the arm's true geometric error moves the estimate (GLS with it marginalised)

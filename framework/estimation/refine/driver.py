@@ -15,6 +15,7 @@ from spherecal.estimation.refine.effects import KinematicEffects, StationEffects
 from spherecal.estimation.refine.linearisation import NoiseAssumptions, _centre_variance
 from spherecal.estimation.refine.reml import KINEMATIC_EVIDENCE_LR, search_scales
 from spherecal.estimation.refine.state import RefineState
+from spherecal.estimation.refine.timing import TimeEffects, with_start
 
 
 @dataclass
@@ -55,6 +56,9 @@ class RefineResult:
     # a kinematic calibration: each station predicted by the fit of the others
     # (:func:`.crossval.station_cross_validation`), else None
     station_prediction: dict | None = None
+    # a recording: the clock relation (offset_ms, drift_ppm), its covariance (2, 2) (the
+    # drift's row and column zero when it was held), each shot's robot time (s)
+    timing: dict | None = None
 
 
 #: A Gauss-Newton step the line search had to cut ends the iterations when the whole step
@@ -80,6 +84,7 @@ def refine(
     tolerance: float = 1e-10,
     station_effects: StationEffects | None = None,
     kinematic_effects: KinematicEffects | None = None,
+    time_effects: TimeEffects | None = None,
 ) -> RefineResult:
     """Gauss-Newton over all points of ``problem.profiles`` (already cleaned).
 
@@ -92,12 +97,16 @@ def refine(
     of the transform with the errors integrated out.
 
     Passes of Gauss-Newton (:func:`_gauss_newton_pass`) alternate with the variance
-    components (:func:`update_variance_components`) until those settle."""
-    fit = RefineState(problem, R, t, centre, noise, fit_radius, station_effects, kinematic_effects)
+    components (:func:`update_variance_components`) until those settle.
+
+    With ``time_effects`` (a recording, :mod:`.timing`) the clock relation between the
+    sensor and the robot is estimated with the rest, each shot's pose re-read from the
+    pose stream as it moves."""
+    fit = RefineState(problem, R, t, centre, noise, fit_radius, station_effects, kinematic_effects, time_effects)
     ke = fit.ke
     if ke is not None and ke.select_by_evidence and fit.se is None and not ke.identify and len(fit.rand_cols):
         return _refine_by_evidence(problem, fit.R, fit.t, fit.c, noise, fit_radius, estimate_pose_noise,
-                                   max_iterations, tolerance, ke, fit.rand_cols)
+                                   max_iterations, tolerance, ke, fit.rand_cols, time_effects)
     for _ in range(max(4 if estimate_pose_noise else 1, 8 if fit.m_centres else 1)):
         first_small = _gauss_newton_pass(fit, max_iterations, tolerance)
         if not update_variance_components(fit, first_small, estimate_pose_noise):
@@ -188,8 +197,13 @@ def _line_search(fit: RefineState, step, d_new, cost0: float):
         c = c + frac * step[6:9]
         if fit.fit_radius:
             r = r + frac * step[9]
-        if len(fit.id_cols):
-            kappa[fit.id_cols] += frac * step[n_geo:]
+        n_id = len(fit.id_cols)
+        if n_id:
+            kappa[fit.id_cols] += frac * step[n_geo:n_geo + n_id]
+        if fit.te is not None:
+            tau = before[6].copy()
+            tau[:fit.n_time] += frac * step[n_geo + n_id:]
+            fit.set_tau(tau)
         if d_new is not None:
             d = d_old + frac * (d_new - d_old)
             if fit.se is not None:
@@ -284,6 +298,19 @@ def _result(fit: RefineState) -> RefineResult:
         centre_res[fit.pts.centre_shots] = lin.centre_parts[0]
         diagnostics["centre_noise_mm"] = centre_noise
     pts = fit.pts
+    timing = None
+    if fit.te is not None:
+        n0 = fit.n_par - fit.n_time
+        tcov = np.zeros((2, 2))
+        tcov[:fit.n_time, :fit.n_time] = covs.reported[n0:, n0:]
+        # the offset's spread were everything else known: the reported one against it
+        # tells whether the sweeps separate the offset from the geometry
+        At = fit.design(lin)[0]
+        diagnostics["offset_std_ms_known_geometry"] = float(1.0 / np.sqrt(max(lin.red.gram(At[:, :, n0:n0 + 1],
+                                                                                      At[:, :, n0:n0 + 1])[0, 0], 1e-300)))
+        timing = {"offset_ms": float(fit.tau[0]), "drift_ppm": float(fit.tau[1]), "covariance": tcov,
+                  "drift_estimated": fit.te.estimate_drift,
+                  "t_robot_s": fit.te.robot_times(fit.base_problem.t_sensor_s, fit.tau)}
     return RefineResult(
         fit.R, fit.t, fit.c, fit.r, covs.reported, np.split(lin.res[:pts.M], np.cumsum(pts.counts)[:-1]), lin.C,
         lin.SC, fit.iterations, fit.converged, lin.red.cost() / dof, fit.scale, diagnostics,
@@ -293,17 +320,21 @@ def _result(fit: RefineState) -> RefineResult:
         kinematic_errors=fit.kappa if ke is not None else None,
         kinematic_sd=covs.kinematic_sd if ke is not None else None, kinematic_terms=covs.kinematic_terms,
         centre_residuals=centre_res, centre_noise_mm=centre_noise,
-        station_prediction=station_cross_validation(fit, lin),
+        station_prediction=station_cross_validation(fit, lin), timing=timing,
     )
 
 
 def cost_at(problem: Problem, ref: RefineResult, noise: NoiseAssumptions, fit_radius: bool, scale: float,
-            station_effects: StationEffects | None = None, kinematic_effects: KinematicEffects | None = None) -> float:
+            station_effects: StationEffects | None = None, kinematic_effects: KinematicEffects | None = None,
+            time_effects: TimeEffects | None = None) -> float:
     """-2 log-likelihood (up to a constant) of ``ref``'s solution at the pose-noise scale
     ``scale``: the whitened residuals plus the random effects against their prior (the
     MAP objective :meth:`.RefineState.penalised_cost`), so that two solutions of one
     problem are compared at one noise model."""
-    fit = RefineState(problem, ref.R, ref.t, ref.centre, noise, fit_radius, station_effects, kinematic_effects)
+    if time_effects is not None:
+        time_effects = with_start(time_effects, ref.timing)
+    fit = RefineState(problem, ref.R, ref.t, ref.centre, noise, fit_radius, station_effects, kinematic_effects,
+                      time_effects)
     fit.r = float(ref.radius)
     if fit.se is not None and ref.station_offsets is not None:
         fit.delta = np.array(ref.station_offsets, dtype=float)
@@ -346,22 +377,24 @@ def _station_to_station_scales(fit: RefineState) -> tuple[float, float]:
 
 
 def _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations, tolerance,
-                        ke: KinematicEffects, cols) -> RefineResult:
+                        ke: KinematicEffects, cols, te: TimeEffects | None = None) -> RefineResult:
     """The ``auto`` robot error model: the pose-noise-only fit at the stated noise, the
     evidence for the arm's geometric error at its solution, then the kinematic model if
     the data show that error, else the pose-noise-only fit (pose noise rescaled as asked)
     with the arm's geometry considered. The decision is made at the stated pose noise: a
     pose-noise scale learnt first would absorb the arm's error and hide it."""
     plain = replace(ke, select_by_evidence=False, consider_columns=tuple(int(i) for i in cols))
-    first = refine(problem, R, t, c, noise, fit_radius, False, max_iterations, tolerance, None, plain)
+    first = refine(problem, R, t, c, noise, fit_radius, False, max_iterations, tolerance, None, plain, te)
     evidence = first.diagnostics["kinematic_evidence"]
+    te_first = te if te is None else with_start(te, first.timing)
     if evidence["likelihood_ratio"] >= KINEMATIC_EVIDENCE_LR:
         out = refine(problem, first.R, first.t, first.centre, noise, fit_radius, estimate_pose_noise, max_iterations,
-                     tolerance, None, replace(ke, select_by_evidence=False))
+                     tolerance, None, replace(ke, select_by_evidence=False), te_first)
         selected = "kinematic"
     else:
         out = first if not estimate_pose_noise else refine(
-            problem, first.R, first.t, first.centre, noise, fit_radius, True, max_iterations, tolerance, None, plain)
+            problem, first.R, first.t, first.centre, noise, fit_radius, True, max_iterations, tolerance, None, plain,
+            te_first)
         selected = "none"
     out.diagnostics["kinematic_evidence"] = {**evidence, "selected": selected}
     return out

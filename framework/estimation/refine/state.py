@@ -13,6 +13,7 @@ from spherecal.estimation.refine.effects import (
 from spherecal.estimation.refine.linearisation import (
     NoiseAssumptions, _centre_variance, _Linearisation, _linearise, _Points, _pose_cov,
 )
+from spherecal.estimation.refine.timing import TimeEffects, shots_at, time_design
 
 
 class RefineState:
@@ -29,11 +30,23 @@ class RefineState:
     offsets ``delta`` (K, 6) and kinematic errors ``kappa``, the random effects' scales
     (``s_hat``: station rotation rad and translation mm; ``lam``: the kinematic prior's
     factor), the pose-noise scale, the centre observations' variance ``s2_centre`` and
-    the covariance they are whitened with within a pass (``centre_cov_frozen``)."""
+    the covariance they are whitened with within a pass (``centre_cov_frozen``).
+
+    A recording's clock relation (``te``: :class:`.timing.TimeEffects`) moves with them:
+    ``tau`` = (offset_ms, drift_ppm); ``problem`` is then ``base_problem`` with its poses
+    re-read from the pose stream at ``tau`` (:meth:`set_tau`), ``twist`` the flange's
+    velocity at each shot."""
 
     def __init__(self, problem: Problem, R, t, centre, noise: NoiseAssumptions, fit_radius: bool,
-                 station_effects: StationEffects | None, kinematic_effects: KinematicEffects | None):
-        self.problem = problem
+                 station_effects: StationEffects | None, kinematic_effects: KinematicEffects | None,
+                 time_effects: TimeEffects | None = None):
+        self.base_problem = self.problem = problem
+        self.te = time_effects if time_effects is not None and problem.t_sensor_s is not None else None
+        self.n_time = 0 if self.te is None else self.te.n_parameters
+        self.tau = np.zeros(2) if self.te is None else self.te.start()
+        self.twist = None
+        if self.te is not None:
+            self.set_tau(self.tau)
         self.R = np.array(R, dtype=float)
         self.t = np.array(t, dtype=float)
         self.c = np.array(centre, dtype=float)
@@ -60,7 +73,7 @@ class RefineState:
         self._set_kinematic_parameters()
         self.n_kin_fitted = len(self.id_cols) + len(self.rand_cols)
         self.lam = 1.0
-        self.n_par = self.n_geo + len(self.id_cols)
+        self.n_par = self.n_geo + len(self.id_cols) + self.n_time
         self.scale = 1.0
         # the centre observations' covariance depends on the parameters (the pose noise seen
         # through the transform and, for a circle, through where the plane cuts the sphere).
@@ -119,6 +132,12 @@ class RefineState:
             self.consider_cols = np.asarray(ke.consider_columns, dtype=int)
             self.rand_cols = np.array([], dtype=int)
 
+    def set_tau(self, tau) -> None:
+        """Move the clock relation to ``tau`` and re-read the shots' poses at it."""
+        self.tau = np.array(tau, dtype=float)
+        timed = shots_at(self.base_problem, self.te, self.tau)
+        self.problem, self.twist = timed.problem, timed.twist
+
     def current(self) -> Problem:
         """The problem with its flange poses moved by the current robot errors."""
         p = self.problem
@@ -158,6 +177,8 @@ class RefineState:
             if len(self.id_cols):
                 At = np.concatenate([At, Kk[:, :, self.id_cols]], axis=2)
             Ak = Kk[:, :, self.rand_cols] if len(self.rand_cols) else None
+        if self.te is not None:
+            At = np.concatenate([At, lin.columns(lin.Jd @ time_design(self.problem, self.te, self.twist))], axis=2)
         return At, As, Ak
 
     def shift(self, As, Ak) -> np.ndarray:
@@ -174,8 +195,8 @@ class RefineState:
         return np.concatenate([self.delta.ravel() if self.se is not None else [], self.kappa[self.rand_cols]])
 
     def snapshot(self) -> tuple:
-        """The estimate now, (R, t, c, r, delta, kappa), to step from."""
-        return self.R, self.t, self.c, self.r, self.delta.copy(), self.kappa.copy()
+        """The estimate now, (R, t, c, r, delta, kappa, tau), to step from."""
+        return self.R, self.t, self.c, self.r, self.delta.copy(), self.kappa.copy(), self.tau.copy()
 
     def penalised_cost(self, lin: _Linearisation, sv, lam) -> float:
         """The MAP objective: whitened residuals plus the random effects against their prior."""
