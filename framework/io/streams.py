@@ -889,7 +889,7 @@ class RecordingWriter:
                     raise InputError(f"{name}: profile {j} of this call (t_sensor_s {ts[j]!r}): point {i - bounds[j]} "
                                      f"is {pts[i].tolist()} mm: not a finite number of at most {MAX_ABS_VALUE:g} mm; "
                                      "nothing of this call was written")
-                raw = memoryview(f32).cast("B")
+                raw = memoryview(f32).cast("B") if f32.size else memoryview(b"")  # (no cast of an empty view)
                 base = bounds[a]
                 parts: list[bytes] = []
                 for i in range(a, b):

@@ -122,6 +122,20 @@ def test_writer_appends_lines_that_read_back_while_it_is_open(tmp_path):
     assert_same(rec, read_recording(path))
 
 
+def test_profiles_without_points(tmp_path):
+    """A sensor that sees nothing sends empty profiles: a batch may hold no point at all."""
+    path = tmp_path / "empty.jsonl"
+    with RecordingWriter(path, mounting="eye_in_hand", sphere_radius_mm=19.05) as out:
+        out.add_poses([0.0, 1.0], [[0, 0, 0]] * 2, [IDENT] * 2)
+        out.add_profiles(np.arange(300) * 0.01, np.zeros((0, 2)), np.zeros(301, int))
+        out.add_profile(3.5, [[1.0, -20.0]])
+        out.add_profile(3.6, np.zeros((0, 2)))
+    rec = read_recording(path)
+    assert rec.profiles.n == 302
+    np.testing.assert_array_equal(rec.profiles.counts, [0] * 300 + [1, 0])
+    np.testing.assert_array_equal(rec.profiles.points_yz_mm, [[1.0, -20.0]])
+
+
 def test_add_profiles_writes_a_flat_batch(tmp_path):
     rec = make_recording(n_profiles=30)
     pr = rec.profiles
