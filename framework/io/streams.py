@@ -587,7 +587,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
     try:
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size
-            reader.points = PointBuffer(size * 3 // 32 + 16)  # base64 takes at least 32/3 bytes a point
+            # base64 takes at least 32/3 bytes a point: a bound, reserved (not touched) up to 1 GiB, grown beyond
+            reader.points = PointBuffer(min(size * 3 // 32 + 16, 1 << 26))
             if size == 0:
                 raise DatasetFileError(f"{name}: the file is empty; expected a stream recording (header line first)")
             # mapped, not read: the base64 is decoded straight from the page cache
