@@ -36,6 +36,8 @@ from spherecal.core.streams import Recording, sensor_to_robot_time
 from spherecal.estimation.circle import fit_circles
 from spherecal.estimation.pipeline import Solution, _solve
 from spherecal.estimation.problem import Problem, orientation_groups, sphere_from_mount
+from spherecal.estimation.refine.linearisation import NoiseAssumptions
+from spherecal.estimation.refine.state import RefineState
 from spherecal.estimation.refine.timing import TimeEffects, shots_at
 from spherecal.estimation.twostep import station_centres
 
@@ -424,7 +426,7 @@ def timing_estimate(problem: Problem, ref, te: TimeEffects, opt, start_offset_ms
     inflation = float(sd[0] / known) if known else float("nan")
     identifiable = bool(sd[0] <= IDENTIFIED_STD_MS and (not np.isfinite(inflation) or inflation <= IDENTIFIED_INFLATION))
     if identifiable:
-        text = (f"the sweeps separate the clock offset from the sphere's position: {tm['offset_ms']:.3f} "
+        text = (f"the sweeps separate the clock offset from the sphere's position: {tm['offset_ms'] + shift_ms:.3f} "
                 f"+/- {sd[0]:.3f} ms")
     else:
         text = (f"the clock offset is not separated from the sphere's position (+/- {sd[0]:.3g} ms"
@@ -436,3 +438,32 @@ def timing_estimate(problem: Problem, ref, te: TimeEffects, opt, start_offset_ms
         drift_std_ppm=float(sd[1]), drift_estimated=bool(tm["drift_estimated"]), t_sensor0_s=te.t_sensor0_s + epochs[0],
         offset_drift_correlation=corr, identifiable=identifiable, identifiability=text,
         start_offset_ms=start_offset_ms + shift_ms)
+
+
+def timing_with_geometry_known(recording: Recording, solution: Solution, R, t, centre) -> tuple[float, float]:
+    """The clock relation (offset ms in the clocks' own counts, drift ppm) fitted with the
+    transform (``R``, ``t``) and the sphere's ``centre`` held at given values, on the
+    profiles ``solution`` used, at its noise model: the floor any estimator of the time
+    reaches on these data when the geometry is known (a benchmark's oracle, with the
+    simulated truth)."""
+    rec, epochs = _rebased(recording)
+    tm = solution.result.timing
+    start_ms = tm.offset_ms - 1e3 * (epochs[1] - epochs[0])
+    problem = solution.problem
+    te = TimeEffects(rec.poses, rec.t_sensor0_s, start_ms, tm.drift_ppm, tm.drift_estimated)
+    base = replace(problem, t_sensor_s=rec.profiles.t_sensor_s[problem.obs_index])
+    noise = NoiseAssumptions(float(solution.result.diagnostics.noise["point_noise_mm"]),
+                             float(solution.result.diagnostics.noise["pose_translation_noise_mm"]),
+                             float(solution.result.diagnostics.noise["pose_rotation_noise_deg"]))
+    fit = RefineState(base, R, t, centre, noise, False, None, None, te)
+    n0 = fit.n_par - fit.n_time
+    for _ in range(20):
+        lin = fit.linearise(1.0)
+        cols = fit.design(lin)[0][:, :, n0:]
+        step = np.linalg.solve(lin.red.gram(cols, cols), lin.red.rhs(cols))
+        tau = fit.tau.copy()
+        tau[:fit.n_time] += step
+        fit.set_tau(tau)
+        if np.abs(step).max() < 1e-9:
+            break
+    return float(fit.tau[0] + 1e3 * (epochs[1] - epochs[0])), float(fit.tau[1])

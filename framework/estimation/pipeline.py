@@ -256,8 +256,10 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         # a recording's poses are read at each profile's time, not paired with it: no shot
         # is mis-paired, and the profiles near the sphere's rim, whose centres the two-step
         # sees poorly, would pass for such
-        ts, sub, sub_fits = two_step_without_gross_outliers(
-            problem, fits, flags, opt, hint, RejectionBudget(0) if time_effects is not None else budget)
+        if time_effects is None:
+            ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+        else:
+            ts, sub, sub_fits = _recording_start(problem, fits, flags, opt, hint)
     except DegenerateDataError as exc:
         scattered = ori.diagnostics.get("scattered_stations")
         if not scattered:
@@ -295,7 +297,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
             f"more than {ABSURD_RESIDUAL_RATIO:g} times the noise: the data fit nothing, screening skipped (another "
             "mounting's data, poses in other units, another sphere?)")
     else:
-        clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit)
+        clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit, batch=time_effects is not None)
         clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit, batch=time_effects is not None)
 
     if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
@@ -312,6 +314,27 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         added["mirror_twin"] = {"excluded": False, "text": CIRCLE_TWIN}
     result = result.model_copy(update={"diagnostics": result.diagnostics.model_copy(update=added)})
     return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+
+
+#: A recording's two-step start uses at most this many profiles per station, evenly
+#: spread in time: it is a start, and its sphere fit over every point of thousands of
+#: profiles (per side-of-plane combination) would cost more than the joint fit.
+RECORDING_START_PROFILES = 96
+
+
+def _recording_start(problem: Problem, fits: dict, flags: list[ObservationFlag], opt, hint: str):
+    """The two-step start of a recording from a subsample of its profiles, and the
+    problem and fits of every profile with a fit (all go to the joint refinement)."""
+    used = np.array(sorted(fits))
+    pick = []
+    for k in range(len(problem.station_labels)):
+        members = used[problem.station_of[used] == k]
+        take = np.unique(np.linspace(0, len(members) - 1, min(len(members), RECORDING_START_PROFILES)).astype(int))
+        pick.extend(members[take].tolist() if len(members) else [])
+    ts, _, _ = two_step_without_gross_outliers(problem, {i: fits[i] for i in sorted(pick)}, flags, opt, hint,
+                                               RejectionBudget(0))
+    sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
+    return ts, sub, {j: fits[int(i)] for j, i in enumerate(used)}
 
 
 def _fit_shots(problem: Problem, opt, flags: list[ObservationFlag], say) -> dict[int, CircleFit | CentreShot]:

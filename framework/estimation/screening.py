@@ -548,12 +548,13 @@ Refit = Callable[[Problem, RefineResult], RefineResult]
 
 
 def trim_stray_points(clean: Problem, ref: RefineResult, noise: NoiseAssumptions, opt, flags: list[ObservationFlag],
-                      budget: RejectionBudget, refit: Refit) -> tuple[Problem, RefineResult]:
+                      budget: RejectionBudget, refit: Refit, batch: bool = False) -> tuple[Problem, RefineResult]:
     """Stray points the circle fits kept: trimmed on the joint residuals of ``ref`` and
     refitted once. A profile that would lose too many points (or keep too few) has no
     strays: its pose is wrong. It is left out and flagged (worst first, refitting after
-    each), never refitted empty; once the ``budget`` is spent, only profiles that would
-    keep too few points are left out, the others are trimmed."""
+    each; with ``batch``, for the thousands of profiles of a recording, all such profiles
+    at once within the budget), never refitted empty; once the ``budget`` is spent, only
+    profiles that would keep too few points are left out, the others are trimmed."""
     keep_pts = [np.ones(len(e), dtype=bool) for e in ref.residuals]
     while (clean.kinds == KIND_PROFILE).any():
         is_profile = clean.kinds == KIND_PROFILE
@@ -565,7 +566,10 @@ def trim_stray_points(clean: Problem, ref: RefineResult, noise: NoiseAssumptions
         too_few = is_profile & (counts - lost < opt.min_points_per_profile)
         bad = too_few | (is_profile & (lost > opt.max_stray_point_fraction * counts))
         if budget.rejected < budget.max_reject and bad.any():
-            drop = [int(np.argmax(np.where(bad, lost / np.maximum(counts, 1), -1.0)))]
+            share = np.where(bad, lost / np.maximum(counts, 1), -1.0)
+            drop = ([int(np.argmax(share))] if not batch else
+                    np.argsort(-share)[:min(int(bad.sum()), budget.max_reject - budget.rejected)].tolist())
+            drop = sorted(set(drop) | set(np.flatnonzero(too_few).tolist())) if batch else drop
         elif too_few.any():
             drop = np.flatnonzero(too_few).tolist()
         else:

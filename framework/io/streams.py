@@ -1006,6 +1006,8 @@ def recording_kind(path: str | os.PathLike) -> Literal["dataset", "stream", "ros
                                "(give the bag's folder, its .mcap or .db3 file, or a dataset file)")
     if p.suffix.lower() in (".mcap", ".db3"):
         return "rosbag"
+    if not p.is_file():  # a pipe, a device, nothing: read_dataset's checks name it
+        return "dataset"
     try:
         with open(p, "rb") as f:
             first = f.readline(MAX_LINE_BYTES)
