@@ -176,9 +176,25 @@ def _solve(sub, common, as_json) -> None:
                        description="Calibrate a recorded dataset without devices and write the result, exports "
                        "and report. Flange poses are the reported base_from_flange; observations with joint "
                        "readings only go through the robot plugin's forward kinematics (--robot).")
-    s.add_argument("dataset", help="dataset file (.jsonl)")
+    s.add_argument("dataset", help="dataset file (.jsonl), a recording in the stream form (.jsonl, version 3) or a "
+                   "ROS 2 bag (its folder, .mcap or .db3; give the topics, --mounting and --sphere-radius-mm)")
     s.add_argument("-o", "--out", metavar="DIR", help=OUT_HELP.format(
         what="result, exports, report and run.log are written there", default="<dataset>.calibration next to it"))
+    bag = s.add_argument_group("recordings (a pose stream and a profile stream on two clocks; docs/on-the-fly.md)")
+    bag.add_argument("--clock-offset-ms", type=float, metavar="MS", help="a start for the clock offset, robot clock "
+                     "minus sensor clock (default: searched from the data)")
+    bag.add_argument("--profile-topic", metavar="TOPIC", help="a bag's profiles: sensor_msgs/msg/PointCloud2, metres, "
+                     "one message per profile")
+    bag.add_argument("--pose-topic", metavar="TOPIC", help="a bag's flange poses: geometry_msgs/msg/PoseStamped, "
+                     "tf2_msgs/msg/TFMessage (with --base-frame and --flange-frame) or sensor_msgs/msg/JointState "
+                     "(with --robot)")
+    bag.add_argument("--mounting", choices=["eye_in_hand", "eye_to_hand"], help="a bag's mounting (a bag does not say)")
+    bag.add_argument("--sphere-radius-mm", type=_positive_float, metavar="MM", help="the sphere's certified radius")
+    bag.add_argument("--line-axis", choices=["y", "x"], default="y", help="the cloud axis the laser line runs along "
+                     "(default y, the project's laser plane being the sensor's y-z plane; x for drivers that put it "
+                     "along x)")
+    bag.add_argument("--base-frame", metavar="FRAME", help="with a /tf pose topic: the robot's base frame")
+    bag.add_argument("--flange-frame", metavar="FRAME", help="with a /tf pose topic: the flange frame")
     s.add_argument("--fit-radius", action="store_true", help="estimate the sphere radius too")
     s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data")
     s.add_argument("--robot", metavar="TYPE", help="robot type whose kinematics computes flange poses from joints_deg "

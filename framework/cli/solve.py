@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from spherecal.app.solve import default_out, run_solve, run_solve_recording
+from spherecal.app.solve import convert_bag, default_out, run_solve, run_solve_recording
 from spherecal.cli.finish import finish
 from spherecal.cli.output import result_json
 from spherecal.cli.session import Session
+from spherecal.core.errors import ConfigError
 from spherecal.io import dataset as dataio
 from spherecal.io import streams as streamio
 from spherecal.io.runlog import progress_log
@@ -18,8 +19,13 @@ from spherecal.report.terminal import summary, truth_check
 def run(args, session: Session) -> int:
     out = Path(args.out) if args.out else default_out(args.dataset)
     session.run_folder(out)
-    if streamio.recording_kind(args.dataset) == "stream":
-        return _run_recording(args, session, out)
+    kind = streamio.recording_kind(args.dataset)
+    if kind in ("stream", "rosbag"):
+        return _run_recording(args, session, out, kind)
+    bag_only = [f"--{name.replace('_', '-')}" for name in ("profile_topic", "pose_topic", "mounting", "sphere_radius_mm",
+                                                           "base_frame", "flange_frame") if getattr(args, name)]
+    if bag_only:
+        raise ConfigError(f"{', '.join(bag_only)}: only for a ROS 2 bag; {args.dataset} is a dataset file")
     dataset = dataio.read_dataset(args.dataset)  # checks the file first (a device, a pipe, a size limit)
     session.note_file("dataset", args.dataset)
     outcome = run_solve(
@@ -38,12 +44,22 @@ def run(args, session: Session) -> int:
     return finish(session, out, outcome.verdict, outcome.exports_written, report=not args.no_report)
 
 
-def _run_recording(args, session: Session, out: Path) -> int:
-    """A recording (dataset format version 3, the stream form): the clock relation too."""
-    recording = streamio.read_recording(args.dataset)
-    session.note_file("recording", args.dataset)
+def _run_recording(args, session: Session, out: Path, kind: str) -> int:
+    """A recording (dataset format version 3, the stream form, or a ROS 2 bag converted
+    once into it, ``<out>/recording.jsonl``): the clock relation too."""
+    if kind == "rosbag":
+        recording = convert_bag(Path(args.dataset), out, profile_topic=args.profile_topic, pose_topic=args.pose_topic,
+                                mounting=args.mounting, sphere_radius_mm=args.sphere_radius_mm,
+                                line_axis=args.line_axis, base_frame=args.base_frame, flange_frame=args.flange_frame,
+                                robot_type=args.robot, robot_config=Path(args.robot_config) if args.robot_config
+                                else None, overwrite=args.overwrite, log=progress_log("run"))
+        source = out / "recording.jsonl"  # the bag as solved (a folder has no one hash)
+    else:
+        recording = streamio.read_recording(args.dataset)
+        source = Path(args.dataset)
+    session.note_file("recording", source)
     outcome = run_solve_recording(
-        recording, Path(args.dataset), out, nominal=args.nominal, robot_type=args.robot,
+        recording, source, out, nominal=args.nominal, robot_type=args.robot,
         robot_config=Path(args.robot_config) if args.robot_config else None, fit_radius=args.fit_radius,
         robot_error_model=args.robot_error_model, offset_ms=getattr(args, "clock_offset_ms", None),
         overwrite=args.overwrite, report=not args.no_report, force=args.force, operator=args.operator,

@@ -38,7 +38,7 @@ from spherecal.estimation.pipeline import Solution, _solve
 from spherecal.estimation.problem import Problem, orientation_groups, sphere_from_mount
 from spherecal.estimation.refine.linearisation import NoiseAssumptions
 from spherecal.estimation.refine.state import RefineState
-from spherecal.estimation.refine.timing import TimeEffects, shots_at
+from spherecal.estimation.refine.timing import TimeEffects, shots_at, with_start
 from spherecal.estimation.twostep import station_centres
 
 #: Profiles per station the start's two-step uses (evenly spread over the station).
@@ -57,6 +57,10 @@ IDENTIFIED_STD_MS = 1.0
 #: Drift is estimated when the recording is long enough to show it: with the offset
 #: known to this many ms, a drift of 10 ppm must move the last profile's time by more.
 DRIFT_VISIBLE_PPM = 10.0
+#: Residuals correlated in time over more than this many profiles (the integrated
+#: autocorrelation of :func:`correlation_inflation`) make the fit repeat with the pose
+#: noise widened to match.
+CORRELATED_SHOTS = 1.5
 #: Grouping by orientation (recordings without sweeps): one station's shots turn by less, deg.
 STATION_ORIENTATION_TOLERANCE_DEG = 0.5
 
@@ -106,27 +110,35 @@ def solve_recording(
         say(f"... {len(flags) - 5} more profiles without a pose left out")
     dataset = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
                       provenance=recording.provenance)
-    inflation = {}
-
-    def widen(clean: Problem, ref):
-        factor, detail = correlation_inflation(clean, ref)
-        inflation.update(detail)
-        if factor > 1.0:
-            say(f"the residuals are correlated in time (integrated autocorrelation {factor:.2f} shots): "
-                f"the covariance is widened by that factor")
-        return widened(ref, factor)
-
-    solution = _solve(dataset, problem, opt, say, kinematics, problem.q_rad is not None, flags, time_effects=te,
-                      adjust=widen)
+    joints = problem.q_rad is not None
+    solution = _solve(dataset, problem, opt, say, kinematics, joints, list(flags), time_effects=te)
+    shots, detail = correlation_inflation(solution.problem, solution.refined)
+    if shots > CORRELATED_SHOTS:
+        # the robot's repeatability error is smooth in time: profiles taken within its
+        # correlation time share it. Weighted as independent, it would pass for station-to-
+        # station error (the station model takes it in) and the spread would be too small;
+        # weighted as this many times its variance per profile, the profiles of a station
+        # weigh what their independent looks weigh
+        noise = solution.result.diagnostics.noise
+        widen = float(np.sqrt(shots))
+        opt = opt.model_copy(update={
+            "pose_translation_noise_mm": max(float(noise["pose_translation_noise_mm"]), 1e-4) * widen,
+            "pose_rotation_noise_deg": max(float(noise["pose_rotation_noise_deg"]), 1e-5) * widen,
+            "estimate_pose_noise": False})
+        say(f"the residuals are correlated in time over {shots:.1f} profiles: the robot's pose noise is taken "
+            f"{widen:.2f} times larger per profile, and the fit repeated")
+        te = with_start(te, solution.refined.timing)
+        problem, flags = _problem(recording, rows, labels, names, te, joints, epochs)
+        solution = _solve(dataset, problem, opt, say, kinematics, joints, list(flags), time_effects=te)
     ref = solution.refined
     timing = timing_estimate(solution.problem, ref, te, opt, start_info.get("offset_ms", offset_ms), epochs)
     diag = solution.result.diagnostics.model_copy(update={"refinement": {
-        **(solution.result.diagnostics.refinement or {}), "time_correlation": inflation}})
+        **(solution.result.diagnostics.refinement or {}), "time_correlation": detail}})
     result = solution.result.model_copy(update={
         "timing": timing, "diagnostics": diag,
         "provenance": {**solution.result.provenance, "recording": recording.provenance.get("source", "unknown")},
     })
-    final = shots_at(solution.problem, replace(te), np.array([timing.offset_ms, timing.drift_ppm])).problem
+    final = shots_at(solution.problem, te, np.array([ref.timing["offset_ms"], ref.timing["drift_ppm"]])).problem
     return replace(solution, result=result, problem=final)
 
 
@@ -143,16 +155,15 @@ def _rebased(recording: Recording) -> tuple[Recording, tuple[float, float]]:
 
 
 def correlation_inflation(problem: Problem, ref) -> tuple[float, dict]:
-    """How much the residuals' correlation in time widens the covariance: the integrated
-    autocorrelation time (in shots) of each profile's mean residual and of its circle's
-    shift along y and z (the pose noise as each profile sees it), along each run of
-    consecutive profiles, the largest of the three; 1 for white noise.
+    """How many consecutive profiles share the robot's pose noise: the integrated
+    autocorrelation time (in profiles) of each profile's mean residual and of its
+    circle's shift along y and z (the pose noise as each profile sees it), along each run
+    of consecutive profiles, corrected for the white point noise in them, the largest of
+    the three; 1 for white noise.
 
     The fit weighs every profile's pose noise as independent; a robot's repeatability
     error is smooth over tens of milliseconds, so profiles taken at hundreds per second
-    share it, and the data hold fewer independent looks than profiles. Widening the
-    covariance by the number of profiles per independent look keeps the stated
-    uncertainty honest (the estimate itself stays the least-squares one)."""
+    share it, and the data hold fewer independent looks than profiles."""
     n = problem.n_profiles
     signals = np.zeros((n, 3))
     C = ref.predicted
@@ -185,20 +196,13 @@ def correlation_inflation(problem: Problem, ref) -> tuple[float, dict]:
             if rho[lag] < 0.05:
                 break
             tau += 2.0 * rho[lag]
+        # the white point noise in the signal lowers every lag alike: the smooth part's
+        # own correlation is rho / rho_1 (its share of the variance is about rho_1)
+        if max_lag >= 1 and rho[1] > 0.1:
+            tau = 1.0 + (tau - 1.0) / rho[1]
         taus.append(tau)
     factor = max(taus) if taus else 1.0
     return float(factor), {"integrated_autocorrelation_shots": float(factor), "runs": len(runs)}
-
-
-def widened(ref, factor: float):
-    """``ref`` (a RefineResult) with every covariance times ``factor``."""
-    if factor <= 1.0:
-        return ref
-    scaled = {name: getattr(ref, name) * factor for name in (
-        "covariance", "covariance_without_robot_error", "covariance_robot_frame", "covariance_robot_frame_at_scales")
-        if getattr(ref, name) is not None}
-    timing = None if ref.timing is None else {**ref.timing, "covariance": ref.timing["covariance"] * factor}
-    return replace(ref, timing=timing, **scaled)
 
 
 def _station_labels(recording: Recording, seen: np.ndarray) -> tuple[np.ndarray | None, list[str]]:

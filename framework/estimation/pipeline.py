@@ -220,15 +220,12 @@ def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> 
     return replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
 
 
-def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None,
-           adjust=None) -> Solution:
+def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None) -> Solution:
     """Solve ``problem`` (the table's screening done, its flags in ``table_flags``): the
     orientation screening, a circle per profile, the two-step start without the gross
     outliers, the joint refinement, then the stray points and the inconsistent shots
     left out (:mod:`.screening`), and the result. With ``time_effects`` (a recording) the
-    clock relation is estimated in the joint refinement (:mod:`.refine.timing`); ``adjust``
-    (problem, refined) -> refined: what the caller changes in the final refinement before
-    the result is made of it (a recording's covariance widened for noise correlated in time)."""
+    clock relation is estimated in the joint refinement (:mod:`.refine.timing`)."""
     robot_effects = {
         "station_effects": station_effects(opt, joints_known),
         "kinematic_effects": kinematic_effects(opt, kinematics.chain)
@@ -306,8 +303,6 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         noise = replace(noise, point_noise_mm=_typical_centre_sd(clean, ref))
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
-    if adjust is not None:
-        ref = adjust(clean, ref)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
     added = {"station_orientation": ori.diagnostics}
     if opt.nominal_transform is None and (clean.kinds == KIND_CIRCLE).all():

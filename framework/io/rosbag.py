@@ -408,9 +408,14 @@ def read_bag(
     if len(t_robot) < 2:
         raise BagTopicError(f"{name}: {pose_topic} gives {len(t_robot)} flange poses; a recording needs at least 2")
     _check_flange_units(t_mm, name, pose_topic)
-    _check_time_spans(t_sensor, t_robot, name, profile_topic, pose_topic)
     clocks, clock_info = _clocks(t_sensor, np.asarray(decoder.log_ns, np.int64), t_robot, log_pose, profile_topic,
                                  pose_topic, name)
+    overlap = t_sensor[0] <= t_robot[-1] and t_robot[0] <= t_sensor[-1]
+    if clock_info["same_clock"] or overlap:
+        # one clock (or one epoch): a profile outside the poses' span has no pose. Spans
+        # on two clocks that do not meet say nothing yet (one may count from 1970, the
+        # other from power-on): the solve searches the offset and names what stays outside.
+        _check_time_spans(t_sensor, t_robot, name, profile_topic, pose_topic)
     provenance = {
         "source": "rosbag2",
         "bag": os.path.abspath(name),

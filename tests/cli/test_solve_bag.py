@@ -1,0 +1,67 @@
+"""`spherecal solve` of a ROS 2 bag: a simulated recording published as a driver would
+(PointCloud2 profiles in metres, PoseStamped flange poses with quaternions x, y, z, w),
+converted once into the stream form and calibrated with its clock relation."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bag_files import cloud, pose_stamped, q_xyzw, write_bag
+from spherecal.cli import EXIT_OK, EXIT_USAGE, main
+from spherecal.config import OnTheFlyPlan, StreamSimSettings
+from spherecal.io.streams import read_recording
+from spherecal.sim import standard_cell
+from spherecal.sim.streams import simulate_recording
+from reference_sensor import reference_fov
+
+
+def _ns(t_s: float) -> int:
+    return int(round(t_s * 1e9))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_solve_a_bag_finds_the_clocks_and_the_transform(tmp_path, capsys, storage):
+    cell = standard_cell("eye_in_hand", seed=2, fov=reference_fov())
+    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
+                             StreamSimSettings(sensor={"rate_hz": 100.0}, seed=2))
+    ps, poses = rec.profiles, rec.poses
+    clouds = []
+    for j in range(ps.n):
+        yz = ps.profile(j)
+        xyz_m = np.column_stack([np.zeros(len(yz)), yz]) / 1000.0
+        # the recorder logs each message a little after its stamp, on the computer's clock
+        clouds.append((_ns(ps.t_sensor_s[j]) + 3_000_000, cloud(_ns(ps.t_sensor_s[j]), xyz_m)))
+    q = q_xyzw(poses.R)
+    # the controller stamps on its own clock (from power-on); the recorder logs on the computer's
+    to_computer = -rec.provenance["true_offset_s"]
+    pose_msgs = [(_ns(poses.t_robot_s[i] + to_computer) + 1_000_000,
+                  pose_stamped(_ns(poses.t_robot_s[i]), poses.t_mm[i] / 1000.0, q[i])) for i in range(poses.n)]
+    bag = write_bag(tmp_path / "cell.bag", storage, {
+        "/profiler/points": ("sensor_msgs/msg/PointCloud2", clouds),
+        "/robot/flange_pose": ("geometry_msgs/msg/PoseStamped", pose_msgs)})
+    out = tmp_path / "res"
+    args = ["solve", str(bag), "--profile-topic", "/profiler/points", "--pose-topic", "/robot/flange_pose",
+            "--mounting", "eye_in_hand", "--sphere-radius-mm", str(rec.sphere_radius_mm), "--out", str(out),
+            "--no-report"]
+    assert main(args) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert "clock relation" in printed
+    converted = read_recording(out / "recording.jsonl")
+    assert converted.profiles.n == ps.n and converted.poses.n == poses.n
+    timing = json.loads((out / "result.json").read_text())["timing"]
+    # the bag's stamps are whole nanoseconds; the simulator's truth is exact
+    assert abs(timing["offset_ms"] - 1e3 * rec.provenance["true_offset_s"]) < max(4 * timing["offset_std_ms"], 0.05)
+    result = json.loads((out / "result.json").read_text())
+    truth = rec.provenance["true_transform"]["translation_mm"]
+    assert np.linalg.norm(np.subtract(result["transform"]["translation_mm"], truth)) < 1.0
+
+
+def test_a_bag_without_its_topics_is_refused_naming_what_to_give(tmp_path, capsys):
+    bag = write_bag(tmp_path / "cell.bag", "mcap", {"/robot/flange_pose": ("geometry_msgs/msg/PoseStamped", [
+        (1_000, pose_stamped(1_000, [1.0, 0.0, 0.5], [0.0, 0.0, 0.0, 1.0]))])})
+    code = main(["solve", str(bag), "--out", str(tmp_path / "res")])
+    assert code == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--profile-topic" in err and "--mounting" in err and "--sphere-radius-mm" in err
