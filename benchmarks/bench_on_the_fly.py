@@ -50,7 +50,7 @@ from spherecal.core.models import Pose
 from spherecal.estimation import solve
 from spherecal.estimation.on_the_fly import solve_recording, timing_with_geometry_known
 from spherecal.report.assess import verdict
-from spherecal.sim import simulate_dataset
+from spherecal.sim import RobotErrorModel, simulate_dataset
 from spherecal.sim.cell import standard_cell
 from spherecal.config import NoiseModel
 from spherecal.sim.streams import simulate_recording
@@ -69,11 +69,12 @@ def _errors(result, truth: Pose) -> tuple[float, float, float, float]:
 
 def run(mounting: str, seed: int, args) -> dict:
     robot_arm = None
-    if args.robot_error:
-        from spherecal.plugins import ArmKinematics  # noqa: F401  (the arm comes from the robot plugin)
-        from spherecal.app.plugin_host import make_host
-        robot_arm = make_host().robot_type("abb_irb2400").arm_kinematics(None)
-    cell = standard_cell(mounting, seed=seed, fov=FOV, arm=robot_arm)
+    if args.robot_error:  # the IRB 2400's arm from its plugin, its true geometry off the model
+        from spherecal.plugins.host import PluginHost
+
+        robot_arm = PluginHost(autoload=False).arm_kinematics({"type": "abb_irb2400"})
+    cell = standard_cell(mounting, seed=seed, fov=FOV, arm=robot_arm,
+                         robot_error=RobotErrorModel() if robot_arm is not None else None)
     settings = StreamSimSettings(
         sensor={"rate_hz": args.rate, "extra_latency_s": args.extra_latency_ms * 1e-3},
         pose={"translation_noise_mm": args.noise, "rotation_noise_deg": args.noise / 10},
@@ -81,7 +82,7 @@ def run(mounting: str, seed: int, args) -> dict:
     rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05), settings)
     prov = rec.provenance
     t0 = time.perf_counter()
-    sol = solve_recording(rec, CalibrationOptions())
+    sol = solve_recording(rec, CalibrationOptions(), kinematics=robot_arm)
     elapsed = time.perf_counter() - t0
     r = sol.result
     truth = Pose.model_validate(prov["true_transform"])
@@ -97,15 +98,17 @@ def run(mounting: str, seed: int, args) -> dict:
         "oracle_drift_err": o_drift - true_drift_ppm,
         "rot": rot, "trans": trans, "s_rot": s_rot, "s_trans": s_trans, "time_s": elapsed,
         "identified": r.timing.identifiable, "level": verdict(r).level,
+        "model": r.robot_error.model if r.robot_error is not None else "none",
         "latency_named_ms": r.timing.offset_ms - 1e3 * prov.get("true_offset_without_extra_latency_s",
                                                                prov["true_offset_s"]),
         "profiles": rec.profiles.n, "points": len(rec.profiles.points_yz_mm),
     }
     if args.stop_and_go:
         sg_cell = standard_cell(mounting, seed=seed, fov=FOV, arm=robot_arm,
+                                robot_error=RobotErrorModel() if robot_arm is not None else None,
                                 noise=NoiseModel(pose_translation_noise_mm=args.noise,
                                                  pose_rotation_noise_deg=args.noise / 10))
-        sg = solve(simulate_dataset(sg_cell)).result
+        sg = solve(simulate_dataset(sg_cell), kinematics=robot_arm).result
         out["sg_rot"], out["sg_trans"], _, _ = _errors(sg, Pose.model_validate(sg.provenance.get(
             "true_transform", prov["true_transform"])) if "true_transform" in sg.provenance else truth)
     return out
@@ -158,6 +161,7 @@ def main() -> None:
         if args.extra_latency_ms:
             print(f"  undeclared latency taken by the offset: median {np.median(a['latency_named_ms']):.3f} ms of "
                   f"{args.extra_latency_ms:g}; verdicts {dict(zip(*np.unique(a['level'], return_counts=True)))}")
+        print(f"  robot error models {dict(zip(*np.unique(a['model'], return_counts=True)))}")
         print(f"  identified in {int(a['identified'].sum())} of {len(rows)}; verdicts "
               f"{dict(zip(*np.unique(a['level'], return_counts=True)))}; solve median {np.median(a['time_s']):.1f} s")
 

@@ -36,6 +36,11 @@ def run(args, session: Session) -> int:
         overwrite=args.overwrite, report=not args.no_report, force=args.force, operator=args.operator,
         log=progress_log("run"),
     )
+    return _finish(args, session, out, outcome)
+
+
+def _finish(args, session: Session, out: Path, outcome) -> int:
+    """The result and its verdict printed, the truth beside it for simulated data, the exit code."""
     session.say(summary(outcome.solution, outcome.verdict))
     session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
     check = truth_check(outcome.solution, outcome.dataset)
@@ -64,9 +69,4 @@ def _run_recording(args, session: Session, out: Path, kind: str) -> int:
         robot_error_model=args.robot_error_model, offset_ms=getattr(args, "clock_offset_ms", None),
         overwrite=args.overwrite, report=not args.no_report, force=args.force, operator=args.operator,
         log=progress_log("run"))
-    session.say(summary(outcome.solution, outcome.verdict))
-    session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
-    check = truth_check(outcome.solution, outcome.dataset)
-    if check:
-        session.say(check)
-    return finish(session, out, outcome.verdict, outcome.exports_written, report=not args.no_report)
+    return _finish(args, session, out, outcome)
