@@ -3,6 +3,7 @@ kinematics from its plugin when the dataset needs them."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -96,8 +97,11 @@ def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal:
     def solver():
         return solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
 
+    def as_mounting(mounting: str):
+        return solve_recording(replace(recording, mounting=mounting), options, kinematics=arm).result
+
     solution, graded, written = solve_and_write(header, options, out, exports, None, log=log, report=report,
-                                                force=force, kinematics=arm, solver=solver,
+                                                force=force, kinematics=arm, solver=solver, recheck=as_mounting,
                                                 provenance=traceability(header, path, operator=operator))
     host.calibration_finished(result=solution.result, dataset=header, out_dir=out, exports_written=written,
                               robot_type=robot_type, sensor_type=provenance_type(header, "sensor"))

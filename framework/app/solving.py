@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from spherecal.app.outputs import CALIBRATED_URDF_NAME, check_output_targets
-from spherecal.core.errors import FitBreakdownError
+from spherecal.core.errors import FitBreakdownError, SpherecalError
 from spherecal.core.kinematics import chain_with_errors
-from spherecal.core.models import Dataset
+from spherecal.core.models import CalibrationResult, Dataset
 from spherecal.core.urdf import chain_to_urdf
 from spherecal.estimation import CalibrationOptions, Solution, solve
 from spherecal.estimation import diagnose
@@ -64,6 +64,7 @@ def solve_and_write(
     provenance: dict | None = None,
     report_settings: ReportConfig | None = None,
     solver: Callable[[], Solution] | None = None,
+    recheck: Callable[[str], CalibrationResult] | None = None,
 ) -> tuple[Solution, Verdict, bool]:
     """Solve ``dataset``, grade the result (:func:`assess_solution`) and write
     ``result.json``, the exports and the HTML report in ``out``. A RED result's
@@ -74,7 +75,8 @@ def solve_and_write(
     kinematic robot error model; ``provenance``: the result's
     (:func:`spherecal.app.provenance.traceability`); ``report_settings``: the
     configuration's ``[report]``; ``solver``: what solves instead of :func:`solve` of
-    ``dataset`` (a recording's solve; ``dataset`` then holds its header and provenance)."""
+    ``dataset`` (a recording's solve; ``dataset`` then holds its header and provenance),
+    ``recheck`` its solve as another mounting (:func:`assess_solution`)."""
     check_output_targets(out, exports)  # a planted link: refuse before solving, write nothing
     try:
         solution = solver() if solver is not None else solve(dataset, options, fk, progress=log, kinematics=kinematics)
@@ -85,7 +87,7 @@ def solve_and_write(
         raise FitBreakdownError(f"{cause}. ({exc})") from None
     if provenance is not None:
         solution = replace(solution, result=solution.result.model_copy(update={"provenance": provenance}))
-    graded = assess_solution(solution, dataset, options, fk, log, kinematics=kinematics)
+    graded = assess_solution(solution, dataset, options, fk, log, kinematics=kinematics, recheck=recheck)
     out.mkdir(parents=True, exist_ok=True)
     written = graded.level != "red" or force
     # the verdict travels with the result: a RED one written with --force says so in result.json
@@ -153,7 +155,8 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
 
 
 def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
-                    log: Callable[[str], None] = _LOG, kinematics=None) -> Verdict:
+                    log: Callable[[str], None] = _LOG, kinematics=None,
+                    recheck: Callable[[str], CalibrationResult] | None = None) -> Verdict:
     """The verdict of ``solution`` (:func:`spherecal.report.assess.verdict`); for a RED
     one, the likely cause named where the data can tell it
     (:mod:`spherecal.estimation.diagnose`):
@@ -171,11 +174,27 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     cause named makes the verdict RED). ``kinematics`` (the arm's,
     as given to :func:`solve`) is passed to every such solve: without it a solve that
     identifies the arm's geometry or uses the kinematic error model refuses to run, and
-    the check would say nothing."""
+    the check would say nothing. ``recheck`` (a recording's, ``dataset`` then holds only
+    its header): its result solved as another mounting, for an absurd result."""
     th = Thresholds()
     result = solution.result
     v = verdict(result, th)
-    if not dataset.observations:  # a recording: the re-readings below are a dataset's
+    if not dataset.observations:  # a recording: of the re-readings below, only the mounting's applies
+        if is_absurd(result, th) and recheck is not None:
+            other = diagnose.other_mounting(dataset.mounting)
+            log(f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected): checking whether the "
+                f"recording is {other} data")
+            try:
+                alt = recheck(other)
+            except SpherecalError:
+                alt = None
+            if alt is not None and not is_absurd(alt, th):
+                v.level = "red"
+                v.reasons.append(("red", f"likely cause: the recording's mounting is probably wrong: it says "
+                                         f"{dataset.mounting}, but solved as {other} the same data fit with residual "
+                                         f"RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt, th):.2f} x the "
+                                         "expected). Check the sensor's mounting (--mounting)"))
+                v.headline = f"{v.headline} Likely cause: the mounting."
         return v
     absurd = is_absurd(result, th)
     implausible = not absurd and implausible_disagreement(result)

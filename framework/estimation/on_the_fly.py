@@ -29,12 +29,12 @@ import numpy as np
 
 from spherecal.config import CalibrationOptions
 from spherecal.core import geometry as geo
-from spherecal.core.errors import DegenerateDataError
+from spherecal.core.errors import DegenerateDataError, FitBreakdownError
 from spherecal.core.kinematics import ArmKinematics
 from spherecal.core.models import Dataset, ObservationFlag, TimingEstimate
 from spherecal.core.streams import Recording, sensor_to_robot_time
 from spherecal.estimation.circle import fit_circles
-from spherecal.estimation.pipeline import Solution, _solve
+from spherecal.estimation.pipeline import BREAKDOWN_CAUSES, Solution, _solve
 from spherecal.estimation.problem import Problem, orientation_groups, sphere_from_mount
 from spherecal.estimation.refine.linearisation import NoiseAssumptions
 from spherecal.estimation.refine.state import RefineState
@@ -75,6 +75,27 @@ def solve_recording(
 ) -> Solution:
     """Calibrate from ``recording``; see the module docstring. ``offset_ms``: a known
     start for the clock offset (skips the search); ``estimate_drift`` None decides from
+    the recording's length and its clocks. The result's ``timing`` holds the clock
+    relation. Data so far from the model that the linear algebra breaks down raise
+    :class:`~spherecal.core.errors.FitBreakdownError` naming the usual causes."""
+    try:
+        return _solve_recording(recording, options, kinematics, progress, offset_ms, estimate_drift)
+    except np.linalg.LinAlgError as exc:
+        raise FitBreakdownError(
+            f"the fit broke down ({exc}): the recording fits no sphere seen through its poses. Check, most common "
+            f"first: {BREAKDOWN_CAUSES}") from None
+
+
+def _solve_recording(
+    recording: Recording,
+    options: CalibrationOptions | None = None,
+    kinematics: ArmKinematics | None = None,
+    progress: Callable[[str], None] | None = None,
+    offset_ms: float | None = None,
+    estimate_drift: bool | None = None,
+) -> Solution:
+    """Calibrate from ``recording``; see the module docstring. ``offset_ms``: a known
+    start for the clock offset (skips the search); ``estimate_drift`` None decides from
     the recording's length. The result's ``timing`` holds the clock relation."""
     opt = options or CalibrationOptions()
     say = progress or (lambda msg: None)
@@ -100,6 +121,12 @@ def solve_recording(
         offset_ms, drift_ppm, start_info = _start_offset(recording, seen, labels, names, opt, say)
     if labels is None:
         labels, names = _labels_by_orientation(recording, seen, offset_ms)
+    one_clock = recording.clocks.get("robot") == recording.clocks.get("sensor")
+    if estimate_drift is None and one_clock:
+        say(f"both streams were stamped by one clock ({recording.clocks.get('robot')}): no drift between the robot's "
+            "and the sensor's clocks can be seen; it is held at 0 (the offset is the difference of the two "
+            "stamping paths' latencies)")
+        drift_ppm, estimate_drift = 0.0, False
     drift = _drift_visible(recording) if estimate_drift is None else estimate_drift
     te = TimeEffects(stream, recording.t_sensor0_s, offset_ms, drift_ppm if drift else 0.0, drift, q_model)
     rows = np.flatnonzero(seen & (labels >= 0))
@@ -111,25 +138,25 @@ def solve_recording(
     dataset = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
                       provenance=recording.provenance)
     joints = problem.q_rad is not None
-    solution = _solve(dataset, problem, opt, say, kinematics, joints, list(flags), time_effects=te)
-    shots, detail = correlation_inflation(solution.problem, solution.refined)
-    if shots > CORRELATED_SHOTS:
+    detail: dict = {}
+
+    def reweigh(clean: Problem, ref, noise: NoiseAssumptions) -> NoiseAssumptions | None:
         # the robot's repeatability error is smooth in time: profiles taken within its
         # correlation time share it. Weighted as independent, it would pass for station-to-
         # station error (the station model takes it in) and the spread would be too small;
         # weighted as this many times its variance per profile, the profiles of a station
         # weigh what their independent looks weigh
-        noise = solution.result.diagnostics.noise
-        widen = float(np.sqrt(shots))
-        opt = opt.model_copy(update={
-            "pose_translation_noise_mm": max(float(noise["pose_translation_noise_mm"]), 1e-4) * widen,
-            "pose_rotation_noise_deg": max(float(noise["pose_rotation_noise_deg"]), 1e-5) * widen,
-            "estimate_pose_noise": False})
+        shots, found = correlation_inflation(clean, ref)
+        detail.update(found)
+        if shots <= CORRELATED_SHOTS or not ref.converged:  # (a fit of nothing says nothing of time)
+            return None
+        widen = float(np.sqrt(shots * ref.pose_noise_scale))
         say(f"the residuals are correlated in time over {shots:.1f} profiles: the robot's pose noise is taken "
-            f"{widen:.2f} times larger per profile, and the fit repeated")
-        te = with_start(te, solution.refined.timing)
-        problem, flags = _problem(recording, rows, labels, names, te, joints, epochs)
-        solution = _solve(dataset, problem, opt, say, kinematics, joints, list(flags), time_effects=te)
+            f"{np.sqrt(shots):.2f} times larger per profile, and the fit repeated")
+        return NoiseAssumptions(noise.point_noise_mm, max(noise.pose_translation_noise_mm, 1e-4) * widen,
+                                max(noise.pose_rotation_noise_deg, 1e-5) * widen)
+
+    solution = _solve(dataset, problem, opt, say, kinematics, joints, list(flags), time_effects=te, reweigh=reweigh)
     ref = solution.refined
     timing = timing_estimate(solution.problem, ref, te, opt, start_info.get("offset_ms", offset_ms), epochs)
     diag = solution.result.diagnostics.model_copy(update={"refinement": {

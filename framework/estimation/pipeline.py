@@ -220,12 +220,16 @@ def _size_moved_rows(solution: Solution, problem: Problem, moved: list[int]) -> 
     return replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
 
 
-def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None) -> Solution:
+def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, time_effects=None,
+           reweigh=None) -> Solution:
     """Solve ``problem`` (the table's screening done, its flags in ``table_flags``): the
     orientation screening, a circle per profile, the two-step start without the gross
     outliers, the joint refinement, then the stray points and the inconsistent shots
     left out (:mod:`.screening`), and the result. With ``time_effects`` (a recording) the
-    clock relation is estimated in the joint refinement (:mod:`.refine.timing`)."""
+    clock relation is estimated in the joint refinement (:mod:`.refine.timing`);
+    ``reweigh`` (problem, refined, noise) -> noise or None: after the screening, other
+    noise assumptions to refit with (a recording's pose noise widened for its correlation
+    in time), the pose noise then held."""
     robot_effects = {
         "station_effects": station_effects(opt, joints_known),
         "kinematic_effects": kinematic_effects(opt, kinematics.chain)
@@ -296,6 +300,11 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
     else:
         clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit, batch=time_effects is not None)
         clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit, batch=time_effects is not None)
+        reweighed = None if reweigh is None else reweigh(clean, ref, noise)
+        if reweighed is not None:
+            noise = reweighed
+            timing = {} if time_effects is None else {"time_effects": with_start(time_effects, ref.timing)}
+            ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, False, **robot_effects, **timing)
 
     if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
         # no profile shows the sensor's point noise: the centres' per-axis noise stands in

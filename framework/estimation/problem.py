@@ -268,6 +268,13 @@ def _clusters(Rs: np.ndarray, tolerance_deg: float) -> list[tuple[np.ndarray, np
     """Groups of shots whose orientations lie within ``tolerance_deg`` of their group's
     chordal mean, largest first: ``[(positions, mean rotation), ...]``."""
     n = len(Rs)
+    if n:
+        mean = chordal_mean(Rs)
+        if np.all(_angles_deg(mean, Rs) <= tolerance_deg / 2):
+            # every two within the tolerance of each other (the angle is a metric): one
+            # group, as the search below would find, without its n x n table (thousands of
+            # profiles of a recording's station)
+            return [(np.arange(n), mean)]
     D = _pairwise_angles_deg(Rs)
     remaining = np.ones(n, dtype=bool)
     groups = []

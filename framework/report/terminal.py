@@ -63,7 +63,8 @@ MAX_FLAG_LINES = 12
 def _timing_lines(timing) -> list[str]:
     """A recording's clock relation (docs/conventions.md, "Time")."""
     drift = (f"drift {timing.drift_ppm:.3f} +/- {timing.drift_std_ppm:.3f} ppm" if timing.drift_estimated
-             else f"drift held at {timing.drift_ppm:.3f} ppm (the recording is too short to show it)")
+             else f"drift held at {timing.drift_ppm:.3f} ppm (not estimated: a recording too short to show it, or both "
+             "streams stamped by one clock)")
     return [
         f"clock relation: t_robot = t_sensor + offset + drift (t_sensor - {timing.t_sensor0_s:.6f} s):",
         f"  offset {timing.offset_ms:.4f} +/- {timing.offset_std_ms:.4f} ms (robot clock minus sensor clock); {drift}",

@@ -31,3 +31,20 @@ def test_solve_a_recording_prints_and_writes_the_clock_relation(tmp_path, capsys
     assert abs(timing["offset_ms"] - true_ms) < max(4 * timing["offset_std_ms"], 0.05)
     assert {"offset_ms", "offset_std_ms", "drift_ppm", "drift_std_ppm"} <= set(timing)
     assert (out / "report.html").exists()
+
+
+@pytest.mark.slow
+def test_a_recording_of_the_other_mounting_is_named_as_such(tmp_path, capsys):
+    """An eye-in-hand recording whose header says eye-to-hand: the fit is absurd, and the
+    verdict names the mounting (the recording solved as eye-in-hand fits)."""
+    from dataclasses import replace
+
+    cell = standard_cell("eye_in_hand", seed=4, fov=reference_fov())
+    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
+                             StreamSimSettings(sensor={"rate_hz": 25.0}, seed=4))
+    path = tmp_path / "wrong.recording.jsonl"
+    write_recording(path, replace(rec, mounting="eye_to_hand"))
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    printed = capsys.readouterr().out
+    assert code == 7
+    assert "likely cause: the recording's mounting is probably wrong: it says eye_to_hand" in printed

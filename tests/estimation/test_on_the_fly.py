@@ -125,3 +125,12 @@ def test_a_recording_that_never_sees_the_sphere_is_refused_naming_it():
 
     with pytest.raises(DegenerateDataError, match="none of the .* profiles shows the sphere"):
         solve_recording(replace(rec, profiles=empty), CalibrationOptions())
+
+
+def test_streams_stamped_by_one_clock_hold_the_drift_at_zero():
+    """Both streams stamped by the recording computer (a bag whose drivers stamp on
+    receipt): no drift can be seen, none is estimated, the result says so."""
+    rec = replace(_recording(), clocks={"robot": "recording computer", "sensor": "recording computer"})
+    result = solve_recording(rec, CalibrationOptions()).result
+    assert not result.timing.drift_estimated and result.timing.drift_ppm == 0.0
+    assert result.timing.drift_std_ppm == 0.0
