@@ -29,7 +29,7 @@ from spherecal.estimation.refine.timing import with_start
 from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
 )
-from spherecal.estimation.robust import percentile
+from spherecal.estimation.robust import median, percentile
 from spherecal.estimation.screening import (
     RejectionBudget, arcs_facing_away, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots,
     require_usable_stations, trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
@@ -236,6 +236,14 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         if kinematics is not None and opt.uses_kinematic_model(joints_known) and joints_known else None,
     }
     original_points = {int(i): len(p) for i, p in zip(problem.obs_index, problem.profiles)}
+    every_point = None
+    thin = _thinning(problem) if time_effects is not None else 1
+    if thin > 1:
+        # a recording of millions of points: circles, start, fit and screening on every
+        # thin-th point of each profile, then the fit once more on every point (_every_point)
+        every_point = problem
+        problem = problem.with_profiles([p[::thin] if len(p) >= 2 * thin else p for p in problem.profiles])
+        say(f"screening on every {thin}th point of each profile ({sum(len(p) for p in problem.profiles)} points)")
     # within a station the robot may only translate: turned shots are left out or split off
     ori = screen_station_orientations(
         problem, opt.station_rotation_tolerance_deg, opt.pose_rotation_noise_deg, opt.estimate_pose_noise,
@@ -301,10 +309,14 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit, batch=time_effects is not None)
         clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit, batch=time_effects is not None)
         reweighed = None if reweigh is None else reweigh(clean, ref, noise)
-        if reweighed is not None:
-            noise = reweighed
+        if reweighed is not None or every_point is not None:
+            noise = reweighed or noise
+            if every_point is not None:
+                clean = _every_point(every_point, clean, ref, noise, opt)
+                say(f"joint refinement over every point of the profiles kept ({sum(len(p) for p in clean.profiles)})")
             timing = {} if time_effects is None else {"time_effects": with_start(time_effects, ref.timing)}
-            ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius, False, **robot_effects, **timing)
+            ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius,
+                         opt.estimate_pose_noise and reweighed is None, **robot_effects, **timing)
 
     if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
         # no profile shows the sensor's point noise: the centres' per-axis noise stands in
@@ -318,6 +330,34 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         added["mirror_twin"] = {"excluded": False, "text": CIRCLE_TWIN}
     result = result.model_copy(update={"diagnostics": result.diagnostics.model_copy(update=added)})
     return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+
+
+#: A recording's fit is screened on a thinned copy of its points when it has more than
+#: this many (every k-th point of each profile, k the smallest that brings them under it),
+#: then refitted once on every point.
+SCREENING_POINTS = 3_000_000
+
+
+def _thinning(problem: Problem) -> int:
+    """Every how many points of each profile a recording's screening takes (1: all)."""
+    n = sum(len(p) for p in problem.profiles)
+    return max(1, int(np.ceil(n / SCREENING_POINTS)))
+
+
+def _every_point(full: Problem, screened: Problem, ref: RefineResult, noise: NoiseAssumptions, opt) -> Problem:
+    """The shots the screening kept (``screened``, thinned) with every point of their
+    profiles as measured (``full``), less the points beyond the stray limit of the
+    screened fit (``ref``): as :func:`.screening.trim_stray_points` judges them."""
+    row = {int(o): j for j, o in enumerate(full.obs_index)}
+    rows = np.array([row[int(o)] for o in screened.obs_index])
+    points = [full.profiles[j] for j in rows]
+    C = ref.predicted
+    rho = np.sqrt(np.maximum(ref.radius**2 - C[:, 0] ** 2, 0.0))
+    res = [np.linalg.norm(p - C[i, 1:], axis=1) - rho[i] for i, p in enumerate(points)]
+    limit = opt.point_outlier_k * max(1.4826 * median(np.abs(np.concatenate(ref.residuals))), noise.point_noise_mm)
+    kept = [p[np.abs(e) <= limit] if screened.kinds[i] == KIND_PROFILE else p
+            for i, (p, e) in enumerate(zip(points, res))]
+    return screened.with_profiles(kept)
 
 
 #: A recording's two-step start uses at most this many profiles per station, evenly
