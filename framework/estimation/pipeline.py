@@ -355,8 +355,10 @@ def _every_point(full: Problem, screened: Problem, ref: RefineResult, noise: Noi
     rho = np.sqrt(np.maximum(ref.radius**2 - C[:, 0] ** 2, 0.0))
     res = [np.linalg.norm(p - C[i, 1:], axis=1) - rho[i] for i, p in enumerate(points)]
     limit = opt.point_outlier_k * max(1.4826 * median(np.abs(np.concatenate(ref.residuals))), noise.point_noise_mm)
-    kept = [p[np.abs(e) <= limit] if screened.kinds[i] == KIND_PROFILE else p
-            for i, (p, e) in enumerate(zip(points, res))]
+    kept = []
+    for i, (p, e) in enumerate(zip(points, res)):
+        inside = np.abs(e) <= limit
+        kept.append(p if screened.kinds[i] != KIND_PROFILE or inside.all() else p[inside])  # (no copy of a clean one)
     return screened.with_profiles(kept)
 
 
