@@ -29,7 +29,7 @@ import numpy as np
 
 from spherecal.config import CalibrationOptions
 from spherecal.core import geometry as geo
-from spherecal.core.errors import DegenerateDataError, FitBreakdownError
+from spherecal.core.errors import DegenerateDataError, FitBreakdownError, InputError
 from spherecal.core.kinematics import ArmKinematics
 from spherecal.core.models import Dataset, ObservationFlag, TimingEstimate
 from spherecal.core.streams import Recording, sensor_to_robot_time
@@ -115,10 +115,8 @@ def _solve_recording(
     if kinematics is not None and stream.joints_deg is not None:
         q_model = np.array([kinematics.model_joints_rad(q) for q in stream.joints_deg])
     labels, names = _station_labels(recording, seen)
-    start_info: dict = {}
-    drift_ppm = 0.0
-    if offset_ms is None:
-        offset_ms, drift_ppm, start_info = _start_offset(recording, seen, labels, names, opt, say)
+    given_ms = offset_ms
+    offset_ms, drift_ppm, start_info = _start_offset(recording, seen, labels, names, opt, say, epochs, given_ms)
     if labels is None:
         labels, names = _labels_by_orientation(recording, seen, offset_ms)
     one_clock = recording.clocks.get("robot") == recording.clocks.get("sensor")
@@ -341,12 +339,17 @@ def offset_candidates(recording: Recording, seen: np.ndarray) -> list[tuple[floa
     return runs
 
 
-def _start_offset(recording: Recording, seen: np.ndarray, labels, names, opt, say) -> tuple[float, float, dict]:
+def _start_offset(recording: Recording, seen: np.ndarray, labels, names, opt, say,
+                  epochs: tuple[float, float] = (0.0, 0.0), given_ms: float | None = None) -> tuple[float, float, dict]:
     """The offset (ms) and drift (ppm) the fit starts from and how they were found: the
     candidates (:func:`offset_candidates`), the offset at which a subsample's sphere
     centres follow the robot's moves best (:func:`_translation_misfit`), then each
-    station's own best offset, whose trend over the recording is the drift."""
+    station's own best offset, whose trend over the recording is the drift. A ``given_ms``
+    (the user's, in the rebased counts) is searched around instead, and refused, naming
+    it, when the recording fits far better elsewhere."""
     runs = offset_candidates(recording, seen)
+    if given_ms is not None:
+        runs = [(given_ms - 50.0, given_ms + 50.0)] + runs
     if labels is None:
         mid = 0.5 * (runs[0][0] + runs[0][1])
         labels, names = _labels_by_orientation(recording, seen, mid)
@@ -354,6 +357,12 @@ def _start_offset(recording: Recording, seen: np.ndarray, labels, names, opt, sa
     ps = recording.profiles
     fits_list = fit_circles([ps.profile(j) for j in rows], outlier_k=opt.point_outlier_k)
     radius = recording.sphere_radius_mm
+    largest = float(np.percentile([f.radius for f in fits_list if f.n_inliers >= opt.min_points_per_profile] or [0.0], 98))
+    if 0 < largest < 0.6 * radius:
+        raise InputError(
+            f"the sphere's radius is given as {radius:g} mm, but the largest circles the profiles show are "
+            f"{largest:.2f} mm: sweeps through the sphere reach its radius. The diameter given as the radius? "
+            f"(--sphere-radius-mm, or the recording's sphere_radius_mm)")
     good = np.array([f.radius < radius and f.n_inliers >= opt.min_points_per_profile for f in fits_list])
     rows = rows[good]
     fits = {i: f for i, f in enumerate(f for f, g in zip(fits_list, good) if g)}
@@ -377,6 +386,18 @@ def _start_offset(recording: Recording, seen: np.ndarray, labels, names, opt, sa
         for x in np.linspace(lo, hi, max(3, min(41, int((hi - lo) / 2.0) + 1))):
             trials.append((cost(float(x)), float(x)))
     trials.sort()
+    if given_ms is not None:
+        near = [t for t in trials if abs(t[1] - given_ms) <= 50.0]
+        shift_ms = 1e3 * (epochs[1] - epochs[0])
+        if not near or not np.isfinite(min(near)[0]) or min(near)[0] > 3.0 * trials[0][0] + 0.01:
+            at_given = min(near)[0] if near else np.inf
+            there = (f"the recording's sphere centres lie {at_given:.3g} mm RMS from the robot's moves"
+                     if np.isfinite(at_given) else "the profiles fall outside the pose stream or fit no sphere")
+            raise InputError(
+                f"--clock-offset-ms {given_ms + shift_ms:.3f}: within 50 ms of it {there}; at about "
+                f"{trials[0][1] + shift_ms:.1f} ms they lie {trials[0][0]:.3g} mm from them: the offset given is "
+                "wrong. Leave it out to have it searched")
+        trials = near
     if not np.isfinite(trials[0][0]):
         raise DegenerateDataError(
             "no clock offset makes the recording's sphere centres follow the robot's moves: check the mounting, the "
@@ -397,8 +418,8 @@ def _start_offset(recording: Recording, seen: np.ndarray, labels, names, opt, sa
     if len(offs) >= 2 and np.ptp(t_mid) > 0:
         slope, intercept = np.polyfit(t_mid, offs, 1)
         drift_ppm, offset0 = float(slope * 1e3), float(intercept)  # ms per s = 1e3 ppm
-    say(f"clock start: offset {offset0:.2f} ms (robot clock minus sensor clock), drift {drift_ppm:.0f} ppm, the "
-        f"sphere centres {best_cost:.4f} mm RMS from the robot's moves")
+    say(f"clock start: offset {offset0 + 1e3 * (epochs[1] - epochs[0]):.2f} ms (robot clock minus sensor clock), drift "
+        f"{drift_ppm:.0f} ppm, the sphere centres {best_cost:.4f} mm RMS from the robot's moves")
     return offset0, drift_ppm, {"offset_ms": offset0, "drift_ppm": drift_ppm, "candidates": len(runs),
                                 "rms_mm": best_cost}
 

@@ -187,7 +187,7 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
             reasons.append((lvl, text))
 
     timing = result.timing
-    if timing is not None:
+    if timing is not None and not is_absurd(result, th):  # (a fit of nothing says nothing of the time)
         # a clock offset the sweeps cannot tell from the sphere's position: the transform's
         # uncertainty carries it, the advice says what to record
         reasons.append(("green" if timing.identifiable else "amber", f"clock relation: {timing.identifiability}"))

@@ -41,11 +41,13 @@ def summary(solution: Solution, graded: Verdict | None = None) -> str:
         lines.extend(_robot_error_lines(r.robot_error))
     if r.timing is not None:
         lines.extend(_timing_lines(r.timing))
-    what = "profile" if r.timing is not None else "observation"
-    for f in r.flagged[:MAX_FLAG_LINES]:
-        lines.append(f"flagged {what} {f.index} (station {f.station}): {f.reason}")
-    if len(r.flagged) > MAX_FLAG_LINES:
-        lines.append(f"... and {len(r.flagged) - MAX_FLAG_LINES} more flagged {what}s (result.json, 'flagged')")
+    if r.timing is not None:
+        lines.extend(_flagged_profile_lines(r.flagged))
+    else:
+        for f in r.flagged[:MAX_FLAG_LINES]:
+            lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
+        if len(r.flagged) > MAX_FLAG_LINES:
+            lines.append(f"... and {len(r.flagged) - MAX_FLAG_LINES} more flagged observations (result.json, 'flagged')")
     graded = graded or verdict(r)
     lines.append(format_verdict(graded))
     if graded.level in ("red", "amber"):  # what to do, as the report gives it (its headline points here)
@@ -60,6 +62,24 @@ def summary(solution: Solution, graded: Verdict | None = None) -> str:
 MAX_FLAG_LINES = 12
 
 
+def _flagged_profile_lines(flagged) -> list[str]:
+    """A recording's flagged profiles, counted by their reason's kind (the words before
+    its first colon or figure), one example of each: thousands of profiles leave dozens at
+    the sphere's rim, which a list would bury the result under."""
+    if not flagged:
+        return []
+    kinds: dict[str, list] = {}
+    for f in flagged:
+        head = f.reason.split(":")[0]
+        head = head.split("(")[0].strip()
+        kinds.setdefault(head, []).append(f)
+    lines = [f"{len(flagged)} profiles left out (all in result.json, 'flagged'):"]
+    for head, members in sorted(kinds.items(), key=lambda kv: -len(kv[1])):
+        f = members[0]
+        lines.append(f"  {len(members)} x {head}; e.g. profile {f.index} (station {f.station}): {f.reason}")
+    return lines
+
+
 def _timing_lines(timing) -> list[str]:
     """A recording's clock relation (docs/conventions.md, "Time")."""
     drift = (f"drift {timing.drift_ppm:.3f} +/- {timing.drift_std_ppm:.3f} ppm" if timing.drift_estimated
@@ -67,7 +87,9 @@ def _timing_lines(timing) -> list[str]:
              "streams stamped by one clock)")
     return [
         f"clock relation: t_robot = t_sensor + offset + drift (t_sensor - {timing.t_sensor0_s:.6f} s):",
-        f"  offset {timing.offset_ms:.4f} +/- {timing.offset_std_ms:.4f} ms (robot clock minus sensor clock); {drift}",
+        f"  offset {timing.offset_ms:.4f} +/- {timing.offset_std_ms:.4f} ms (robot clock minus sensor clock"
+        + (f", {timing.offset_ms / 1e3:.7f} s: the clocks count from different epochs" if abs(timing.offset_ms) > 1e6
+           else "") + f"); {drift}",
         f"  {'identified' if timing.identifiable else 'NOT identified'}: {timing.identifiability}",
     ]
 

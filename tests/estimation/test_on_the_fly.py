@@ -134,3 +134,26 @@ def test_streams_stamped_by_one_clock_hold_the_drift_at_zero():
     result = solve_recording(rec, CalibrationOptions()).result
     assert not result.timing.drift_estimated and result.timing.drift_ppm == 0.0
     assert result.timing.drift_std_ppm == 0.0
+
+
+def test_a_diameter_given_as_the_radius_is_named():
+    """Sweeps through the sphere show circles up to its radius: circles of half the radius
+    given at most say the diameter was given."""
+    from spherecal.core.errors import InputError
+
+    rec = _recording()
+    with pytest.raises(InputError, match="diameter given as the radius"):
+        solve_recording(replace(rec, sphere_radius_mm=2 * rec.sphere_radius_mm), CalibrationOptions())
+
+
+def test_a_given_offset_is_a_start_near_the_truth_and_refused_far_from_it():
+    """--clock-offset-ms: a start within 50 ms is refined to the truth; one 2 s off is
+    refused naming the option and where the data put the offset."""
+    from spherecal.core.errors import InputError
+
+    rec = _recording()
+    true_ms = 1e3 * rec.provenance["true_offset_s"]
+    result = solve_recording(rec, CalibrationOptions(), offset_ms=true_ms + 20.0).result
+    assert abs(result.timing.offset_ms - true_ms) < 0.01
+    with pytest.raises(InputError, match=r"--clock-offset-ms .*the offset given is wrong"):
+        solve_recording(rec, CalibrationOptions(), offset_ms=true_ms + 2000.0)
