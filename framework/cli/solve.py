@@ -5,13 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from spherecal.app.solve import convert_bag, default_out, run_solve, run_solve_recording
+from spherecal.app.solve import default_out, run_solve
 from spherecal.cli.finish import finish
 from spherecal.cli.output import result_json
 from spherecal.cli.session import Session
 from spherecal.core.errors import ConfigError
 from spherecal.io import dataset as dataio
-from spherecal.io import streams as streamio
 from spherecal.io.runlog import progress_log
 from spherecal.report.terminal import summary, truth_check
 
@@ -19,7 +18,7 @@ from spherecal.report.terminal import summary, truth_check
 def run(args, session: Session) -> int:
     out = Path(args.out) if args.out else default_out(args.dataset)
     session.run_folder(out)
-    kind = streamio.recording_kind(args.dataset)
+    kind = dataio.recording_kind(args.dataset)
     if kind in ("stream", "rosbag"):
         return _run_recording(args, session, out, kind)
     bag_only = [f"--{name.replace('_', '-')}" for name in ("profile_topic", "pose_topic", "mounting", "sphere_radius_mm",
@@ -52,6 +51,11 @@ def _finish(args, session: Session, out: Path, outcome) -> int:
 def _run_recording(args, session: Session, out: Path, kind: str) -> int:
     """A recording (dataset format version 3, the stream form, or a ROS 2 bag converted
     once into it, ``<out>/recording.jsonl``): the clock relation too."""
+    # (imported for a recording only: a dataset's solve does not load the stream readers,
+    # the bag reader and the time model, tests/cli/test_startup_imports.py)
+    from spherecal.app.solve_recording import convert_bag, run_solve_recording
+    from spherecal.io import streams as streamio
+
     if kind == "rosbag":
         recording = convert_bag(Path(args.dataset), out, profile_topic=args.profile_topic, pose_topic=args.pose_topic,
                                 mounting=args.mounting, sphere_radius_mm=args.sphere_radius_mm,

@@ -59,6 +59,7 @@ __all__ = [
     "TruncatedFileWarning",
     "read_dataset",
     "read_dataset_header",
+    "recording_kind",
     "write_dataset",
     "read_result",
     "write_result",
@@ -539,3 +540,34 @@ def write_dataset(
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def recording_kind(path: str | os.PathLike) -> Literal["dataset", "stream", "rosbag"]:
+    """What ``path`` holds, to choose its reader: ``"rosbag"`` (a rosbag2 folder with
+    ``metadata.yaml``, or a ``.mcap`` / ``.db3`` file: :func:`spherecal.io.rosbag.read_bag`),
+    ``"stream"`` (a stream recording: :func:`read_recording`) or ``"dataset"`` (anything
+    else: :func:`spherecal.io.dataset.read_dataset`, which names what is wrong with it).
+    Reads at most the first line."""
+    p = Path(path)
+    if p.is_dir():
+        if (p / "metadata.yaml").is_file():
+            return "rosbag"
+        raise DatasetFileError(f"{os.fspath(path)} is a folder without metadata.yaml: not a rosbag2 recording "
+                               "(give the bag's folder, its .mcap or .db3 file, or a dataset file)")
+    if p.suffix.lower() in (".mcap", ".db3"):
+        return "rosbag"
+    if not p.is_file():  # a pipe, a device, nothing: read_dataset's checks name it
+        return "dataset"
+    try:
+        with open(p, "rb") as f:
+            first = f.readline(MAX_LINE_BYTES)
+    except OSError:
+        return "dataset"  # read_dataset names the problem
+    try:
+        obj = loads_json(first.removeprefix(b"\xef\xbb\xbf"))
+    except ValueError:
+        return "dataset"
+    if isinstance(obj, dict) and obj.get("format") == DATASET_FORMAT and obj.get("form") == "stream":
+        return "stream"
+    return "dataset"
+

@@ -40,8 +40,7 @@ import math
 import mmap
 import os
 import warnings
-from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -73,6 +72,7 @@ from spherecal.io.stream_fields import (
     _check_stamps,
     PointBuffer,
 )
+from spherecal.io.dataset import recording_kind
 from spherecal.io.stream_writer import RecordingWriter, write_recording
 
 __all__ = [
@@ -459,39 +459,3 @@ def _read_one(reader: _Reader, buf: mmap.mmap, a: int, b: int, lineno: int) -> N
             f"{name} line {lineno} (byte {a}): not valid JSON ({exc}). Only the last line of a file may be "
             "incomplete (an interrupted write); this one is followed by more lines, so the file is damaged") from None
     reader.read_line(obj, lineno)
-
-
-# ---------------------------------------------------------------------------------------
-# which reader
-# ---------------------------------------------------------------------------------------
-
-
-def recording_kind(path: str | os.PathLike) -> Literal["dataset", "stream", "rosbag"]:
-    """What ``path`` holds, to choose its reader: ``"rosbag"`` (a rosbag2 folder with
-    ``metadata.yaml``, or a ``.mcap`` / ``.db3`` file: :func:`spherecal.io.rosbag.read_bag`),
-    ``"stream"`` (a stream recording: :func:`read_recording`) or ``"dataset"`` (anything
-    else: :func:`spherecal.io.dataset.read_dataset`, which names what is wrong with it).
-    Reads at most the first line."""
-    p = Path(path)
-    if p.is_dir():
-        if (p / "metadata.yaml").is_file():
-            return "rosbag"
-        raise DatasetFileError(f"{os.fspath(path)} is a folder without metadata.yaml: not a rosbag2 recording "
-                               "(give the bag's folder, its .mcap or .db3 file, or a dataset file)")
-    if p.suffix.lower() in (".mcap", ".db3"):
-        return "rosbag"
-    if not p.is_file():  # a pipe, a device, nothing: read_dataset's checks name it
-        return "dataset"
-    try:
-        with open(p, "rb") as f:
-            first = f.readline(MAX_LINE_BYTES)
-    except OSError:
-        return "dataset"  # read_dataset names the problem
-    try:
-        obj = loads_json(first.removeprefix(b"\xef\xbb\xbf"))
-    except ValueError:
-        return "dataset"
-    if isinstance(obj, dict) and obj.get("format") == DATASET_FORMAT and obj.get("form") == STREAM_FORM:
-        return "stream"
-    return "dataset"
-

@@ -62,6 +62,10 @@ def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(t
     assert "spherecal.estimation.refine" in modules and "spherecal.app.solve" in modules
     assert "matplotlib" not in modules and "pinocchio" not in modules
     assert not [m for m in RUN_ONLY if m in modules]
+    # a dataset's solve loads neither the recordings' readers nor their time model
+    recording_only = ("rosbags", "spherecal.io.rosbag", "spherecal.io.streams", "spherecal.io.stream_writer",
+                      "spherecal.estimation.on_the_fly", "spherecal.app.solve_recording")
+    assert not [m for m in recording_only if m in modules]
 
 
 def test_the_robot_plugin_still_builds_its_kinematics_when_asked():

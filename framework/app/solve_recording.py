@@ -1,0 +1,97 @@
+"""``spherecal solve`` of a recording: a pose stream and a profile stream on two clocks
+(the stream form, or a ROS 2 bag converted once into it), solved with their clock
+relation (docs/on-the-fly.md)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from spherecal.app import plugin_host
+from spherecal.app.outputs import check_output_folder
+from spherecal.app.provenance import provenance_type, traceability
+from spherecal.app.solve import solve_kinematics, solve_robot_type
+from spherecal.app.solving import Outcome, solve_and_write
+from spherecal.core.errors import ConfigError
+from spherecal.core.models import Dataset
+from spherecal.core.streams import Recording
+from spherecal.estimation import CalibrationOptions
+from spherecal.estimation.on_the_fly import solve_recording
+from spherecal.io.rosbag import read_bag
+from spherecal.io.runlog import progress_log
+from spherecal.io.streams import write_recording
+from spherecal.report.compare import parse_xyz_quat
+
+_LOG = progress_log("run")  # the default ``log``: logger spherecal.run
+
+
+def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal: str | None = None,
+                        robot_type: str | None = None, robot_config: Path | None = None, fit_radius: bool = False,
+                        robot_error_model: str = "auto", offset_ms: float | None = None, overwrite: bool = False,
+                        report: bool = True, force: bool = False, operator: str | None = None,
+                        log: Callable[[str], None] = _LOG) -> Outcome:
+    """``spherecal solve`` of a recording (a pose stream and a profile stream,
+    :mod:`spherecal.core.streams`) read from ``path``: the clock relation estimated with
+    the transform (:func:`spherecal.estimation.on_the_fly.solve_recording`); ``offset_ms``
+    a known start for the clock offset. Otherwise as :func:`run_solve`."""
+    nominal_pose = parse_xyz_quat(nominal, "--nominal") if nominal is not None else None
+    header = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
+                     provenance=recording.provenance)
+    host = plugin_host.make_host()
+    arm = None
+    robot_type = robot_type or solve_robot_type(header, robot_type, robot_config)
+    if robot_type is not None and recording.poses.joints_deg is not None and robot_error_model != "station":
+        _, _, arm = solve_kinematics(header, robot_type, robot_config, "reported", host=host)
+    exports = host.export_plan(None, recording.mounting, robot_type)
+    options = CalibrationOptions(fit_radius=fit_radius, nominal_transform=nominal_pose,
+                                 robot_error_model=robot_error_model)
+    if not overwrite:
+        check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
+                            "exports and report", exports)
+
+    def solver():
+        return solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
+
+    def as_mounting(mounting: str):
+        return solve_recording(replace(recording, mounting=mounting), options, kinematics=arm).result
+
+    solution, graded, written = solve_and_write(header, options, out, exports, None, log=log, report=report,
+                                                force=force, kinematics=arm, solver=solver, recheck=as_mounting,
+                                                provenance=traceability(header, path, operator=operator))
+    host.calibration_finished(result=solution.result, dataset=header, out_dir=out, exports_written=written,
+                              robot_type=robot_type, sensor_type=provenance_type(header, "sensor"))
+    return Outcome(solution=solution, verdict=graded, exports_written=written, dataset=header)
+
+
+def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic: str | None, mounting: str | None,
+                sphere_radius_mm: float | None, line_axis: str = "y", base_frame: str | None = None,
+                flange_frame: str | None = None, robot_type: str | None = None, robot_config: Path | None = None,
+                overwrite: bool = False, log: Callable[[str], None] = _LOG) -> Recording:
+    """A ROS 2 bag read into a recording (:func:`spherecal.io.rosbag.read_bag`) and written
+    once in the stream form, ``out/recording.jsonl``, so that a re-run reads that file.
+    Joint states go through the robot plugin's kinematics (``robot_type``)."""
+    missing = [flag for flag, value in (("--profile-topic", profile_topic), ("--pose-topic", pose_topic),
+                                        ("--mounting", mounting), ("--sphere-radius-mm", sphere_radius_mm))
+               if value is None]
+    if missing:
+        raise ConfigError(f"{path} is a ROS 2 bag: give {', '.join(missing)} (a bag does not record them; "
+                          "docs/on-the-fly.md)")
+    joints_to_pose = None
+    if robot_type is not None:
+        _, _, arm = solve_kinematics(Dataset(mounting=mounting, sphere_radius_mm=sphere_radius_mm), robot_type,
+                                     robot_config, "joints", host=plugin_host.make_host())
+        if arm is not None:
+            def joints_to_pose(q_deg):
+                poses = [arm.flange_pose_from_joints(q) for q in np.asarray(q_deg, dtype=float)]
+                return (np.array([p.rotation_matrix for p in poses]), np.array([p.translation for p in poses]))
+    recording = read_bag(path, profile_topic=profile_topic, pose_topic=pose_topic, mounting=mounting,
+                         sphere_radius_mm=sphere_radius_mm, line_axis=line_axis, base_frame=base_frame,
+                         flange_frame=flange_frame, joints_to_pose=joints_to_pose)
+    out.mkdir(parents=True, exist_ok=True)
+    target = out / "recording.jsonl"
+    write_recording(target, recording, overwrite=overwrite)
+    log(f"bag {path}: {recording.poses.n} poses and {recording.profiles.n} profiles, written as {target}")
+    return recording
