@@ -6,80 +6,53 @@
 belong to their plugins: the plugin host validates them against the plugin's own model,
 with the file's folder under :data:`BASE_DIR_CONTEXT_KEY` in the validation context.
 See docs/configuration.md.
+
+The names below load on first use (PEP 562): a module that needs a section model does
+not load the file loader and its TOML parser.
 """
 
-from spherecal.config.load import (
-    MAX_ABS_NUMBER,
-    MAX_CONFIG_BYTES,
-    LoadedConfig,
-    load_config,
-    not_numbers,
-    read_toml,
-)
-from spherecal.config.sections import (
-    BASE_DIR_CONTEXT_KEY,
-    CHI2_3DOF_1E4,
-    DEFAULT_LIMITS_DEG,
-    MAX_SCAN_PROFILES,
-    POINT_DISTANCE_MM,
-    AcquisitionConfig,
-    BallBarConfig,
-    CalibrationOptions,
-    ExportConfig,
-    FieldOfViewOverride,
-    FlatConfig,
-    KinematicPlanSettings,
-    MpeConfig,
-    NoiseModel,
-    ReportConfig,
-    RobotErrorModel,
-    RunConfig,
-    ScanConfig,
-    SimulationConfig,
-    SphereConfig,
-    SweepPlan,
-    SweepSite,
-    TransformConfig,
-    UnitQuaternion,
-    ValidationConfig,
-    Vec3,
-    Vec4,
-    WorkspaceConfig,
-)
+from spherecal.core.lazy import lazy_attributes
 
-__all__ = [
-    "BASE_DIR_CONTEXT_KEY",
-    "CHI2_3DOF_1E4",
-    "DEFAULT_LIMITS_DEG",
-    "MAX_ABS_NUMBER",
-    "MAX_CONFIG_BYTES",
-    "MAX_SCAN_PROFILES",
-    "POINT_DISTANCE_MM",
-    "AcquisitionConfig",
-    "BallBarConfig",
-    "CalibrationOptions",
-    "ExportConfig",
-    "FieldOfViewOverride",
-    "FlatConfig",
-    "KinematicPlanSettings",
-    "LoadedConfig",
-    "MpeConfig",
-    "NoiseModel",
-    "ReportConfig",
-    "RobotErrorModel",
-    "RunConfig",
-    "ScanConfig",
-    "SimulationConfig",
-    "SphereConfig",
-    "SweepPlan",
-    "SweepSite",
-    "TransformConfig",
-    "UnitQuaternion",
-    "ValidationConfig",
-    "Vec3",
-    "Vec4",
-    "WorkspaceConfig",
-    "load_config",
-    "not_numbers",
-    "read_toml",
-]
+#: name -> the module that defines it
+_WHERE = {
+    # reading a file
+    "MAX_ABS_NUMBER": ".load",
+    "MAX_CONFIG_BYTES": ".load",
+    "LoadedConfig": ".load",
+    "load_config": ".load",
+    "not_numbers": ".load",
+    "read_toml": ".load",
+    # the section models and their constants
+    "BASE_DIR_CONTEXT_KEY": ".sections",
+    "CHI2_3DOF_1E4": ".sections",
+    "DEFAULT_LIMITS_DEG": ".sections",
+    "MAX_SCAN_PROFILES": ".sections",
+    "POINT_DISTANCE_MM": ".sections",
+    "AcquisitionConfig": ".sections",
+    "BallBarConfig": ".sections",
+    "CalibrationOptions": ".sections",
+    "ExportConfig": ".sections",
+    "FieldOfViewOverride": ".sections",
+    "FlatConfig": ".sections",
+    "KinematicPlanSettings": ".sections",
+    "MpeConfig": ".sections",
+    "NoiseModel": ".sections",
+    "ReportConfig": ".sections",
+    "RobotErrorModel": ".sections",
+    "RunConfig": ".sections",
+    "ScanConfig": ".sections",
+    "SimulationConfig": ".sections",
+    "SphereConfig": ".sections",
+    "SweepPlan": ".sections",
+    "SweepSite": ".sections",
+    "TransformConfig": ".sections",
+    "UnitQuaternion": ".sections",
+    "ValidationConfig": ".sections",
+    "Vec3": ".sections",
+    "Vec4": ".sections",
+    "WorkspaceConfig": ".sections",
+}
+
+__all__ = sorted(_WHERE)
+
+__getattr__, __dir__ = lazy_attributes(__name__, _WHERE)
