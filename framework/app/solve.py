@@ -16,7 +16,7 @@ from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.core.models import Dataset
 from spherecal.estimation import CalibrationOptions
 from spherecal.io.runlog import logger, progress_log
-from spherecal.report.compare import parse_xyz_quat
+from spherecal.io.transform_text import parse_xyz_quat
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 

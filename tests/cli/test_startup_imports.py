@@ -22,8 +22,9 @@ RUN_ONLY = ("spherecal.motion.acquisition", "spherecal.motion.kinematic_plan",
             "spherecal.app.calibrate", "spherecal.app.simulate", "spherecal.app.validate", "spherecal.app.scan",
             "spherecal.app.compare", "spherecal.app.cell", "spherecal.app.plan_checks",  # (the other commands)
             "spherecal.cli.calibrate", "spherecal.cli.simulate", "spherecal.cli.validate", "spherecal.cli.scan",
-            "spherecal.cli.compare", "spherecal.sensors.nxsensor_i.driver", "usb",
+            "spherecal.cli.compare", "spherecal.report.compare",  # (comparing two calibrations)
             "spherecal.config.load", "tomllib",  # (reading a configuration: a solve does with --robot-config only)
+            "spherecal.sensors.nxsensor_i.driver", "usb",
             "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
             "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree",  # (the simulated world, URDF)
             "spherecal.robots.abb_irb2400.frames",  # (reading a tooldata line: compare and validate)
