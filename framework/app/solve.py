@@ -16,7 +16,7 @@ from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.core.models import Dataset
 from spherecal.estimation import CalibrationOptions
 from spherecal.io.runlog import logger, progress_log
-from spherecal.report.compare import parse_xyz_quat
+from spherecal.io.transform_text import parse_xyz_quat
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 
@@ -81,9 +81,9 @@ def solve_robot_type(dataset: Dataset, robot_type: str | None = None, robot_conf
 def read_robot_section(path: Path) -> dict:
     """A robot section from a TOML file: its ``[robot]`` table (a spherecal configuration)
     or, without one, the whole file (the plugin's settings, ``type`` optional)."""
-    # (imported only with --robot-config: a solve without one does not load the
-    # configuration's models, tests/cli/test_startup_imports.py)
-    from spherecal.config import read_toml
+    # (the file loader and its TOML parser load with --robot-config only: the one part of
+    # a solve that reads a configuration file, tests/cli/test_startup_imports.py)
+    from spherecal.config.load import read_toml
 
     data = read_toml(path, "robot configuration")
     section = data.get("robot", data)

@@ -23,7 +23,7 @@ from spherecal.estimation.on_the_fly import solve_recording
 from spherecal.io.rosbag import read_bag
 from spherecal.io.runlog import progress_log
 from spherecal.io.streams import write_recording
-from spherecal.report.compare import parse_xyz_quat
+from spherecal.io.transform_text import parse_xyz_quat
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 

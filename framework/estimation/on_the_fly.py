@@ -35,10 +35,10 @@ from spherecal.core.models import Dataset, ObservationFlag, TimingEstimate
 from spherecal.core.streams import Recording, sensor_to_robot_time
 from spherecal.estimation.circle import fit_circles
 from spherecal.estimation.pipeline import BREAKDOWN_CAUSES, Solution, _solve
-from spherecal.estimation.problem import Problem, orientation_groups, sphere_from_mount
+from spherecal.estimation.problem import Problem, orientation_groups
 from spherecal.estimation.refine.linearisation import NoiseAssumptions
 from spherecal.estimation.refine.state import RefineState
-from spherecal.estimation.refine.timing import TimeEffects, shots_at, with_start
+from spherecal.estimation.refine.timing import TimeEffects, shots_at
 from spherecal.estimation.twostep import station_centres
 
 #: Profiles per station the start's two-step uses (evenly spread over the station).

@@ -31,6 +31,7 @@ from spherecal.core import geometry as geo
 from spherecal.devices.contract import ControllerFrame
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.core.models import TRANSFORM_NAME, CalibrationResult, Pose
+from spherecal.io.transform_text import XYZ_QUAT_USAGE, looks_like_numbers, parse_xyz_quat
 
 #: Defaults of the drift thresholds (the verdict's amber limits on a 1-sigma).
 THRESHOLD_MM = 0.1
@@ -39,7 +40,6 @@ SIGNIFICANCE_LEVEL = 0.01
 #: The six compared parameters, in the covariance's order.
 UNCERTAINTIES = ("robot-frame", "full")
 PARAMETERS = ("rotation x", "rotation y", "rotation z", "translation x", "translation y", "translation z")
-_XYZ_QUAT_USAGE = "x,y,z,qw,qx,qy,qz (mm and a unit quaternion, w first)"
 
 
 @dataclass(frozen=True)
@@ -90,43 +90,6 @@ def covariance_from_std(std_mm: float = 0.0, std_deg: float = 0.0) -> np.ndarray
     return np.diag([math.radians(std_deg) ** 2] * 3 + [std_mm ** 2] * 3)
 
 
-def parse_xyz_quat(text: str, what: str = "--transform") -> Pose:
-    """``x,y,z,qw,qx,qy,qz``: seven finite numbers (mm) and a unit quaternion (w first);
-    :class:`ConfigError` naming ``what`` and the value at fault otherwise."""
-    usage = f"{what} takes {_XYZ_QUAT_USAGE}"
-    parts = _parts(text)
-    if len(parts) != 7:
-        raise ConfigError(f"{usage}; got {len(parts)} value(s) in {text!r:.80}")
-    values = []
-    for i, part in enumerate(parts):
-        try:
-            v = float(part)
-        except ValueError:
-            raise ConfigError(f"{usage}; value {i + 1} is {part.strip()!r:.40}, not a number") from None
-        if not math.isfinite(v) or abs(v) > 1e6:
-            raise ConfigError(f"{usage}; value {i + 1} is {part.strip()!r:.40}: a finite number of at most 1e6 is "
-                              "needed")
-        values.append(v)
-    n = math.sqrt(sum(c * c for c in values[3:]))
-    if abs(n - 1.0) > 1e-3:
-        raise ConfigError(f"{usage}; the quaternion {values[3:]} has norm {n:.6f}, not 1")
-    return Pose.from_xyz_quat_wxyz(values[:3], values[3:])
-
-
-def _parts(text: str) -> list[str]:
-    """The comma-separated values of ``x,y,z,...`` (brackets around them allowed)."""
-    return text.replace(";", ",").strip().strip("[]()").split(",")
-
-
-def looks_like_numbers(text: str) -> bool:
-    """True when ``text`` is a list of numbers (``--transform`` given as numbers)."""
-    try:
-        [float(p) for p in _parts(text)]
-    except ValueError:
-        return False
-    return True
-
-
 def read_controller_frame(text: str, registry, what: str = "--controller-frame", robot_type: str | None = None
                           ) -> ControllerFrame:
     """The frame in ``text`` as a robot controller writes it, read by the robot plugin of
@@ -170,7 +133,7 @@ def read_transform_argument(text: str, read_frame: Callable[[str, str], Controll
     if not path.exists() and "," in stripped:
         parse_xyz_quat(stripped, what)  # names the value that is not a number
     if not path.exists():
-        raise ConfigError(f"{what}: {stripped[:80]!r} is neither {_XYZ_QUAT_USAGE} nor an existing file")
+        raise ConfigError(f"{what}: {stripped[:80]!r} is neither {XYZ_QUAT_USAGE} nor an existing file")
     if path.is_dir() or _is_result_file(path):
         result, where = read_result_operand(path)
         return TransformEstimate.of_result(result, str(where), uncertainty)

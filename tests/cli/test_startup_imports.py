@@ -22,7 +22,9 @@ RUN_ONLY = ("spherecal.motion.acquisition", "spherecal.motion.kinematic_plan",
             "spherecal.app.calibrate", "spherecal.app.simulate", "spherecal.app.validate", "spherecal.app.scan",
             "spherecal.app.compare", "spherecal.app.cell", "spherecal.app.plan_checks",  # (the other commands)
             "spherecal.cli.calibrate", "spherecal.cli.simulate", "spherecal.cli.validate", "spherecal.cli.scan",
-            "spherecal.cli.compare", "spherecal.sensors.nxsensor_i.driver", "usb",
+            "spherecal.cli.compare", "spherecal.report.compare",  # (comparing two calibrations)
+            "spherecal.config.load", "tomllib",  # (reading a configuration: a solve does with --robot-config only)
+            "spherecal.sensors.nxsensor_i.driver", "usb",
             "numpy.ma",  # (np.median's NaN check imports it: the estimator's own median does not)
             "spherecal.sim.cell", "spherecal.sim.controller", "xml.etree.ElementTree",  # (the simulated world, URDF)
             "spherecal.robots.abb_irb2400.frames",  # (reading a tooldata line: compare and validate)
@@ -66,6 +68,15 @@ def test_a_small_solve_without_report_imports_neither_matplotlib_nor_pinocchio(t
     recording_only = ("rosbags", "spherecal.io.rosbag", "spherecal.io.streams", "spherecal.io.stream_writer",
                       "spherecal.estimation.on_the_fly", "spherecal.app.solve_recording")
     assert not [m for m in recording_only if m in modules]
+
+
+@pytest.mark.slow
+def test_the_plugin_list_loads_the_section_models_but_not_the_file_loader():
+    """``spherecal plugins`` checks the plugins' sections (it needs the section models'
+    context key), and reads no configuration file."""
+    modules = _modules_after(["plugins"])
+    assert "spherecal.config.sections" in modules
+    assert "spherecal.config.load" not in modules and "tomllib" not in modules
 
 
 def test_the_robot_plugin_still_builds_its_kinematics_when_asked():

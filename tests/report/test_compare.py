@@ -12,7 +12,6 @@ from spherecal.report.compare import (
     chi2_sf_6,
     compare,
     covariance_from_std,
-    parse_xyz_quat,
 )
 from spherecal.core.errors import ConfigError, InputError
 from spherecal.estimation import calibrate
@@ -140,24 +139,6 @@ def test_two_simulated_calibrations_with_a_known_difference():
     assert np.all(np.abs(err) < 4 * sig), (err, sig)
     c = compare(a, same)
     assert not c.drift and not c.significant and c.mahalanobis < math.sqrt(chi2_isf_6(0.01))
-
-
-@pytest.mark.parametrize("text, message", [
-    ("1,2,3,1,0,0", "got 6 value"),
-    ("1,2,3,1,0,0,zero", "value 7 is 'zero', not a number"),
-    ("1,2,3,1,0,0,nan", "value 7 is 'nan'"),
-    ("1,2,3,0.5,0,0,0", "has norm 0.500000, not 1"),
-])
-def test_bad_numbers_are_named(text, message):
-    with pytest.raises(ConfigError, match="--transform takes x,y,z,qw,qx,qy,qz") as exc:
-        parse_xyz_quat(text)
-    assert message in str(exc.value)
-
-
-def test_numbers_are_w_first():
-    pose = parse_xyz_quat("10, 20, 30, 0.7071068, 0.7071068, 0, 0")
-    np.testing.assert_allclose(pose.rotation_matrix @ [0, 1, 0], [0, 0, 1], atol=1e-6)  # 90 deg about x
-    assert pose.translation_mm == (10.0, 20.0, 30.0)
 
 
 def _with_identified_arm(result):
