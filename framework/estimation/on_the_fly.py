@@ -9,9 +9,10 @@ The steps (docs/on-the-fly.md):
    appear and disappear only while the robot moves: every offset that maps those
    moments into the pose stream's motion is a candidate (:func:`offset_candidates`,
    seconds to hours wide, on a grid of one pose period). Among the candidates the
-   two-step solution of a subsample of the profiles decides: at the right offset the
-   forth and back passes of a sweep put the sphere in one place, at a wrong one they
-   split it by twice the speed times the error (:func:`_start_offset`).
+   offset at which a subsample's sphere centres follow the robot's moves within each
+   station best decides: at the right offset the forth and back passes of a sweep put
+   the sphere in one place, at a wrong one they split it by twice the speed times the
+   error (:func:`_start_offset`, :func:`_translation_misfit`).
 3. **The joint fit** (:mod:`.pipeline`) with the clock relation among the unknowns
    (:mod:`.refine.timing`): offset and drift with the transform, the sphere and the
    robot's error, in one covariance.
@@ -35,13 +36,13 @@ from spherecal.core.models import Dataset, ObservationFlag, TimingEstimate
 from spherecal.core.streams import Recording, sensor_to_robot_time
 from spherecal.estimation.circle import fit_circles
 from spherecal.estimation.pipeline import BREAKDOWN_CAUSES, Solution, _solve
-from spherecal.estimation.problem import Problem, orientation_groups
+from spherecal.estimation.problem import Problem, orientation_groups, spread_per_station
 from spherecal.estimation.refine.linearisation import NoiseAssumptions
 from spherecal.estimation.refine.state import RefineState
 from spherecal.estimation.refine.timing import TimeEffects, shots_at
 from spherecal.estimation.twostep import station_centres
 
-#: Profiles per station the start's two-step uses (evenly spread over the station).
+#: Profiles per station the start's search uses (evenly spread over the station).
 START_PROFILES_PER_STATION = 48
 #: The start's offset is refined down to this step, ms.
 START_RESOLUTION_MS = 0.05
@@ -73,10 +74,11 @@ def solve_recording(
     offset_ms: float | None = None,
     estimate_drift: bool | None = None,
 ) -> Solution:
-    """Calibrate from ``recording``; see the module docstring. ``offset_ms``: a known
-    start for the clock offset (skips the search); ``estimate_drift`` None decides from
-    the recording's length and its clocks. The result's ``timing`` holds the clock
-    relation. Data so far from the model that the linear algebra breaks down raise
+    """Calibrate from ``recording``; see the module docstring. ``offset_ms``: a start for
+    the clock offset (in the clocks' own counts), searched within 50 ms of it and refused
+    when the recording fits far better elsewhere; ``estimate_drift`` None decides from the
+    recording's length and its clocks. The result's ``timing`` holds the clock relation.
+    Data so far from the model that the linear algebra breaks down raise
     :class:`~spherecal.core.errors.FitBreakdownError` naming the usual causes."""
     try:
         return _solve_recording(recording, options, kinematics, progress, offset_ms, estimate_drift)
@@ -86,17 +88,8 @@ def solve_recording(
             f"first: {BREAKDOWN_CAUSES}") from None
 
 
-def _solve_recording(
-    recording: Recording,
-    options: CalibrationOptions | None = None,
-    kinematics: ArmKinematics | None = None,
-    progress: Callable[[str], None] | None = None,
-    offset_ms: float | None = None,
-    estimate_drift: bool | None = None,
-) -> Solution:
-    """Calibrate from ``recording``; see the module docstring. ``offset_ms``: a known
-    start for the clock offset (skips the search); ``estimate_drift`` None decides from
-    the recording's length. The result's ``timing`` holds the clock relation."""
+def _solve_recording(recording: Recording, options, kinematics, progress, offset_ms, estimate_drift) -> Solution:
+    """:func:`solve_recording` itself."""
     opt = options or CalibrationOptions()
     say = progress or (lambda msg: None)
     recording, epochs = _rebased(recording)
@@ -156,7 +149,7 @@ def _solve_recording(
 
     solution = _solve(dataset, problem, opt, say, kinematics, joints, list(flags), time_effects=te, reweigh=reweigh)
     ref = solution.refined
-    timing = timing_estimate(solution.problem, ref, te, opt, start_info.get("offset_ms", offset_ms), epochs)
+    timing = timing_estimate(ref, te, start_info["offset_ms"], epochs)
     diag = solution.result.diagnostics.model_copy(update={"refinement": {
         **(solution.result.diagnostics.refinement or {}), "time_correlation": detail}})
     result = solution.result.model_copy(update={
@@ -269,10 +262,9 @@ def _problem(recording: Recording, rows: np.ndarray, labels: np.ndarray, names: 
     ok = recording.poses.at(t_r).ok
     gaps = recording.poses.gaps()
     flags = []
-    for j in rows[~ok]:
-        t = float(te.robot_times(ps.t_sensor_s[j:j + 1], te.start())[0])
+    s0, r0 = epochs
+    for j, t in zip(rows[~ok], t_r[~ok]):
         gap = next(((a, b) for a, b in gaps if a < t < b), None)
-        s0, r0 = epochs
         where = (f"in a gap of the pose stream ({gap[0] + r0:.3f} to {gap[1] + r0:.3f} s, robot clock)"
                  if gap is not None else "outside the pose stream's time span")
         flags.append(ObservationFlag(index=int(j), station=names[labels[j]] if labels[j] >= 0 else "-",
@@ -353,7 +345,7 @@ def _start_offset(recording: Recording, seen: np.ndarray, labels, names, opt, sa
     if labels is None:
         mid = 0.5 * (runs[0][0] + runs[0][1])
         labels, names = _labels_by_orientation(recording, seen, mid)
-    rows = _subsample(np.flatnonzero(seen & (labels >= 0)), labels)
+    rows = spread_per_station(np.flatnonzero(seen & (labels >= 0)), labels, START_PROFILES_PER_STATION)
     ps = recording.profiles
     fits_list = fit_circles([ps.profile(j) for j in rows], outlier_k=opt.point_outlier_k)
     radius = recording.sphere_radius_mm
@@ -455,17 +447,7 @@ def _translation_misfit(problem: Problem, fits: dict) -> float:
     return float(np.sqrt(sq / n)) if n else np.inf
 
 
-def _subsample(rows: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """At most START_PROFILES_PER_STATION of ``rows`` per station, evenly spread."""
-    out = []
-    for k in np.unique(labels[rows]):
-        members = rows[labels[rows] == k]
-        take = np.unique(np.linspace(0, len(members) - 1, min(len(members), START_PROFILES_PER_STATION)).astype(int))
-        out.append(members[take])
-    return np.sort(np.concatenate(out))
-
-
-def timing_estimate(problem: Problem, ref, te: TimeEffects, opt, start_offset_ms: float,
+def timing_estimate(ref, te: TimeEffects, start_offset_ms: float,
                     epochs: tuple[float, float] = (0.0, 0.0)) -> TimingEstimate:
     """The result's clock relation with its identifiability (module docstring, step 4),
     in the clocks' own counts (``epochs``: the seconds :func:`_rebased` took off each)."""

@@ -21,7 +21,7 @@ from spherecal.estimation.circle import CircleFit, fit_circles
 from spherecal.estimation.prediction import point_error_budget, station_prediction_summary
 from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
-    fill_unknown, screen_station_orientations, several_stations_under_one_label,
+    fill_unknown, screen_station_orientations, several_stations_under_one_label, spread_per_station,
 )
 from spherecal.estimation.options import kinematic_effects, station_effects
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
@@ -372,12 +372,8 @@ def _recording_start(problem: Problem, fits: dict, flags: list[ObservationFlag],
     """The two-step start of a recording from a subsample of its profiles, and the
     problem and fits of every profile with a fit (all go to the joint refinement)."""
     used = np.array(sorted(fits))
-    pick = []
-    for k in range(len(problem.station_labels)):
-        members = used[problem.station_of[used] == k]
-        take = np.unique(np.linspace(0, len(members) - 1, min(len(members), RECORDING_START_PROFILES)).astype(int))
-        pick.extend(members[take].tolist() if len(members) else [])
-    ts, _, _ = two_step_without_gross_outliers(problem, {i: fits[i] for i in sorted(pick)}, flags, opt, hint,
+    pick = spread_per_station(used, problem.station_of, RECORDING_START_PROFILES)
+    ts, _, _ = two_step_without_gross_outliers(problem, {int(i): fits[int(i)] for i in pick}, flags, opt, hint,
                                                RejectionBudget(0))
     sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
     return ts, sub, {j: fits[int(i)] for j, i in enumerate(used)}

@@ -430,6 +430,18 @@ def several_stations_under_one_label(scattered: dict[str, dict]) -> str:
             "of its own (each with shots at different positions of a pure-translation sweep)")
 
 
+def spread_per_station(rows: np.ndarray, station_of: np.ndarray, at_most: int) -> np.ndarray:
+    """At most ``at_most`` of ``rows`` (positions of a problem's shots) per station,
+    evenly spread over each station's (in order), sorted: a start's subsample of the
+    thousands of profiles of a recording."""
+    out = [np.zeros(0, dtype=int)]
+    for k in np.unique(station_of[rows]):
+        members = rows[station_of[rows] == k]
+        take = np.unique(np.linspace(0, len(members) - 1, min(len(members), at_most)).astype(int))
+        out.append(members[take])
+    return np.sort(np.concatenate(out))
+
+
 def _check_units(dataset: Dataset, t0: np.ndarray, profiles: list[np.ndarray]) -> None:
     r = dataset.sphere_radius_mm
     extent = max((float(np.abs(p).max()) for p in profiles if len(p)), default=np.inf)

@@ -15,7 +15,7 @@ from spherecal.estimation.refine.effects import KinematicEffects, StationEffects
 from spherecal.estimation.refine.linearisation import NoiseAssumptions, _centre_variance
 from spherecal.estimation.refine.reml import KINEMATIC_EVIDENCE_LR, search_scales
 from spherecal.estimation.refine.state import RefineState
-from spherecal.estimation.refine.timing import TimeEffects, with_start
+from spherecal.estimation.refine.timing import TimeEffects, time_design, with_start
 
 
 @dataclass
@@ -305,9 +305,9 @@ def _result(fit: RefineState) -> RefineResult:
         tcov[:fit.n_time, :fit.n_time] = covs.reported[n0:, n0:]
         # the offset's spread were everything else known: the reported one against it
         # tells whether the sweeps separate the offset from the geometry
-        At = fit.design(lin)[0]
-        diagnostics["offset_std_ms_known_geometry"] = float(1.0 / np.sqrt(max(lin.red.gram(At[:, :, n0:n0 + 1],
-                                                                                      At[:, :, n0:n0 + 1])[0, 0], 1e-300)))
+        offset = lin.columns(lin.Jd @ time_design(fit.problem, fit.te, fit.twist)[:, :, :1])
+        diagnostics["offset_std_ms_known_geometry"] = float(1.0 / np.sqrt(max(lin.red.gram(offset, offset)[0, 0],
+                                                                              1e-300)))
         timing = {"offset_ms": float(fit.tau[0]), "drift_ppm": float(fit.tau[1]), "covariance": tcov,
                   "drift_estimated": fit.te.estimate_drift,
                   "t_robot_s": fit.te.robot_times(fit.base_problem.t_sensor_s, fit.tau)}
