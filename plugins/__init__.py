@@ -147,7 +147,7 @@ _WHERE = {
     "TRANSFORM_NAME": "spherecal.core.models",
     "Vec3": "spherecal.core.models",
     # the validation-context key of the folder relative paths resolve against
-    "BASE_DIR_CONTEXT_KEY": "spherecal.config.sections",
+    "BASE_DIR_CONTEXT_KEY": "spherecal.config.base",
     # the simulated cell and the planner a plugin's tests run on
     "SimulatedCell": "spherecal.sim.cell",
     "standard_cell": "spherecal.sim.cell",

@@ -50,7 +50,7 @@ from spherecal.core.validation_errors import location_text, validation_error_lin
 from spherecal.devices.contract import DeviceContext, Robot, Sensor
 from spherecal.io.exporters import Exporter, ExportPlan, SelectedExporter
 
-from spherecal.config.sections import BASE_DIR_CONTEXT_KEY
+from spherecal.config.base import BASE_DIR_CONTEXT_KEY
 
 from spherecal.plugins import hookspecs as _hookspec_module
 from spherecal.plugins.markers import ENTRY_POINT_GROUP, PROJECT_NAME, hookimpl

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from spherecal.app.outputs import CALIBRATED_URDF_NAME, check_output_targets
-from spherecal.config import ReportConfig, RunConfig
+from spherecal.config import ReportConfig
 from spherecal.core.errors import FitBreakdownError, SpherecalError
 from spherecal.core.kinematics import chain_with_errors
 from spherecal.core.models import CalibrationResult, Dataset
@@ -24,6 +24,9 @@ from spherecal.report.assess import (
     Thresholds, Verdict, absurd_ratio, expected_rms_mm, implausible_disagreement, is_absurd, station_disagreement_text,
     verdict,
 )
+
+if TYPE_CHECKING:
+    from spherecal.config import RunConfig
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 

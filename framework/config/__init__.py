@@ -1,7 +1,9 @@
 """The run configuration: one TOML file validated by pydantic. Imports only
 :mod:`spherecal.core` and :mod:`spherecal.io`.
 
-:mod:`.sections` holds every section model and the root :class:`RunConfig`;
+:mod:`.sections` holds the section models and the root :class:`RunConfig`, with the
+estimator's settings in :mod:`.calibration`, the report's in :mod:`.report` and what
+they share in :mod:`.base`;
 :mod:`.load` reads and checks a file (:func:`load_config`). The robot and sensor sections
 belong to their plugins: the plugin host validates them against the plugin's own model,
 with the file's folder under :data:`BASE_DIR_CONTEXT_KEY` in the validation context.
@@ -23,14 +25,14 @@ _WHERE = {
     "not_numbers": ".load",
     "read_toml": ".load",
     # the section models and their constants
-    "BASE_DIR_CONTEXT_KEY": ".sections",
-    "CHI2_3DOF_1E4": ".sections",
+    "BASE_DIR_CONTEXT_KEY": ".base",
+    "CHI2_3DOF_1E4": ".base",
     "DEFAULT_LIMITS_DEG": ".sections",
     "MAX_SCAN_PROFILES": ".sections",
-    "POINT_DISTANCE_MM": ".sections",
+    "POINT_DISTANCE_MM": ".base",
     "AcquisitionConfig": ".sections",
     "BallBarConfig": ".sections",
-    "CalibrationOptions": ".sections",
+    "CalibrationOptions": ".calibration",
     "ClockSettings": ".sections",
     "ExportConfig": ".sections",
     "FieldOfViewOverride": ".sections",
@@ -40,7 +42,7 @@ _WHERE = {
     "NoiseModel": ".sections",
     "OnTheFlyPlan": ".sections",
     "PoseStreamSettings": ".sections",
-    "ReportConfig": ".sections",
+    "ReportConfig": ".report",
     "RobotErrorModel": ".sections",
     "RunConfig": ".sections",
     "ScanConfig": ".sections",

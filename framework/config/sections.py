@@ -1,5 +1,7 @@
 """The sections of a configuration file, one pydantic model per concern, and the root
-:class:`RunConfig` that composes them.
+:class:`RunConfig` that composes them. The estimator's settings (:mod:`.calibration`) and
+the report's (:mod:`.report`) have modules of their own, re-exported here: a ``solve``
+needs them without the rest.
 
 Every model is frozen and forbids unknown keys. Lengths in mm, angles in degrees,
 quaternions (w, x, y, z). The robot and sensor sections belong to their plugins: the
@@ -13,19 +15,14 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from spherecal.core.workspace import WorkspaceBox
+from spherecal.config.base import BASE_DIR_CONTEXT_KEY, CHI2_3DOF_1E4, POINT_DISTANCE_MM, Section  # noqa: F401
+from spherecal.config.calibration import CalibrationOptions
+from spherecal.config.report import ReportConfig
 from spherecal.core.models import MountingMode, Pose, Vec3
+from spherecal.core.workspace import WorkspaceBox
 
 #: Most profiles one scan may ask for.
 MAX_SCAN_PROFILES = 10_000_000
-#: chi^2 with 3 degrees of freedom exceeded with probability 1e-4.
-CHI2_3DOF_1E4 = 21.108
-#: The distance from the sensor (mm, along its line of sight) of the point whose
-#: uncertainty the report gives when ``[report] point_distance_mm`` is not set.
-POINT_DISTANCE_MM = 100.0
-#: The key of the pydantic validation context that holds the folder of the configuration
-#: file: a plugin section's validator resolves its relative paths against it.
-BASE_DIR_CONTEXT_KEY = "base_dir"
 #: Default (max tilt, max turn) in deg per mounting mode. Eye-to-hand turns the sphere on
 #: its stylus in front of the fixed sensor; 30 deg and 40 deg there leave the identification
 #: poorly conditioned (about 1,000 on the example cell), 45 and 90 give 316. The simulated
@@ -49,11 +46,7 @@ def _unit_quaternion(v: Vec4) -> Vec4:
 UnitQuaternion = Annotated[Vec4, AfterValidator(_unit_quaternion)]
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
-
-
-class TransformConfig(_Section):
+class TransformConfig(Section):
     """A rigid transform written by hand: translation in mm, quaternion (w, x, y, z)."""
 
     translation_mm: Vec3 = Field(description="translation, mm")
@@ -63,7 +56,7 @@ class TransformConfig(_Section):
         return Pose.from_xyz_quat_wxyz(self.translation_mm, self.quaternion_wxyz)
 
 
-class SphereConfig(_Section):
+class SphereConfig(Section):
     radius_mm: float = Field(gt=0, le=10_000, description="certified radius of the reference sphere, mm")
     radius_uncertainty_mm: float | None = Field(
         None, ge=0, le=10, description="expanded uncertainty (k = 2) of the certified radius, from the certificate, "
@@ -84,7 +77,7 @@ class SphereConfig(_Section):
 WorkspaceConfig = WorkspaceBox
 
 
-class SweepPlan(_Section):
+class SweepPlan(Section):
     """How to sweep the sphere: sensor-frame positions of the sphere centre per station.
 
     Within a station the flange only translates. The sphere centre crosses the laser
@@ -115,7 +108,7 @@ class SweepPlan(_Section):
     )
 
 
-class KinematicPlanSettings(_Section):
+class KinematicPlanSettings(Section):
     """``[acquisition.kinematic_plan]``: stations for kinematic calibration chosen by the
     planner (:mod:`spherecal.motion.kinematic_plan`) instead of listed in ``acquisition.sweep.tilts_deg``."""
 
@@ -140,7 +133,7 @@ class KinematicPlanSettings(_Section):
                 turn if self.max_turn_deg is None else self.max_turn_deg)
 
 
-class AcquisitionConfig(_Section):
+class AcquisitionConfig(Section):
     """How to acquire: where the sphere roughly is, the sweeps, speeds and limits."""
 
     mode: Literal["automatic", "manual"] = Field(
@@ -181,80 +174,7 @@ class AcquisitionConfig(_Section):
         return self
 
 
-class CalibrationOptions(_Section):
-    """Settings of the estimator. Lengths in mm, angles in degrees."""
-
-    fit_radius: bool = Field(False, description="estimate the sphere radius too (else the certified one is used)")
-    point_noise_mm: float | None = Field(
-        None, gt=0, description="sensor point noise (each of y, z), mm; None: estimated from the circle fits"
-    )
-    pose_translation_noise_mm: float = Field(0.02, ge=0, description="robot position noise, each axis, mm")
-    pose_rotation_noise_deg: float = Field(0.002, ge=0, description="robot orientation noise, each axis, deg")
-    estimate_pose_noise: bool = Field(True, description="rescale the pose noise to what the data show")
-    min_points_per_profile: int = Field(20, ge=3, description="profiles with fewer points are left out")
-    min_profiles_per_station: int = Field(4, ge=3, description="stations with fewer usable profiles are left out")
-    max_circle_rms_mm: float = Field(0.5, gt=0, description="a profile whose circle fit is worse is not the sphere")
-    point_outlier_k: float = Field(5.0, gt=2, description="points beyond k robust standard deviations are strays")
-    profile_outlier_chi2: float = Field(
-        CHI2_3DOF_1E4, gt=0, description="profiles whose whitened chi^2 (3 dof) exceeds this are left out"
-    )
-    max_rejected_profile_fraction: float = Field(0.2, ge=0, le=1, description="stop rejecting profiles beyond this share")
-    max_stray_point_fraction: float = Field(
-        0.3, gt=0, le=1, description="a profile with a larger share of its points beyond point_outlier_k robust SDs "
-        "of the sphere the other profiles agree on is left out and flagged (its pose is wrong, not its points)"
-    )
-    nominal_transform: Pose | None = Field(
-        None, description="rough X (flange_from_sensor or base_from_sensor), used only to choose between "
-        "solutions the data cannot tell apart"
-    )
-    station_rotation_tolerance_deg: float | None = Field(
-        None, gt=0, description="a shot turned more than this from its station's mean orientation is left out "
-        "(or, with enough like it, split off as a station of its own), deg; None: derived from the orientation "
-        "read noise, max(0.02, 4 sqrt(3) s) with s the larger of pose_rotation_noise_deg and the scatter the "
-        "stations show"
-    )
-    robot_error_model: Literal["auto", "kinematic", "station", "kinematic+station", "none"] = Field(
-        "auto", description="the robot's systematic error (docs/estimation.md): 'kinematic': the arm's geometric "
-        "error (joint zero offsets, joint origins, axis tilts), from each shot's joints through the robot's "
-        "kinematics, marginalised; 'station': a pose offset shared by the shots of a station, marginalised; "
-        "'kinematic+station': both; 'none': pose noise only; 'auto': with the joints and the robot's kinematics "
-        "known, kinematic when the data show the arm's geometric error (else pose noise only, the arm's geometry "
-        "considered in the uncertainty), without them station"
-    )
-    identify_kinematics: bool = Field(
-        False, description="estimate the arm's identifiable geometric errors (kinematic calibration, "
-        "docs/estimation.md); needs joint readings and the robot's kinematics"
-    )
-    kinematic_prior_zero_offset_deg: float = Field(
-        0.05, ge=0, le=5, description="spread of each joint's zero offset on an uncalibrated arm, 1 sigma, deg"
-    )
-    kinematic_prior_length_mm: float = Field(
-        0.3, ge=0, le=50, description="spread of each joint origin's position, per axis, 1 sigma, mm"
-    )
-    kinematic_prior_tilt_deg: float = Field(
-        0.02, ge=0, le=5, description="spread of each joint axis' tilt, per direction, 1 sigma, deg"
-    )
-    station_rotation_error_deg: float | None = Field(
-        None, ge=0, le=5, description="station-to-station robot orientation error, per axis, deg (None: estimated)"
-    )
-    station_translation_error_mm: float | None = Field(
-        None, ge=0, le=50, description="station-to-station robot position error, per axis, mm (None: estimated)"
-    )
-    robot_accuracy_mm: float = Field(
-        0.75, ge=0, le=50, description="the robot's position error shared by every station of the plan, per axis, "
-        "1 sigma, mm (an uncalibrated industrial arm: 0.3-1.2); one sphere location cannot measure it, so it "
-        "enters the uncertainty only (docs/estimation.md)"
-    )
-    robot_accuracy_deg: float = Field(
-        0.06, ge=0, le=5, description="the robot's orientation error shared by every station, per axis, 1 sigma, deg"
-    )
-
-    def uses_kinematic_model(self, joints_known: bool) -> bool:
-        return self.identify_kinematics or self.robot_error_model in ("kinematic", "kinematic+station") or (
-            self.robot_error_model == "auto" and joints_known)
-
-
-class SweepSite(_Section):
+class SweepSite(Section):
     """Where and how a validation or scan sweep looks at its target: the sensor tilted by
     ``tilt_deg`` (rotation vector, about the sensor axes in eye-in-hand, base axes in
     eye-to-hand) from the reference orientation, the sweep shifted by ``offset_mm`` (y, z)
@@ -280,7 +200,7 @@ def _default_sphere_sites() -> list[SweepSite]:
     ]
 
 
-class BallBarConfig(_Section):
+class BallBarConfig(Section):
     """A ball bar: two spheres at a certified centre distance, fixed where the reference
     sphere is fixed (base in eye-in-hand, flange in eye-to-hand)."""
 
@@ -294,7 +214,7 @@ class BallBarConfig(_Section):
     )
 
 
-class FlatConfig(_Section):
+class FlatConfig(Section):
     """A flat (a plate), fixed where the reference sphere is fixed."""
 
     centre_mm: Vec3 = Field(description="rough centre of the area to sweep, mm")
@@ -308,7 +228,7 @@ class FlatConfig(_Section):
     )
 
 
-class MpeConfig(_Section):
+class MpeConfig(Section):
     """Maximum permissible errors, mm. Each has its own default; a figure is judged
     against its MPE whenever it is measured (the fields of
     :class:`~spherecal.core.metrology.MaximumPermissibleErrors`)."""
@@ -319,7 +239,7 @@ class MpeConfig(_Section):
     flatness_mm: float = Field(0.15, gt=0, description="MPE of F, mm")
 
 
-class ValidationConfig(_Section):
+class ValidationConfig(Section):
     """`spherecal validate`: scan with the calibrated system at positions other than the
     calibration's and compare the acceptance figures with the MPEs."""
 
@@ -334,7 +254,7 @@ class ValidationConfig(_Section):
     )
 
 
-class ScanConfig(_Section):
+class ScanConfig(Section):
     """`spherecal scan`: sweep an object with the calibrated system, write a PLY."""
 
     result: str | None = Field(None, description="calibration result (default: <output_dir>/result.json)")
@@ -364,7 +284,7 @@ class ScanConfig(_Section):
         return self
 
 
-class FieldOfViewOverride(_Section):
+class FieldOfViewOverride(Section):
     """``[simulation.fov]``: fields of the simulated sensor's field of view that replace
     its sensor type's declared ones (:class:`spherecal.devices.contract.SensorFieldOfView`); a
     sensor type that declares none needs the four geometric fields here."""
@@ -377,7 +297,7 @@ class FieldOfViewOverride(_Section):
     standoff_z_mm: float | None = Field(None, description="z of the sphere centre in a calibration sweep, mm")
 
 
-class NoiseModel(_Section):
+class NoiseModel(Section):
     """Noise of the simulated cell. Standard deviations, per axis."""
 
     point_noise_mm: float = Field(0.01, ge=0, description="sensor point noise, each of y and z, mm")
@@ -395,7 +315,7 @@ def _range(lo_default: float, hi_default: float, what: str):
     )
 
 
-class RobotErrorModel(_Section):
+class RobotErrorModel(Section):
     """Geometric error of the simulated arm (defaults: an uncalibrated IRB 2400-class
     arm, flange 0.5-2 mm and 0.03-0.15 deg off its nominal pose)."""
 
@@ -422,7 +342,7 @@ class RobotErrorModel(_Section):
         return self
 
 
-class OnTheFlyPlan(_Section):
+class OnTheFlyPlan(Section):
     """Continuous sweeps for an on-the-fly recording: at each station of a stop-and-go
     plan (:class:`SweepPlan`: its flange orientation, and where in the field of view the
     sphere crosses the laser plane) the robot makes straight MoveL sweeps that carry the
@@ -489,7 +409,7 @@ class OnTheFlyPlan(_Section):
         return cls(**values)
 
 
-class PoseStreamSettings(_Section):
+class PoseStreamSettings(Section):
     """The simulated robot's pose stream: what the controller samples, stamps and loses.
 
     The pose noise is the robot's repeatability: the true flange moves off the pose the
@@ -521,7 +441,7 @@ class PoseStreamSettings(_Section):
         return v
 
 
-class SensorStreamSettings(_Section):
+class SensorStreamSettings(Section):
     """The simulated profiler's stream: it exposes at its own rate on its own clock."""
 
     rate_hz: float = Field(300.0, gt=0, le=20_000, description="profile rate on the sensor's clock, Hz")
@@ -537,7 +457,7 @@ class SensorStreamSettings(_Section):
     first_frame: int = Field(0, ge=0, le=2**62, description="frame counter of the first exposure")
 
 
-class ClockSettings(_Section):
+class ClockSettings(Section):
     """The two clocks against true time T (s, 0 at the recording's start): the robot's
     reads ``robot_epoch_s + (1 + robot_rate_error_ppm 1e-6) T``, the sensor's
     ``sensor_epoch_s + (1 + sensor_rate_error_ppm 1e-6) T``. Crystal clocks differ by
@@ -550,7 +470,7 @@ class ClockSettings(_Section):
     sensor_rate_error_ppm: float = Field(-15.0, ge=-1000, le=1000, description="sensor clock's rate error, ppm")
 
 
-class StreamSimSettings(_Section):
+class StreamSimSettings(Section):
     """Everything an on-the-fly simulation draws that the plan does not say (defaults:
     an EGM-like 250 Hz pose stream with 0.02 mm of smooth noise, a 300 Hz profiler, two
     free-running clocks 35 ppm apart)."""
@@ -563,7 +483,7 @@ class StreamSimSettings(_Section):
                              "losses (None: the cell's seed)")
 
 
-class SimulationConfig(_Section):
+class SimulationConfig(Section):
     """Present: the run is simulated (devices speak their real protocols to a simulated cell)."""
 
     seed: int = Field(0, ge=0, le=2**63 - 1, description="seed of the cell's noise")
@@ -610,18 +530,7 @@ class ExportConfig(BaseModel):
         return self
 
 
-class ReportConfig(_Section):
-    """What the report and the result's provenance say besides the numbers."""
-
-    operator: str | None = Field(None, max_length=200, description="who ran the calibration (--operator overrides)")
-    cell: str | None = Field(None, max_length=200, description="the cell's name or number")
-    point_distance_mm: float = Field(
-        POINT_DISTANCE_MM, gt=0, le=10_000, description="the report gives the uncertainty of a point this far from the sensor, "
-        "mm (along its line of sight)"
-    )
-
-
-class RunConfig(_Section):
+class RunConfig(Section):
     """The root of a configuration file."""
 
     mounting: MountingMode = Field(description="eye_in_hand (sensor on the flange) or eye_to_hand (sensor fixed)")

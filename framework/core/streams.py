@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from spherecal.core import geometry as geo
+from spherecal.core.clock import sensor_to_robot_time
 
 __all__ = ["PoseAtTimes", "PoseStream", "ProfileStream", "Recording", "SweepInfo", "sensor_to_robot_time"]
 
@@ -36,13 +37,6 @@ __all__ = ["PoseAtTimes", "PoseStream", "ProfileStream", "Recording", "SweepInfo
 #: in the stream: a profile inside it has no measured pose (it is left out, never
 #: interpolated across).
 GAP_PERIODS = 3.5
-
-
-def sensor_to_robot_time(t_sensor_s, offset_s: float, drift: float, t_sensor0_s: float) -> np.ndarray:
-    """Robot-clock time of sensor-clock stamps: ``t + offset + drift (t - t0)`` (drift
-    dimensionless; ppm is drift * 1e6)."""
-    t = np.asarray(t_sensor_s, dtype=float)
-    return t + offset_s + drift * (t - t_sensor0_s)
 
 
 @dataclass(frozen=True)

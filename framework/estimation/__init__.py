@@ -22,7 +22,7 @@ from spherecal.core.lazy import lazy_attributes
 
 #: name -> the module that defines it
 _WHERE = {
-    "CalibrationOptions": "spherecal.config.sections",
+    "CalibrationOptions": "spherecal.config.calibration",
     "Solution": ".pipeline",
     "calibrate": ".pipeline",
     "solve": ".pipeline",

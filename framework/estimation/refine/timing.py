@@ -14,10 +14,15 @@ flange's velocity (the twist: spatial angular velocity and the origin's velocity
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from spherecal.core.streams import PoseStream, sensor_to_robot_time
+from spherecal.core.clock import sensor_to_robot_time
 from spherecal.estimation.problem import Problem, sphere_from_mount
+
+if TYPE_CHECKING:
+    from spherecal.core.streams import PoseStream
 
 #: Seconds per unit of the fit's time parameters: offset in ms, drift in ppm.
 OFFSET_UNIT_S = 1e-3
