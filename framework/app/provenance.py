@@ -68,7 +68,8 @@ def traceability(dataset: Dataset, dataset_path: Path | None, loaded: LoadedConf
         "robot": device("robot"),
         "sensor": device("sensor"),
         "sphere": sphere,
-        "simulated": prov.get("simulated"),
+        # simulated devices, or data from the simulator (which holds the truth: the terminal's "simulated truth")
+        "simulated": True if prov.get("simulated") or "true_transform" in prov else prov.get("simulated"),
     }
 
 

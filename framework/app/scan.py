@@ -4,6 +4,7 @@ to a PLY file."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -38,7 +39,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
                                                 out_dir)
     doubt = failed_validation(out, result)
     if doubt:  # said before anything moves, and again by the exit code
-        log(Notice(f"warning: {doubt}; the scan's points carry that error (scanning all the same)"))
+        log(Notice(f"warning: {doubt.text}; {doubt.carried} (scanning all the same)"))
     targets = plan_scan(cfg.scan, cfg.acquisition, cfg.mounting, result.transform, fov)
     check_plan(targets, cfg.acquisition, "scan plan")
     if ply_path.exists():
@@ -57,7 +58,8 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
                            Progress(len(targets), progress_stream))
     log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in "
         f"{frame} frame")
-    summary.calibration_doubt = doubt
+    if doubt:
+        summary.calibration_doubt, summary.calibration_remedy = doubt.text, doubt.remedy
     return ply_path, summary
 
 
@@ -77,10 +79,26 @@ def _ply_path(loaded: LoadedConfig, out_dir: Path | None) -> Path:
     return ply_path
 
 
-def failed_validation(out: Path, result) -> str | None:
+@dataclass(frozen=True)
+class FailedValidation:
+    """The latest validation of a calibration failed: what failed (``text``), what the
+    scan's points carry of it (``carried``) and what to do (``remedy``)."""
+
+    text: str
+    carried: str
+    remedy: str
+
+
+#: What to do about a failed validation whose cause was not named.
+UNNAMED_REMEDY = "re-calibrate, or validate again once the cause is fixed"
+
+
+def failed_validation(out: Path, result) -> FailedValidation | None:
     """What is wrong when the latest validation in ``out`` (``validation.json``) is of
-    ``result``'s transform and failed; None when it passed, is of another transform, or
-    there is none."""
+    ``result``'s transform and failed, with the likely cause and its remedy when the
+    validation named them (the robot's own error, which no new calibration of the sensor
+    removes: ``cause`` in validation.json); None when it passed, is of another transform,
+    or there is none."""
     path = out / "validation.json"
     try:
         latest = json.loads(path.read_text())
@@ -90,5 +108,12 @@ def failed_validation(out: Path, result) -> str | None:
     if latest.get("passed", True) or not np.allclose(validated.as_matrix(), result.transform.as_matrix(), atol=1e-9):
         return None
     failed = [name for name, row in (latest.get("figures") or {}).items() if not row.get("passed", True)]
-    return (f"this calibration failed its latest validation ({path}: {', '.join(failed) or 'a figure'} beyond "
-            "its MPE)")
+    text = f"this calibration failed its latest validation ({path}: {', '.join(failed) or 'a figure'} beyond its MPE)"
+    cause = latest.get("cause")
+    if not isinstance(cause, dict) or not all(isinstance(cause.get(k), str) for k in ("cause", "remedy")):
+        return FailedValidation(text, "the scan's points carry that error", UNNAMED_REMEDY)
+    expected = cause.get("expected_point_error_k2_mm")
+    size = f"up to about {expected:.3f} mm (k = 2) " if isinstance(expected, (int, float)) else ""
+    carried = (f"the scan's points carry the robot's error: {size}in where they lie (absolute), much less in the "
+               "shape within one pass (relative)")
+    return FailedValidation(f"{text}; likely cause: {cause['cause']}", carried, cause["remedy"])

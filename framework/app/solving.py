@@ -107,10 +107,10 @@ def solve_and_write(
     if report:
         # (imported only for a report: matplotlib is not loaded by `solve --no-report`,
         # tests/cli/test_startup_imports.py)
-        from spherecal.report.html import write_report
+        from spherecal.report.html import CALIBRATION_VERSION, write_report
 
         chosen = {} if report_settings is None else {"point_distance_mm": report_settings.point_distance_mm}
-        write_report(solution, out, verdict_override=graded, notes=notes, **chosen)
+        write_report(solution, out, verdict_override=graded, notes=notes, version=CALIBRATION_VERSION, **chosen)
     return solution, graded, written
 
 

@@ -27,8 +27,9 @@ from spherecal.io import files as safeio
 from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import Progress
 from spherecal.motion.validation import evaluate, measure, plan_validation, position_rows
-from spherecal.report.assess import Verdict, verdict, with_validation
-from spherecal.report.html import write_report
+from spherecal.report.assess import Verdict, verdict
+from spherecal.report.html import write_report_version
+from spherecal.report.validation_advice import validation_verdict
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 
@@ -41,7 +42,12 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     :class:`~spherecal.report.compare.TransformEstimate`): validate that transform, one spherecal
     did not compute (the controller's current tool or work object, a pose file), instead
     of the calibration's ``result.json``; the report is then left alone. ``host``: the
-    run's plugin host (default: made here)."""
+    run's plugin host (default: made here).
+
+    Writes the figures to ``validation-<time>.json`` (and ``validation.json``, the latest)
+    and, with ``report``, a new version of the calibration's report (``report-<n>.html``:
+    ``report.html`` and ``result.json`` stay as the calibration wrote them); the outcome
+    names both (``figures_path``, ``report_path``)."""
     host = host if host is not None else plugin_host.make_host()
     loaded, fov = configured_for_sensor(loaded, host)
     cfg = loaded.config
@@ -55,7 +61,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     if cell is None:
         confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
+    started = datetime.now(timezone.utc)
+    stamp = started.strftime("%Y%m%dT%H%M%S%fZ")
     journal = out / f"validation-{stamp}.jsonl"  # one journal per validation run; none is overwritten
     with open_devices(loaded, host, cell, log) as (robot, sensor):
         check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
@@ -74,13 +81,16 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured)
     own = verdict(result) if result is not None else Verdict(
         "green", "A transform spherecal did not compute: only its validation is graded.")
-    outcome.verdict = with_validation(own, outcome.table())
+    outcome.verdict, outcome.cause = validation_verdict(own, outcome.table(), result)
     outcome.transform, outcome.transform_name, outcome.transform_source = X, TRANSFORM_NAME[cfg.mounting], source
-    _write_validation(outcome, out, stamp, journal, transform is not None)
+    outcome.figures_path = _write_validation(outcome, out, stamp, journal, transform is not None)
     calib_journal = out / JOURNAL_NAME
     if report and transform is None and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
-        _update_report(loaded, host, outcome, result, result_path, out, exports, log)
+        added = (f"the validation run at {started.isoformat(timespec='seconds')} ({outcome.figures_path.name}, its "
+                 f"shots in {journal.name}): {'passed' if outcome.passed else 'FAILED'}; the verdict, the validation "
+                 "tables and the sign-off are this version's.")
+        outcome.report_path = _report_version(loaded, host, outcome, result, result_path, out, exports, added, log)
     return outcome
 
 
@@ -103,24 +113,31 @@ def _transform_to_validate(loaded: LoadedConfig, out_dir: Path | None, transform
     return out, result_path, result, transform.pose, transform.source
 
 
-def _write_validation(outcome, out: Path, stamp: str, journal: Path, transform_given: bool) -> None:
-    """``validation-<stamp>.json`` and ``validation.json`` (the latest run, for scripts)."""
+def _write_validation(outcome, out: Path, stamp: str, journal: Path, transform_given: bool) -> Path:
+    """``validation-<stamp>.json`` and ``validation.json`` (the latest run, for scripts;
+    ``cause``: the likely cause of a failure and its remedy when named, for ``scan``).
+    Returns the first."""
     X = outcome.transform
     text = json.dumps({"passed": outcome.passed, "result": outcome.transform_source, "transform": X.model_dump(),
                        "transform_given": transform_given, "journal": journal.name,
                        "verdict": {"level": outcome.verdict.level, "headline": outcome.verdict.headline},
+                       "cause": outcome.cause.as_dict() if outcome.cause is not None else None,
                        "figures": outcome.table(), "positions": position_rows(outcome),
                        "report": outcome.report.model_dump(), "centres_mm": outcome.centres_mm},
                       indent=2, default=float)
-    safeio.write_text(out / f"validation-{stamp}.json", text)
+    path = out / f"validation-{stamp}.json"
+    safeio.write_text(path, text)
     safeio.write_text(out / "validation.json", text)  # the latest run, for scripts
+    return path
 
 
-def _update_report(loaded: LoadedConfig, host, outcome, result, result_path: Path, out: Path, exports,
-                   log: Callable[[str], None]) -> None:
-    """The calibration's report in ``out`` rewritten with the validation's figures, when
-    solving the calibration's journal there again gives the transform validated; else
-    the log says why not."""
+def _report_version(loaded: LoadedConfig, host, outcome, result, result_path: Path, out: Path, exports, added: str,
+                    log: Callable[[str], None]) -> Path | None:
+    """A new version of the calibration's report in ``out`` with the validation's figures
+    (``report-<n>.html``, saying which version it supersedes and that it adds ``added``),
+    when solving the calibration's journal there again gives the transform validated;
+    else None, and the log says why not. The calibration's ``report.html`` is never
+    rewritten."""
     cfg = loaded.config
     calib_journal = out / JOURNAL_NAME
     X = outcome.transform
@@ -129,11 +146,11 @@ def _update_report(loaded: LoadedConfig, host, outcome, result, result_path: Pat
     if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
         # the result as written (its provenance: the calibration's identity and hashes)
         solution = replace(solution, result=result)
-        write_report(solution, out, validation=outcome.table(), validation_positions=position_rows(outcome),
-                     verdict_override=outcome.verdict, notes=exports.notes(solution.result),
-                     point_distance_mm=cfg.report.point_distance_mm)
-    else:
-        log(f"report.html not updated: {not_the_calibration(result, result_path, calib_journal, loaded)}")
+        return write_report_version(solution, out, added, validation=outcome.table(),
+                                    validation_positions=position_rows(outcome), verdict_override=outcome.verdict,
+                                    notes=exports.notes(solution.result), point_distance_mm=cfg.report.point_distance_mm)
+    log(f"no new version of the report: {not_the_calibration(result, result_path, calib_journal, loaded)}")
+    return None
 
 
 def not_the_calibration(result, result_path: Path, journal: Path, loaded: LoadedConfig) -> str:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from spherecal.app.scan import run_scan
+from spherecal.app.scan import UNNAMED_REMEDY, run_scan
 from spherecal.cli.output import EXIT_OK, EXIT_VALIDATION
 from spherecal.cli.session import Session, ask
 from spherecal.config import load_config
@@ -18,8 +18,8 @@ def run(args, session: Session) -> int:
                              progress_stream=session.progress_stream(), yes=args.yes, ask=ask)
     session.say(f"wrote {summary.points} points from {summary.profiles} profiles to {path}")
     if summary.calibration_doubt:
-        session.err(f"{summary.calibration_doubt}: the points were mapped with it (exit 5); re-calibrate, or validate "
-                    "again once the cause is fixed")
+        session.err(f"{summary.calibration_doubt}: the points were mapped with it (exit 5); "
+                    f"{summary.calibration_remedy or UNNAMED_REMEDY}")
         return EXIT_VALIDATION
     return EXIT_OK
 

@@ -24,14 +24,21 @@ def run(args, session: Session) -> int:
     outcome = run_validate(loaded, out_dir=Path(args.out) if args.out else None, log=progress_log("run"),
                            progress_stream=session.progress_stream(), report=not args.no_report, yes=args.yes,
                            ask=ask, transform=given, host=session.host)
-    session.say(format_outcome(outcome))
+    session.say(format_outcome(outcome, loaded.config.mounting))
     session.say("validation " + ("passed" if outcome.passed else "FAILED: a figure exceeds its MPE"))
     session.say(format_verdict(outcome.verdict))
+    session.say(f"figures: {outcome.figures_path} (validation.json: the latest validation)")
+    if outcome.report_path is not None:
+        session.say(f"report: {outcome.report_path}, a new version with this validation (report.html and result.json "
+                    "stay as the calibration wrote them)")
     session.summary.update(
         verdict=verdict_json(outcome.verdict),
         transform=transform_json(outcome.transform_name, outcome.transform) | {"source": outcome.transform_source},
         validation={"passed": outcome.passed, "transform_given": given is not None,
-                    "figures": outcome.table(), "positions": position_rows(outcome)},
+                    "figures": outcome.table(), "positions": position_rows(outcome),
+                    "cause": outcome.cause.as_dict() if outcome.cause is not None else None,
+                    "figures_file": str(outcome.figures_path),
+                    "report": None if outcome.report_path is None else str(outcome.report_path)},
     )
     return EXIT_OK if outcome.passed else EXIT_VALIDATION
 

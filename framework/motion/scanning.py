@@ -53,6 +53,8 @@ class ScanSummary:
     #: Why the calibration the points were mapped with is doubtful (its latest validation
     #: failed), or None.
     calibration_doubt: str | None = None
+    #: What to do about it: the remedy of the cause its validation named, or None.
+    calibration_remedy: str | None = None
 
 
 def scan(robot, sensor, targets: list[Target], X: Pose, acq: AcquisitionConfig, mounting: MountingMode,

@@ -7,6 +7,7 @@ translation error that no single view can show)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -135,6 +136,22 @@ def points_in_object_frame(mounting: str, X: Pose, poses: list[Pose], profiles: 
     return pts
 
 
+#: What each figure measures against: ``relative`` ones come from one sweep each (a sphere's
+#: form and size, a flat's form) and do not depend on where the robot thinks it is, only
+#: on how its error changes along the sweep; ``absolute`` ones set positions measured
+#: from poses far apart against each other in the artefacts' frame (the ball bar's
+#: length, the spread of the sphere centres fitted from different views), so they
+#: include the robot's own error between those poses.
+FIGURE_SCOPE = {"P_F": "relative", "P_S": "relative", "F": "relative", "SD": "absolute", "centre spread": "absolute"}
+
+
+def scope_note(mounting: MountingMode) -> str:
+    """What ``absolute`` and ``relative`` mean in the validation table, for ``mounting``."""
+    return (f"absolute: positions measured from poses far apart, set against each other in the {SPHERE_FRAME[mounting]} "
+            "frame through the robot's poses: they include the robot's own error; relative: from one sweep each, "
+            "independent of where the robot thinks it is (only how its error changes along the sweep)")
+
+
 @dataclass
 class ValidationOutcome:
     report: AcceptanceReport
@@ -149,6 +166,12 @@ class ValidationOutcome:
     transform: Pose | None = None
     transform_name: str | None = None
     transform_source: str | None = None
+    #: the files ``app.validate`` wrote: the figures (``validation-<time>.json``) and the report's new version
+    #: (``report-<n>.html``; None when none was written)
+    figures_path: Path | None = None
+    report_path: Path | None = None
+    #: the likely cause of a failure and its remedy when named (``report.validation_advice.robot_cause``)
+    cause: object | None = None
 
     @property
     def passed(self) -> bool:
@@ -165,6 +188,8 @@ class ValidationOutcome:
         if self.centre_spread_mm is not None:
             rows["centre spread"] = {"max error (mm)": self.centre_spread_mm, "worst position": None,
                                      "positions": len(self.centres_mm), "MPE (mm)": self.mpe_centre_spread_mm, "passed": self.centre_spread_passed}
+        for name, row in rows.items():
+            row["scope"] = FIGURE_SCOPE.get(name)
         return rows
 
 
@@ -229,12 +254,17 @@ def evaluate(v: ValidationConfig, mounting: MountingMode, X: Pose, sphere: Spher
     return ValidationOutcome(report, spread, passed, centres, v.mpe_centre_spread_mm)
 
 
-def format_outcome(outcome: ValidationOutcome) -> str:
-    lines = [f"{'figure':14s} {'max error (mm)':>15s} {'worst':>6s} {'MPE (mm)':>9s}  verdict"]
+def format_outcome(outcome: ValidationOutcome, mounting: MountingMode | None = None) -> str:
+    """The validation table (each figure with its scope, absolute or relative, explained
+    under it for ``mounting``) and the figures per position, as the terminal prints them."""
+    lines = [f"{'figure':14s} {'max error (mm)':>15s} {'worst':>6s} {'MPE (mm)':>9s}  {'verdict':10s}  scope"]
     for name, row in outcome.table().items():
         mpe = "-" if row["MPE (mm)"] is None else f"{row['MPE (mm)']:.4f}"
         verdict = {True: "pass", False: "FAIL", None: "not judged"}[row["passed"]]
-        lines.append(f"{name:14s} {row['max error (mm)']:15.4f} {row['worst position'] or '-':>6s} {mpe:>9s}  {verdict}")
+        lines.append(f"{name:14s} {row['max error (mm)']:15.4f} {row['worst position'] or '-':>6s} {mpe:>9s}  "
+                     f"{verdict:10s}  {row['scope'] or '-'}")
+    if mounting is not None:
+        lines.append(f"  ({scope_note(mounting)})")
     for pr in outcome.report.probing:
         lines.append(f"  {pr.position}: P_F {pr.probing_form_error_mm:.4f} mm, P_S {pr.probing_size_error_mm:+.4f} mm "
                      f"({pr.fit.n_points_used} points used, {pr.fit.n_points_dropped} dropped)")

@@ -224,12 +224,14 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
     return Verdict(level, headline, reasons)
 
 
-def with_validation(ver: Verdict, figures: Mapping[str, Mapping]) -> Verdict:
+def with_validation(ver: Verdict, figures: Mapping[str, Mapping], cause: str | None = None) -> Verdict:
     """The verdict of a calibration together with its validation: ``figures`` is the
     validation's table (``ValidationOutcome.table()``: per figure ``max error (mm)``,
     ``worst position``, ``MPE (mm)``, ``passed``). A figure beyond its MPE makes the
     verdict red (the calibration does not measure as accurately as required), whatever
-    the calibration's own grade; passing figures add their reasons and keep the grade."""
+    the calibration's own grade; passing figures add their reasons and keep the grade.
+    ``cause``: what the failure's headline says after the failing figures instead of "Do
+    not use this calibration" (a cause named, :mod:`spherecal.report.validation_advice`)."""
     reasons = list(ver.reasons)
     failed = []
     for name, row in figures.items():
@@ -243,8 +245,9 @@ def with_validation(ver: Verdict, figures: Mapping[str, Mapping]) -> Verdict:
             reasons.append(("red", f"validation: {name} {value:.4f} mm{where} exceeds its MPE {mpe:g} mm"))
             failed.append(f"{name} {value:.4f} mm exceeds its MPE {mpe:g} mm")
     if failed:
-        return Verdict("red", f"Validation failed: {'; '.join(failed)}. Do not use this calibration: it does not "
-                       "measure as accurately as required (see the validation tables).", reasons)
+        then = cause or ("Do not use this calibration: it does not measure as accurately as required (see the "
+                         "validation tables).")
+        return Verdict("red", f"Validation failed: {'; '.join(failed)}. {then}", reasons)
     if not figures:
         return Verdict(ver.level, ver.headline, reasons)
     return Verdict(ver.level, f"{ver.headline} Validation passed: every judged figure within its MPE.", reasons)

@@ -209,6 +209,8 @@ def test_validate_json(sim_config, capsys):
     assert summary["transform"]["translation_mm"] == list(true.translation_mm)
     assert summary["validation"]["figures"]["P_F"]["passed"] is True
     assert "validation.json" in summary["files"] and "run.log" in summary["files"]
+    assert summary["validation"]["report"] is None  # --no-report: no new version of the report
+    assert summary["validation"]["figures_file"] in {str(out / n) for n in summary["files"]}
     assert any(name.startswith("validation-") and name.endswith(".jsonl") for name in summary["files"])
     assert summary["verdict"]["headline"].endswith("Validation passed.") or "Validation passed" in \
         summary["verdict"]["headline"]

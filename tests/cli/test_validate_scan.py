@@ -1,6 +1,7 @@
 """spherecal validate and spherecal scan on the simulated cell."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -93,8 +94,11 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
     dt = np.array([0.3, 0.0, 0.0])
     write_result_with(out, cfg_path, Pose.from_rt(true.rotation_matrix, true.translation + dt))
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_VALIDATION
-    assert "FAILED" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    # the calibration's own verdict did not name the robot: a failure is the calibration's
+    assert "FAILED" in printed and "Do not use this calibration" in printed and "Likely cause" not in printed
     v = json.loads((out / "validation.json").read_text())
+    assert v["cause"] is None
 
     from spherecal.motion.validation import plan_validation
 
@@ -118,7 +122,7 @@ def test_an_offset_calibration_is_caught_with_the_expected_figures(cfg_path, cap
     cap = capsys.readouterr()
     first = cap.err.index("warning: this calibration failed its latest validation")
     assert first < cap.err.index("scan: ") and "centre spread" in cap.err[first:].splitlines()[0]
-    assert "the points were mapped with it (exit 5)" in cap.err and (out / "scan.ply").exists()
+    assert "the points were mapped with it (exit 5); re-calibrate" in cap.err and (out / "scan.ply").exists()
 
 
 @pytest.mark.slow
@@ -184,7 +188,7 @@ def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
     assert main(["calibrate", str(cfg_path), "--no-report"]) == EXIT_OK
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
     capsys.readouterr()
-    assert main(["validate", str(cfg_path)]) == EXIT_OK  # this one writes the report
+    assert main(["validate", str(cfg_path)]) == EXIT_OK  # this one writes a report: the calibration wrote none
     assert len(list(out.glob("validation-*.jsonl"))) == 2  # a re-run keeps the earlier run's shots
     v = json.loads((out / "validation.json").read_text())
     # the terminal prints the verdict the report shows: the calibration's with the validation's figures
@@ -195,7 +199,10 @@ def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
     assert v["verdict"] == {"level": level.lower(), "headline": headline}
     import html
 
-    page = (out / "report.html").read_text()
+    assert f"report: {out / 'report-2.html'}, a new version with this validation" in printed
+    assert not (out / "report.html").exists()  # the calibration's name stays the calibration's
+    page = (out / "report-2.html").read_text()
+    assert "No earlier report of this calibration was found beside it" in page
     assert f"Verdict: {level} &mdash; {html.escape(headline)}" in page
     positions = page[page.index('id="validation"'):page.index('id="details"')]
     assert positions[positions.index("Per position"):].count("<td>P_F</td>") == 4  # one row per view
@@ -207,6 +214,48 @@ def test_eye_to_hand_calibrate_validate_and_scan(sim_config, capsys):
     z = np.asarray(ply["z"], dtype=float)
     # the plate is the plane z = 250 mm of the flange frame
     assert len(z) > 5000 and np.median(np.abs(z - 250.0)) < 0.03
+
+
+@pytest.mark.slow
+def test_validate_and_scan_name_the_arms_geometry_and_leave_the_calibration_as_written(sim_config, capsys):
+    """The plain example (the simulated arm's geometric error, robot error model auto):
+    the calibration's verdict is AMBER (the robot's error dominates) and its validation
+    fails on the absolute figures. The verdict names the arm as the likely cause with the
+    remedy (the arm's calibration, or accepting the figures) instead of "do not use",
+    says which figures are absolute and which relative; the scan says the same instead of
+    "re-calibrate". The calibration's report.html and result.json are left byte for byte
+    as written: the validation's report is report-2.html, which names what it supersedes."""
+    import hashlib
+
+    cfg_path = sim_config("sim-eye-in-hand.toml")
+    out = cfg_path.parent / "out"
+    assert main(["calibrate", str(cfg_path)]) == EXIT_OK
+    assert "verdict: AMBER: Robot error dominates" in capsys.readouterr().out
+    written = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "run.log"}
+    assert {"report.html", "result.json"} <= set(written)
+
+    assert main(["validate", str(cfg_path)]) == EXIT_VALIDATION
+    printed = capsys.readouterr().out
+    (line,) = [x for x in printed.splitlines() if x.startswith("verdict: ")]
+    assert line.startswith("verdict: RED: Validation failed: ") and "Do not use" not in line
+    assert "Likely cause: the arm's own geometry, as the calibration's verdict said" in line
+    assert "remedy: either calibrate the arm's geometry with spherecal ([calibration] identify_kinematics = true" in printed
+    assert re.search(r"(?m)^SD +\d\.\d{4} +B\d +0\.1000  FAIL +absolute$", printed)
+    assert re.search(r"(?m)^P_F +\d\.\d{4} +P\d +0\.2500  pass +relative$", printed)
+    assert f"report: {out / 'report-2.html'}, a new version" in printed
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.name in written} == written
+    page = (out / "report-2.html").read_text()
+    assert (f"It supersedes <code>report.html</code> (SHA-256 <code class=\"hash\">"
+            f"{hashlib.sha256(written['report.html']).hexdigest()}</code>)") in page
+    assert 'class="simulated-banner"' in page and "Likely cause: the arm&#x27;s own geometry" in page
+    v = json.loads((out / "validation.json").read_text())
+    assert "identify_kinematics" in v["cause"]["remedy"] and v["figures"]["SD"]["scope"] == "absolute"
+
+    assert main(["scan", str(cfg_path)]) == EXIT_VALIDATION
+    err = capsys.readouterr().err
+    assert "likely cause: the arm's own geometry" in err and "re-calibrate" not in err
+    assert "the points were mapped with it (exit 5); either calibrate the arm's geometry" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.name in written} == written
 
 
 def test_validate_needs_a_result(cfg_path, capsys):

@@ -14,14 +14,19 @@ details. See docs/results.md for a tour.
   ``MAX_BOXES``, ...);
 - :mod:`.sections`: the HTML of each part, and the page template (``report.html``,
   ``report.css``, the interactive view's ``view3d.js``);
-- :mod:`.page`: :func:`write_report`, which assembles and writes them.
+- :mod:`.signing`: what makes a report one can sign: its version (a later report is a new
+  file, ``report-2.html``, ..., saying what it supersedes), the SIMULATED mark, the
+  provenance table;
+- :mod:`.page`: :func:`write_report`, which assembles and writes them, and
+  :func:`write_report_version`, which writes a later version beside the calibration's.
 """
 
 from spherecal.report.html.data import (binned_residuals, interactive_points, mapped_centres, mapped_points,
                                         plot_sample, point_uncertainty, profile_points_and_residuals,
                                         row_percentiles, sphere_directions)
 from spherecal.report.html.figures import FIGURE_NAMES
-from spherecal.report.html.page import write_report
+from spherecal.report.html.page import write_report, write_report_version
+from spherecal.report.html.signing import CALIBRATION_VERSION, ReportVersion, report_versions
 
-__all__ = ["write_report", "mapped_points", "FIGURE_NAMES", "binned_residuals", "interactive_points", "mapped_centres",
+__all__ = ["write_report", "write_report_version", "CALIBRATION_VERSION", "ReportVersion", "report_versions", "mapped_points", "FIGURE_NAMES", "binned_residuals", "interactive_points", "mapped_centres",
            "plot_sample", "point_uncertainty", "profile_points_and_residuals", "row_percentiles", "sphere_directions"]

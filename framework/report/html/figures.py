@@ -394,6 +394,12 @@ CAPTIONS = {
     "sphere_3d": "The fitted sphere (wireframe) and the profile points mapped into the sphere frame through "
                  "A_i X, coloured by station: they should lie on the sphere.",
 }
+#: The captions that differ for data without profiles (centre observations only), by key.
+CENTRE_CAPTIONS = {
+    "sphere_3d": "The fitted sphere (wireframe) and the centre observations mapped into the sphere frame through "
+                 "A_i X, coloured by station: a sphere centre (x) should fall on the fitted centre (+), a circle "
+                 "should lie on the sphere.",
+}
 
 
 def _drawers(solution, result, pts: list[np.ndarray]) -> dict[str, Any]:
@@ -423,9 +429,10 @@ def draw_figures(solution, result, out: Path, stem: str, pts: list[np.ndarray]) 
     ``<stem>_<key>.png`` in ``out`` and return them by key as (the PNG in base64, its
     caption). ``pts``: the :func:`mapped_points` of ``solution``."""
     figures = {}
+    captions = CAPTIONS if (solution.problem.kinds == KIND_PROFILE).any() else {**CAPTIONS, **CENTRE_CAPTIONS}
     for key, draw in _drawers(solution, result, pts).items():
         with matplotlib.rc_context({"text.parse_math": False}):  # labels are data: '$x$' is not mathtext
             png = _png(draw())
         safeio.write_bytes(out / f"{stem}_{key}.png", png)
-        figures[key] = (base64.b64encode(png).decode("ascii"), CAPTIONS[key])
+        figures[key] = (base64.b64encode(png).decode("ascii"), captions[key])
     return figures

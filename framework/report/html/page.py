@@ -18,6 +18,7 @@ from spherecal.report.assess import POINT_DISTANCE_MM, Thresholds, Verdict, advi
 from spherecal.report.html import sections
 from spherecal.report.html.data import centre_rows, mapped_points
 from spherecal.report.html.figures import draw_figures
+from spherecal.report.html.signing import ReportVersion, is_simulated, next_version, simulated_html, version_html
 
 
 def write_report(
@@ -32,6 +33,7 @@ def write_report(
     notes: Sequence[ExportNote] = (),
     validation_positions: Sequence[Mapping[str, Any]] | None = None,
     point_distance_mm: float = POINT_DISTANCE_MM,
+    version: ReportVersion | None = None,
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
@@ -44,20 +46,51 @@ def write_report(
     own exporter first), shown under the transform. ``validation_positions``: the
     validation per position (``validation.position_rows``), shown under its figures.
     ``point_distance_mm``: the report gives the uncertainty of a point this far from the
-    sensor. Returns the path of the HTML file. Overwrites an earlier report of the same
-    name."""
+    sensor. ``version``: the report's place among the calibration's reports, said under
+    its title (:mod:`.signing`; :func:`write_report_version` writes a later one). A result
+    whose provenance says it is simulated carries the SIMULATED mark. Returns the path of
+    the HTML file. Overwrites an earlier report of the same name."""
     _check_arguments(solution, filename, notes, validation, validation_positions, point_distance_mm)
     result = solution.result
     th = thresholds or Thresholds()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if is_simulated(result.provenance):
+        title = f"SIMULATED: {title}"
     pts = mapped_points(solution)  # the points in the sphere frame, mapped once for every figure
     figures = draw_figures(solution, result, out, filename[: -len(".html")], pts)
     body = _body(solution, title, figures, pts, th, verdict_override or verdict(result, th), notes, validation,
-                 validation_positions, float(point_distance_mm))
+                 validation_positions, float(point_distance_mm), version)
     path = out / filename
     safeio.write_text(path, sections.document(title, "\n".join(body)))
     return path
+
+
+def write_report_version(solution, out_dir: str | Path, added: str, **options) -> Path:
+    """Write a later version of the calibration's report into ``out_dir``:
+    ``report-<n>.html``, n one above the highest version there (at least 2), never over
+    an existing file (the calibration's ``report.html`` and every earlier version stay as
+    they were written). The page says which version it supersedes and that it adds
+    ``added`` (one sentence). ``options``: those of :func:`write_report` but ``filename``
+    and ``version``. Returns the path written."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    taken = None
+    for _ in range(100):
+        version = next_version(out, added, after=taken)
+        path = out / version.filename
+        try:
+            with safeio.open_for_write(path, exclusive=True):  # the name reserved: no other run takes it
+                pass
+        except FileExistsError:
+            taken = version.number  # written since the versions were listed: the next one
+            continue
+        try:
+            return write_report(solution, out, filename=version.filename, version=version, **options)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+    raise InputError(f"{out}: no free report version name found after {version.filename}")
 
 
 def _check_arguments(solution, filename, notes, validation, validation_positions, point_distance_mm) -> None:
@@ -82,7 +115,8 @@ def _check_arguments(solution, filename, notes, validation, validation_positions
 
 def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: list[np.ndarray], th: Thresholds,
           ver: Verdict, notes: Sequence[ExportNote], validation: Mapping[str, Any] | None,
-          validation_positions: Sequence[Mapping[str, Any]] | None, point_distance_mm: float) -> list[str]:
+          validation_positions: Sequence[Mapping[str, Any]] | None, point_distance_mm: float,
+          version: ReportVersion | None = None) -> list[str]:
     """The parts of the page, top to bottom (a ``keep`` section is not split across printed pages)."""
     result = solution.result
     has_profiles = bool((solution.problem.kinds == KIND_PROFILE).any())
@@ -90,8 +124,10 @@ def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: lis
     with_validation = validation is not None or validation_positions is not None
     now = datetime.now(timezone.utc).isoformat(timespec="seconds")
     parts = [
-        sections.header_html(title, result, has_centres, with_validation, now),
-        sections.headline_html(result, ver, th, notes),
+        sections.header_html(title, result, has_centres, with_validation, now, has_profiles),
+        version_html(version) if version is not None else "",
+        simulated_html() if is_simulated(result.provenance) else "",
+        sections.headline_html(result, ver, th, notes, has_profiles),
         '<section class="keep"><h2 id="identity">What was calibrated</h2>',
         sections.identity_html(result) + "</section>",
         '<h2 id="advice">What to do when something is off</h2>',
@@ -114,7 +150,7 @@ def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: lis
         '<h2 id="stations">Stations</h2>',
         sections.stations_html(result, th),
         '<h2 id="flagged">Flagged observations</h2>',
-        sections.flagged_html(result),
+        sections.flagged_html(result, has_profiles),
     ]
     if with_validation:
         parts += ['<section class="keep"><h2 id="validation">Validation</h2>',

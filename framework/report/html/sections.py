@@ -18,6 +18,7 @@ from spherecal.io.exporters import ExportNote
 from spherecal.report import export
 from spherecal.report.assess import Thresholds, expected_rms_mm, inconsistent_stations, station_prediction
 from spherecal.report.html.data import K_EXPANDED, interactive_points, point_uncertainty
+from spherecal.report.html.signing import is_simulated, provenance_rows
 
 
 def _e(value: Any) -> str:
@@ -25,8 +26,9 @@ def _e(value: Any) -> str:
     return html.escape(str(value), quote=True)
 
 
-def _n(value: float | None, decimals: int = 4) -> str:
-    """``value`` with ``decimals`` fixed decimals; a dash for None."""
+def _n(value: float | None, decimals: int = export.MM_DECIMALS) -> str:
+    """``value`` with ``decimals`` fixed decimals (by default the exports' millimetres); a
+    dash for None."""
     if value is None:
         return "&ndash;"
     return export.fixed(value, decimals)
@@ -74,7 +76,10 @@ def _notes_html(notes: Sequence[ExportNote]) -> str:
                    for n in notes)
 
 
-def headline_html(result: CalibrationResult, ver, th: Thresholds, notes: Sequence[ExportNote] = ()) -> str:
+def headline_html(result: CalibrationResult, ver, th: Thresholds, notes: Sequence[ExportNote] = (),
+                  has_profiles: bool = True) -> str:
+    """The verdict, the transform's cards (a profile's tile only with profiles; numbers
+    with the exports' decimals), its matrices and the exporters' notes."""
     name = result.transform_name
     a, b = export.frames_of(name)
     inv = export.inverse_name(name)
@@ -86,7 +91,7 @@ def headline_html(result: CalibrationResult, ver, th: Thresholds, notes: Sequenc
     point = (result.diagnostics.noise or {}).get("point_noise_mm")
     cards = [
         ("translation (mm)", f"{_n(x)}, {_n(y)}, {_n(z)}"),
-        ("quaternion (w, x, y, z)", ", ".join(_n(v, 6) for v in q)),
+        ("quaternion (w, x, y, z)", ", ".join(_n(v, export.QUAT_DECIMALS) for v in q)),
         (f"rotation 1-sigma about {a} x, y, z (deg)", ", ".join(_n(v) for v in sr)
          + f"<br><span class='muted'>U (k = 2): {', '.join(_n(K_EXPANDED * v) for v in sr)}</span>"),
         (f"translation 1-sigma along {a} x, y, z (mm)", ", ".join(_n(v) for v in st)
@@ -94,10 +99,12 @@ def headline_html(result: CalibrationResult, ver, th: Thresholds, notes: Sequenc
         ("residual RMS (mm)", f"{_n(result.residuals.rms_mm)} <span class='muted'>expected {_n(exp)}</span>"),
         ("sensor point noise (mm)", f"{_n(point)}" + (
             f" <span class='muted'>RMS / noise {result.residuals.rms_mm / point:.1f}</span>" if point else "")),
-        ("profiles used / flagged", f"{result.residuals.n_profiles_used} / {len(result.flagged)}"),
+        *([("profiles used / flagged", f"{result.residuals.n_profiles_used} / {len(result.flagged)}")]
+          if has_profiles else [("observations flagged", str(len(result.flagged)))]),
         *([("centre observations used", f"{result.residuals.n_centres_used} (residual RMS "
             f"{_n(result.residuals.centre_rms_mm)} mm, 3-D)")] if result.residuals.n_centres_used else []),
-        ("points used / rejected", f"{result.residuals.n_points_used} / {result.residuals.n_points_rejected}"),
+        *([("points used / rejected", f"{result.residuals.n_points_used} / {result.residuals.n_points_rejected}")]
+          if has_profiles else []),
     ]
     card_html = "".join(f'<div class="card"><div class="label">{_e(lbl)}</div><div class="value">{val}</div></div>'
                         for lbl, val in cards)
@@ -257,9 +264,9 @@ def stations_html(result: CalibrationResult, th: Thresholds) -> str:
               "by the sensor must move exactly as the robot moved; RMS and max of the mismatch.</p>")
 
 
-def flagged_html(result: CalibrationResult) -> str:
+def flagged_html(result: CalibrationResult, has_profiles: bool = True) -> str:
     if not result.flagged:
-        return "<p>No observation was flagged: every profile was used.</p>"
+        return f"<p>No observation was flagged: every {'profile' if has_profiles else 'observation'} was used.</p>"
     rows = [[str(f.index), _e(f.station), f'<span class="reason">{_e(f.reason)}</span>'] for f in result.flagged]
     return _table(["observation", "station", "why it was left out"], rows, ["bad"] * len(rows))
 
@@ -305,14 +312,15 @@ def positions_html(rows: Sequence[Mapping[str, Any]]) -> str:
 
 
 def identity_html(result: CalibrationResult) -> str:
-    """What was calibrated, by whom, when, from which files (the result's provenance)."""
+    """What was calibrated, by whom, when, from which files: the result's provenance as a
+    table, what it holds besides the rows below in rows of their own."""
     p = result.provenance or {}
 
     def device(kind: str) -> str:
         d = p.get(kind)
         if not isinstance(d, Mapping):
             return _e(d) if d else "&ndash;"
-        parts = [f"<b>{_e(d.get('type') or '?')}</b>"]
+        parts = [f"<b>{_e(d['type'])}</b>" if d.get("type") else "type not recorded"]
         for key in ("manufacturer", "model", "serial_number", "firmware", "controller"):
             if d.get(key):
                 parts.append(f"{key.replace('_', ' ')}: {_e(d[key])}")
@@ -344,8 +352,12 @@ def identity_html(result: CalibrationResult) -> str:
         ["dataset (SHA-256)", sha("dataset_sha256", "dataset_file")],
         ["configuration (SHA-256)", sha("configuration_sha256", "configuration_file")],
     ]
-    if p.get("simulated"):
-        rows.append(["devices", "simulated cell"])
+    rows.append(["data from", _e(p.get("dataset") or "&ndash;") if p.get("dataset") else "&ndash;"])
+    rows.append(["simulated", "<b>yes: SIMULATED</b>, not a real cell" if is_simulated(p)
+                 else "no" if p.get("simulated") is False else "&ndash; (not recorded)"])
+    shown = ("cell", "robot", "sensor", "sphere", "operator", "calibrated_at", "software", "dataset_sha256",
+             "dataset_file", "configuration_sha256", "configuration_file", "dataset", "simulated")
+    rows += [[k, v] for k, v in provenance_rows(p, leave_out=shown)]
     return "<table>" + "".join(f'<tr><th>{k}</th><td class="text">{v}</td></tr>' for k, v in rows) + "</table>"
 
 
@@ -371,14 +383,14 @@ def details_html(result: CalibrationResult) -> str:
          f"{_n(noise.get('point_noise_mm'))} mm / {_n(noise.get('pose_translation_noise_mm'))} mm / "
          f"{_n(noise.get('pose_rotation_noise_deg'))} deg"],
         ["residual max |e| / 95th percentile", f"{_n(result.residuals.max_abs_mm)} / {_n(result.residuals.p95_abs_mm)} mm"],
-        ["provenance", _e(json.dumps(result.provenance, default=str))],
+        ["provenance", 'the table under <a href="#identity">What was calibrated</a>'],
     ]
     return "<table>" + "".join(f'<tr><th>{k}</th><td class="text">{v}</td></tr>' for k, v in rows) + "</table>"
 
 
 # --- the page frame ---------------------------------------------------------------------------------
 def header_html(title: str, result: CalibrationResult, has_centres: bool, with_validation: bool,
-                generated_at: str) -> str:
+                generated_at: str, has_profiles: bool = True) -> str:
     """The title, the line under it (mounting, transform, data, when and by what the
     report was made) and the links to the sections."""
     nav = ["verdict", "identity", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
@@ -387,8 +399,8 @@ def header_html(title: str, result: CalibrationResult, has_centres: bool, with_v
     nav += ["details", "signature"]
     return "\n".join([
         f"<h1>{_e(title)}</h1>",
-        f'<p class="sub">{_e(result.mounting)} &middot; {_e(result.transform_name)} &middot; '
-        f"{result.residuals.n_profiles_used} profiles"
+        f'<p class="sub">{_e(result.mounting)} &middot; {_e(result.transform_name)}'
+        + (f" &middot; {result.residuals.n_profiles_used} profiles" if has_profiles else "")
         + (f" &middot; {result.residuals.n_centres_used} centre observations" if has_centres else "")
         + f" &middot; generated {generated_at} by spherecal {_e(__version__)}</p>",
         "<nav>" + "".join(f'<a href="#{s}">{s}</a>' for s in nav) + "</nav>",
