@@ -30,7 +30,10 @@ Fixtures
     configuration's ``[acquisition.sweep]``, or one your arm reaches):
     ``spherecal_stations`` and the harnesses use its stations.
     To use one cell in every test of a plugin, override the fixture in the plugin's own
-    ``conftest.py`` (a fixture of the same name there wins; docs/plugins.md).
+    ``conftest.py`` (a fixture of the same name there wins; docs/plugins.md), and pass
+    its ``request`` on (``make_cell({...}, request)``) so that a test's parameter still
+    chooses the mounting: a test whose parameter asks for a mounting its cell does not
+    have fails, saying so.
 ``spherecal_host``
     A fresh :class:`spherecal.plugins.PluginHost` (built-ins and installed plugins).
 ``spherecal_context``
@@ -457,7 +460,7 @@ def default_field_of_view() -> "SensorFieldOfView":
     )
 
 
-def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
+def make_cell(param: Any = "eye_in_hand", request: "pytest.FixtureRequest | None" = None) -> "SimulatedCell":
     """The cell of a ``spherecal_cell`` parameter (module docstring): a mounting name, a
     :class:`~spherecal.plugins.SimulatedCell` (used as it is), or a dict of
     :func:`~spherecal.plugins.standard_cell` arguments (``seed`` defaults to 0) with any of
@@ -468,7 +471,14 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     :func:`default_field_of_view`) or ``cell`` (a whole cell, alone), and ``plan`` (a
     :class:`~spherecal.plugins.SweepPlan`, the cell's own plan: ``spherecal_stations``
     and the harnesses plan with it, :func:`planned_stations`). A key that is none of these
-    is a TypeError naming it."""
+    is a TypeError naming it.
+
+    ``request``: the fixture request of an override of ``spherecal_cell``. The test's
+    parameter (``@pytest.mark.parametrize("spherecal_cell", [...], indirect=True)``), when
+    it has one, goes over ``param``: a mounting name sets ``mounting``, a dict's keys
+    replace ``param``'s, a whole cell is used as it is. An override that leaves the
+    request out and returns a cell of another mounting than the test's parameter fails
+    the test (:func:`check_cell_parameter`)."""
     import inspect
 
     import numpy as np
@@ -477,6 +487,9 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     from spherecal.motion.planning import SweepPlan
     from spherecal.sim import SimulatedCell, standard_cell
 
+    given = _test_parameter(request)
+    if given is not _NO_PARAMETER:
+        param = _merged(param, given, SimulatedCell)
     if isinstance(param, SimulatedCell):
         return param
     if not isinstance(param, dict):
@@ -509,6 +522,54 @@ def make_cell(param: Any = "eye_in_hand") -> "SimulatedCell":
     return _with_plan(cell, plan)
 
 
+_NO_PARAMETER = object()
+
+
+def _test_parameter(request) -> Any:
+    """The test's own ``spherecal_cell`` parameter, or :data:`_NO_PARAMETER`."""
+    callspec = getattr(getattr(request, "node", None), "callspec", None)
+    params = getattr(callspec, "params", {}) if callspec is not None else {}
+    return params.get("spherecal_cell", _NO_PARAMETER)
+
+
+def _merged(default: Any, given: Any, cell_class: type) -> Any:
+    """A test's parameter over an override's own cell parameters."""
+    if isinstance(given, cell_class) or isinstance(default, cell_class) or (isinstance(given, dict) and "cell" in given):
+        return given
+    base = dict(default) if isinstance(default, dict) else {"mounting": default}
+    return {**base, **(given if isinstance(given, dict) else {"mounting": given})}
+
+
+def _intended_mounting(given: Any) -> str | None:
+    if isinstance(given, str):
+        return given
+    if isinstance(given, dict):
+        cell = given.get("cell")
+        return given.get("mounting", getattr(cell, "mounting", None))
+    return getattr(given, "mounting", None)
+
+
+def check_cell_parameter(request, cell: "SimulatedCell") -> "SimulatedCell":
+    """``cell``, after checking it is of the mounting the test's ``spherecal_cell``
+    parameter asks for. An override of ``spherecal_cell`` that ignores its ``request``
+    would otherwise run every eye-to-hand case on its own eye-in-hand cell and pass: the
+    test fails instead, saying how to pass the parameter on (:func:`make_cell`)."""
+    given = _test_parameter(request)
+    if given is _NO_PARAMETER:
+        return cell
+    wanted = _intended_mounting(given)
+    have = getattr(cell, "mounting", None)
+    if wanted is not None and have is not None and wanted != have:
+        pytest.fail(
+            f"spherecal_cell: the test asks for an {wanted} cell ({given!r}) but the spherecal_cell fixture gave an "
+            f"{have} one: an override of spherecal_cell in a conftest.py ignores the test's parameter. Take "
+            "'request' in the override and pass it on: make_cell({...your cell's parameters...}, request) "
+            "(docs/plugins.md, 'Overriding a fixture')",
+            pytrace=False,
+        )
+    return cell
+
+
 def _with_plan(cell: "SimulatedCell", plan: "SweepPlan | None") -> "SimulatedCell":
     if plan is not None:
         _CELL_PLANS[cell] = plan
@@ -522,7 +583,15 @@ def spherecal_cell(request) -> "SimulatedCell":
     ``standard_cell`` arguments plus ``sphere_centre_mm``, ``true_transform`` and ``fov``
     (:func:`make_cell`). Override it in your own ``conftest.py`` for a cell of your own
     in every test (docs/plugins.md)."""
-    return make_cell(getattr(request, "param", "eye_in_hand"))
+    return make_cell("eye_in_hand", request)
+
+
+@pytest.fixture(autouse=True)
+def _spherecal_cell_parameter_honoured(request):
+    """Fails a test whose ``spherecal_cell`` parameter the fixture (an override of it)
+    did not honour (:func:`check_cell_parameter`); does nothing for other tests."""
+    if _test_parameter(request) is not _NO_PARAMETER and "spherecal_cell" in request.fixturenames:
+        check_cell_parameter(request, request.getfixturevalue("spherecal_cell"))
 
 
 @pytest.fixture

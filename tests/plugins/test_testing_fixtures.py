@@ -360,6 +360,89 @@ def test_my_cell(spherecal_cell, spherecal_stations, spherecal_context):
     assert run.returncode == 0 and "1 passed" in run.stdout, run.stdout + run.stderr
 
 
+def _run_pytest(folder) -> "subprocess.CompletedProcess":
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(folder)],
+                          capture_output=True, text=True, cwd=folder)
+
+
+#: A plugin's tests of both mountings, as docs/plugins.md parametrises them.
+BOTH_MOUNTINGS_TEST = '''
+import pytest
+
+
+@pytest.mark.parametrize("spherecal_cell", ["eye_in_hand", "eye_to_hand"], indirect=True)
+def test_mounting(spherecal_cell, spherecal_stations, spherecal_context, request):
+    assert spherecal_cell.mounting == request.node.callspec.params["spherecal_cell"]
+    assert spherecal_context.cell is spherecal_cell and len(spherecal_stations) == 4
+'''
+
+
+def _documented_override() -> str:
+    """The conftest.py of docs/plugins.md ("Overriding a fixture"), as written there, for
+    the built-in sensor type instead of the page's made-up one."""
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[2] / "docs" / "plugins.md").read_text()
+    start = page.index("# tests/conftest.py of your plugin")
+    code = page[start:page.index("```", start)]
+    assert "make_cell(" in code and "request" in code
+    return code.replace('"acme_profiler"', '"nxsensor_i"')
+
+
+@pytest.mark.slow
+def test_the_documented_override_runs_each_mounting_it_is_asked_for(tmp_path):
+    """The override of docs/plugins.md, copied from the page, with the documented
+    parametrisation over both mountings: each case gets a cell of its own mounting."""
+    (tmp_path / "conftest.py").write_text(_documented_override())
+    (tmp_path / "test_both.py").write_text(BOTH_MOUNTINGS_TEST)
+    run = _run_pytest(tmp_path)
+    assert run.returncode == 0 and "2 passed" in run.stdout, run.stdout + run.stderr
+
+
+@pytest.mark.slow
+def test_an_override_that_drops_the_mounting_fails_the_test_saying_so(tmp_path):
+    """An override that ignores the test's parameter would run the eye-to-hand case on
+    its own eye-in-hand cell and pass: that case fails at its set-up (an error), naming
+    the cause and the fix; the eye-in-hand case, which it does serve, passes."""
+    (tmp_path / "conftest.py").write_text('''
+import pytest
+from spherecal.plugins.testing import make_cell
+
+
+@pytest.fixture
+def spherecal_cell():
+    return make_cell({"mounting": "eye_in_hand", "seed": 4})
+''')
+    (tmp_path / "test_both.py").write_text(BOTH_MOUNTINGS_TEST)
+    run = _run_pytest(tmp_path)
+    assert run.returncode == 1 and "1 passed, 1 error" in run.stdout, run.stdout + run.stderr
+    assert "asks for an eye_to_hand cell" in run.stdout and "ignores the test's parameter" in run.stdout
+    assert "make_cell({...your cell's parameters...}, request)" in run.stdout
+
+
+def test_make_cell_puts_the_tests_parameter_over_the_overrides(spherecal_cell):
+    """make_cell(defaults, request): a mounting name replaces the mounting, a dict's keys
+    replace the defaults', the rest of the defaults stay."""
+    from types import SimpleNamespace
+
+    from spherecal.plugins.testing import make_cell
+
+    def request_with(param):
+        return SimpleNamespace(node=SimpleNamespace(callspec=SimpleNamespace(params={"spherecal_cell": param})))
+
+    defaults = {"mounting": "eye_in_hand", "seed": 7}
+    assert make_cell(defaults).mounting == "eye_in_hand"
+    cell = make_cell(defaults, request_with("eye_to_hand"))
+    assert (cell.mounting, cell.seed) == ("eye_to_hand", 7)
+    cell = make_cell(defaults, request_with({"seed": 9}))
+    assert (cell.mounting, cell.seed) == ("eye_in_hand", 9)
+    assert make_cell(defaults, request_with(spherecal_cell)) is spherecal_cell
+    assert make_cell(defaults, SimpleNamespace(node=SimpleNamespace())).seed == 7  # an unparametrised test
+
+
 #: A plan of a cell's own, unlike the default one: two stations of five shots, the second tilted 20 deg about x.
 OWN_PLAN_KW = {"profiles_per_station": 5, "tilts_deg": [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0)],
                "station_offsets_mm": [(0.0, 0.0), (4.0, -6.0)]}
