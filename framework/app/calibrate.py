@@ -10,8 +10,8 @@ from typing import Callable
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.outputs import JOURNAL_NAME, RESULT_NAME, check_output_folder, written_files
-from spherecal.app.plan_checks import (check_identification_from_here, check_plan, check_plan_solvable,
-                                       confirm_motion, plan_digest)
+from spherecal.app.plan_checks import (CALIBRATION_KEEP_OUT_FIX, check_identification_from_here, check_plan,
+                                       check_plan_solvable, confirm_motion, keep_out_for, plan_digest)
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.app.provenance import check_same_devices, traceability
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
@@ -25,6 +25,7 @@ from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import (Progress, SensorBlindError, acquire, acquire_manual, describe_plan,
                                          plan_targets)
 from spherecal.estimation.options import station_rotation_tolerance_deg
+from spherecal.motion.keep_out import KeepOut
 from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
@@ -43,6 +44,8 @@ class _Calibration:
     arm: object | None
     exports: ExportPlan
     log: Callable[[str], None]
+    #: the sensor's body against the sphere before any motion (None: no body, or nothing moves)
+    keep_out: KeepOut | None = None
 
     @property
     def cfg(self) -> RunConfig:
@@ -113,7 +116,11 @@ def _prepare(loaded: LoadedConfig, out: Path, log: Callable[[str], None]) -> _Ca
     fk = in_file(loaded, host.robot_kinematics, cfg.robot, base_dir=loaded.path.parent)
     arm = robot_arm(loaded, host)
     in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
-    return _Calibration(loaded, out, host, fov, fk, arm, export_plan(loaded, host, log), log)
+    keep_out = None
+    if cfg.replay is None and cfg.acquisition.mode != "manual":
+        keep_out = in_file(loaded, keep_out_for, cfg, host, cfg.nominal_transform.pose(), CALIBRATION_KEEP_OUT_FIX, log,
+                           fov)
+    return _Calibration(loaded, out, host, fov, fk, arm, export_plan(loaded, host, log), log, keep_out)
 
 
 def _replayed(run: _Calibration, path: Path, dry_run: bool) -> Dataset | None:
@@ -183,7 +190,8 @@ def _planned(run: _Calibration, manual: bool) -> _Plan:
         plan.targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
     log(f"plan: {len(plan.targets)} shots in {len(set(t.station for t in plan.targets))} stations")
     log(describe_plan(plan.targets))
-    check_plan(plan.targets, cfg.acquisition, "plan", setup=(cfg.mounting, cfg.nominal_transform))
+    check_plan(plan.targets, cfg.acquisition, "plan", setup=(cfg.mounting, cfg.nominal_transform),
+               keep_out=run.keep_out, log=log)
     check_plan_solvable(plan.targets)
     if cfg.calibration.identify_kinematics:
         plan.identification = check_plan_identifies_kinematics(
@@ -202,7 +210,7 @@ def _check_dry_run(run: _Calibration, plan: _Plan) -> None:
     cell = make_cell(run.cfg, run.arm, run.fov)
     with open_devices(run.loaded, run.host, cell, run.log) as (robot, _sensor):
         check_plan(plan.targets, run.cfg.acquisition, "plan", robot=robot,
-                   setup=(run.cfg.mounting, run.cfg.nominal_transform))
+                   setup=(run.cfg.mounting, run.cfg.nominal_transform), keep_out=run.keep_out, log=run.log)
         check_identification_from_here(robot, plan.targets, run.cfg, run.arm, plan.planned, run.log)
     run.log("plan checked against the robot's own limits too")
 
@@ -254,7 +262,7 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         if not plan.manual:
             check_plan(plan.targets, acq, "plan", robot=robot, done=resumed.done,
-                       setup=(cfg.mounting, cfg.nominal_transform))
+                       setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log)
             check_identification_from_here(robot, plan.targets, cfg, run.arm, plan.planned, log)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         if resumed.previous is not None:

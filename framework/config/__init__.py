@@ -35,6 +35,7 @@ _WHERE = {
     "ExportConfig": ".sections",
     "FieldOfViewOverride": ".sections",
     "FlatConfig": ".sections",
+    "KeepOutConfig": ".sections",
     "KinematicPlanSettings": ".sections",
     "MpeConfig": ".sections",
     "NoiseModel": ".sections",

@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from spherecal.core.field_of_view import SensorBody
 from spherecal.core.workspace import WorkspaceBox
 from spherecal.core.models import MountingMode, Pose, Vec3
 
@@ -621,6 +622,24 @@ class ReportConfig(_Section):
     )
 
 
+class KeepOutConfig(_Section):
+    """``[keep_out]``: the check, before any motion, that no planned pose or move brings the
+    sensor's body closer than ``clearance_mm`` to the reference sphere or what holds it
+    (:mod:`spherecal.core.keep_out`). The sphere is held by a rod of ``stand_radius_mm``:
+    eye-in-hand a vertical stand from its centre ``stand_length_mm`` down (base -z),
+    eye-to-hand the stem from its centre to the flange's origin."""
+
+    clearance_mm: float = Field(5.0, ge=0, le=1000, description="least gap allowed between the sensor's body and "
+                                "the sphere or its stand (stem), mm")
+    stand_radius_mm: float = Field(10.0, ge=0, le=1000, description="radius of the rod holding the sphere (the "
+                                   "stand eye-in-hand, the stem to the flange eye-to-hand), mm")
+    stand_length_mm: float = Field(300.0, ge=0, le=10_000, description="eye_in_hand: how far the stand reaches "
+                                   "down (base -z) from the sphere's centre, mm (0: no stand)")
+    sensor_body: SensorBody | None = Field(
+        None, description="the sensor's housing as a box in the sensor frame, min_mm and max_mm (x, y, z), mm "
+        "(default: the sensor type's declared body)")
+
+
 class RunConfig(_Section):
     """The root of a configuration file."""
 
@@ -640,6 +659,8 @@ class RunConfig(_Section):
     scan: ScanConfig | None = Field(None, description="settings of `spherecal scan`")
     export: ExportConfig = Field(default_factory=ExportConfig, description="exporters to run and their settings")
     report: ReportConfig = Field(default_factory=ReportConfig, description="operator, cell and report settings")
+    keep_out: KeepOutConfig = Field(default_factory=KeepOutConfig, description="the sensor's body against the "
+                                    "sphere and its stand, checked before any motion")
 
     @field_validator("robot", "sensor")
     @classmethod
