@@ -11,7 +11,7 @@ from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.outputs import JOURNAL_NAME, RESULT_NAME, check_output_folder, written_files
 from spherecal.app.plan_checks import (CALIBRATION_KEEP_OUT_FIX, check_identification_from_here, check_plan,
-                                       check_plan_solvable, confirm_motion, keep_out_for, plan_digest)
+                                       check_plan_solvable, confirm_motion, keep_out_for, plan_digest, step_prompt)
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.app.provenance import check_same_devices, traceability
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
@@ -86,11 +86,14 @@ def run_calibrate(
     force: bool = False,
     yes: bool = False,
     operator: str | None = None,
+    step: bool = False,
 ) -> Outcome:
     """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
     recorded dataset), solve, write the result, exports and report. A RED result's
     ``result.json`` and exports are written only with ``force`` (its report always).
-    ``operator`` (``--operator``) overrides the configuration's ``[report] operator``."""
+    ``operator`` (``--operator``) overrides the configuration's ``[report] operator``.
+    ``step``: ``ask`` before each station (:func:`~spherecal.app.plan_checks.step_prompt`);
+    an answer other than yes stops the run, the journal kept."""
     run = _prepare(loaded, Path(out_dir) if out_dir is not None else loaded.output_dir, log)
     outcome = Outcome()
     if resume and (run.out / RESULT_NAME).exists():
@@ -101,7 +104,7 @@ def run_calibrate(
         dataset = _replayed(run, source, dry_run)
     else:
         dataset = _acquired(run, outcome, dry_run=dry_run, resume=resume, manual=manual, yes=yes, ask=ask,
-                            progress_stream=progress_stream)
+                            progress_stream=progress_stream, step=step)
         source = outcome.files.get("journal")
     if dataset is None:  # a dry run
         return outcome
@@ -138,7 +141,7 @@ def _replayed(run: _Calibration, path: Path, dry_run: bool) -> Dataset | None:
 
 
 def _acquired(run: _Calibration, outcome: Outcome, *, dry_run: bool, resume: bool, manual: bool, yes: bool,
-              ask: Callable[[str], str], progress_stream) -> Dataset | None:
+              ask: Callable[[str], str], progress_stream, step: bool = False) -> Dataset | None:
     """The shots taken into the run's journal (continued with ``resume``); None on a dry
     run, which checks the plan against the configured limits and the robot's."""
     acq = run.cfg.acquisition
@@ -162,7 +165,8 @@ def _acquired(run: _Calibration, outcome: Outcome, *, dry_run: bool, resume: boo
     run.out.mkdir(parents=True, exist_ok=True)
     digest = "manual" if plan.manual else plan_digest(plan.targets)
     resumed = _resumed(journal, digest, run.log) if resume and journal.exists() else _Resumed()
-    rep = _take(run, plan, cell, journal, _journal_provenance(run, digest, cell), resumed, ask, progress_stream)
+    rep = _take(run, plan, cell, journal, _journal_provenance(run, digest, cell), resumed, ask, progress_stream,
+                step_prompt(ask) if step else None)
     outcome.notes.extend(rep.skipped)
     for s in rep.skipped:
         run.log(f"skipped {s}")
@@ -255,9 +259,10 @@ def _journal_provenance(run: _Calibration, digest: str, cell) -> dict:
 
 
 def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict, resumed: _Resumed,
-          ask: Callable[[str], str], progress_stream):
+          ask: Callable[[str], str], progress_stream, before_station=None):
     """The acquisition itself, into ``journal``: the devices opened, the plan checked
-    against the robot once more, the shots taken (or captured as the operator jogs)."""
+    against the robot once more, the shots taken (or captured as the operator jogs);
+    ``before_station``: the step mode's question before each station."""
     cfg, acq, log = run.cfg, run.cfg.acquisition, run.log
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         if not plan.manual:
@@ -281,7 +286,7 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
                 return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
                                Progress(len(plan.targets), progress_stream),
                                taken=resumed.previous.observations if resumed.done else (),
-                               min_points=cfg.calibration.min_points_per_profile)
+                               min_points=cfg.calibration.min_points_per_profile, before_station=before_station)
             except SensorBlindError as exc:
                 q = ", ".join(f"{v:g}" for v in cfg.nominal_transform.quaternion_wxyz)
                 raise SensorBlindError(f"{exc}. This configuration: mounting = \"{cfg.mounting}\", "

@@ -200,3 +200,28 @@ def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str]
     if answer.strip().lower() != "yes":
         raise MotionNotConfirmed(f"{command}: motion not confirmed (answer {answer.strip()[:20]!r}); nothing was moved")
 
+
+class StoppedAtStep(KeyboardInterrupt):
+    """The operator stopped the run at a step prompt (``--step``): an interruption like
+    Ctrl-C (exit 130), the journal keeps every shot taken, ``--resume`` continues."""
+
+
+def step_prompt(ask: Callable[[str], str]) -> Callable[[str, list], None]:
+    """Step mode: before each station, the station, its shots and where its first one is,
+    and a typed answer. ``y`` goes on; anything else (``n``, ``q``, an empty line, no
+    input) raises :class:`StoppedAtStep` before the station's first move."""
+
+    def before(station: str, targets: list) -> None:
+        x, y, z = targets[0].pose.translation_mm
+        prompt = (f"station {station}: {len(targets)} shot{'s' if len(targets) != 1 else ''} from flange "
+                  f"({x:.1f}, {y:.1f}, {z:.1f}) mm in base; go? [y/N/q] ")
+        try:
+            answer = ask(prompt)
+        except (EOFError, OSError):
+            answer = "(no input)"
+        if answer.strip().lower() in ("y", "yes"):
+            return
+        raise StoppedAtStep(f"stopped before station {station} (--step, answered {answer.strip()[:20]!r}); nothing "
+                            "more was moved")
+
+    return before
