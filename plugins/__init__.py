@@ -9,8 +9,8 @@ modules behind these names may move between releases, these names stay. What it 
   (:class:`DeviceRegistry`, :class:`ExporterRegistry`);
 - the devices' contract: :class:`Robot`, :class:`Sensor`, :class:`RobotType`,
   :class:`SensorType`, :class:`DeviceContext`, :class:`ControllerFrame`,
-  :func:`device_identity`, and the value objects :class:`SensorFieldOfView` and
-  :class:`WorkspaceBox`;
+  :func:`device_identity`, and the value objects :class:`SensorFieldOfView`,
+  :class:`SensorBody` and :class:`WorkspaceBox`;
 - robot safety whatever the protocol: :class:`MotionSafety` (speed at the tool point,
   workspace box, reach along the path, the first move from where the arm stands, the
   controller's frame), :class:`MotionLimits`, :class:`FrameOffset`;
@@ -70,6 +70,7 @@ _WHERE = {
     "Sensor": "spherecal.devices.contract",
     "SensorType": "spherecal.devices.contract",
     "device_identity": "spherecal.devices.contract",
+    "SensorBody": "spherecal.core.field_of_view",
     "SensorFieldOfView": "spherecal.core.field_of_view",
     "WorkspaceBox": "spherecal.core.workspace",
     # robot safety, whatever the protocol

@@ -13,7 +13,7 @@ from typing import Any, Literal, Mapping
 from pydantic import BaseModel
 
 from spherecal.core.errors import ConfigError, PluginError
-from spherecal.devices.contract import RESERVED_OPTION_NAMES, RobotType, SensorType
+from spherecal.devices.contract import RESERVED_OPTION_NAMES, RobotType, SensorBody, SensorType
 from spherecal.io.exporters import MOUNTINGS, TEMPLATE_FIELDS, Exporter
 
 __all__ = ["DISABLE_AUTOLOAD_ENV", "EXPORT_RUN_KEY", "TYPE_KEY", "DeviceKind", "DeviceRegistry", "ExporterRegistry"]
@@ -135,6 +135,10 @@ class DeviceRegistry:
             )
         if not callable(item.factory):
             raise PluginError(f"plugin '{plugin}': the factory of {kind} type '{name}' is not callable")
+        body = getattr(item, "body", None)
+        if body is not None and not isinstance(body, SensorBody):
+            raise PluginError(f"plugin '{plugin}': sensor type '{name}' has body {body!r}; expected a "
+                              "spherecal.plugins.SensorBody (a box in the sensor frame, mm) or None")
         option = getattr(item, "frame_option", None)
         if option is not None:
             if not isinstance(option, str) or not _FRAME_OPTION_RE.match(option):

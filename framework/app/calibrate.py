@@ -10,8 +10,8 @@ from typing import Callable
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.outputs import JOURNAL_NAME, RESULT_NAME, check_output_folder, written_files
-from spherecal.app.plan_checks import (check_identification_from_here, check_plan, check_plan_solvable,
-                                       confirm_motion, plan_digest)
+from spherecal.app.plan_checks import (CALIBRATION_KEEP_OUT_FIX, check_identification_from_here, check_plan,
+                                       check_plan_solvable, confirm_motion, keep_out_for, plan_digest, step_prompt)
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.app.provenance import check_same_devices, traceability
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
@@ -25,6 +25,7 @@ from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import (Progress, SensorBlindError, acquire, acquire_manual, describe_plan,
                                          plan_targets)
 from spherecal.estimation.options import station_rotation_tolerance_deg
+from spherecal.motion.keep_out import KeepOut
 from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics, plan_kinematic_stations, uses_planner
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
@@ -43,6 +44,8 @@ class _Calibration:
     arm: object | None
     exports: ExportPlan
     log: Callable[[str], None]
+    #: the sensor's body against the sphere before any motion (None: no body, or nothing moves)
+    keep_out: KeepOut | None = None
 
     @property
     def cfg(self) -> RunConfig:
@@ -83,11 +86,14 @@ def run_calibrate(
     force: bool = False,
     yes: bool = False,
     operator: str | None = None,
+    step: bool = False,
 ) -> Outcome:
     """``spherecal calibrate``: plan, check, acquire into the journal (or replay a
     recorded dataset), solve, write the result, exports and report. A RED result's
     ``result.json`` and exports are written only with ``force`` (its report always).
-    ``operator`` (``--operator``) overrides the configuration's ``[report] operator``."""
+    ``operator`` (``--operator``) overrides the configuration's ``[report] operator``.
+    ``step``: ``ask`` before each station (:func:`~spherecal.app.plan_checks.step_prompt`);
+    an answer other than yes stops the run, the journal kept."""
     run = _prepare(loaded, Path(out_dir) if out_dir is not None else loaded.output_dir, log)
     outcome = Outcome()
     if resume and (run.out / RESULT_NAME).exists():
@@ -98,7 +104,7 @@ def run_calibrate(
         dataset = _replayed(run, source, dry_run)
     else:
         dataset = _acquired(run, outcome, dry_run=dry_run, resume=resume, manual=manual, yes=yes, ask=ask,
-                            progress_stream=progress_stream)
+                            progress_stream=progress_stream, step=step)
         source = outcome.files.get("journal")
     if dataset is None:  # a dry run
         return outcome
@@ -113,7 +119,11 @@ def _prepare(loaded: LoadedConfig, out: Path, log: Callable[[str], None]) -> _Ca
     fk = in_file(loaded, host.robot_kinematics, cfg.robot, base_dir=loaded.path.parent)
     arm = robot_arm(loaded, host)
     in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
-    return _Calibration(loaded, out, host, fov, fk, arm, export_plan(loaded, host, log), log)
+    keep_out = None
+    if cfg.replay is None and cfg.acquisition.mode != "manual":
+        keep_out = in_file(loaded, keep_out_for, cfg, host, cfg.nominal_transform.pose(), CALIBRATION_KEEP_OUT_FIX, log,
+                           fov)
+    return _Calibration(loaded, out, host, fov, fk, arm, export_plan(loaded, host, log), log, keep_out)
 
 
 def _replayed(run: _Calibration, path: Path, dry_run: bool) -> Dataset | None:
@@ -131,7 +141,7 @@ def _replayed(run: _Calibration, path: Path, dry_run: bool) -> Dataset | None:
 
 
 def _acquired(run: _Calibration, outcome: Outcome, *, dry_run: bool, resume: bool, manual: bool, yes: bool,
-              ask: Callable[[str], str], progress_stream) -> Dataset | None:
+              ask: Callable[[str], str], progress_stream, step: bool = False) -> Dataset | None:
     """The shots taken into the run's journal (continued with ``resume``); None on a dry
     run, which checks the plan against the configured limits and the robot's."""
     acq = run.cfg.acquisition
@@ -155,7 +165,8 @@ def _acquired(run: _Calibration, outcome: Outcome, *, dry_run: bool, resume: boo
     run.out.mkdir(parents=True, exist_ok=True)
     digest = "manual" if plan.manual else plan_digest(plan.targets)
     resumed = _resumed(journal, digest, run.log) if resume and journal.exists() else _Resumed()
-    rep = _take(run, plan, cell, journal, _journal_provenance(run, digest, cell), resumed, ask, progress_stream)
+    rep = _take(run, plan, cell, journal, _journal_provenance(run, digest, cell), resumed, ask, progress_stream,
+                step_prompt(ask) if step else None)
     outcome.notes.extend(rep.skipped)
     for s in rep.skipped:
         run.log(f"skipped {s}")
@@ -183,7 +194,8 @@ def _planned(run: _Calibration, manual: bool) -> _Plan:
         plan.targets = plan_targets(cfg.acquisition, cfg.mounting, cfg.nominal_transform, cfg.sphere)
     log(f"plan: {len(plan.targets)} shots in {len(set(t.station for t in plan.targets))} stations")
     log(describe_plan(plan.targets))
-    check_plan(plan.targets, cfg.acquisition, "plan", setup=(cfg.mounting, cfg.nominal_transform))
+    check_plan(plan.targets, cfg.acquisition, "plan", setup=(cfg.mounting, cfg.nominal_transform),
+               keep_out=run.keep_out, log=log)
     check_plan_solvable(plan.targets)
     if cfg.calibration.identify_kinematics:
         plan.identification = check_plan_identifies_kinematics(
@@ -202,7 +214,7 @@ def _check_dry_run(run: _Calibration, plan: _Plan) -> None:
     cell = make_cell(run.cfg, run.arm, run.fov)
     with open_devices(run.loaded, run.host, cell, run.log) as (robot, _sensor):
         check_plan(plan.targets, run.cfg.acquisition, "plan", robot=robot,
-                   setup=(run.cfg.mounting, run.cfg.nominal_transform))
+                   setup=(run.cfg.mounting, run.cfg.nominal_transform), keep_out=run.keep_out, log=run.log)
         check_identification_from_here(robot, plan.targets, run.cfg, run.arm, plan.planned, run.log)
     run.log("plan checked against the robot's own limits too")
 
@@ -247,14 +259,15 @@ def _journal_provenance(run: _Calibration, digest: str, cell) -> dict:
 
 
 def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict, resumed: _Resumed,
-          ask: Callable[[str], str], progress_stream):
+          ask: Callable[[str], str], progress_stream, before_station=None):
     """The acquisition itself, into ``journal``: the devices opened, the plan checked
-    against the robot once more, the shots taken (or captured as the operator jogs)."""
+    against the robot once more, the shots taken (or captured as the operator jogs);
+    ``before_station``: the step mode's question before each station."""
     cfg, acq, log = run.cfg, run.cfg.acquisition, run.log
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         if not plan.manual:
             check_plan(plan.targets, acq, "plan", robot=robot, done=resumed.done,
-                       setup=(cfg.mounting, cfg.nominal_transform))
+                       setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log)
             check_identification_from_here(robot, plan.targets, cfg, run.arm, plan.planned, log)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         if resumed.previous is not None:
@@ -273,7 +286,7 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
                 return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
                                Progress(len(plan.targets), progress_stream),
                                taken=resumed.previous.observations if resumed.done else (),
-                               min_points=cfg.calibration.min_points_per_profile)
+                               min_points=cfg.calibration.min_points_per_profile, before_station=before_station)
             except SensorBlindError as exc:
                 q = ", ".join(f"{v:g}" for v in cfg.nominal_transform.quaternion_wxyz)
                 raise SensorBlindError(f"{exc}. This configuration: mounting = \"{cfg.mounting}\", "

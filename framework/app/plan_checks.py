@@ -9,8 +9,10 @@ from typing import Callable
 import numpy as np
 
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
+from spherecal.core.keep_out import KeepOutGeometry
 from spherecal.io.runlog import Notice
 from spherecal.motion.acquisition import check_first_move, check_targets
+from spherecal.motion.keep_out import KeepOut, check_keep_out, keep_out_message
 from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics
 
 
@@ -58,11 +60,16 @@ def mounting_hint(mounting, nominal, acq) -> str | None:
             f"transform as {'base_from_sensor' if other == 'eye_to_hand' else 'flange_from_sensor'})")
 
 
-def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset(), setup=None) -> None:
+def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset(), setup=None,
+               keep_out: KeepOut | None = None, log: Callable[[str], None] | None = None) -> None:
     """Raise before any motion when a target breaks the configured limits (or, with
     ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
     stands to the first target not in ``done``, breaks either). ``setup``: (mounting,
-    nominal transform), to name a likely wrong mounting once, before the list."""
+    nominal transform), to name a likely wrong mounting once, before the list.
+    ``keep_out``: then the targets not in ``done`` and the moves between them (with
+    ``robot``, the first move from where the arm stands too) keep the sensor's body away
+    from the sphere and its stand, else InputError naming each target or move, the gap
+    found and what to change; ``log`` hears the closest approach when they do."""
     problems = check_targets(targets, acq, robot)
     todo = [t for t in targets if t.index not in done]
     if robot is not None and todo:
@@ -72,6 +79,64 @@ def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = fr
         hint = mounting_hint(setup[0], setup[1], acq) if setup is not None else None
         head = f"the {what} breaks {limits}; nothing was moved"
         raise InputError(head + (f". {hint}" if hint else "") + ":\n  " + "\n  ".join(problems))
+    if keep_out is not None and todo:
+        start = robot.read_flange_pose() if robot is not None else None
+        finding = check_keep_out(todo, keep_out, start)
+        if finding.problems:
+            raise InputError(keep_out_message(what, finding, keep_out))
+        if log is not None:
+            log(finding.summary(keep_out))
+
+
+#: What to change when a calibration plan comes too near the sphere: at a target, and on a
+#: move between targets.
+CALIBRATION_KEEP_OUT_FIX = (
+    "put the sphere farther from the sensor (a lower acquisition.sweep.standoff_z_mm: the sensor's z points towards "
+    "the sensor; or lower z in station_offsets_mm), and check [nominal_transform] and acquisition.sphere_centre_mm",
+    "smaller tilts between consecutive stations or another order of them (acquisition.sweep.tilts_deg; with the "
+    "kinematic planner a lower [acquisition.kinematic_plan] max_tilt_deg)")
+
+#: ... of a validation plan.
+VALIDATION_KEEP_OUT_FIX = (
+    "put that site farther from the sensor (a lower z in its offset_mm, [validation] sphere_positions, "
+    "ball_bar.positions, flat.positions), or the artefact away from the sphere",
+    "other tilts of consecutive sites (their tilt_deg), or the artefacts away from the sphere")
+#: ... of a scan plan.
+SCAN_KEEP_OUT_FIX = (
+    "a lower scan.standoff_z_mm (the object farther from the sensor), or scan.object_centre_mm away from the sphere",
+    "scan.object_centre_mm away from the sphere, or another scan.site")
+
+
+def keep_out_for(cfg, host, transform, fixes: tuple[str, str], log: Callable[[str], None],
+                 field_of_view=None) -> KeepOut | None:
+    """The run's keep-out check: the sensor's body (``[keep_out.sensor_body]``, else the
+    sensor type's declared one) at ``transform`` (the sensor's pose the plan was made
+    with: the nominal one, or the calibration's) against the sphere at
+    ``acquisition.sphere_centre_mm`` with its stand, as ``[keep_out]`` says; ``fixes``:
+    what to change at a target and on a move. None, said as a warning, when there is no
+    body to check; None without ``[acquisition]`` (no sphere position). ConfigError when
+    the body reaches into the sensor's own measuring range (``field_of_view``)."""
+    ko, acq = cfg.keep_out, cfg.acquisition
+    if acq is None:
+        return None
+    sensor_type = cfg.sensor["type"]
+    if ko.sensor_body is not None:
+        body, source = ko.sensor_body, "[keep_out.sensor_body]"
+    else:
+        body, source = host.registry.sensor_type(sensor_type).body, f"declared by sensor type {sensor_type!r}"
+    if body is None:
+        log(Notice(f"warning: sensor type {sensor_type!r} declares no body and [keep_out.sensor_body] is not given: "
+                   "the sensor's body is not checked against the sphere and its stand before motion; give the "
+                   "housing's box in the sensor frame (docs/configuration.md, [keep_out])"))
+        return None
+    if field_of_view is not None and body.overlap_with_range(field_of_view):
+        raise ConfigError(f"{source}: the box {list(body.min_mm)}..{list(body.max_mm)} mm reaches into the sensor's "
+                          f"own measuring range (z {field_of_view.z_far_mm:g}..{field_of_view.z_near_mm:g} mm on the "
+                          "laser plane x = 0): the sensor looks towards -z, so its housing lies at z above "
+                          f"z_near_mm = {field_of_view.z_near_mm:g}")
+    geometry = KeepOutGeometry(cfg.mounting, transform, body, tuple(acq.sphere_centre_mm), cfg.sphere.radius_mm,
+                               ko.stand_radius_mm, ko.stand_length_mm)
+    return KeepOut(geometry, ko.clearance_mm, source, *fixes)
 
 
 def check_identification_from_here(robot, targets, cfg, arm, planned, log: Callable[[str], None]) -> None:
@@ -134,3 +199,29 @@ def confirm_motion(command: str, plan: str, yes: bool, ask: Callable[[str], str]
                                  "terminal and type 'yes', or give --yes; nothing was moved") from None
     if answer.strip().lower() != "yes":
         raise MotionNotConfirmed(f"{command}: motion not confirmed (answer {answer.strip()[:20]!r}); nothing was moved")
+
+
+class StoppedAtStep(KeyboardInterrupt):
+    """The operator stopped the run at a step prompt (``--step``): an interruption like
+    Ctrl-C (exit 130), the journal keeps every shot taken, ``--resume`` continues."""
+
+
+def step_prompt(ask: Callable[[str], str]) -> Callable[[str, list], None]:
+    """Step mode: before each station, the station, its shots and where its first one is,
+    and a typed answer. ``y`` goes on; anything else (``n``, ``q``, an empty line, no
+    input) raises :class:`StoppedAtStep` before the station's first move."""
+
+    def before(station: str, targets: list) -> None:
+        x, y, z = targets[0].pose.translation_mm
+        prompt = (f"station {station}: {len(targets)} shot{'s' if len(targets) != 1 else ''} from flange "
+                  f"({x:.1f}, {y:.1f}, {z:.1f}) mm in base; go? [y/N/q] ")
+        try:
+            answer = ask(prompt)
+        except (EOFError, OSError):
+            answer = "(no input)"
+        if answer.strip().lower() in ("y", "yes"):
+            return
+        raise StoppedAtStep(f"stopped before station {station} (--step, answered {answer.strip()[:20]!r}); nothing "
+                            "more was moved")
+
+    return before

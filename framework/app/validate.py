@@ -14,8 +14,8 @@ import numpy as np
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup
-from spherecal.app.plan_checks import check_plan, confirm_motion
-from spherecal.app.plugin_host import export_plan, open_devices, robot_arm
+from spherecal.app.plan_checks import VALIDATION_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
+from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.app.provenance import sha256_of
 from spherecal.app.solving import calibration_options
 from spherecal.config import LoadedConfig
@@ -55,7 +55,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     sweeps = plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, X, cfg.sphere, fov, cfg.sensor["type"])
     targets = [t for s in sweeps for t in s.targets]
     log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
-    check_plan(targets, cfg.acquisition, "validation plan")
+    keep_out = in_file(loaded, keep_out_for, cfg, host, X, VALIDATION_KEEP_OUT_FIX, log, fov)
+    check_plan(targets, cfg.acquisition, "validation plan", keep_out=keep_out, log=log)
     exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
     cell = make_cell(cfg, robot_arm(loaded, host), fov)
     if cell is None:
@@ -65,7 +66,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     stamp = started.strftime("%Y%m%dT%H%M%S%fZ")
     journal = out / f"validation-{stamp}.jsonl"  # one journal per validation run; none is overwritten
     with open_devices(loaded, host, cell, log) as (robot, sensor):
-        check_plan(targets, cfg.acquisition, "validation plan", robot=robot)
+        check_plan(targets, cfg.acquisition, "validation plan", robot=robot, keep_out=keep_out, log=log)
         with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                                   provenance={"source": "spherecal validate", "result": source,
                                               "transform": X.model_dump()},

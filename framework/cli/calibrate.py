@@ -4,15 +4,17 @@ result, its verdict and what to do next."""
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 from shlex import quote
 
 from spherecal.app.calibrate import run_calibrate
-from spherecal.app.outputs import journal_holds_shots
+from spherecal.app.outputs import JOURNAL_NAME, journal_holds_shots
 from spherecal.cli.finish import finish
 from spherecal.cli.output import EXIT_OK, result_json
 from spherecal.cli.session import Session, ask
 from spherecal.config import load_config
+from spherecal.core.errors import ConfigError
 from spherecal.io.runlog import progress_log
 from spherecal.report.terminal import summary, truth_check
 
@@ -20,6 +22,8 @@ _log = logging.getLogger("spherecal.cli")
 
 
 def run(args, session: Session) -> int:
+    if args.step:
+        check_step_mode(args)
     loaded = load_config(args.config)
     out = Path(args.out) if args.out else loaded.output_dir
     session.run_folder(out)
@@ -30,7 +34,7 @@ def run(args, session: Session) -> int:
         loaded, dry_run=args.dry_run, resume=args.resume, manual=args.manual,
         out_dir=Path(args.out) if args.out else None, log=progress_log("run"),
         progress_stream=session.progress_stream(), report=not args.no_report, force=args.force, yes=args.yes,
-        ask=ask, operator=args.operator,
+        ask=ask, operator=args.operator, step=args.step,
     )
     if outcome.finished:
         session.say(f"{out} holds a finished run ({out / 'result.json'}): nothing to resume; its result, exports "
@@ -52,9 +56,28 @@ def run(args, session: Session) -> int:
                   "--resume --force" if outcome.files.get("journal") else "--force", report=not args.no_report)
 
 
+def check_step_mode(args) -> None:
+    """``--step`` asks before each station: a ConfigError before anything else when no one
+    can answer (standard input is not a terminal) or there are no stations (``--manual``)."""
+    if args.manual:
+        raise ConfigError("--step asks before each planned station; --manual has no plan (the operator jogs): give "
+                          "one of the two")
+    try:
+        interactive = sys.stdin is not None and sys.stdin.isatty()
+    except (ValueError, OSError):  # closed
+        interactive = False
+    if not interactive:
+        raise ConfigError("--step asks before each station and needs a terminal on standard input to answer at; "
+                          "standard input is not one (a pipe, a file, a script): run it at a terminal, or leave out "
+                          "--step; nothing was opened or moved")
+
+
 def after_failure(session: Session) -> str:
     """What to do after a calibration stopped half-way."""
     if not journal_holds_shots(session.out_dir):
+        if session.out_dir is not None and (session.out_dir / JOURNAL_NAME).is_file() and session.resume_command:
+            # the journal holds the plan only (stopped before the first shot): a new run there would be refused
+            return f"; no shot was taken yet; start again with {session.resume_command}"
         return "; no shot was taken yet: nothing to resume, run the same command again"
     return (f"; what was taken is in the journal ({session.out_dir / 'journal.jsonl'}): continue with "
             f"{session.resume_command or '--resume'}")

@@ -107,8 +107,8 @@ def _run(args, session: Session) -> int:
         return command.run(args, session)
     except BrokenPipeError:
         raise
-    except KeyboardInterrupt:
-        session.err("interrupted" + _after_failure(command, session))
+    except KeyboardInterrupt as exc:  # Ctrl-C, or the operator's stop at a --step prompt (which says so)
+        session.err((str(exc) or "interrupted") + _after_failure(command, session))
         return EXIT_INTERRUPTED
     except ConfigError as exc:
         session.err(str(exc))

@@ -39,7 +39,8 @@ Exit codes (scripts may rely on them; docs/cli.md):
   7  the result is RED (do not use it): the verdict says why; result.json and the exports
      are written only with --force (the report always)
   8  compare --fail-on-drift: drift found (a difference beyond a threshold and significant)
-  130 interrupted (Ctrl-C); what was taken is kept (calibrate: continue with --resume)
+  130 interrupted (Ctrl-C, or stopped at a --step question); what was taken is kept (calibrate:
+      continue with --resume)
   141 standard output closed early by its reader (`spherecal plugins | head`): the rest is
       dropped, no error is printed (128 + SIGPIPE, as a shell reports such a program)
 """

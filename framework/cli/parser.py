@@ -168,6 +168,9 @@ def _calibrate(sub, common, as_json) -> None:
     c.add_argument("--operator", metavar="NAME", help="who runs the calibration, for the report and the result "
                    "(default: [report] operator of the configuration)")
     c.add_argument("--yes", action="store_true", help=YES_HELP)
+    c.add_argument("--step", action="store_true", help="ask before each station ('station S2: 10 shots from flange "
+                   "(x, y, z) mm in base; go? [y/N/q]'): y goes, anything else stops with the journal kept and the "
+                   "resume command printed; needs a terminal on standard input")
 
 
 def _solve(sub, common, as_json) -> None:

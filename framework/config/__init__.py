@@ -37,6 +37,7 @@ _WHERE = {
     "ExportConfig": ".sections",
     "FieldOfViewOverride": ".sections",
     "FlatConfig": ".sections",
+    "KeepOutConfig": ".sections",
     "KinematicPlanSettings": ".sections",
     "MpeConfig": ".sections",
     "NoiseModel": ".sections",

@@ -18,6 +18,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validat
 from spherecal.config.base import BASE_DIR_CONTEXT_KEY, CHI2_3DOF_1E4, POINT_DISTANCE_MM, Section  # noqa: F401
 from spherecal.config.calibration import CalibrationOptions
 from spherecal.config.report import ReportConfig
+from spherecal.core.field_of_view import SensorBody
 from spherecal.core.models import MountingMode, Pose, Vec3
 from spherecal.core.workspace import WorkspaceBox
 
@@ -530,6 +531,24 @@ class ExportConfig(BaseModel):
         return self
 
 
+class KeepOutConfig(Section):
+    """``[keep_out]``: the check, before any motion, that no planned pose or move brings the
+    sensor's body closer than ``clearance_mm`` to the reference sphere or what holds it
+    (:mod:`spherecal.core.keep_out`). The sphere is held by a rod of ``stand_radius_mm``:
+    eye-in-hand a vertical stand from its centre ``stand_length_mm`` down (base -z),
+    eye-to-hand the stem from its centre to the flange's origin."""
+
+    clearance_mm: float = Field(5.0, ge=0, le=1000, description="least gap allowed between the sensor's body and "
+                                "the sphere or its stand (stem), mm")
+    stand_radius_mm: float = Field(10.0, ge=0, le=1000, description="radius of the rod holding the sphere (the "
+                                   "stand eye-in-hand, the stem to the flange eye-to-hand), mm")
+    stand_length_mm: float = Field(300.0, ge=0, le=10_000, description="eye_in_hand: how far the stand reaches "
+                                   "down (base -z) from the sphere's centre, mm (0: no stand)")
+    sensor_body: SensorBody | None = Field(
+        None, description="the sensor's housing as a box in the sensor frame, min_mm and max_mm (x, y, z), mm "
+        "(default: the sensor type's declared body)")
+
+
 class RunConfig(Section):
     """The root of a configuration file."""
 
@@ -549,6 +568,8 @@ class RunConfig(Section):
     scan: ScanConfig | None = Field(None, description="settings of `spherecal scan`")
     export: ExportConfig = Field(default_factory=ExportConfig, description="exporters to run and their settings")
     report: ReportConfig = Field(default_factory=ReportConfig, description="operator, cell and report settings")
+    keep_out: KeepOutConfig = Field(default_factory=KeepOutConfig, description="the sensor's body against the "
+                                    "sphere and its stand, checked before any motion")
 
     @field_validator("robot", "sensor")
     @classmethod

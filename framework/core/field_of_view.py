@@ -66,3 +66,35 @@ class SensorFieldOfView(BaseModel):
     def half_angle_rad(self) -> float:
         slope = (self.width_far_mm - self.width_near_mm) / 2 / (self.z_near_mm - self.z_far_mm)
         return float(np.arctan(slope))
+
+
+class SensorBody(BaseModel):
+    """The sensor's housing as a box in its own frame (mm), for the keep-out check before
+    motion (:mod:`spherecal.core.keep_out`): no planned pose or move may bring it closer
+    than a clearance to the reference sphere or what holds it. A box that holds the whole
+    housing (window, connectors, cable gland, bracket if it moves with the sensor) errs
+    on the safe side.
+
+    A sensor type declares its own (``SensorType.body``, :mod:`spherecal.plugins`); a
+    configuration's ``[keep_out.sensor_body]`` replaces it. The sensor looks towards -z,
+    so a housing lies at z above the near end of the measuring range."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+    min_mm: tuple[float, float, float] = Field(description="lower corner (x, y, z), sensor frame, mm")
+    max_mm: tuple[float, float, float] = Field(description="upper corner (x, y, z), sensor frame, mm")
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        for axis, lo, hi in zip("xyz", self.min_mm, self.max_mm):
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"min_mm {axis} = {lo} must be below max_mm {axis} = {hi} (finite, mm)")
+        return self
+
+    def overlap_with_range(self, fov: SensorFieldOfView) -> bool:
+        """Whether the box reaches into the measuring range of ``fov`` (the laser plane x =
+        0 between its far and near ends, within the line's width): a housing there would
+        be in its own view, which is a box given with the wrong sign of z."""
+        (x0, y0, z0), (x1, y1, z1) = self.min_mm, self.max_mm
+        half = max(fov.width_near_mm, fov.width_far_mm) / 2
+        return x0 < 0 < x1 and z0 < fov.z_near_mm and z1 > fov.z_far_mm and y0 < half and y1 > -half

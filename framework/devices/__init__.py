@@ -10,10 +10,11 @@ from spherecal.devices.contract import (
     Robot,
     RobotType,
     Sensor,
+    SensorBody,
     SensorFieldOfView,
     SensorType,
     device_identity,
 )
 
 __all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "Robot", "RobotType",
-           "Sensor", "SensorFieldOfView", "SensorType", "device_identity"]
+           "Sensor", "SensorBody", "SensorFieldOfView", "SensorType", "device_identity"]

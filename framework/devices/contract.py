@@ -4,8 +4,8 @@ The core talks to devices only through these interfaces; it never imports a plug
 A plugin registers a :class:`RobotType` or :class:`SensorType` (a name, a pydantic
 configuration model and a factory) through the ``spherecal_register_devices`` hook, one
 of the hooks in :mod:`spherecal.plugins.hookspecs`. Plugins import these names from
-:mod:`spherecal.plugins`; :class:`SensorFieldOfView` is a value object of
-:mod:`spherecal.core.field_of_view`, re-exported here.
+:mod:`spherecal.plugins`; :class:`SensorFieldOfView` and :class:`SensorBody` are value
+objects of :mod:`spherecal.core.field_of_view`, re-exported here.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 import numpy as np
 from pydantic import BaseModel
 
-from spherecal.core.field_of_view import SensorFieldOfView
+from spherecal.core.field_of_view import SensorBody, SensorFieldOfView
 from spherecal.core.models import Pose, Profile
 from spherecal.io.runlog import progress_log
 
@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.kinematics import ArmKinematics
 
 __all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "Robot", "RobotType",
-           "Sensor", "SensorFieldOfView", "SensorType", "device_identity"]
+           "Sensor", "SensorBody", "SensorFieldOfView", "SensorType", "device_identity"]
 
 _LOG = progress_log("devices")  # the default ``log``: logger spherecal.devices
 
@@ -142,13 +142,18 @@ class SensorType:
     """A kind of sensor a plugin provides; ``factory(config, context)`` returns a
     connected :class:`Sensor`. ``field_of_view`` is the sensor's
     :class:`SensorFieldOfView` (None: not declared; a simulated run must then give all of
-    it in ``[simulation.fov]`` and a calibration ``[acquisition.sweep] standoff_z_mm``)."""
+    it in ``[simulation.fov]`` and a calibration ``[acquisition.sweep] standoff_z_mm``).
+    ``body`` is the sensor's housing as a box in its frame, :class:`SensorBody`, which the
+    keep-out check before motion holds away from the sphere and its stand (None: not
+    declared; the configuration's ``[keep_out.sensor_body]`` gives it, else the check is
+    not made and the run says so)."""
 
     name: str
     config_model: type[BaseModel]
     factory: Callable[[BaseModel, DeviceContext], Sensor]
     description: str = ""
     field_of_view: SensorFieldOfView | None = None
+    body: SensorBody | None = None
 
 
 @dataclass(frozen=True)

@@ -160,6 +160,13 @@ class Progress:
             self.stream.write(text + "\n")
         self.stream.flush()
 
+    def end_line(self) -> None:
+        """End the bar's line on a terminal (before a question), so that the question
+        starts a line of its own."""
+        if self.tty and 0 < self.done < self.total:
+            self.stream.write("\n")
+            self.stream.flush()
+
 
 @dataclass
 class AcquisitionReport:
@@ -266,9 +273,13 @@ def acquire(
     progress: Progress | None = None,
     taken: Sequence[Observation] = (),
     min_points: int = 20,
+    before_station: Callable[[str, list[Target]], None] | None = None,
 ) -> AcquisitionReport:
     """Take every target not in ``done_targets``; each observation goes to the journal
-    (flushed, fsync'ed by the writer) before the next move. ``taken``: the journal's
+    (flushed, fsync'ed by the writer) before the next move. ``before_station(station,
+    targets)`` is called before the first move to each station with the station's targets
+    still to take (step mode: it may ask the operator, and stop the run by raising; the
+    journal keeps what was taken). ``taken``: the journal's
     observations of a resumed run. A shot whose joints show the arm in another
     configuration than the station's shot before it (:func:`configuration_change`; on a
     resume the arm comes from elsewhere and may take the other wrist solution) is kept
@@ -281,7 +292,11 @@ def acquire(
     progress = progress or Progress(len(targets))
     progress.update(len(targets) - len(todo), "resumed" if done_targets else "")
     station_joints = {o.station: o.joints_deg for o in taken if o.joints_deg is not None}
-    for n, t in enumerate(todo, start=len(targets) - len(todo) + 1):
+    for k, t in enumerate(todo):
+        n = len(targets) - len(todo) + 1 + k
+        if before_station is not None and (k == 0 or todo[k - 1].station != t.station):
+            progress.end_line()
+            before_station(t.station, [u for u in todo[k:] if u.station == t.station])
         pose, joints, profile, retakes = move_and_shoot(robot, sensor, t, acq, log)
         before = station_joints.get(t.station)
         if joints is not None and before is not None and (change := configuration_change(joints, before)):

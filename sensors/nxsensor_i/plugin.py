@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib.util
 from typing import TYPE_CHECKING
 
-from spherecal.plugins import DeviceContext, DeviceError, SensorFieldOfView, SensorType, hookimpl
+from spherecal.plugins import DeviceContext, DeviceError, SensorBody, SensorFieldOfView, SensorType, hookimpl
 
 from .config import NxSensorConfig
 
@@ -33,6 +33,15 @@ NAME = "nxsensor_i"
 #: (radius 19.1 mm) and the sweep's wander stay inside the range at every station offset.
 FIELD_OF_VIEW = SensorFieldOfView(z_near_mm=40.0, z_far_mm=-60.0, width_near_mm=28.0, width_far_mm=48.0,
                                   standoff_z_mm=-20.0)
+
+#: The nxSensor-I's housing as a box in the sensor frame, for the keep-out check before
+#: motion. An ASSUMPTION: NextWare's data give no dimensions (docs/sensor-nxsensor-i.md).
+#: Assumed: about 130 x 70 x 85 mm, its camera beside the laser along x (the laser
+#: plane's normal), x -100..+30 and y -35..+35, and its window 40 mm above the near end of
+#: the range (z +80..+165): profilers of this class leave several centimetres between
+#: window and range, and the lower end errs on the safe side. Measure the real unit and
+#: give its box in [keep_out.sensor_body].
+BODY = SensorBody(min_mm=(-100.0, -35.0, 80.0), max_mm=(30.0, 35.0, 165.0))
 
 
 def create_sensor(config: NxSensorConfig, context: DeviceContext) -> NxSensorDriver:
@@ -64,5 +73,6 @@ def spherecal_register_devices(registry):
             description="NextWare nxSensor-I laser line sensor over USB (pyusb); z -60 .. +40 mm, 5 um "
             "resolution. The USB wire format is an assumption held in sensor.wire.",
             field_of_view=FIELD_OF_VIEW,
+            body=BODY,
         )
     )

@@ -207,9 +207,11 @@ def test_missing_configuration_file(tmp_path, capsys):
     assert "nope.toml: cannot read the configuration" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("fail_at, resume_advised", [(1, False), (4, True)], ids=["first-shot", "fourth-shot"])
-def test_a_device_failure_advises_resume_only_when_shots_were_taken(sim_config, monkeypatch, capsys,
-                                                                    fail_at, resume_advised):
+@pytest.mark.parametrize("fail_at, shots_taken", [(1, False), (4, True)], ids=["first-shot", "fourth-shot"])
+def test_a_device_failure_prints_the_command_that_goes_on(sim_config, monkeypatch, capsys, fail_at, shots_taken):
+    """A failure mid-acquisition names the command that continues the run; before the
+    first shot too, where the journal holds the plan only (the same command again would be
+    refused: the journal is never overwritten), and that command, run as printed, ends it."""
     import spherecal.motion.acquisition as acq
     from spherecal.core.errors import DeviceError
 
@@ -229,12 +231,11 @@ def test_a_device_failure_advises_resume_only_when_shots_were_taken(sim_config, 
     assert "no frame within 1 s" in err
     out = cfg.parent / "out"
     resume = f"spherecal calibrate {cfg} --out {out} --resume"
-    assert (f"continue with {resume}" in err) == resume_advised, err
-    assert ("no shot was taken yet: nothing to resume, run the same command again" in err) == (not resume_advised)
-    if resume_advised:
-        assert len(dataio.read_dataset(out / "journal.jsonl").observations) == fail_at - 1
-        # the command printed, run as it is, continues the same run to its end
-        monkeypatch.setattr(acq, "take_shot", real)
-        assert main([*resume.split()[1:], "--no-report"]) == EXIT_OK
-        assert (out / "result.json").exists()
-        assert len(dataio.read_dataset(out / "journal.jsonl").observations) == 40
+    assert (f"continue with {resume}" in err) == shots_taken, err
+    assert (f"no shot was taken yet; start again with {resume}" in err) == (not shots_taken), err
+    assert len(dataio.read_dataset(out / "journal.jsonl").observations) == fail_at - 1
+    # the command printed, run as it is, continues the same run to its end
+    monkeypatch.setattr(acq, "take_shot", real)
+    assert main([*resume.split()[1:], "--no-report"]) == EXIT_OK
+    assert (out / "result.json").exists()
+    assert len(dataio.read_dataset(out / "journal.jsonl").observations) == 40

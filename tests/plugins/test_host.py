@@ -211,6 +211,21 @@ def test_bad_device_types_are_refused(robot_type, message):
         PluginHost(plugins=[("p", plugin)], load_entry_points=False)
 
 
+def test_a_sensor_body_that_is_not_a_sensor_body_is_refused():
+    """The keep-out check reads ``SensorType.body`` as a box: a tuple in its place is
+    refused when the plugin registers, not found when a run starts."""
+    from spherecal.devices.contract import SensorType
+
+    def spherecal_register_devices(registry):
+        registry.add_sensor(SensorType(name="boxy", config_model=ToyRobotConfig, factory=print,
+                                       body=((-10, -10, 50), (10, 10, 90))))
+
+    plugin = make_plugin("p", spherecal_register_devices=spherecal_register_devices)
+    with pytest.raises(PluginError, match=r"plugin 'p': sensor type 'boxy' has body \(\(-10, -10, 50\), .*; expected a "
+                                          r"spherecal\.plugins\.SensorBody \(a box in the sensor frame, mm\) or None"):
+        PluginHost(plugins=[("p", plugin)], load_entry_points=False)
+
+
 # --- lifecycle hooks -------------------------------------------------------------------------
 def _observation() -> Observation:
     return Observation(index=0, station="S1", base_from_flange=Pose.identity(),

@@ -18,6 +18,14 @@ def test_registered_through_the_entry_point(spherecal_host):
     assert "assumption" in st.description
 
 
+def test_it_declares_a_housing_clear_of_its_measuring_range(spherecal_host):
+    """The assumed housing (docs/sensor-nxsensor-i.md) lies above the near end of the range,
+    where the keep-out check holds it away from the sphere."""
+    st = spherecal_host.registry.sensor_type("nxsensor_i")
+    assert st.body.min_mm == (-100.0, -35.0, 80.0) and st.body.max_mm == (30.0, 35.0, 165.0)
+    assert st.body.min_mm[2] > st.field_of_view.z_near_mm and not st.body.overlap_with_range(st.field_of_view)
+
+
 def test_simulated_sensor_passes_the_sensor_harness(spherecal_host, spherecal_context, spherecal_sensor_harness):
     sensor = spherecal_host.create_sensor({"type": "nxsensor_i", "timeout_ms": 50}, spherecal_context)
     assert isinstance(sensor, NxSensorDriver)
