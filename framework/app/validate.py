@@ -13,7 +13,7 @@ import numpy as np
 
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
-from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup
+from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup, calibrated_urdf_in
 from spherecal.app.plan_checks import check_plan, confirm_motion
 from spherecal.app.plugin_host import export_plan, open_devices, robot_arm
 from spherecal.app.provenance import sha256_of
@@ -131,7 +131,7 @@ def _update_report(loaded: LoadedConfig, host, outcome, result, result_path: Pat
         solution = replace(solution, result=result)
         write_report(solution, out, validation=outcome.table(), validation_positions=position_rows(outcome),
                      verdict_override=outcome.verdict, notes=exports.notes(solution.result),
-                     point_distance_mm=cfg.report.point_distance_mm)
+                     point_distance_mm=cfg.report.point_distance_mm, calibrated_urdf=calibrated_urdf_in(out))
     else:
         log(f"report.html not updated: {not_the_calibration(result, result_path, calib_journal, loaded)}")
 

@@ -7,6 +7,7 @@ model, then the calibrated model where alone its accuracy holds."""
 
 from __future__ import annotations
 
+import html
 import re
 
 import pytest
@@ -24,8 +25,9 @@ DETAILS = ("sensor_from_flange", "expanded U (k = 2)", "std relative to the robo
 ESTIMATOR = ("likelihood ratio", "marginalised", "prior spread")
 
 
-def _solve(capsys, dataset, out, *extra):
-    assert main(["solve", str(dataset), "--out", str(out), "--robot", "abb_irb2400", "--no-report", *extra]) == EXIT_OK
+def _solve(capsys, dataset, out, *extra, report=False):
+    argv = ["solve", str(dataset), "--out", str(out), "--robot", "abb_irb2400", *extra]
+    assert main(argv + ([] if report else ["--no-report"])) == EXIT_OK
     return capsys.readouterr().out
 
 
@@ -87,13 +89,14 @@ def test_the_summary_leads_with_the_point_error_and_leaves_the_tables_to_v(arm_e
 def test_a_kinematic_calibration_leads_with_the_controller_s_nominal_model(tmp_path, capsys):
     """The nominal arm model's figure first (the exported transform without the calibrated
     model), then the calibrated model's, saying that its accuracy holds only through it;
-    -v lists the identified parameters with their 1-sigma."""
+    -v lists the identified parameters with their 1-sigma. The report links the calibrated
+    URDF written beside it."""
     config = example_config(tmp_path, "sim-kinematic-eye-in-hand.toml",
                             **{r"^profiles_per_station = 8$": "profiles_per_station = 4"})
     data = tmp_path / "kinematic.jsonl"
     assert main(["simulate", str(data), "--config", str(config)]) == EXIT_OK
     capsys.readouterr()
-    printed = _solve(capsys, data, tmp_path / "k", "--identify-kinematics", "-v")
+    printed = _solve(capsys, data, tmp_path / "k", "--identify-kinematics", "-v", report=True)
     err = dataio.read_result(tmp_path / "k" / "result.json").robot_error
     lines = printed.splitlines()
     assert lines[0] == ("a point measured at a new pose, on the controller's nominal arm model (the exported "
@@ -106,3 +109,7 @@ def test_a_kinematic_calibration_leads_with_the_controller_s_nominal_model(tmp_p
     assert "identified geometric parameters (estimate +/- 1-sigma" in printed
     for p in err.kinematic_parameters:
         assert (f"    {p.name} {p.value:+.4f} +/- {p.std:.4f} {p.unit}" in printed) == p.identified, p.name
+    report = (tmp_path / "k" / "report.html").read_text()
+    assert '<a href="robot_calibrated.urdf">robot_calibrated.urdf</a>' in report
+    urdf = (tmp_path / "k" / "robot_calibrated.urdf").read_text()
+    assert html.escape(urdf, quote=True) in report  # shown, as written
