@@ -8,6 +8,7 @@ model, then the calibrated model where alone its accuracy holds."""
 from __future__ import annotations
 
 import html
+import json
 import re
 
 import pytest
@@ -26,9 +27,11 @@ ESTIMATOR = ("likelihood ratio", "marginalised", "prior spread")
 
 
 def _solve(capsys, dataset, out, *extra, report=False):
+    """solve's human text (standard error with --json, then the summary is returned too)."""
     argv = ["solve", str(dataset), "--out", str(out), "--robot", "abb_irb2400", *extra]
     assert main(argv + ([] if report else ["--no-report"])) == EXIT_OK
-    return capsys.readouterr().out
+    cap = capsys.readouterr()
+    return (cap.err, json.loads(cap.out)) if "--json" in extra else cap.out
 
 
 def _transform_numbers(line: str) -> list[float]:
@@ -89,16 +92,18 @@ def test_the_summary_leads_with_the_point_error_and_leaves_the_tables_to_v(arm_e
 def test_a_kinematic_calibration_leads_with_the_controller_s_nominal_model(tmp_path, capsys):
     """The nominal arm model's figure first (the exported transform without the calibrated
     model), then the calibrated model's, saying that its accuracy holds only through it;
-    -v lists the identified parameters with their 1-sigma. The report links the calibrated
-    URDF written beside it."""
+    -v lists the identified parameters with their 1-sigma. The --json summary holds the
+    nominal model's figure; the report links the calibrated URDF written beside it."""
     config = example_config(tmp_path, "sim-kinematic-eye-in-hand.toml",
                             **{r"^profiles_per_station = 8$": "profiles_per_station = 4"})
     data = tmp_path / "kinematic.jsonl"
     assert main(["simulate", str(data), "--config", str(config)]) == EXIT_OK
     capsys.readouterr()
-    printed = _solve(capsys, data, tmp_path / "k", "--identify-kinematics", "-v", report=True)
+    printed, summary = _solve(capsys, data, tmp_path / "k", "--identify-kinematics", "-v", "--json", report=True)
     err = dataio.read_result(tmp_path / "k" / "result.json").robot_error
-    lines = printed.splitlines()
+    assert summary["uncertainty"]["point_error_nominal_arm_k2_mm"] == err.point_error_nominal_arm_k2_mm
+    lines = printed.splitlines()  # (after the progress and debug lines, which share standard error with --json)
+    lines = lines[next(i for i, ln in enumerate(lines) if ln.startswith("a point measured")):]
     assert lines[0] == ("a point measured at a new pose, on the controller's nominal arm model (the exported "
                         f"transform without the calibrated model): expected error {err.point_error_nominal_arm_k2_mm:.3f} "
                         "mm (k = 2), mostly from the arm's geometric error")
