@@ -15,7 +15,7 @@ from spherecal.io.files import check_writable_target
 if TYPE_CHECKING:
     from spherecal.config import LoadedConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
 
-__all__ = ["CALIBRATED_URDF_NAME", "JOURNAL_NAME", "OUTPUT_PATTERNS", "RESULT_NAME", "calibrated_setup",
+__all__ = ["CALIBRATED_URDF_NAME", "JOURNAL_NAME", "OUTPUT_PATTERNS", "RESULT_NAME", "calibrated_setup", "calibrated_urdf_in",
            "check_output_folder", "check_output_targets", "existing_outputs", "journal_holds_shots", "result_for",
            "written_files"]
 
@@ -31,6 +31,13 @@ def existing_outputs(out: Path, patterns: tuple[str, ...] = ()) -> list[Path]:
         return []
     found = {p for pattern in (*OUTPUT_PATTERNS, *patterns) for p in out.glob(pattern)}
     return sorted(found)
+
+
+def calibrated_urdf_in(out: Path) -> Path | None:
+    """The calibration's ``robot_calibrated.urdf`` in its folder ``out`` (a kinematic
+    calibration written there), or None."""
+    path = out / CALIBRATED_URDF_NAME
+    return path if path.is_file() else None
 
 
 def check_output_folder(out: Path, what: str, how: str, exports: ExportPlan | None = None) -> None:

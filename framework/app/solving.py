@@ -96,6 +96,7 @@ def solve_and_write(
         "diagnostics": solution.result.diagnostics.model_copy(update={"verdict": {
             "level": graded.level, "headline": graded.headline, "written_with_force": graded.level == "red"}})}))
     notes = exports.notes(solution.result)  # the exporters' notes: their warnings here, their text in the report
+    urdf = None
     if written:
         write_exports(solution.result, out, exports, overwrite=True)  # result.json among them; derived files only
         for note in notes:
@@ -110,7 +111,7 @@ def solve_and_write(
         from spherecal.report.html import CALIBRATION_VERSION, write_report
 
         chosen = {} if report_settings is None else {"point_distance_mm": report_settings.point_distance_mm}
-        write_report(solution, out, verdict_override=graded, notes=notes, version=CALIBRATION_VERSION, **chosen)
+        write_report(solution, out, verdict_override=graded, notes=notes, version=CALIBRATION_VERSION, calibrated_urdf=urdf, **chosen)
     return solution, graded, written
 
 

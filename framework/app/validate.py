@@ -13,7 +13,7 @@ import numpy as np
 
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
-from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup
+from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup, calibrated_urdf_in
 from spherecal.app.plan_checks import VALIDATION_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.app.provenance import sha256_of
@@ -149,7 +149,8 @@ def _report_version(loaded: LoadedConfig, host, outcome, result, result_path: Pa
         solution = replace(solution, result=result)
         return write_report_version(solution, out, added, validation=outcome.table(),
                                     validation_positions=position_rows(outcome), verdict_override=outcome.verdict,
-                                    notes=exports.notes(solution.result), point_distance_mm=cfg.report.point_distance_mm)
+                                    notes=exports.notes(solution.result), point_distance_mm=cfg.report.point_distance_mm,
+                                    calibrated_urdf=calibrated_urdf_in(out))
     log(f"no new version of the report: {not_the_calibration(result, result_path, calib_journal, loaded)}")
     return None
 

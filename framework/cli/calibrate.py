@@ -10,13 +10,13 @@ from shlex import quote
 
 from spherecal.app.calibrate import run_calibrate
 from spherecal.app.outputs import JOURNAL_NAME, journal_holds_shots
-from spherecal.cli.finish import finish
+from spherecal.cli.finish import finish, say_result
 from spherecal.cli.output import EXIT_OK, result_json
 from spherecal.cli.session import Session, ask
 from spherecal.config import load_config
 from spherecal.core.errors import ConfigError
 from spherecal.io.runlog import progress_log
-from spherecal.report.terminal import summary, truth_check
+from spherecal.report.terminal import truth_check
 
 _log = logging.getLogger("spherecal.cli")
 
@@ -42,16 +42,16 @@ def run(args, session: Session) -> int:
         return EXIT_OK
     if outcome.solution is None:
         return EXIT_OK
-    session.say(summary(outcome.solution, outcome.verdict))
+    say_result(session, outcome.solution, outcome.verdict, verbose=bool(args.verbose))
     session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
-    if loaded.config.validation is not None and outcome.verdict.level != "red":
-        folder = f" -o {quote(str(args.out))}" if args.out else ""  # (the run validate is to check)
-        session.say(f"acceptance test: spherecal validate {quote(str(args.config))}{folder} (its figures then join "
-                    "this verdict, in the terminal and the report)")
     if outcome.files.get("journal") is not None:
         check = truth_check(outcome.solution, outcome.dataset)
         if check:
             session.say(check)
+    if loaded.config.validation is not None and outcome.verdict.level != "red":
+        folder = f" -o {quote(str(args.out))}" if args.out else ""  # (the run validate is to check)
+        session.say(f"acceptance test: spherecal validate {quote(str(args.config))}{folder} (its figures then join "
+                    "this verdict, in the terminal and the report)")
     return finish(session, out, outcome.verdict, outcome.exports_written,
                   "--resume --force" if outcome.files.get("journal") else "--force", report=not args.no_report)
 

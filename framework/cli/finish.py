@@ -1,4 +1,5 @@
-"""The last line of calibrate and solve, and their exit code (a RED result exits 7)."""
+"""What calibrate and solve print of their result, their last line, and their exit code
+(a RED result exits 7)."""
 
 from __future__ import annotations
 
@@ -6,13 +7,22 @@ from pathlib import Path
 
 from spherecal.cli.output import EXIT_OK, EXIT_RED
 from spherecal.cli.session import Session
+from spherecal.report.terminal import details, summary
+
+
+def say_result(session: Session, solution, graded, verbose: bool = False) -> None:
+    """The result as the terminal gives it (:func:`spherecal.report.terminal.summary`),
+    its details too with ``verbose`` (-v); without, the details go to run.log only."""
+    session.say(summary(solution, graded, verbose=verbose))
+    if not verbose:
+        session.note("details (-v prints them):\n" + details(solution))
 
 
 def finish(session: Session, out: Path, graded, written: bool, force: str = "--force", report: bool = True) -> int:
     """Where the results are, or why the result was not written; the exit code.
     ``report``: whether report.html was written (solve --no-report writes none)."""
     if graded.level != "red":
-        session.say(f"results in {out}")
+        session.say(f"results in {out}" + (f" (the report: {out / 'report.html'})" if report else ""))
         return EXIT_OK
     if written:
         session.say(f"results in {out} (written with --force although the result is RED: do not use it in "

@@ -74,12 +74,13 @@ def result_json(result, verdict, written: bool) -> dict:
            "expanded_rotation_deg": [2 * v for v in result.std_rotation_deg],
            "expanded_translation_mm": [2 * v for v in result.std_translation_mm],
            "std_rotation_deg_robot_frame": None, "std_translation_mm_robot_frame": None,
-           "point_error_k2_mm": None}
+           "point_error_k2_mm": None, "point_error_nominal_arm_k2_mm": None}
     robot_error = result.robot_error
     if robot_error is not None:
         unc.update(std_rotation_deg_robot_frame=list(robot_error.std_rotation_deg_robot_frame),
                    std_translation_mm_robot_frame=list(robot_error.std_translation_mm_robot_frame),
-                   point_error_k2_mm=robot_error.point_error_k2_mm)
+                   point_error_k2_mm=robot_error.point_error_k2_mm,
+                   point_error_nominal_arm_k2_mm=robot_error.point_error_nominal_arm_k2_mm)
     return dict(
         verdict=verdict_json(verdict), transform=transform_json(result.transform_name, result.transform),
         uncertainty=unc, result_written=written,

@@ -112,7 +112,9 @@ def _common_options(p: argparse.ArgumentParser, default) -> None:
     a subcommand's parser leaves a value given before the command alone)."""
     p.add_argument("--debug", action="store_true", default=default, help="show tracebacks of internal errors")
     p.add_argument("-v", "--verbose", action="count", default=default,
-                   help="more messages on standard error (debug messages too)")
+                   help="more detail: calibrate and solve print every amber or red check and piece of advice and "
+                   "then the parameter tables and the estimator's terms after their result (the report and run.log "
+                   "hold them anyway); every command shows debug messages on standard error")
     p.add_argument("-q", "--quiet", action="store_true", default=default,
                    help="only warnings and errors on standard error (no progress); the result still goes to "
                    "standard output, and run.log records everything")

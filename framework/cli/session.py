@@ -35,6 +35,11 @@ class Session:
         if self.record is not None:
             self.record.note(text)
 
+    def note(self, text: str) -> None:
+        """Text for the run's record only (run.log), not printed: what ``-v`` would have shown."""
+        if self.record is not None:
+            self.record.note(text)
+
     def err(self, msg: str) -> None:
         """An error line on standard error, in the record and (the first) in the summary."""
         print(f"spherecal: error: {msg}", file=sys.stderr)

@@ -6,13 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from spherecal.app.solve import default_out, run_solve
-from spherecal.cli.finish import finish
+from spherecal.cli.finish import finish, say_result
 from spherecal.cli.output import result_json
 from spherecal.cli.session import Session
 from spherecal.core.errors import ConfigError
 from spherecal.io import dataset as dataio
 from spherecal.io.runlog import progress_log
-from spherecal.report.terminal import summary, truth_check
+from spherecal.report.terminal import truth_check
 
 
 def run(args, session: Session) -> int:
@@ -39,8 +39,9 @@ def run(args, session: Session) -> int:
 
 
 def _finish(args, session: Session, out: Path, outcome) -> int:
-    """The result and its verdict printed, the truth beside it for simulated data, the exit code."""
-    session.say(summary(outcome.solution, outcome.verdict))
+    """The result and its verdict printed (the details too with -v), the truth beside it for
+    simulated data, the exit code."""
+    say_result(session, outcome.solution, outcome.verdict, verbose=bool(args.verbose))
     session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
     check = truth_check(outcome.solution, outcome.dataset)
     if check:

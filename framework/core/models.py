@@ -459,6 +459,11 @@ class RobotErrorSummary(BaseModel):
         "relative to where the calibration puts it, mm"
     )
     point_error_parts_rms_mm: dict[str, float] = Field(description="its parts, RMS 3-D, k = 1, mm")
+    point_error_nominal_arm_k2_mm: float | None = Field(
+        None, description="kinematic calibration (result version 3): the expected error (k = 2, 3-D) of a point "
+        "measured at a new pose like the calibration's with this transform on the controller's nominal arm model, "
+        "the arm's identified geometric error not applied; None otherwise (point_error_k2_mm holds only through the "
+        "calibrated model), mm")
     dominant: str = Field(description="the part that dominates the point error")
     station_prediction: StationPrediction | None = Field(
         None, description="kinematic calibration: each station predicted by the fit of the others (what the verdict "
@@ -600,7 +605,7 @@ class CalibrationResult(BaseModel):
     model_config = ConfigDict(defer_build=True, extra="forbid")
 
     format: Literal["spherecal-result"] = "spherecal-result"
-    version: Literal[1, 2] = 2
+    version: Literal[1, 2, 3] = 3
     mounting: MountingMode
     transform_name: str
     transform: Pose

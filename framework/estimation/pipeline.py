@@ -18,7 +18,8 @@ from spherecal.core.models import (
 )
 from spherecal.config import CalibrationOptions
 from spherecal.estimation.circle import CircleFit, fit_circles
-from spherecal.estimation.prediction import point_error_budget, station_prediction_summary
+from spherecal.estimation.prediction import (nominal_arm_point_error_k2_mm, point_error_budget,
+                                             station_prediction_summary)
 from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
     fill_unknown, screen_station_orientations, several_stations_under_one_label, spread_per_station,
@@ -551,6 +552,7 @@ def _robot_error_summary(clean: Problem, ref: RefineResult, noise: NoiseAssumpti
         std_translation_mm_robot_frame=tuple(sd[3:6].tolist()),
         point_error_k2_mm=budget["k2_mm"],
         point_error_parts_rms_mm=parts,
+        point_error_nominal_arm_k2_mm=nominal_arm_point_error_k2_mm(clean, ref, budget),
         dominant=max(parts, key=parts.get),
         station_prediction=station_prediction_summary(clean, ref),
     )

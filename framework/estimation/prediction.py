@@ -105,6 +105,31 @@ def point_error_budget(problem: Problem, ref: RefineResult, noise: NoiseAssumpti
             "sensor_point_mm": p.tolist(), "shots_averaged": shots_averaged}
 
 
+def nominal_arm_point_error_k2_mm(problem: Problem, ref: RefineResult, budget: dict) -> float | None:
+    """A kinematic calibration's transform used on the controller's nominal arm model (the
+    arm's identified geometric error not applied): the expected error (k = 2, 3-D, mm) of a
+    point measured at a new pose like the calibration's. None unless the arm's geometry was
+    identified.
+
+    At each calibration pose the nominal model puts the flange where the identified model
+    does not; the point ``budget`` was evaluated at (``sensor_point_mm``) moves with it, to
+    first order by ``JR D delta`` (``D`` the identified parameters' flange error design,
+    ``delta`` their estimates). The part of that shift common to every pose moves the
+    whole scene alike, as the robot's accuracy does in :func:`point_error_budget`, and is
+    left out; the RMS of the rest joins ``budget``'s own RMS (the noise and the
+    calibration's uncertainty) in quadrature."""
+    kt = ref.kinematic_terms
+    ke = ref.diagnostics.get("kinematic_effects")
+    if kt is None or "identified_design" not in kt or not ke or ref.kinematic_errors is None:
+        return None
+    delta = np.asarray(ref.kinematic_errors, dtype=float)[np.flatnonzero(ke["identified"])]
+    _, JR, _ = _jacobians(problem, ref.R, ref.t, np.asarray(budget["sensor_point_mm"], dtype=float))
+    shift = np.einsum("nij,njk,k->ni", JR, kt["identified_design"], delta)
+    spread = shift - shift.mean(axis=0)
+    arm_rms = float(np.sqrt(np.mean(np.sum(spread**2, axis=1))))
+    return 2.0 * float(np.hypot(budget["rms_mm"], arm_rms))
+
+
 def station_prediction_summary(problem: Problem, ref: RefineResult) -> StationPrediction | None:
     """The leave-one-station-out figures of a kinematic calibration
     (:func:`.refine.crossval.station_cross_validation`) as the result keeps them, or None."""

@@ -39,6 +39,7 @@ __all__ = [
     "Exporter",
     "NoSettings",
     "SelectedExporter",
+    "calibrated_model_warning",
     "check_file_name",
     "ExportPlan",
     "write_exports",
@@ -91,6 +92,25 @@ def red_warning(result: CalibrationResult) -> str:
     writes, so that a RED result written with ``--force`` says so wherever it is copied."""
     verdict = result.diagnostics.verdict
     return RED_WARNING if isinstance(verdict, dict) and verdict.get("level") == "red" else ""
+
+
+def calibrated_model_warning(result: CalibrationResult) -> str:
+    """For a kinematic calibration (the arm's geometry identified with the transform):
+    that the transform goes with spherecal's calibrated arm model, the accuracy it holds
+    there (``robot_error.point_error_k2_mm``) and what to expect on the controller's
+    nominal model (``robot_error.point_error_nominal_arm_k2_mm``); else "". One line of
+    plain words without '--', like :data:`RED_WARNING`: an exporter puts it in a comment
+    of each file it writes, so that the transform is not taken for one that holds on the
+    nominal model wherever it is copied."""
+    err = result.robot_error
+    if err is None or not any(p.identified for p in err.kinematic_parameters or []):
+        return ""
+    nominal = err.point_error_nominal_arm_k2_mm
+    on_nominal = (f"on the controller's nominal model expect {nominal:.3f} mm (k = 2)" if nominal is not None else
+                  "on the controller's nominal model expect more (this result file does not say how much)")
+    return (f"KINEMATIC CALIBRATION: this transform goes with spherecal's calibrated arm model "
+            f"({CALIBRATED_URDF_NAME}); a point measured at a new pose is within {err.point_error_k2_mm:.3f} mm "
+            f"(k = 2) only where poses go through that model; {on_nominal}")
 
 
 @dataclass(frozen=True)

@@ -31,8 +31,9 @@ from spherecal.io.json_files import (
 __all__ = ["RESULT_FORMAT", "RESULT_VERSION", "read_result", "write_result"]
 
 #: Newest result format version this module reads and the one it writes. Version 2 adds
-#: the centre observations' figures to ``residuals``.
-RESULT_VERSION = 2
+#: the centre observations' figures to ``residuals``; version 3 adds
+#: ``robot_error.point_error_nominal_arm_k2_mm``.
+RESULT_VERSION = 3
 
 
 def _scalar_json(v: Any) -> str:

@@ -161,7 +161,7 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         lvl = "amber" if robot_dominates else "green"
         reasons.append((lvl, f"a point measured at a new pose: expected error {err.point_error_k2_mm:.3f} mm (k = 2); "
                              f"the robot's systematic error is {share:.0%} of it ({robot:.3f} mm RMS; stations disagree by "
-                             f"{err.station_translation_mm:.3f} mm and {err.station_rotation_deg:.4f} deg per axis)"))
+                             f"{station_disagreement_text(err)})"))
 
     n_flag = len(result.flagged)
     if n_flag:

@@ -39,7 +39,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from spherecal.core.errors import InputError
-from spherecal.io.exporters import ExportNote, Exporter, red_warning, write_exports
+from spherecal.io.exporters import ExportNote, Exporter, calibrated_model_warning, red_warning, write_exports
 from spherecal.core.models import CalibrationResult, Pose
 
 __all__ = [
@@ -124,10 +124,11 @@ def uncertainty_sentence(result: CalibrationResult) -> str:
 
 
 def warning_lines(result: CalibrationResult, prefix: str) -> str:
-    """The RED warning (:func:`~spherecal.io.exporters.red_warning`) as one comment line
-    starting with ``prefix`` and ending in a line break, or "" for a result not rated RED."""
-    warning = red_warning(result)
-    return f"{prefix}{warning}\n" if warning else ""
+    """The RED warning (:func:`~spherecal.io.exporters.red_warning`) and the calibrated
+    arm model's (:func:`~spherecal.io.exporters.calibrated_model_warning`), each as one
+    comment line starting with ``prefix`` and ending in a line break; "" for a result not
+    rated RED whose arm was not calibrated."""
+    return "".join(f"{prefix}{w}\n" for w in (red_warning(result), calibrated_model_warning(result)) if w)
 
 
 def rounded_quaternion_wxyz(pose: Pose) -> list[str]:

@@ -2,30 +2,111 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from spherecal.core import geometry as geo
-from spherecal.core.models import Dataset, Pose
+from spherecal.core.models import CalibrationResult, Dataset, Pose
 from spherecal.estimation import Solution
 from spherecal.estimation.pipeline import POINT_ERROR_PARTS
 from spherecal.io.exporters import CALIBRATED_URDF_NAME
 from spherecal.report.assess import Verdict, advice, station_disagreement_text, verdict
+from spherecal.report.export import MM_DECIMALS, QUAT_DECIMALS, fixed
 
 
-def summary(solution: Solution, graded: Verdict | None = None) -> str:
-    """The result in a few lines: both directions, xyz + ABB quaternion, uncertainties,
-    and the verdict (``graded``, else computed from the result), with the reasons for a
-    RED one."""
+def summary(solution: Solution, graded: Verdict | None = None, *, verbose: bool = False) -> str:
+    """The result as the terminal gives it, what it means first: the error to expect of a
+    point measured at a new pose (:func:`point_error_lines`), the verdict (``graded``, else
+    computed from the result) with the reason that decides it and the first thing to do,
+    the transform in one line (:func:`transform_line`), a recording's clock relation and
+    the observations left out. ``verbose`` (``-v``): every amber and red reason and piece
+    of advice, then :func:`details` (the parameter tables and the estimator's terms, which
+    the report and result.json hold too)."""
+    r = solution.result
+    graded = graded or verdict(r)
+    lines = [*point_error_lines(r), format_verdict(graded, everything=verbose)]
+    if graded.level in ("red", "amber"):  # what to do, as the report gives it (its headline points here)
+        todo = [a for a in advice(r) if a.level in ("red", "amber")]
+        shown = todo if verbose else todo[:1]
+        lines.extend(f"  advice: {a.title}: {a.text}" for a in shown)
+        if len(todo) > len(shown):
+            lines.append(f"  advice: {len(todo) - len(shown)} more: {MORE}")
+    lines.append(transform_line(r))
+    if r.timing is not None:
+        lines.extend(_timing_lines(r.timing))
+        lines.extend(_flagged_profile_lines(r.flagged))
+    else:
+        for f in r.flagged[:MAX_FLAG_LINES]:
+            lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
+        if len(r.flagged) > MAX_FLAG_LINES:
+            lines.append(f"... and {len(r.flagged) - MAX_FLAG_LINES} more flagged observations (result.json, 'flagged')")
+    if verbose:
+        lines += ["details (the report and result.json hold them too):", details(solution)]
+    return "\n".join(lines)
+
+
+#: Where the reasons, advice and details the terminal leaves out are.
+MORE = "with -v, and in the report"
+
+
+def point_error_lines(result: CalibrationResult) -> list[str]:
+    """What the result means for a point measured by the calibrated system at a new pose
+    like the calibration's (k = 2): with the robot as it is; for a kinematic calibration
+    on the controller's nominal arm model first, then through spherecal's calibrated arm
+    model, where alone its accuracy holds. Empty without a robot error model."""
+    err = result.robot_error
+    if err is None:
+        return []
+    dominant = POINT_ERROR_PARTS.get(err.dominant, err.dominant)
+    if not _arm_calibrated(err):
+        return [f"a point measured at a new pose, with the robot as it is: expected error {err.point_error_k2_mm:.3f} mm "
+                f"(k = 2), mostly from {dominant}"]
+    nominal = err.point_error_nominal_arm_k2_mm
+    if nominal is None:
+        first = (f"a point measured at a new pose, on the controller's nominal arm model ({ALONE}): more than through "
+                 "the calibrated model (this result does not say how much)")
+    else:
+        arm_rms = math.sqrt(max((nominal / 2) ** 2 - (err.point_error_k2_mm / 2) ** 2, 0.0))
+        why = ", mostly from the arm's geometric error" if arm_rms > err.point_error_k2_mm / 2 else ""
+        first = (f"a point measured at a new pose, on the controller's nominal arm model ({ALONE}): expected error "
+                 f"{nominal:.3f} mm (k = 2){why}")
+    return [first, f"  through spherecal's calibrated arm model ({CALIBRATED_URDF_NAME}): expected error "
+                   f"{err.point_error_k2_mm:.3f} mm (k = 2), mostly from {dominant}; this accuracy holds only where "
+                   "poses go through that model"]
+
+
+#: How a kinematic calibration's transform is used on the controller's nominal model.
+ALONE = "the exported transform without the calibrated model"
+
+
+def _arm_calibrated(err) -> bool:
+    return any(p.identified for p in err.kinematic_parameters or [])
+
+
+def transform_line(result: CalibrationResult) -> str:
+    """The transform in one line, its direction named: translation (mm) and quaternion
+    (w, x, y, z), with the exports' decimals."""
+    a, b = result.transform_name.split("_from_")
+    X = result.transform
+    return (f"{result.transform_name} (maps points in {b} to {a}): translation_mm = "
+            f"[{', '.join(fixed(v, MM_DECIMALS) for v in X.translation_mm)}], quaternion_wxyz = "
+            f"[{', '.join(fixed(v, QUAT_DECIMALS) for v in X.quaternion_wxyz)}]")
+
+
+def details(solution: Solution) -> str:
+    """What ``-v`` adds after the summary: the transform in both directions with its
+    1-sigma and U (k = 2), the residuals, and the robot error model's terms (which model
+    and why, the uncertainty relative to the robot's own frame, the point error's parts,
+    a kinematic calibration's identified parameters)."""
     r = solution.result
     X = r.transform
     inv = X.inverse()
     a, b = r.transform_name.split("_from_")
-    q = ", ".join(f"{v:.8f}" for v in X.quaternion_wxyz)
-    t = ", ".join(f"{v:.4f}" for v in X.translation_mm)
     lines = [
         f"{r.transform_name} (maps points in {b} to {a}):",
-        f"  translation_mm  = [{t}]",
-        f"  quaternion_wxyz = [{q}]",
+        f"  translation_mm  = [{', '.join(f'{v:.4f}' for v in X.translation_mm)}]",
+        f"  quaternion_wxyz = [{', '.join(f'{v:.8f}' for v in X.quaternion_wxyz)}]",
         f"  std: rotation {', '.join(f'{v:.4f}' for v in r.std_rotation_deg)} deg about {a} x, y, z; "
         f"translation {', '.join(f'{v:.4f}' for v in r.std_translation_mm)} mm",
         f"  expanded U (k = 2): rotation {', '.join(f'{2 * v:.4f}' for v in r.std_rotation_deg)} deg; "
@@ -39,22 +120,6 @@ def summary(solution: Solution, graded: Verdict | None = None) -> str:
     ]
     if r.robot_error is not None:
         lines.extend(_robot_error_lines(r.robot_error))
-    if r.timing is not None:
-        lines.extend(_timing_lines(r.timing))
-    if r.timing is not None:
-        lines.extend(_flagged_profile_lines(r.flagged))
-    else:
-        for f in r.flagged[:MAX_FLAG_LINES]:
-            lines.append(f"flagged observation {f.index} (station {f.station}): {f.reason}")
-        if len(r.flagged) > MAX_FLAG_LINES:
-            lines.append(f"... and {len(r.flagged) - MAX_FLAG_LINES} more flagged observations (result.json, 'flagged')")
-    graded = graded or verdict(r)
-    lines.append(format_verdict(graded))
-    if graded.level in ("red", "amber"):  # what to do, as the report gives it (its headline points here)
-        todo = [a for a in advice(r) if a.level in ("red", "amber")]
-        lines.extend(f"  advice: {a.title}: {a.text}" for a in todo[:4])
-        if len(todo) > 4:
-            lines.append(f"  advice: {len(todo) - 4} more in the report")
     return "\n".join(lines)
 
 
@@ -95,8 +160,9 @@ def _timing_lines(timing) -> list[str]:
 
 
 def _robot_error_lines(robot_error) -> list[str]:
-    """The robot error model's lines of :func:`summary`: which model, the uncertainty
-    relative to the robot's own frame, and the expected error of a point at a new pose."""
+    """The robot error model's lines of :func:`details`: which model and why, the
+    uncertainty relative to the robot's own frame, the expected error of a point at a new
+    pose with its parts, and a kinematic calibration's prediction and identified parameters."""
     lines = []
     rot = ", ".join(f"{v:.4f}" for v in robot_error.std_rotation_deg_robot_frame)
     trans = ", ".join(f"{v:.4f}" for v in robot_error.std_translation_mm_robot_frame)
@@ -119,6 +185,7 @@ def _robot_error_lines(robot_error) -> list[str]:
         lines.append(f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the "
                      "std above adds the geometric errors no data from one sphere location can see)")
     else:
+        lines.append(f"robot error: the {robot_error.model} model (docs/estimation.md, \"Robot error\")")
         lines.append(
             f"  std relative to the robot's own frame: rotation {rot} deg; translation {trans} mm (the std above "
             f"adds the robot's assumed accuracy {robot_error.common_translation_mm:g} mm, "
@@ -126,12 +193,11 @@ def _robot_error_lines(robot_error) -> list[str]:
         )
     lines.append(f"  expanded U (k = 2) relative to the robot's own frame: rotation {rot2} deg; translation "
                  f"{trans2} mm")
-    dominant = POINT_ERROR_PARTS.get(robot_error.dominant, robot_error.dominant)
-    if parameters is not None and any(p.identified for p in parameters):
-        lines.append(
-            f"a point measured at a new pose through the calibrated model ({CALIBRATED_URDF_NAME}): expected "
-            f"error {robot_error.point_error_k2_mm:.3f} mm (k = 2), mostly from {dominant}"
-        )
+    parts = "; ".join(f"{POINT_ERROR_PARTS.get(k, k)} {v:.4f} mm" for k, v in robot_error.point_error_parts_rms_mm.items())
+    through = f" through the calibrated model ({CALIBRATED_URDF_NAME})" if parameters and _arm_calibrated(robot_error) else ""
+    lines.append(f"  a point measured at a new pose{through}: expected error {robot_error.point_error_k2_mm:.3f} mm "
+                 f"(k = 2); its parts (RMS 3-D, k = 1): {parts}")
+    if parameters is not None and _arm_calibrated(robot_error):
         pred = robot_error.station_prediction
         if pred is not None:
             lines.append(
@@ -140,22 +206,36 @@ def _robot_error_lines(robot_error) -> list[str]:
                 f"worst {pred.worst_station} {pred.per_station_mm[pred.worst_station]:.4f} mm). This is what the "
                 "verdict grades; the transform's std relative to the robot's frame above depends on how the arm's "
                 "identified geometry and the transform share the error, and holds only with that calibrated model")
+        lines.append("  identified geometric parameters (estimate +/- 1-sigma; the others held at their nominal values):")
+        lines.extend(f"    {p.name} {p.value:+.4f} +/- {p.std:.4f} {p.unit}" for p in parameters if p.identified)
     else:
-        lines.append(
-            f"a point measured at a new pose: expected error {robot_error.point_error_k2_mm:.3f} mm (k = 2), mostly "
-            f"from {dominant}; the robot's error differs between stations by {station_disagreement_text(robot_error)}"
-        )
+        lines.append(f"  the robot's error differs between stations by {station_disagreement_text(robot_error)}")
     return lines
 
 
-def format_verdict(v: Verdict) -> str:
+def format_verdict(v: Verdict, everything: bool = True) -> str:
     """The verdict as the terminal prints it (the report shows the same): its level and
-    headline, and the reasons for a red or amber one (what is red first)."""
+    headline, and the reasons for a red or amber one (what is red first). Not
+    ``everything``: the reason that decides it alone (:func:`deciding_reason`), and how
+    many more there are."""
     lines = [f"verdict: {v.level.upper()}: {v.headline}"]
     if v.level in ("red", "amber"):
-        for level in ("red", "amber"):
-            lines.extend(f"  {level}: {text}" for lvl, text in v.reasons if lvl == level)
+        ordered = [(level, text) for level in ("red", "amber") for lvl, text in v.reasons if lvl == level]
+        shown = ordered if everything else [deciding_reason(v)]
+        lines.extend(f"  {level}: {text}" for level, text in shown)
+        if len(ordered) > len(shown):
+            n = len(ordered) - len(shown)
+            lines.append(f"  ({n} more amber or red check{'s' if n > 1 else ''}: {MORE})")
     return "\n".join(lines)
+
+
+def deciding_reason(v: Verdict) -> tuple[str, str]:
+    """The one reason a red or amber verdict stands on: the likely cause named, when one
+    was found; else the first reason of the verdict's level."""
+    for lvl, text in v.reasons:
+        if lvl == v.level and text.startswith("likely cause: "):  # (not the generic "likely causes: ...")
+            return lvl, text
+    return next((lvl, text) for lvl, text in v.reasons if lvl == v.level)
 
 
 def truth_check(solution: Solution, dataset: Dataset) -> str | None:

@@ -23,6 +23,7 @@ from spherecal.plugins import (
     ExportNote,
     Exporter,
     InputError,
+    calibrated_model_warning,
     check_result,
     fixed,
     frames_of,
@@ -87,8 +88,8 @@ def _rapid_comment_lines(result: CalibrationResult, extra: list[str]) -> list[st
         f"! 1-sigma translation mm along {a} x y z: "
         + " ".join(fixed(v, 4) for v in result.std_translation_mm),
     ]
-    warning = red_warning(result)
-    return ([f"! {line}" for line in _wrap(warning)] if warning else []) + lines + extra
+    warnings = [f"! {line}" for w in (red_warning(result), calibrated_model_warning(result)) if w for line in _wrap(w)]
+    return warnings + lines + extra
 
 
 def _wrap(text: str, width: int = 76) -> list[str]:
@@ -324,6 +325,10 @@ def _note(result: CalibrationResult, s: AbbRapidExportSettings) -> ExportNote:
     else:
         text = (f"On an ABB controller this is wobjdata.uframe, read in world coordinates (equal to base unless "
                 f"the robot's base frame was moved): load {s.module_name}.mod and move with \\WObj:={name}.")
+    if calibrated_model_warning(result):
+        text += (" The arm's geometry was calibrated with it: the controller keeps its nominal model, so give the "
+                 "robot the calibrated model ([robot] calibrated_model, applied on the PC side) wherever the accuracy "
+                 "of the calibrated model is needed (the module's first comment says what to expect without it).")
     return ExportNote(title="ABB controller (RAPID)", text=text,
                       code=rapid_declaration(result, name, mass_kg=s.mass_kg, cog_mm=s.cog_mm), warning=warning)
 

@@ -300,7 +300,7 @@ def result_cases() -> list[Case]:
         result_case("radius-1e400", with_raw(result_bytes("sphere_radius_mm", raw_number("1e400"))), "sphere_radius_mm"),
     ]
     for path, value, culprit in [
-        ("format", "spherecal-dataset", "format"), ("version", 3, "version"), ("version", "1", "version"),
+        ("format", "spherecal-dataset", "format"), ("version", 4, "version"), ("version", "1", "version"),
         ("mounting", "eye_on_hand", "mounting"), ("transform_name", "a_from_b", "transform_name"),
         ("std_rotation_deg.0", float("nan"), "std_rotation_deg"), ("std_rotation_deg.1", float("inf"), "std_rotation_deg"),
         ("std_rotation_deg.0", -1.0, "std_rotation_deg"),

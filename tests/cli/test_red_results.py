@@ -148,6 +148,26 @@ def test_the_terminal_verdict_lists_the_reasons_of_an_amber_one_too():
     assert format_verdict(Verdict("green", "Good.", [("green", "c")])) == "verdict: GREEN: Good."
 
 
+def test_the_summary_s_verdict_gives_the_one_reason_that_decides_it():
+    """calibrate and solve (without -v) print the reason a verdict stands on: the likely
+    cause when one was named (not the generic list of likely causes), else the first reason
+    of the verdict's level; and how many amber or red checks more there are, and where."""
+    from spherecal.report.assess import Verdict
+    from spherecal.report.terminal import format_verdict
+
+    red = Verdict("red", "Wrong. Likely cause: the mounting.",
+                  [("green", "g"), ("amber", "a"), ("red", "residuals 400 x"), ("red", "likely causes: a, b or c"),
+                   ("red", "likely cause: the mounting is probably wrong")])
+    assert format_verdict(red, everything=False).splitlines() == [
+        "verdict: RED: Wrong. Likely cause: the mounting.", "  red: likely cause: the mounting is probably wrong",
+        "  (3 more amber or red checks: with -v, and in the report)"]
+    amber = Verdict("amber", "Usable with care.", [("green", "g"), ("amber", "first"), ("amber", "second")])
+    assert format_verdict(amber, everything=False).splitlines()[1:] == [
+        "  amber: first", "  (1 more amber or red check: with -v, and in the report)"]
+    assert format_verdict(Verdict("amber", "h", [("amber", "only")]), everything=False).splitlines()[1:] == [
+        "  amber: only"]
+
+
 @pytest.mark.slow
 def test_a_wrong_mounting_is_named_when_the_arm_s_geometry_is_identified(tmp_path):
     """The likely-cause checks solve again (here: with the other mounting) with the run's
@@ -207,7 +227,8 @@ def test_quaternions_written_scalar_last_in_a_centre_table_are_named_before_the_
     not absurd; the stations disagree by degrees (the station rotation scale at the 5 deg
     bound the fit puts on it, not a measurement). Such a disagreement is a data error: the
     quaternion order is checked before the robot is blamed and named, kinematic
-    calibration is not advised, and the bound is printed as the bound it is."""
+    calibration is not advised, and the bound is printed as the bound it is (the verdict's
+    line and, with -v, the robot error model's)."""
     from spherecal.sim import NoiseModel, simulate_centre_dataset
 
     noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
@@ -216,7 +237,7 @@ def test_quaternions_written_scalar_last_in_a_centre_table_are_named_before_the_
     ds = _quaternions_xyzw(simulate_centre_dataset(cell, plan, kind="sphere_centre", centre_noise_mm=0.02))
     path = tmp_path / "data.jsonl"
     dataio.write_dataset(path, ds)
-    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report", "-v"])
     cap = capsys.readouterr()
     text = cap.out + cap.err
     assert code == EXIT_RED, (code, text)
@@ -225,6 +246,7 @@ def test_quaternions_written_scalar_last_in_a_centre_table_are_named_before_the_
     assert "calibrate the robot's kinematics" not in text and "robot's own geometric error limits" not in text, text
     assert "advice: The stations disagree by more than any arm's geometry: a data error" in text
     assert "the robot's error differs between stations by 0.000 mm and at least 5 deg per axis" in text, text
+    assert "stations disagree by 0.000 mm and at least 5 deg per axis)" in text and "5.0000 deg" not in text
 
 
 @pytest.mark.slow

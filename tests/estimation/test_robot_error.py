@@ -214,7 +214,7 @@ def test_kinematic_calibration_is_never_advised_for_an_implausible_disagreement(
     degree to tenths). Stations of one table disagreeing by degrees (eye-in-hand: the
     5 deg bound of the fit) or by tens of millimetres (eye-to-hand: 19 mm) point at the
     data: the advice says so and what to check, never the robot's calibration, and a
-    scale at its bound is given as the bound."""
+    scale at its bound is given as the bound, in the advice and in the verdict's own line."""
     result = solve(_xyzw_centre_table(mounting), CalibrationOptions()).result
     err = result.robot_error
     assert err is not None and (err.station_rotation_deg > 1.0 or err.station_translation_mm > 10.0), err
@@ -225,8 +225,11 @@ def test_kinematic_calibration_is_never_advised_for_an_implausible_disagreement(
     assert len(data) == 1 and data[0].level == "red" and "a data error" in data[0].title, said
     assert "the quaternions' order" in data[0].text and "the mounting" in data[0].text
     assert "radius" not in data[0].text  # sphere centres do not depend on it
+    (robot,) = [text for _, text in verdict(result).reasons if text.startswith("a point measured at a new pose")]
     if mounting == "eye_in_hand":
         assert "0.000 mm and at least 5 deg per axis" in data[0].text, data[0].text
+        assert "stations disagree by 0.000 mm and at least 5 deg per axis" in robot, robot
+        assert "5.0000 deg" not in robot
     else:
         assert f"{err.station_translation_mm:.3f} mm and" in data[0].text
 

@@ -550,7 +550,7 @@ def test_result_round_trip(tmp_path):
     expected = result.model_copy(update={"diagnostics": result.diagnostics.model_copy(update={"history": [1.5, 0.2, 0.01]})})
     assert back == expected
     text = path.read_text(encoding="utf-8")
-    assert text.startswith('{\n  "format": "spherecal-result",\n  "version": 2,\n')
+    assert text.startswith('{\n  "format": "spherecal-result",\n  "version": 3,\n')
     cov_rows = [line for line in text.splitlines() if line.startswith("    [")]
     assert len(cov_rows) == 9  # one covariance row per line
     assert '"quaternion_wxyz": [' in text and '"translation_mm": [42.51234567890123, -18.3, 163.7]' in text
@@ -580,7 +580,7 @@ def test_bad_result_files(tmp_path):
         with pytest.raises(DatasetFileError, match=r"r\.json: " + message):
             read_result(path)
 
-    check(lambda d: d.update(version=3), r"result format version 3 is newer than this spherecal .* upgrade spherecal")
+    check(lambda d: d.update(version=4), r"result format version 4 is newer than this spherecal .* upgrade spherecal")
     check(lambda d: d.update(format="spherecal-dataset"), r"not a spherecal result: .*give a result\.json or a run folder")
     check(lambda d: d["transform"].update(quaternion_wxyz=[1.0, 0.0, 0.0]), r"transform\.quaternion_wxyz")
     check(lambda d: d.update(variance_factor="1.07"), r"variance_factor: Input should be a valid number")

@@ -250,6 +250,37 @@ def test_the_default_plan_writes_every_installed_exporter(result, tmp_path):
     assert set(paths) == expected | {"result.json"} and len(expected) >= 6
 
 
+def test_every_export_of_a_kinematic_calibration_says_it_needs_the_calibrated_model(result, tmp_path):
+    """A transform calibrated with the arm's geometry is copied into files used far from the
+    report: each of the core's exports says, in a comment among its first lines, that it
+    goes with robot_calibrated.urdf and what to expect on the controller's nominal model,
+    and still reads back. A plain calibration's say nothing of it."""
+    from kinematic_results import as_kinematic_calibration
+    from spherecal.io.exporters import calibrated_model_warning
+
+    plan = PluginHost().export_plan({"run": ["matrix", "xyz_quaternion", "ros2"]}, result.mounting, None)
+    kinematic = as_kinematic_calibration(result)
+    warning = calibrated_model_warning(kinematic)
+    assert "robot_calibrated.urdf" in warning and "nominal model expect 0.362 mm (k = 2)" in warning
+    assert calibrated_model_warning(result) == "" and "--" not in warning  # (an XML comment holds no '--')
+    for res, folder in ((kinematic, "kinematic"), (result, "plain")):
+        paths = write_exports(res, tmp_path / folder, plan)
+        for name, path in paths.items():
+            if name == "result.json":
+                continue
+            head = "\n".join(path.read_text().splitlines()[:4])
+            assert (warning in head) == (res is kinematic), (name, head)
+    paths = write_exports(kinematic, tmp_path / "again", plan)
+    name = result.transform_name
+    T = ex.read_matrix_text(paths[f"{name}_4x4.txt"].read_text())[name]
+    np.testing.assert_allclose(T, result.transform.as_matrix(), atol=1e-9)
+    ex.read_xyz_quaternion(paths[f"{name}_xyz_quat_wxyz.txt"].read_text())
+    ex.read_ros_command(paths["ros_static_transform.sh"].read_text())
+    ex.read_ros_yaml(paths["ros_static_transform.yaml"].read_text())
+    ex.read_ros_launch(paths["ros_static_transform.launch.py"].read_text())
+    ex.read_ros_urdf_joint(paths["ros_sensor_joint.urdf.xacro"].read_text())
+
+
 def test_exports_need_a_result():
     with pytest.raises(InputError, match="expected a CalibrationResult, got dict"):
         ex.matrix_text({})

@@ -203,3 +203,27 @@ def test_the_report_speaks_of_the_abb_controller_only_for_this_robot(solutions, 
     assert "PERS wobjdata wobjSensor" in texts["abb_irb2400"]
     assert "ABB controller" not in texts["ur5_urdf"] and "wobjdata" not in texts["ur5_urdf"]
     assert "static_transform_publisher" in texts["ur5_urdf"]  # the brand-free ROS note stays
+
+
+def test_a_kinematic_calibration_s_module_says_it_holds_only_through_the_calibrated_model(results, mounting):
+    """A transform calibrated with the arm's geometry: the module's first comment says it
+    goes with robot_calibrated.urdf, within which accuracy, and what to expect on the
+    controller's nominal model (or that the result file does not say); within 80
+    characters a line, the declaration still read back; the report's note says how to give
+    the robot the model. A plain calibration's module says nothing of it."""
+    from kinematic_results import as_kinematic_calibration
+
+    assert "KINEMATIC" not in rapid.rapid_module(results[mounting])
+    kinematic = as_kinematic_calibration(results[mounting])
+    text = rapid.rapid_module(kinematic)
+    head = " ".join(line.strip().lstrip("!").strip() for line in text.splitlines()[1:5])
+    assert head.startswith("KINEMATIC CALIBRATION: this transform goes with spherecal's calibrated arm model "
+                           "(robot_calibrated.urdf); a point measured at a new pose is within 0.075 mm (k = 2) only "
+                           "where poses go through that model; on the controller's nominal model expect 0.362 mm "
+                           "(k = 2)"), head
+    assert max(len(line) for line in text.splitlines()) <= rapid.RAPID_MAX_LINE
+    np.testing.assert_allclose(rapid.read_rapid(text)["xyz_mm"], kinematic.transform.translation_mm, atol=MM_TOL)
+    note = rapid.RAPID_EXPORTER.note(kinematic, rapid.AbbRapidExportSettings())
+    assert "[robot] calibrated_model" in note.text
+    older = rapid.rapid_module(as_kinematic_calibration(results[mounting], nominal_k2_mm=None))
+    assert "expect more (this result file does not say how much)" in " ".join(older.split())

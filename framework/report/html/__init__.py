@@ -3,11 +3,12 @@ Part of :mod:`spherecal.report`.
 
 The report is one HTML file that opens offline: the CSS is inlined and the figures (PNG,
 drawn with matplotlib's Agg renderer, no pyplot state touched) are embedded as base64
-data URIs; the same PNGs are saved next to the HTML file. It shows, top to bottom: the
-verdict, the transform with its direction and uncertainties, what to do when something is
-off, residual plots, a 3-D view of the sphere with the mapped points, the uncertainty,
-station and flagged-observation tables, an optional validation table and the estimator's
-details. See docs/results.md for a tour.
+data URIs; the same PNGs are saved next to the HTML file. It shows, top to bottom: what
+a point measured at a new pose gets, the verdict, the transform with its direction and
+uncertainties, what to do when something is off, residual plots, a 3-D view of the sphere
+with the mapped points, the uncertainty, the robot error model (a kinematic calibration's
+identified parameters and calibrated URDF), station and flagged-observation tables, an
+optional validation table and the estimator's details. See docs/results.md for a tour.
 
 - :mod:`.data`: what the report shows, computed from the solution (no matplotlib);
 - :mod:`.figures`: the figures, and the limits on what they draw (``MAX_POINTS_PLOTTED``,

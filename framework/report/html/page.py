@@ -34,6 +34,7 @@ def write_report(
     validation_positions: Sequence[Mapping[str, Any]] | None = None,
     point_distance_mm: float = POINT_DISTANCE_MM,
     version: ReportVersion | None = None,
+    calibrated_urdf: str | Path | None = None,
 ) -> Path:
     """Write the HTML report of ``solution`` (a :class:`spherecal.estimation.Solution`)
     into ``out_dir`` (created if needed) as ``filename``, with its figures saved beside
@@ -48,8 +49,10 @@ def write_report(
     ``point_distance_mm``: the report gives the uncertainty of a point this far from the
     sensor. ``version``: the report's place among the calibration's reports, said under
     its title (:mod:`.signing`; :func:`write_report_version` writes a later one). A result
-    whose provenance says it is simulated carries the SIMULATED mark. Returns the path of
-    the HTML file. Overwrites an earlier report of the same name."""
+    whose provenance says it is simulated carries the SIMULATED mark. ``calibrated_urdf``:
+    a kinematic calibration's ``robot_calibrated.urdf`` as written, linked from the report
+    and shown in it. Returns the path of the HTML file. Overwrites an earlier report of the
+    same name."""
     _check_arguments(solution, filename, notes, validation, validation_positions, point_distance_mm)
     result = solution.result
     th = thresholds or Thresholds()
@@ -60,7 +63,7 @@ def write_report(
     pts = mapped_points(solution)  # the points in the sphere frame, mapped once for every figure
     figures = draw_figures(solution, result, out, filename[: -len(".html")], pts)
     body = _body(solution, title, figures, pts, th, verdict_override or verdict(result, th), notes, validation,
-                 validation_positions, float(point_distance_mm), version)
+                 validation_positions, float(point_distance_mm), version, _urdf_link(calibrated_urdf, out))
     path = out / filename
     safeio.write_text(path, sections.document(title, "\n".join(body)))
     return path
@@ -93,6 +96,15 @@ def write_report_version(solution, out_dir: str | Path, added: str, **options) -
     raise InputError(f"{out}: no free report version name found after {version.filename}")
 
 
+def _urdf_link(path: str | Path | None, out: Path) -> tuple[str, str] | None:
+    """(the link to a calibrated arm model from the report in ``out``, its text), or None."""
+    if path is None:
+        return None
+    path = Path(path)
+    href = path.name if path.parent.resolve() == out.resolve() else path.resolve().as_uri()
+    return href, path.read_text(encoding="utf-8")
+
+
 def _check_arguments(solution, filename, notes, validation, validation_positions, point_distance_mm) -> None:
     """Raise :class:`InputError` on an argument :func:`write_report` cannot use."""
     result = getattr(solution, "result", None)
@@ -116,7 +128,7 @@ def _check_arguments(solution, filename, notes, validation, validation_positions
 def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: list[np.ndarray], th: Thresholds,
           ver: Verdict, notes: Sequence[ExportNote], validation: Mapping[str, Any] | None,
           validation_positions: Sequence[Mapping[str, Any]] | None, point_distance_mm: float,
-          version: ReportVersion | None = None) -> list[str]:
+          version: ReportVersion | None = None, urdf: tuple[str, str] | None = None) -> list[str]:
     """The parts of the page, top to bottom (a ``keep`` section is not split across printed pages)."""
     result = solution.result
     has_profiles = bool((solution.problem.kinds == KIND_PROFILE).any())
@@ -127,6 +139,7 @@ def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: lis
         sections.header_html(title, result, has_centres, with_validation, now, has_profiles),
         version_html(version) if version is not None else "",
         simulated_html() if is_simulated(result.provenance) else "",
+        sections.expectation_html(result),
         sections.headline_html(result, ver, th, notes, has_profiles),
         '<section class="keep"><h2 id="identity">What was calibrated</h2>',
         sections.identity_html(result) + "</section>",
@@ -147,6 +160,8 @@ def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: lis
         sections.correlation_html(result) + "</section>",
         '<section class="keep"><h3 id="point">A point at a distance from the sensor</h3>',
         sections.point_html(result, point_distance_mm) + "</section>",
+        *(['<h2 id="robot">Robot error</h2>', sections.robot_error_html(result, urdf)]
+          if result.robot_error is not None else []),
         '<h2 id="stations">Stations</h2>',
         sections.stations_html(result, th),
         '<h2 id="flagged">Flagged observations</h2>',

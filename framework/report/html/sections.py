@@ -14,11 +14,14 @@ import numpy as np
 from spherecal import __version__
 from spherecal.core.errors import InputError
 from spherecal.core.models import SPHERE_FRAME, CalibrationResult
-from spherecal.io.exporters import ExportNote
+from spherecal.estimation.pipeline import POINT_ERROR_PARTS
+from spherecal.io.exporters import CALIBRATED_URDF_NAME, ExportNote, calibrated_model_warning
 from spherecal.report import export
-from spherecal.report.assess import Thresholds, expected_rms_mm, inconsistent_stations, station_prediction
+from spherecal.report.assess import (Thresholds, expected_rms_mm, inconsistent_stations, station_disagreement_text,
+                                     station_prediction)
 from spherecal.report.html.data import K_EXPANDED, interactive_points, point_uncertainty
 from spherecal.report.html.signing import is_simulated, provenance_rows
+from spherecal.report.terminal import point_error_lines
 
 
 def _e(value: Any) -> str:
@@ -185,6 +188,86 @@ def _gauge_note(pred) -> str:
             f"each station predicted from the others misses where it sees the sphere by {_n(pred.rms_mm)} mm RMS "
             f"(3-D; {worst}), against {_n(pred.expected_rms_mm)} mm that the noise and the fit's uncertainty "
             "explain. This is what the verdict grades.</p>")
+
+
+def expectation_html(result: CalibrationResult) -> str:
+    """What the result means for a point measured at a new pose, as the terminal leads with
+    it (:func:`spherecal.report.terminal.point_error_lines`); for a kinematic calibration,
+    marked: the accuracy holds only through spherecal's calibrated arm model, and the
+    controller's nominal model gives the first figure. Empty without a robot error model."""
+    lines = point_error_lines(result)
+    if not lines:
+        return ""
+    warning = calibrated_model_warning(result)
+    text = "".join(f"<p>{_e(line.strip()[:1].upper() + line.strip()[1:])}</p>" for line in lines)
+    if warning:
+        text += ("<p>The transform goes with the calibrated arm model: a controller given the transform alone keeps "
+                 "its nominal model. Give the robot the model (<a href=\"#kinematic\">the identified geometry "
+                 "below</a>, robot_calibrated.urdf) wherever the calibrated accuracy is needed. Every export says the "
+                 "same in its first comment.</p>")
+    return (f'<div class="advice {"amber" if warning else ""}" id="expectation"><h3>A point measured at a new pose'
+            f"</h3>{text}</div>")
+
+
+def robot_error_html(result: CalibrationResult, urdf: tuple[str, str] | None = None) -> str:
+    """The robot error model's terms: which model and why (``auto``'s likelihood ratio),
+    the arm's parameters seen, identified or marginalised and the prior spread, the
+    stations' disagreement, the point error's parts (k = 1) and totals (k = 2); for a
+    kinematic calibration the identified parameters and the calibrated model
+    (:func:`_kinematic_html`; ``urdf``: its link and text, None when it was not written)."""
+    err = result.robot_error
+    if err is None:
+        return "<p>No robot error model: the robot's pose error entered as noise only.</p>"
+    params = err.kinematic_parameters
+    if params is not None:
+        n_cal, n_seen = sum(p.identified for p in params), sum(p.identifiable for p in params)
+        model = ("the arm's geometry (kinematic model): "
+                 + (f"{n_cal} of its {len(params)} geometric parameters identified with the transform" if n_cal else
+                    f"{n_seen} of its {len(params)} geometric parameters seen by the data, all marginalised (their "
+                    f"prior spread x {export.fixed(err.kinematic_prior_scale or 1.0, 2)}, as the data showed it)"))
+    else:
+        model = {"station": "a pose offset shared by the shots of a station (the station model)",
+                 "kinematic+station": "the arm's geometry and a pose offset per station",
+                 "none": "none: the robot's pose error entered as noise only"}.get(err.model, err.model)
+    rows = [[_e(POINT_ERROR_PARTS.get(k, k)), _n(v)] for k, v in err.point_error_parts_rms_mm.items()]
+    calibrated = any(p.identified for p in params or [])
+    through = " through the calibrated arm model" if calibrated else ""
+    rows.append([f"<b>expected error{through}, k = 2</b>", f"<b>{_n(err.point_error_k2_mm)}</b>"])
+    if err.point_error_nominal_arm_k2_mm is not None:
+        rows.append(["expected error on the controller's nominal arm model, k = 2",
+                     _n(err.point_error_nominal_arm_k2_mm)])
+    stated = " as the options state it, not estimated" if err.model == "station" and not err.estimated else ""
+    disagreement = (f"<p>The stations disagree by {_e(station_disagreement_text(err))} (1-sigma{stated}).</p>"
+                    if not calibrated else "")
+    assumed = (f"<p>Assumed accuracy of the robot shared by every station: {_n(err.common_translation_mm)} mm, "
+               f"{_n(err.common_rotation_deg)} deg per axis.</p>" if err.model in ("station", "kinematic+station") else "")
+    return (f"<p>Model: {_e(model)}.</p>" + (f"<p>{_e(err.model_choice)}.</p>" if err.model_choice else "")
+            + disagreement + assumed
+            + "<h3 id=\"point-budget\">A point measured at a new pose like the calibration's</h3>"
+            + _table(["part", "RMS 3-D, k = 1 (mm)"], rows)
+            + (_kinematic_html(result, urdf) if calibrated else ""))
+
+
+def _kinematic_html(result: CalibrationResult, urdf: tuple[str, str] | None) -> str:
+    """A kinematic calibration: where its accuracy holds, the identified parameters with
+    their 1-sigma, and the calibrated arm model offered (a link and its text)."""
+    params = result.robot_error.kinematic_parameters
+    rows = [[_e(p.name), _n(p.value), _n(p.std), _e(p.unit)] for p in params if p.identified]
+    held = len(params) - len(rows)
+    if urdf is None:
+        model = (f"<p>{CALIBRATED_URDF_NAME} was not written (a RED result written without --force, or the robot's "
+                 "kinematics not given to the run).</p>")
+    else:
+        href, text = urdf
+        model = (f'<p>The calibrated arm model: <a href="{_e(href)}">{_e(CALIBRATED_URDF_NAME)}</a> (URDF, metres and '
+                 "radians, the joint zero offsets folded into the joint origins; docs/conventions.md, \"URDF\").</p>"
+                 f"<details><summary>its text</summary><pre>{_e(text)}</pre></details>")
+    return ('<h3 id="kinematic">The arm\'s identified geometry</h3>'
+            f"<p><strong>{_e(calibrated_model_warning(result))}.</strong></p>"
+            + _table(["parameter", "estimate", "1-sigma", "unit"], rows)
+            + f"<p class=\"muted\">In the robot model's joint frames; the other {held} parameters are held at their "
+              "nominal values (no data from one sphere can tell them from the transform and the sphere). result.json: "
+              "robot_error.kinematic_parameters.</p>" + model)
 
 
 def _short_label(label: str) -> str:
@@ -393,7 +476,8 @@ def header_html(title: str, result: CalibrationResult, has_centres: bool, with_v
                 generated_at: str, has_profiles: bool = True) -> str:
     """The title, the line under it (mounting, transform, data, when and by what the
     report was made) and the links to the sections."""
-    nav = ["verdict", "identity", "transform", "advice", "residuals", "sphere", "uncertainty", "stations", "flagged"]
+    nav = ["verdict", "identity", "transform", "advice", "residuals", "sphere", "uncertainty",
+           *(["robot"] if result.robot_error is not None else []), "stations", "flagged"]
     if with_validation:
         nav.append("validation")
     nav += ["details", "signature"]
