@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bag_files import cloud, pose_stamped, q_xyzw, write_bag
-from spherecal.cli import EXIT_OK, EXIT_USAGE, main
+from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
 from spherecal.config import OnTheFlyPlan, StreamSimSettings
 from spherecal.io.streams import read_recording
 from spherecal.sim import standard_cell
@@ -65,3 +65,53 @@ def test_a_bag_without_its_topics_is_refused_naming_what_to_give(tmp_path, capsy
     assert code == EXIT_USAGE
     err = capsys.readouterr().err
     assert "--profile-topic" in err and "--mounting" in err and "--sphere-radius-mm" in err
+
+
+@pytest.mark.slow
+def test_solve_a_bag_of_joint_states_through_the_robots_kinematics(tmp_path, capsys):
+    """Joint states (radians, sensor_msgs/JointState) instead of flange poses: `--robot`
+    maps them through the robot plugin's forward kinematics (the IRB 2400's here, on a
+    simulated arm without geometric error, with smooth pose noise). The solve with the arm's
+    kinematic model converges, finds the clock relation, and states a transform the
+    simulator's truth lies within: on a sampled stream the fit's last steps chatter at a
+    thousandth of a standard deviation, and they end it as converged (else it would stop
+    "not converged", skip the smooth-noise refit and end RED)."""
+    from spherecal.plugins.host import PluginHost
+
+    from bag_files import joint_state
+
+    kin = PluginHost(autoload=False).arm_kinematics({"type": "abb_irb2400"})
+    cell = standard_cell("eye_in_hand", seed=4, fov=reference_fov(), arm=kin)
+    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
+                             StreamSimSettings(sensor={"rate_hz": 100.0}, seed=4))
+    ps, poses = rec.profiles, rec.poses
+    assert poses.joints_deg is not None
+    clouds = [(_ns(ps.t_sensor_s[j]) + 3_000_000,
+               cloud(_ns(ps.t_sensor_s[j]), np.column_stack([np.zeros(len(ps.profile(j))), ps.profile(j)]) / 1000.0))
+              for j in range(ps.n)]
+    names = [f"joint_{k}" for k in range(1, 7)]
+    to_computer = -rec.provenance["true_offset_s"]
+    joints = [(_ns(poses.t_robot_s[i] + to_computer) + 1_000_000,
+               joint_state(_ns(poses.t_robot_s[i]), names, np.radians(poses.joints_deg[i]))) for i in range(poses.n)]
+    bag = write_bag(tmp_path / "cell.bag", "mcap", {
+        "/profiler/points": ("sensor_msgs/msg/PointCloud2", clouds),
+        "/joint_states": ("sensor_msgs/msg/JointState", joints)})
+    out = tmp_path / "res"
+    base = ["solve", str(bag), "--profile-topic", "/profiler/points", "--pose-topic", "/joint_states",
+            "--mounting", "eye_in_hand", "--sphere-radius-mm", str(rec.sphere_radius_mm), "--no-report"]
+    # without the robot's kinematics, joint states cannot become poses: said, naming --robot
+    assert main([*base, "--out", str(tmp_path / "no-robot")]) == EXIT_DATA
+    assert "--robot" in capsys.readouterr().err
+    assert main([*base, "--robot", "abb_irb2400", "--out", str(out)]) == EXIT_OK  # not RED
+    converted = read_recording(out / "recording.jsonl")
+    assert converted.poses.joints_deg is not None and converted.poses.n == poses.n
+    # the poses the kinematics gave are the simulator's (the arm has no geometric error here)
+    assert np.abs(converted.poses.t_mm - poses.t_mm).max() < 1e-3
+    result = json.loads((out / "result.json").read_text())
+    timing = result["timing"]
+    assert abs(timing["offset_ms"] - 1e3 * rec.provenance["true_offset_s"]) < max(4 * timing["offset_std_ms"], 0.05)
+    # the arm's geometry is marginalised (the kinematic model): the transform is as
+    # certain as an arm of unknown geometry allows, and within that
+    truth = rec.provenance["true_transform"]["translation_mm"]
+    error = np.abs(np.subtract(result["transform"]["translation_mm"], truth))
+    assert np.all(error < 3.0 * np.asarray(result["std_translation_mm"])), (error, result["std_translation_mm"])

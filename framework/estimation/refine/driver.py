@@ -70,6 +70,13 @@ STALLED_STEP_SHARE = 0.05
 #: ... after this many cut steps in a row (a step cut once near the end of a normal
 #: convergence leaves the tolerance to end it).
 STALLED_CUT_STEPS = 3
+#: Gauss-Newton chatters when the cost is not smooth at the scale of its last steps (a
+#: recording's poses are read from a sampled stream at each shot's time, piecewise linear
+#: in the clock offset): full steps of a thousandth of each parameter's standard
+#: deviation, this many in a row, end the pass as converged. A smooth cost converges
+#: quadratically through that range in one or two steps and never meets the rule.
+CHATTER_STEP_SHARE = 1e-3
+CHATTER_STEPS = 5
 
 
 def refine(
@@ -124,6 +131,7 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
     near = False  # scales are re-estimated only near a solution, where the linearisation holds
     first_small = False  # the pass's first step was already below the tolerance
     cut_steps = 0  # Gauss-Newton steps in a row that the line search had to cut
+    chatter = 0  # steps in a row within a sliver of the standard deviations, above the tolerance
     fit.converged = False  # (of this pass: an earlier pass's convergence says nothing of this one)
     if fit.m_centres:
         fit.centre_cov_frozen = None
@@ -145,6 +153,10 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
             # deviation (the cost's curvature there is not the linearisation's)
             sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
             small = bool(np.all(np.abs(step) <= STALLED_STEP_SHARE * sd))
+        if not small:
+            sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
+            chatter = chatter + 1 if np.all(np.abs(frac * step) <= CHATTER_STEP_SHARE * sd) else 0
+            small = chatter >= CHATTER_STEPS
         if it == 1:
             first_small = bool(small)
         was_near = near
