@@ -227,18 +227,27 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
 def with_validation(ver: Verdict, figures: Mapping[str, Mapping], cause: str | None = None) -> Verdict:
     """The verdict of a calibration together with its validation: ``figures`` is the
     validation's table (``ValidationOutcome.table()``: per figure ``max error (mm)``,
-    ``worst position``, ``MPE (mm)``, ``passed``). A figure beyond its MPE makes the
-    verdict red (the calibration does not measure as accurately as required), whatever
-    the calibration's own grade; passing figures add their reasons and keep the grade.
-    ``cause``: what the failure's headline says after the failing figures instead of "Do
-    not use this calibration" (a cause named, :mod:`spherecal.report.validation_advice`)."""
+    ``worst position``, ``MPE (mm)``, ``passed``, and ``U (mm, k = 2)`` where known). A
+    figure beyond its MPE makes the verdict red (the calibration does not measure as
+    accurately as required), whatever the calibration's own grade; passing figures add
+    their reasons and keep the grade. A figure beyond its MPE by less than its
+    uncertainty from the noise passed (it is not shown to exceed the MPE) and the
+    headline says so. ``cause``: what the failure's headline says after the failing
+    figures instead of "Do not use this calibration" (a cause named,
+    :mod:`spherecal.report.validation_advice`)."""
     reasons = list(ver.reasons)
-    failed = []
+    failed, within_u = [], []
     for name, row in figures.items():
         value, mpe, passed = row.get("max error (mm)"), row.get("MPE (mm)"), row.get("passed")
         where = f" at {row['worst position']}" if row.get("worst position") else ""
         if passed is None:
             reasons.append(("green", f"validation: {name} {value:.4f} mm{where} (no MPE: not judged)"))
+        elif passed and row.get("U (mm, k = 2)") is not None and abs(value) > mpe:
+            # beyond the MPE by less than its own uncertainty from the noise: not shown to exceed it
+            text = (f"{name} {value:.4f} mm{where} lies beyond its MPE {mpe:g} mm by less than its uncertainty from "
+                    f"the noise (U {row['U (mm, k = 2)']:.4f} mm, k = 2): not shown to exceed it")
+            reasons.append(("green", f"validation: {text}"))
+            within_u.append(text)
         elif passed:
             reasons.append(("green", f"validation: {name} {value:.4f} mm{where}, within its MPE {mpe:g} mm"))
         else:
@@ -250,6 +259,9 @@ def with_validation(ver: Verdict, figures: Mapping[str, Mapping], cause: str | N
         return Verdict("red", f"Validation failed: {'; '.join(failed)}. {then}", reasons)
     if not figures:
         return Verdict(ver.level, ver.headline, reasons)
+    if within_u:
+        return Verdict(ver.level, f"{ver.headline} Validation passed: every other judged figure within its MPE; "
+                       f"{'; '.join(within_u)}.", reasons)
     return Verdict(ver.level, f"{ver.headline} Validation passed: every judged figure within its MPE.", reasons)
 
 
