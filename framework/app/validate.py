@@ -20,6 +20,7 @@ from spherecal.app.provenance import sha256_of
 from spherecal.app.solving import calibration_options
 from spherecal.config import LoadedConfig
 from spherecal.core.errors import ConfigError
+from spherecal.core.metrology import ShotNoise
 from spherecal.core.models import TRANSFORM_NAME, Observation
 from spherecal.estimation import solve
 from spherecal.io import dataset as dataio
@@ -79,7 +80,9 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
 
             measured = measure(robot, sensor, sweeps, cfg.acquisition, log, Progress(len(targets), progress_stream),
                                record)
-    outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured)
+    outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured, shot_noise(cfg, result))
+    if fov is not None:
+        outcome.line_width_mm = float(fov.width_at_mm(fov.sweep_standoff_z_mm))
     own = verdict(result) if result is not None else Verdict(
         "green", "A transform spherecal did not compute: only its validation is graded.")
     outcome.verdict, outcome.cause = validation_verdict(own, outcome.table(), result)
@@ -93,6 +96,24 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                  "tables and the sign-off are this version's.")
         outcome.report_path = _report_version(loaded, host, outcome, result, result_path, out, exports, added, log)
     return outcome
+
+
+def shot_noise(cfg, result) -> ShotNoise:
+    """The noise the validation's points carry, as the calibration found it
+    (``result.diagnostics.noise``: the sensor's point noise, the robot's pose noise per
+    shot), or as the configuration's ``[calibration]`` states it for a transform
+    spherecal did not compute (a point noise it leaves to the data: none; it is a small
+    share of P_S's uncertainty beside the robot's)."""
+    found = (result.diagnostics.noise or {}) if result is not None else {}
+    cal = cfg.calibration
+
+    def pick(key: str, stated) -> float:
+        value = found.get(key)
+        return float(value if value is not None else stated if stated is not None else 0.0)
+
+    return ShotNoise(point_noise_mm=pick("point_noise_mm", cal.point_noise_mm),
+                     shot_translation_noise_mm=pick("pose_translation_noise_mm", cal.pose_translation_noise_mm),
+                     shot_rotation_noise_deg=pick("pose_rotation_noise_deg", cal.pose_rotation_noise_deg))
 
 
 def _transform_to_validate(loaded: LoadedConfig, out_dir: Path | None, transform, log: Callable[[str], None]):

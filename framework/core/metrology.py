@@ -17,7 +17,9 @@ those with the largest absolute residuals, and only when they lie beyond
 the fit is then repeated on the points kept. Every figure says how many points it used
 and how many it dropped. Each figure is reported per position; the maximum (of P_S and
 SD: the largest in magnitude, sign kept) over positions is compared with the user's
-MPE. Points are (N, 3) arrays in one frame (base), mm.
+MPE. A P_S whose uncertainty from the noise of its view is known (the profile of each
+point given, with the sensor's and the robot's noise) fails only when it exceeds the MPE
+by more than that expanded uncertainty. Points are (N, 3) arrays in one frame (base), mm.
 """
 
 from __future__ import annotations
@@ -64,6 +66,16 @@ class PlaneFit(_Frozen):
     n_points_dropped: int = Field(ge=0, description="points dropped as outliers (at most 0.3 %)")
 
 
+class ShotNoise(_Frozen):
+    """The noise a scan's points carry: each point's own (the sensor's), and each shot's
+    (the robot's pose error at that shot, which moves all the points of one profile
+    together). Standard deviations, 1 sigma."""
+
+    point_noise_mm: float = Field(0.0, ge=0, description="noise of each point, per axis, mm")
+    shot_translation_noise_mm: float = Field(0.0, ge=0, description="translation error of each shot, per axis, mm")
+    shot_rotation_noise_deg: float = Field(0.0, ge=0, description="rotation error of each shot, about each axis, deg")
+
+
 class ProbingResult(_Frozen):
     """P_F and P_S of one sphere at one position."""
 
@@ -72,6 +84,10 @@ class ProbingResult(_Frozen):
     fitted_diameter_mm: float = Field(description="diameter of the least-squares sphere, mm")
     probing_form_error_mm: float = Field(ge=0, description="P_F: range of the radial residuals, mm")
     probing_size_error_mm: float = Field(description="P_S: fitted minus certified diameter, mm")
+    probing_size_std_mm: float | None = Field(
+        None, ge=0, description="standard uncertainty of P_S that the noise of this view gives a correct system (the "
+        "points' own and each shot's, :func:`probing_size_std_mm`), mm; None when the shots were not given")
+    n_shots: int | None = Field(None, ge=0, description="profiles (shots) the points came from; None when not given")
     fit: SphereFit = Field(description="the sphere fit behind the figures")
 
 
@@ -112,7 +128,11 @@ class FigureVerdict(_Frozen):
     worst_position: str | None = Field(description="position of the worst value")
     n_positions: int = Field(ge=0, description="positions measured")
     mpe_mm: float | None = Field(description="the MPE it is compared with, mm; None when not given")
-    passed: bool | None = Field(description="|max_error_mm| <= mpe_mm; None when not judged")
+    passed: bool | None = Field(description="|max_error_mm| <= mpe_mm + uncertainty_mm at every position; None when "
+                                "not judged")
+    uncertainty_mm: float | None = Field(
+        None, description="expanded uncertainty U (k = 2) of the worst value from the noise of its view, mm (P_S with "
+        "its shots given); None when not known, and then the MPE alone judges")
 
 
 class AcceptanceReport(_Frozen):
@@ -285,23 +305,79 @@ def fit_plane(
 
 
 # figures ------------------------------------------------------------------------------
+def probing_size_std_mm(points_mm, fit: SphereFit, shot_index, noise: ShotNoise, shot_origin_mm=None) -> float:
+    """Standard uncertainty of P_S (mm) that ``noise`` gives a correct system whose
+    points lie as these do: the fitted diameter, linearised in the points' radial
+    displacements, under each point's own noise and each shot's pose error, which moves
+    all the points of that shot together (a translation; a rotation about the shot's
+    ``shot_origin_mm``, (n_shots, 3) in the points' frame, the flange's origin). The
+    sphere fit's own ``radius_std_mm`` assumes every point independent; a shot's error
+    is shared by hundreds of points, and on a partial view of the sphere it moves the
+    fitted radius far more than that figure says.
+
+    ``points_mm`` (N, 3) and ``shot_index`` (N,), integers 0..n_shots-1, row for row;
+    rows holding NaN are ignored (as the fit ignores them)."""
+    p = np.asarray(points_mm, dtype=float)
+    shot = np.asarray(shot_index)
+    if p.ndim != 2 or p.shape[1] != 3 or shot.shape != (len(p),):
+        raise InputError(f"probing_size_std_mm: points {p.shape} and shot_index {shot.shape} must be (N, 3) and (N,)")
+    finite = np.all(np.isfinite(p), axis=1)
+    p, shot = p[finite], shot[finite].astype(int)
+    if len(shot) and shot.min() < 0:
+        raise InputError("probing_size_std_mm: shot_index must count shots from 0")
+    d = p - np.asarray(fit.centre_mm)
+    normal = d / np.linalg.norm(d, axis=1)[:, None]
+    J = np.column_stack([-normal, -np.ones(len(p))])  # of the radial residuals, in (centre, radius)
+    try:
+        gain = np.linalg.solve(J.T @ J, J.T)[3]  # the fitted radius's change per radial displacement of each point
+    except np.linalg.LinAlgError as exc:
+        raise InputError("probing_size_std_mm: the points do not determine a sphere") from exc
+    n_shots = int(shot.max()) + 1 if len(shot) else 0
+    var = noise.point_noise_mm**2 * float(gain @ gain)
+    # a shot's translation e moves its points' residuals by n.e; a rotation w about o by w.((p - o) x n)
+    per_shot = np.zeros((n_shots, 3))
+    np.add.at(per_shot, shot, gain[:, None] * normal)
+    var += noise.shot_translation_noise_mm**2 * float(np.sum(per_shot**2))
+    if noise.shot_rotation_noise_deg > 0:
+        origin = np.zeros((n_shots, 3)) if shot_origin_mm is None else np.asarray(shot_origin_mm, dtype=float)
+        if origin.shape[0] < n_shots or origin.shape[1:] != (3,):
+            raise InputError(f"probing_size_std_mm: shot_origin_mm {origin.shape} needs a row (x, y, z) for each of "
+                             f"{n_shots} shots")
+        lever = np.zeros((n_shots, 3))
+        np.add.at(lever, shot, gain[:, None] * np.cross(p - origin[shot], normal))
+        var += math.radians(noise.shot_rotation_noise_deg) ** 2 * float(np.sum(lever**2))
+    return 2.0 * math.sqrt(var)
+
+
 def probing_errors(
     points_mm,
     certified_diameter_mm: float,
     position: str = "P1",
     max_outlier_fraction: float = MAX_OUTLIER_FRACTION,
     outlier_threshold_sigma: float | None = 3.0,
+    shot_index=None,
+    noise: ShotNoise | None = None,
+    shot_origin_mm=None,
 ) -> ProbingResult:
-    """P_F and P_S of the points (N, 3, mm) measured on a sphere of certified diameter."""
+    """P_F and P_S of the points (N, 3, mm) measured on a sphere of certified diameter.
+    With ``shot_index`` (the profile of each point) and ``noise``, the result carries
+    the standard uncertainty of P_S from that noise (:func:`probing_size_std_mm`),
+    which :func:`acceptance_report` judges P_S with."""
     if not certified_diameter_mm > 0:
         raise InputError(f"certified_diameter_mm must be positive, got {certified_diameter_mm}")
     fit = fit_sphere(points_mm, max_outlier_fraction, outlier_threshold_sigma, what=f"sphere at {position}")
+    std = n_shots = None
+    if shot_index is not None and noise is not None:
+        std = probing_size_std_mm(points_mm, fit, shot_index, noise, shot_origin_mm)
+        n_shots = len(np.unique(np.asarray(shot_index)))
     return ProbingResult(
         position=position,
         certified_diameter_mm=certified_diameter_mm,
         fitted_diameter_mm=2 * fit.radius_mm,
         probing_form_error_mm=fit.residual_range_mm,
         probing_size_error_mm=2 * fit.radius_mm - certified_diameter_mm,
+        probing_size_std_mm=std,
+        n_shots=n_shots,
         fit=fit,
     )
 
@@ -345,14 +421,33 @@ def flatness_error(
     return FlatnessResult(position=position, flatness_error_mm=fit.residual_range_mm, fit=fit)
 
 
-def _verdict(figure: str, values: Sequence[tuple[str, float]], mpe: float | None, signed: bool) -> FigureVerdict:
+#: Coverage factor of the expanded uncertainty a figure is judged with (k = 2, about 95 %).
+COVERAGE_FACTOR = 2.0
+
+
+def exceeds(value: float, mpe: float, uncertainty_mm: float | None = None) -> bool:
+    """True when ``value`` is shown to exceed ``mpe``: ``|value| > mpe + U`` with U the
+    value's expanded uncertainty from the noise of its view (ISO 14253-1's rule for
+    proving that a specification is not met; None: ``|value| > mpe``)."""
+    return abs(value) > mpe + (uncertainty_mm or 0.0)
+
+
+def _verdict(figure: str, values: Sequence[tuple[str, float, float | None]], mpe: float | None,
+             signed: bool) -> FigureVerdict:
+    """``values``: (position, value, expanded uncertainty or None) per position. The
+    worst is a position shown to exceed the MPE if any (the largest such), else the
+    largest value."""
     if not values:
         return FigureVerdict(figure=figure, max_error_mm=None, worst_position=None, n_positions=0, mpe_mm=mpe, passed=None)
-    pos, worst = max(values, key=lambda pv: abs(pv[1]) if signed else pv[1])
-    passed = None if mpe is None else bool(abs(worst) <= mpe)
-    return FigureVerdict(
-        figure=figure, max_error_mm=worst, worst_position=pos, n_positions=len(values), mpe_mm=mpe, passed=passed
-    )
+
+    def key(entry):
+        _, value, u = entry
+        return (mpe is not None and exceeds(value, mpe, u), abs(value) if signed else value)
+
+    pos, worst, u = max(values, key=key)
+    passed = None if mpe is None else not exceeds(worst, mpe, u)
+    return FigureVerdict(figure=figure, max_error_mm=worst, worst_position=pos, n_positions=len(values), mpe_mm=mpe,
+                         passed=passed, uncertainty_mm=u)
 
 
 def acceptance_report(
@@ -364,13 +459,23 @@ def acceptance_report(
     """The worst value of each figure over its positions against the MPEs.
 
     P_F and F are ranges (>= 0); for P_S and SD the value largest in magnitude is kept
-    with its sign and ``|value| <= MPE`` passes. ``passed`` overall is True when every
-    judged figure passed, False when one failed, None when nothing was judged."""
+    with its sign and ``|value| <= MPE`` passes. A P_S that carries its standard
+    uncertainty from the noise (``probing_size_std_mm``) fails only when it is shown to
+    exceed the MPE, beyond MPE + U with U = :data:`COVERAGE_FACTOR` x that uncertainty
+    (:func:`exceeds`): a correct system's P_S scatters by U from the robot's and the
+    sensor's noise alone. ``passed`` overall is True when every judged figure passed,
+    False when one failed, None when nothing was judged."""
+
+    def expanded(std):
+        return None if std is None else COVERAGE_FACTOR * std
+
     verdicts = [
-        _verdict("P_F", [(r.position, r.probing_form_error_mm) for r in probing], mpe.probing_form_mm, False),
-        _verdict("P_S", [(r.position, r.probing_size_error_mm) for r in probing], mpe.probing_size_mm, True),
-        _verdict("SD", [(r.position, r.sphere_spacing_error_mm) for r in sphere_spacing], mpe.sphere_spacing_mm, True),
-        _verdict("F", [(r.position, r.flatness_error_mm) for r in flatness], mpe.flatness_mm, False),
+        _verdict("P_F", [(r.position, r.probing_form_error_mm, None) for r in probing], mpe.probing_form_mm, False),
+        _verdict("P_S", [(r.position, r.probing_size_error_mm, expanded(r.probing_size_std_mm)) for r in probing],
+                 mpe.probing_size_mm, True),
+        _verdict("SD", [(r.position, r.sphere_spacing_error_mm, None) for r in sphere_spacing], mpe.sphere_spacing_mm,
+                 True),
+        _verdict("F", [(r.position, r.flatness_error_mm, None) for r in flatness], mpe.flatness_mm, False),
     ]
     judged = [v.passed for v in verdicts if v.passed is not None]
     return AcceptanceReport(

@@ -19,9 +19,12 @@ from spherecal.config import AcquisitionConfig, SphereConfig, SweepSite, Validat
 from spherecal.core.errors import ConfigError, DegenerateDataError
 from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
 from spherecal.core.metrology import (
+    COVERAGE_FACTOR,
     AcceptanceReport,
     MaximumPermissibleErrors,
+    ShotNoise,
     acceptance_report,
+    exceeds,
     flatness_error,
     probing_errors,
     sphere_spacing_error,
@@ -130,10 +133,17 @@ def measure(robot, sensor, sweeps: list[Sweep], acq: AcquisitionConfig, log: Cal
 def points_in_object_frame(mounting: str, X: Pose, poses: list[Pose], profiles: list[np.ndarray]) -> np.ndarray:
     """All points of a sweep mapped through the calibrated X into the frame the
     artefacts are fixed in (base in eye-in-hand, flange in eye-to-hand), (N, 3) mm."""
+    return _mapped(mounting, X, poses, profiles)[0]
+
+
+def _mapped(mounting: str, X: Pose, poses: list[Pose], profiles: list[np.ndarray]):
+    """:func:`points_in_object_frame`, with the shot (profile) of each point and each
+    shot's flange origin in that frame (about which a pose's rotation error turns it)."""
     R0, t0 = rt_from_poses(poses)
     R, t = frame_from_sensor_stack(mounting, R0, t0, X, SPHERE_FRAME[mounting])
-    pts, _ = map_profile_list(R, t, profiles)
-    return pts
+    pts, shot = map_profile_list(R, t, profiles)
+    origins = t0 if SPHERE_FRAME[mounting] == "base" else np.zeros_like(t0)
+    return pts, shot, origins
 
 
 #: What each figure measures against: ``relative`` ones come from one sweep each (a sphere's
@@ -159,6 +169,10 @@ class ValidationOutcome:
     centre_spread_passed: bool | None
     centres_mm: dict[str, list[float]]
     mpe_centre_spread_mm: float | None = None
+    #: the noise P_S was judged with (the sensor's points, the robot's shots), None: not known
+    noise: ShotNoise | None = None
+    #: the laser line's width where the sphere's sweeps put its centre, mm (None: not known)
+    line_width_mm: float | None = None
     #: the verdict with this validation (``report.assess.with_validation``), set by ``app.validate``
     verdict: object | None = None
     #: the transform validated (``transform_name``, e.g. flange_from_sensor) and where it came from (a
@@ -185,6 +199,8 @@ class ValidationOutcome:
             if v.n_positions:
                 rows[v.figure] = {"max error (mm)": v.max_error_mm, "worst position": v.worst_position,
                                   "positions": v.n_positions, "MPE (mm)": v.mpe_mm, "passed": v.passed}
+                if v.uncertainty_mm is not None:
+                    rows[v.figure]["U (mm, k = 2)"] = v.uncertainty_mm
         if self.centre_spread_mm is not None:
             rows["centre spread"] = {"max error (mm)": self.centre_spread_mm, "worst position": None,
                                      "positions": len(self.centres_mm), "MPE (mm)": self.mpe_centre_spread_mm, "passed": self.centre_spread_passed}
@@ -193,27 +209,34 @@ class ValidationOutcome:
         return rows
 
 
-def _judge(value: float, mpe: float | None) -> bool | None:
-    return None if mpe is None else abs(value) <= mpe
+def _judge(value: float, mpe: float | None, uncertainty_mm: float | None = None) -> bool | None:
+    return None if mpe is None else not exceeds(value, mpe, uncertainty_mm)
+
+
+def _expanded(std_mm: float | None) -> float | None:
+    return None if std_mm is None else COVERAGE_FACTOR * std_mm
 
 
 def position_rows(outcome: "ValidationOutcome") -> list[dict]:
     """One row per position and figure, for the report's per-position table and
     validation.json: ``position``, ``artefact``, ``figure``, ``error (mm)`` (signed for
-    P_S, SD), ``MPE (mm)`` and ``passed`` (None: no MPE). A sphere position has P_F, P_S
-    and the distance of its fitted centre from the mean of the views' (judged against
-    ``mpe_centre_spread_mm``)."""
+    P_S, SD), ``MPE (mm)`` and ``passed`` (None: no MPE); P_S with its ``U (mm, k = 2)``
+    when known, judged with it. A sphere position has P_F, P_S and the distance of its
+    fitted centre from the mean of the views' (judged against ``mpe_centre_spread_mm``)."""
     rep, mpe = outcome.report, outcome.report.mpe
     rows: list[dict] = []
 
-    def row(position, artefact, figure, value, limit):
+    def row(position, artefact, figure, value, limit, uncertainty_mm=None):
         rows.append({"position": position, "artefact": artefact, "figure": figure, "error (mm)": float(value),
-                     "MPE (mm)": limit, "passed": _judge(value, limit)})
+                     "MPE (mm)": limit, "passed": _judge(value, limit, uncertainty_mm)})
+        if uncertainty_mm is not None:
+            rows[-1]["U (mm, k = 2)"] = uncertainty_mm
 
     mean = np.mean(list(outcome.centres_mm.values()), axis=0) if len(outcome.centres_mm) >= 2 else None
     for pr in rep.probing:
         row(pr.position, "sphere", "P_F", pr.probing_form_error_mm, mpe.probing_form_mm)
-        row(pr.position, "sphere", "P_S", pr.probing_size_error_mm, mpe.probing_size_mm)
+        row(pr.position, "sphere", "P_S", pr.probing_size_error_mm, mpe.probing_size_mm,
+            _expanded(pr.probing_size_std_mm))
         if mean is not None and pr.position in outcome.centres_mm:
             off = float(np.linalg.norm(np.subtract(outcome.centres_mm[pr.position], mean)))
             row(pr.position, "sphere", "centre from mean", off, outcome.mpe_centre_spread_mm)
@@ -225,18 +248,21 @@ def position_rows(outcome: "ValidationOutcome") -> list[dict]:
 
 
 def evaluate(v: ValidationConfig, mounting: MountingMode, X: Pose, sphere: SphereConfig,
-             measured: list[Measured]) -> ValidationOutcome:
+             measured: list[Measured], noise: ShotNoise | None = None) -> ValidationOutcome:
     """The acceptance figures from the measured sweeps, mapped through ``X``, against
-    the MPEs of ``v`` and the certified radius of ``sphere``."""
+    the MPEs of ``v`` and the certified radius of ``sphere``. With ``noise`` (the
+    sensor's points, the robot's shots, as the calibration found them) each P_S carries
+    its uncertainty from that noise on its view, and is judged with it."""
     probing, spacing, flatness = [], [], []
     centres: dict[str, list[float]] = {}
     balls: dict[str, dict[str, np.ndarray]] = {}
     for m in measured:
         if not m.profiles:
             raise DegenerateDataError(f"validation sweep {m.sweep.label} ({m.sweep.kind}) saw nothing: check its position")
-        pts = points_in_object_frame(mounting, X, m.poses, m.profiles)
+        pts, shot, origins = _mapped(mounting, X, m.poses, m.profiles)
         if m.sweep.kind == "sphere":
-            pr = probing_errors(pts, 2 * sphere.radius_mm, position=m.sweep.label)
+            pr = probing_errors(pts, 2 * sphere.radius_mm, position=m.sweep.label, shot_index=shot, noise=noise,
+                                shot_origin_mm=origins)
             probing.append(pr)
             centres[m.sweep.label] = list(pr.fit.centre_mm)
         elif m.sweep.kind in ("ball_a", "ball_b"):
@@ -251,7 +277,42 @@ def evaluate(v: ValidationConfig, mounting: MountingMode, X: Pose, sphere: Spher
         c = np.array(list(centres.values()))
         spread = float(np.linalg.norm(c - c.mean(axis=0), axis=1).max())
         passed = None if v.mpe_centre_spread_mm is None else spread <= v.mpe_centre_spread_mm
-    return ValidationOutcome(report, spread, passed, centres, v.mpe_centre_spread_mm)
+    return ValidationOutcome(report, spread, passed, centres, v.mpe_centre_spread_mm, noise=noise)
+
+
+def _row_verdict(row: dict) -> str:
+    passed, mpe = row["passed"], row["MPE (mm)"]
+    if passed and row.get("U (mm, k = 2)") is not None and abs(row["max error (mm)"]) > mpe:
+        return "within U"  # beyond the MPE by less than its uncertainty: not shown to exceed it
+    return {True: "pass", False: "FAIL", None: "not judged"}[passed]
+
+
+def probing_size_note(outcome: ValidationOutcome) -> str | None:
+    """What P_S can show on these views, when its uncertainty from the noise (U, k = 2)
+    is more than half its MPE: where that uncertainty comes from, the rule P_S is judged
+    by, and what would make it smaller. None otherwise."""
+    mpe = outcome.report.mpe.probing_size_mm
+    judged = [pr for pr in outcome.report.probing if pr.probing_size_std_mm is not None]
+    if mpe is None or not judged or outcome.noise is None:
+        return None
+    U = [COVERAGE_FACTOR * pr.probing_size_std_mm for pr in judged]
+    if max(U) <= mpe / 2:
+        return None
+    shots = max(pr.n_shots or 0 for pr in judged)
+    noise = outcome.noise
+    spread = f"{max(U):.4f} mm" if len(U) == 1 else f"{min(U):.4f}-{max(U):.4f} mm over the views"
+    diameter = judged[0].certified_diameter_mm
+    partial = ""
+    if outcome.line_width_mm is not None and outcome.line_width_mm < diameter:
+        partial = (f", the more so as each view covers only part of the sphere (the line is {outcome.line_width_mm:.1f} "
+                   f"mm wide where the sphere's centre passes, the sphere {diameter:.1f} mm across)")
+    return (f"note: P_S shows a size error only beyond its uncertainty from the noise, U (k = 2) {spread}, against its "
+            f"MPE {mpe:g} mm: the robot's repeatability ({noise.shot_translation_noise_mm:.3f} mm per axis) moves each "
+            f"of a view's {shots} profiles as a whole, and the sphere fit turns that into its diameter{partial}. The "
+            "calibration hardly changes P_S. A P_S beyond its MPE by less than U is not shown to exceed it and does "
+            "not fail (\"within U\"). To judge P_S more closely: more profiles per sweep ([validation] "
+            "profiles_per_sweep; U falls as its square root)"
+            + (", or a sphere the line spans." if partial else "."))
 
 
 def format_outcome(outcome: ValidationOutcome, mounting: MountingMode | None = None) -> str:
@@ -260,14 +321,15 @@ def format_outcome(outcome: ValidationOutcome, mounting: MountingMode | None = N
     lines = [f"{'figure':14s} {'max error (mm)':>15s} {'worst':>6s} {'MPE (mm)':>9s}  {'verdict':10s}  scope"]
     for name, row in outcome.table().items():
         mpe = "-" if row["MPE (mm)"] is None else f"{row['MPE (mm)']:.4f}"
-        verdict = {True: "pass", False: "FAIL", None: "not judged"}[row["passed"]]
         lines.append(f"{name:14s} {row['max error (mm)']:15.4f} {row['worst position'] or '-':>6s} {mpe:>9s}  "
-                     f"{verdict:10s}  {row['scope'] or '-'}")
+                     f"{_row_verdict(row):10s}  {row['scope'] or '-'}")
     if mounting is not None:
         lines.append(f"  ({scope_note(mounting)})")
     for pr in outcome.report.probing:
-        lines.append(f"  {pr.position}: P_F {pr.probing_form_error_mm:.4f} mm, P_S {pr.probing_size_error_mm:+.4f} mm "
-                     f"({pr.fit.n_points_used} points used, {pr.fit.n_points_dropped} dropped)")
+        U = _expanded(pr.probing_size_std_mm)
+        lines.append(f"  {pr.position}: P_F {pr.probing_form_error_mm:.4f} mm, P_S {pr.probing_size_error_mm:+.4f} mm"
+                     + ("" if U is None else f" (U {U:.4f} mm, k = 2)")
+                     + f" ({pr.fit.n_points_used} points used, {pr.fit.n_points_dropped} dropped)")
     for sd in outcome.report.sphere_spacing:
         lines.append(f"  {sd.position}: SD {sd.sphere_spacing_error_mm:+.4f} mm "
                      f"({sd.fit_a.n_points_used}+{sd.fit_b.n_points_used} points used, "
@@ -275,4 +337,7 @@ def format_outcome(outcome: ValidationOutcome, mounting: MountingMode | None = N
     for f in outcome.report.flatness:
         lines.append(f"  {f.position}: F {f.flatness_error_mm:.4f} mm ({f.fit.n_points_used} points used, "
                      f"{f.fit.n_points_dropped} dropped)")
+    note = probing_size_note(outcome)
+    if note:
+        lines.append(note)
     return "\n".join(lines)

@@ -160,8 +160,8 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         share = robot**2 / max(sum(v**2 for v in parts.values()), 1e-300)
         lvl = "amber" if robot_dominates else "green"
         reasons.append((lvl, f"a point measured at a new pose: expected error {err.point_error_k2_mm:.3f} mm (k = 2); "
-                             f"the robot's systematic error is {share:.0%} of it ({robot:.3f} mm RMS; stations disagree by "
-                             f"{station_disagreement_text(err)})"))
+                             f"the robot's systematic error is {share:.0%} of it ({robot:.3f} mm RMS; "
+                             f"{robot_error_evidence(err)})"))
 
     n_flag = len(result.flagged)
     if n_flag:
@@ -219,7 +219,11 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         headline = ("Wrong: the data do not fit the model at all (residuals "
                     f"{absurd_ratio(result, th):.3g} x the expected); a setting or the data are wrong, not the noise.")
     if robot_dominates and level != "red":
-        headline = ("Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
+        headline = ("Robot error dominates: the arm's geometric error, not the calibration, limits this result: a "
+                    f"point measured at a new pose is expected {err.point_error_k2_mm:.3f} mm off (k = 2); calibrating "
+                    "the arm is the remedy (see the advice)."
+                    if arm_error_marginalised(err) else
+                    "Robot error dominates: the stations disagree by more than the noise explains, so the robot's "
                     "own geometric error limits this result (see the advice).")
     return Verdict(level, headline, reasons)
 
@@ -227,18 +231,27 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
 def with_validation(ver: Verdict, figures: Mapping[str, Mapping], cause: str | None = None) -> Verdict:
     """The verdict of a calibration together with its validation: ``figures`` is the
     validation's table (``ValidationOutcome.table()``: per figure ``max error (mm)``,
-    ``worst position``, ``MPE (mm)``, ``passed``). A figure beyond its MPE makes the
-    verdict red (the calibration does not measure as accurately as required), whatever
-    the calibration's own grade; passing figures add their reasons and keep the grade.
-    ``cause``: what the failure's headline says after the failing figures instead of "Do
-    not use this calibration" (a cause named, :mod:`spherecal.report.validation_advice`)."""
+    ``worst position``, ``MPE (mm)``, ``passed``, and ``U (mm, k = 2)`` where known). A
+    figure beyond its MPE makes the verdict red (the calibration does not measure as
+    accurately as required), whatever the calibration's own grade; passing figures add
+    their reasons and keep the grade. A figure beyond its MPE by less than its
+    uncertainty from the noise passed (it is not shown to exceed the MPE) and the
+    headline says so. ``cause``: what the failure's headline says after the failing
+    figures instead of "Do not use this calibration" (a cause named,
+    :mod:`spherecal.report.validation_advice`)."""
     reasons = list(ver.reasons)
-    failed = []
+    failed, within_u = [], []
     for name, row in figures.items():
         value, mpe, passed = row.get("max error (mm)"), row.get("MPE (mm)"), row.get("passed")
         where = f" at {row['worst position']}" if row.get("worst position") else ""
         if passed is None:
             reasons.append(("green", f"validation: {name} {value:.4f} mm{where} (no MPE: not judged)"))
+        elif passed and row.get("U (mm, k = 2)") is not None and abs(value) > mpe:
+            # beyond the MPE by less than its own uncertainty from the noise: not shown to exceed it
+            text = (f"{name} {value:.4f} mm{where} lies beyond its MPE {mpe:g} mm by less than its uncertainty from "
+                    f"the noise (U {row['U (mm, k = 2)']:.4f} mm, k = 2): not shown to exceed it")
+            reasons.append(("green", f"validation: {text}"))
+            within_u.append(text)
         elif passed:
             reasons.append(("green", f"validation: {name} {value:.4f} mm{where}, within its MPE {mpe:g} mm"))
         else:
@@ -250,6 +263,9 @@ def with_validation(ver: Verdict, figures: Mapping[str, Mapping], cause: str | N
         return Verdict("red", f"Validation failed: {'; '.join(failed)}. {then}", reasons)
     if not figures:
         return Verdict(ver.level, ver.headline, reasons)
+    if within_u:
+        return Verdict(ver.level, f"{ver.headline} Validation passed: every other judged figure within its MPE; "
+                       f"{'; '.join(within_u)}.", reasons)
     return Verdict(ver.level, f"{ver.headline} Validation passed: every judged figure within its MPE.", reasons)
 
 
@@ -481,6 +497,37 @@ def station_disagreement_text(err) -> str:
     return f"{mm_text} and {deg_text} per axis"
 
 
+def arm_error_marginalised(err) -> bool:
+    """True when the robot's error was modelled as the arm's geometry from its joints and
+    none of its parameters identified (integrated out, as an uncalibrated arm's)."""
+    params = err.kinematic_parameters if err is not None else None
+    return bool(params) and not any(p.identified for p in params)
+
+
+def robot_error_evidence(err) -> str:
+    """Where the robot's systematic error shows, as a phrase. The station model: how much
+    the stations disagree. The arm's geometry integrated out: how little of that error
+    the stations' differences show; most of it every station shares, which one sphere
+    location cannot measure."""
+    if not arm_error_marginalised(err):
+        return f"stations disagree by {station_disagreement_text(err)}"
+    return (f"the arm's geometry: the stations' differences show {station_disagreement_text(err)} of it, the rest "
+            "every station shares and one sphere location cannot measure")
+
+
+def start_disagreement_explained(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
+    """True when the two-step start differs from the refined result by no more than the
+    robot's error that dominates explains: the two-step leaves that error out, the
+    refinement allows for it, so they part by about its size (a translation within the
+    expected error of a point at a new pose, no rotation beyond the note's limit)."""
+    th = thresholds or Thresholds()
+    tsr = result.diagnostics.two_step_vs_refined or {}
+    err = result.robot_error
+    return (err is not None and robot_error_dominates(result, th) and not is_absurd(result, th)
+            and tsr.get("rotation_deg", 0.0) <= th.start_disagreement_deg
+            and tsr.get("translation_mm", 0.0) <= err.point_error_k2_mm)
+
+
 def implausible_disagreement(result: CalibrationResult) -> bool:
     """True when the stations disagree, as the data show it, by more than any arm's
     geometry makes (:data:`IMPLAUSIBLE_STATION_DEG`, :data:`IMPLAUSIBLE_STATION_MM`):
@@ -527,12 +574,23 @@ def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
         todo += (". Give the robot's known accuracy (calibration.robot_accuracy_mm / robot_accuracy_deg) if it is "
                  f"better than the assumed {err.common_translation_mm:g} mm / {err.common_rotation_deg:g} deg: it "
                  "sets the uncertainty against the true frames")
+    if arm_error_marginalised(err):
+        robot = err.point_error_parts_rms_mm.get("robot_station_to_station_mm", 0.0)
+        seen = ("The robot's flange is not where its controller says, by an amount that changes with the joints: the "
+                f"arm's geometric error moves a measured point by about {robot:.3f} mm RMS at these poses. The "
+                f"stations' differences show {station_disagreement_text(err)} of it; the rest every station shares, "
+                "and one sphere location cannot measure it.")
+    else:
+        seen = (f"The stations disagree by about {station_disagreement_text(err)}, more than the noise explains: the "
+                "robot's flange is not where its controller says, by an amount that changes with the joints.")
+    tsr = result.diagnostics.two_step_vs_refined or {}
+    start = (f" The two-step start, which leaves this error out, differs from the result by "
+             f"{tsr.get('rotation_deg', 0.0):.3f} deg and {tsr.get('translation_mm', 0.0):.3f} mm: that is this error "
+             "too, not bad data." if start_disagreement_explained(result, th) and _start_disagrees(tsr, th) else "")
     return [Advice(
         "robot_error_dominates", "amber", "The robot's own geometric error limits this calibration",
-        f"The stations disagree by about {station_disagreement_text(err)}, more than the noise explains: the "
-        "robot's flange is not where its controller says, by an amount that changes with the joints. The result "
-        "allows for it (its uncertainty includes it) and is as good as this robot allows; expect "
-        f"{err.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a new pose like these. To do better: "
+        f"{seen} The result allows for it (its uncertainty includes it) and is as good as this robot allows; expect "
+        f"{err.point_error_k2_mm:.3f} mm (k = 2) for a point measured at a new pose like these.{start} To do better: "
         f"{todo}.",
     )]
 
@@ -687,12 +745,17 @@ def _stray_point_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
     return out
 
 
+def _start_disagrees(tsr: Mapping, th: Thresholds) -> bool:
+    return tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm
+
+
 def _estimator_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
     """The two-step start far from the refined result, or a refinement that did not converge."""
     out: list[Advice] = []
     diag = result.diagnostics
     tsr = diag.two_step_vs_refined or {}
-    if tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm:
+    # the robot's error explains a start the refinement left (the robot error advice says so): not the data's fault
+    if _start_disagrees(tsr, th) and not start_disagreement_explained(result, th):
         out.append(Advice(
             "start_disagrees", "amber", "Two-step start and refinement disagree",
             f"They differ by {tsr.get('rotation_deg', 0):.3f} deg and {tsr.get('translation_mm', 0):.3f} mm. "

@@ -9,11 +9,13 @@ from spherecal.core.errors import InputError
 from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list, rt_from_poses
 from spherecal.core.metrology import (
     MaximumPermissibleErrors,
+    ShotNoise,
     acceptance_report,
     fit_plane,
     fit_sphere,
     flatness_error,
     probing_errors,
+    probing_size_std_mm,
     sphere_spacing_error,
 )
 from spherecal.core.models import Pose
@@ -126,6 +128,84 @@ def test_acceptance_report_takes_the_worst_position_and_judges_it():
     assert rep.passed is False
     assert acceptance_report(MaximumPermissibleErrors(probing_size_mm=0.02), probing=[p1, p2]).passed is True
     assert acceptance_report(MaximumPermissibleErrors(), probing=[p1]).passed is None
+
+
+def _line_sweep(radius, line_mm, n_profiles=24, per_profile=200):
+    """A pure-translation sweep of a laser line across a sphere at the origin, seen from
+    +z: profile k lies in the plane x = x_k (|x_k| up to 0.9 r), its points on the
+    circle there facing the sensor (z > 0) and within the line (|y| <= line_mm / 2).
+    Returns the points and the profile of each."""
+    pts, shot = [], []
+    for k, x in enumerate(np.linspace(-0.9 * radius, 0.9 * radius, n_profiles)):
+        rho = np.sqrt(radius**2 - x**2)
+        half = np.arcsin(min(1.0, line_mm / 2 / rho))
+        a = np.linspace(-half, half, per_profile)
+        pts.append(np.column_stack([np.full(per_profile, x), rho * np.sin(a), rho * np.cos(a)]))
+        shot.append(np.full(per_profile, k))
+    return np.vstack(pts), np.concatenate(shot)
+
+
+@pytest.mark.parametrize("line_mm", [26.0, 40.0])
+def test_probing_size_uncertainty_matches_monte_carlo_with_shot_noise(line_mm):
+    """Each shot's pose error moves all of its profile's points together. On a 19.1 mm
+    sphere swept by a 26 mm line, 0.02 mm of pose noise moves the fitted diameter by
+    0.020 mm (1 sigma), twice what it does when the line spans the sphere (0.009 mm),
+    and many times what the fit's own uncertainty (independent points) says. The
+    predicted spread of P_S matches 300 simulated sweeps, without bias."""
+    rng = np.random.default_rng(4)
+    ideal, shot = _line_sweep(19.1, line_mm)
+    noise = ShotNoise(point_noise_mm=0.01, shot_translation_noise_mm=0.02, shot_rotation_noise_deg=0.002)
+    origins = np.column_stack([np.linspace(-17, 17, 24), np.full(24, 5.0), np.full(24, 190.0)])  # the flange
+    sizes = []
+    for _ in range(300):
+        w = np.radians(rng.normal(0, noise.shot_rotation_noise_deg, (24, 3)))
+        moved = ideal + rng.normal(0, 0.02, (24, 3))[shot] + np.cross(w[shot], ideal - origins[shot])
+        pr = probing_errors(moved + rng.normal(0, 0.01, ideal.shape), 38.2, max_outlier_fraction=0.0)
+        sizes.append(pr.probing_size_error_mm)
+    predicted = probing_size_std_mm(ideal, pr.fit, shot, noise, origins)
+    # the spread of a 300-sample standard deviation is about 4 %; allow 15 %
+    assert np.std(sizes) == pytest.approx(predicted, rel=0.15)
+    assert abs(np.mean(sizes)) < 4 * predicted / np.sqrt(300)  # no bias from the partial view
+    assert predicted > 5 * 2 * pr.fit.radius_std_mm
+    assert predicted == pytest.approx({26.0: 0.020, 40.0: 0.009}[line_mm], rel=0.1)
+    with_shots = probing_errors(ideal, 38.2, shot_index=shot, noise=noise, shot_origin_mm=origins)
+    assert with_shots.probing_size_std_mm == pytest.approx(predicted, rel=0.01) and with_shots.n_shots == 24
+
+
+def test_p_s_fails_only_when_shown_beyond_its_mpe():
+    """ISO 14253-1's rule for proving a specification is not met: P_S fails when it
+    exceeds the MPE by more than its expanded uncertainty U = 2 u from the noise; within
+    that band it passes, and the verdict carries U. A P_S without an uncertainty is
+    judged by the MPE alone."""
+    rng = np.random.default_rng(5)
+    base = probing_errors(CENTRE + _cap(300, 19.1, rng), 38.2, position="P1")
+
+    def p_s(value, std=None, position="P1"):
+        return base.model_copy(update={"probing_size_error_mm": value, "probing_size_std_mm": std,
+                                       "position": position})
+
+    mpe = MaximumPermissibleErrors(probing_size_mm=0.06)
+
+    def judged(*results):
+        return {v.figure: v for v in acceptance_report(mpe, probing=list(results)).verdicts}["P_S"]
+
+    within = judged(p_s(-0.0726, 0.026))
+    assert within.passed is True and within.uncertainty_mm == pytest.approx(0.052)
+    assert judged(p_s(-0.0726)).passed is False and judged(p_s(-0.0726)).uncertainty_mm is None
+    beyond = judged(p_s(0.05, 0.026, "P1"), p_s(-0.12, 0.026, "P2"))
+    assert beyond.passed is False and beyond.worst_position == "P2"
+    # the position shown beyond its MPE is the worst, though another's value is larger
+    mixed = judged(p_s(0.11, 0.04, "P1"), p_s(0.10, 0.01, "P2"))
+    assert mixed.passed is False and mixed.worst_position == "P2" and mixed.max_error_mm == 0.10
+
+
+def test_probing_size_uncertainty_bad_input():
+    fit = fit_sphere(CENTRE + _cap(50, 10.0, np.random.default_rng(6)))
+    pts = CENTRE + _cap(50, 10.0, np.random.default_rng(6))
+    with pytest.raises(InputError, match=r"shot_index \(49,\) must be"):
+        probing_size_std_mm(pts, fit, np.zeros(49, dtype=int), ShotNoise())
+    with pytest.raises(InputError, match="shot_origin_mm \\(2, 3\\) needs a row"):
+        probing_size_std_mm(pts, fit, np.arange(50) % 5, ShotNoise(shot_rotation_noise_deg=0.01), np.zeros((2, 3)))
 
 
 # the simulated cell ---------------------------------------------------------------------

@@ -101,6 +101,24 @@ def test_a_failed_figure_makes_the_verdict_red_and_names_it():
     assert ("green", "validation: F 0.0500 mm (no MPE: not judged)") in v.reasons
 
 
+def test_a_p_s_beyond_its_mpe_by_less_than_its_uncertainty_passes_and_says_so():
+    """P_S -0.0726 mm against its MPE 0.06 mm with U 0.0527 mm (k = 2) from the noise
+    of its view: the validation passed, the calibration's grade stands, and the headline
+    and the per-position table say that P_S is not shown to exceed its MPE."""
+    from spherecal.report.html.sections import positions_html
+
+    row = {"max error (mm)": -0.0726, "worst position": "P2", "positions": 4, "MPE (mm)": 0.06, "passed": True,
+           "U (mm, k = 2)": 0.0527}
+    v = with_validation(Verdict("green", "Good: a clean cell.", []), {"P_F": FIGURES["P_F"], "P_S": row})
+    assert v.level == "green" and "Validation failed" not in v.headline
+    assert v.headline.endswith("Validation passed: every other judged figure within its MPE; P_S -0.0726 mm at P2 "
+                               "lies beyond its MPE 0.06 mm by less than its uncertainty from the noise (U 0.0527 mm, "
+                               "k = 2): not shown to exceed it.")
+    table = positions_html([{"position": "P2", "artefact": "sphere", "figure": "P_S", "error (mm)": -0.0726,
+                             "MPE (mm)": 0.06, "passed": True, "U (mm, k = 2)": 0.0527}])
+    assert "within U (0.0527 mm, k = 2)" in table and 'class="bad"' not in table
+
+
 def test_the_report_verdict_includes_the_validation_with_a_per_position_table(report):
     _, text = report
     assert 'class="verdict red"' in text and "Validation failed: P_S 0.0810 mm" in text

@@ -387,6 +387,8 @@ def positions_html(rows: Sequence[Mapping[str, Any]]) -> str:
         verdict_cell = {True: '<span class="dot green"></span>pass', False: '<span class="dot red"></span>FAIL',
                         None: "not judged"}[passed]
         mpe = r.get("MPE (mm)")
+        if passed and r.get("U (mm, k = 2)") is not None and abs(r["error (mm)"]) > mpe:  # beyond the MPE, within U
+            verdict_cell = f'<span class="dot green"></span>within U ({_n(r.get("U (mm, k = 2)"))} mm, k = 2)'
         body.append([_e(r.get("position", "")), _e(r.get("artefact", "")), _e(r.get("figure", "")),
                      _n(r.get("error (mm)")), "&ndash;" if mpe is None else _n(mpe), verdict_cell])
         classes.append("bad" if passed is False else "")
