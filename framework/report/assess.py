@@ -691,10 +691,11 @@ def _estimator_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]
     """The two-step start far from the refined result, or a refinement that did not converge."""
     out: list[Advice] = []
     diag = result.diagnostics
-    tsr = diag.two_step_vs_refined or {}
+    tsr = diag.two_step_vs_refined or (diag.start or {}).get("vs_refined") or {}
+    which = "Two-step" if diag.two_step_vs_refined else "Linear"
     if tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm:
         out.append(Advice(
-            "start_disagrees", "amber", "Two-step start and refinement disagree",
+            "start_disagrees", "amber", f"{which} start and refinement disagree",
             f"They differ by {tsr.get('rotation_deg', 0):.3f} deg and {tsr.get('translation_mm', 0):.3f} mm. "
             "With good data they agree to a few hundredths; a large difference points at bad observations "
             "that were not caught, or at too little rotation between stations.",

@@ -371,14 +371,15 @@ def details_html(result: CalibrationResult) -> str:
     d = result.diagnostics
     ref = d.refinement or {}
     noise = d.noise or {}
-    tsr = d.two_step_vs_refined or {}
+    tsr = d.two_step_vs_refined or (d.start or {}).get("vs_refined") or {}
+    start = "two-step" if d.two_step_vs_refined or not d.start else f"{d.start.get('method', '?')} start"
     rows = [
         ["method", _e(result.method)],
         ["variance factor (chi&sup2;/dof)", _n(result.variance_factor, 3)],
         ["refinement", f"{ref.get('iterations', '?')} iterations, converged: {ref.get('converged', '?')}"],
         ["information condition number", f"{ref.get('information_condition_number', float('nan')):.3g}"],
         ["orientations (stations)", str("?" if d.orientations is None else d.orientations)],
-        ["two-step vs refined", f"{_n(tsr.get('rotation_deg'))} deg, {_n(tsr.get('translation_mm'))} mm"],
+        [f"{start} vs refined", f"{_n(tsr.get('rotation_deg'))} deg, {_n(tsr.get('translation_mm'))} mm"],
         ["noise used (point / pose translation / pose rotation)",
          f"{_n(noise.get('point_noise_mm'))} mm / {_n(noise.get('pose_translation_noise_mm'))} mm / "
          f"{_n(noise.get('pose_rotation_noise_deg'))} deg"],
