@@ -126,10 +126,10 @@ def linear_start_of_rows(problem: Problem, fits: dict, flags: list[ObservationFl
     if undecided.any():
         if nominal is None:
             raise DegenerateDataError(
-                f"{int(undecided.sum())} row(s) are circles (profiles, or circles fitted on board) at orientations "
-                "of their own, and nothing decides on which side of the laser plane each sphere centre lies: give a "
-                "nominal transform (calibration.nominal_transform; spherecal solve --nominal), or sphere centres "
-                "instead of circles, or stations of pure translations")
+                f"{int(undecided.sum())} row(s) are circles (profiles, or circles fitted on board), and without "
+                "stations of pure translations nothing decides on which side of the laser plane each sphere centre "
+                "lies: give a nominal transform (calibration.nominal_transform; spherecal solve --nominal), or "
+                "sphere centres instead of circles, or stations of pure translations")
         C = sides_from_nominal(problem, C, depth, known, nominal.rotation_matrix, nominal.translation)
     keep = np.ones(problem.n_profiles, dtype=bool)
     start = _without_gross_rows(problem, C, flags, budget, keep)
@@ -162,6 +162,31 @@ def orientation_stations(problem: Problem, tolerance_deg: float) -> tuple[Proble
             station_of[idx[members]] = len(labels) - 1
             largest = max(largest, len(members))
     return replace(problem, station_of=station_of, station_labels=labels), split, largest
+
+
+def stations_of_single_rows(problem: Problem, tolerance_deg: float) -> tuple[Problem, str | None]:
+    """A table whose every label holds one row carries no stations: its rows at one
+    orientation (within ``tolerance_deg`` of their group's mean) are taken as one station,
+    labelled by its first row's label, so that the two-step and the station robot error
+    model see the stations the robot made. Returns the problem (unchanged when a label
+    holds two rows or no two rows share an orientation) and what was done, to say."""
+    n = problem.n_profiles
+    if n < 2 or len(problem.station_labels) != n:
+        return problem, None
+    groups = [np.sort(g) for g in orientation_groups(problem.R0, tolerance_deg)]
+    if max(len(g) for g in groups) < 2:
+        return problem, None
+    groups.sort(key=lambda g: g[0])
+    station_of = np.empty(n, dtype=int)
+    labels = []
+    for k, members in enumerate(groups):
+        station_of[members] = k
+        labels.append(problem.station_labels[problem.station_of[members[0]]])
+    joined = [f"{labels[k]} ({len(g)} rows)" for k, g in enumerate(groups) if len(g) > 1]
+    note = (f"every label holds one row: the rows at one orientation (within {tolerance_deg:.3g} deg) were taken as "
+            f"one station each, labelled by their first row: {', '.join(joined[:8])}"
+            + (f" and {len(joined) - 8} more" if len(joined) > 8 else ""))
+    return replace(problem, station_of=station_of, station_labels=labels), note
 
 
 def robot_error_without_stations(model: str, kinematic_known: bool) -> tuple[str, bool]:

@@ -23,7 +23,7 @@ from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
     fill_unknown, screen_station_orientations, several_stations_under_one_label, spread_per_station,
 )
-from spherecal.estimation.options import kinematic_effects, station_effects
+from spherecal.estimation.options import kinematic_effects, station_effects, station_rotation_tolerance_deg
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
 from spherecal.estimation.refine.timing import with_start
 from spherecal.estimation.centres import (
@@ -37,7 +37,7 @@ from spherecal.estimation.screening import (
 from spherecal.estimation.starts import settle_alternative_starts
 from spherecal.estimation.any_poses import (
     as_start, beside_the_linear_start, linear_start_beside, linear_start_of_rows, orientation_stations,
-    robot_error_without_stations, start_diagnostics,
+    robot_error_without_stations, start_diagnostics, stations_of_single_rows,
 )
 from spherecal.estimation.twostep import CentreShot, TwoStepResult
 
@@ -248,6 +248,10 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         every_point = problem
         problem = problem.with_profiles([p[::thin] if len(p) >= 2 * thin else p for p in problem.profiles])
         say(f"screening on every {thin}th point of each profile ({sum(len(p) for p in problem.profiles)} points)")
+    # labels of one row each carry no stations: the rows that share an orientation make them
+    problem, grouped = stations_of_single_rows(problem, station_rotation_tolerance_deg(opt))
+    if grouped:
+        say(grouped)
     # within a station the robot may only translate: turned shots are left out or split off
     unscreened = problem
     ori = screen_station_orientations(
@@ -334,6 +338,8 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
+    if grouped:
+        orientation_diagnostics = {**orientation_diagnostics, "single_row_labels_grouped": grouped}
     added = {"station_orientation": orientation_diagnostics, "start": start_diagnostics(ts, ref, compared)}
     if start_notes:
         robot = result.robot_error
