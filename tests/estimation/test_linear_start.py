@@ -211,3 +211,17 @@ def test_a_linear_start_far_from_the_result_is_advised_on_as_the_two_step_is():
     far = res.model_copy(update={"diagnostics": res.diagnostics.model_copy(update={"start": start})})
     said = [a for a in advice(far) if a.key == "start_disagrees"]
     assert len(said) == 1 and said[0].title == "Linear start and refinement disagree", said
+
+
+def test_the_file_formats_say_what_each_start_needs():
+    """docs/file-formats.md states the figures the code checks: the start from any
+    orientations' minimum rows, the default rows of a station of profiles."""
+    from pathlib import Path
+
+    from spherecal.estimation import CalibrationOptions
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "file-formats.md").read_text(encoding="utf-8")
+    needs = doc[doc.index("### What the data need"):]
+    assert f"At least **{MIN_ROWS} rows**" in needs
+    assert f"`min_profiles_per_station` ({CalibrationOptions().min_profiles_per_station} by default)" in needs
+    assert "rotations about at least two different axes" in needs and "span a plane" in needs
