@@ -20,7 +20,9 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import DegenerateDataError
 from spherecal.core.models import ObservationFlag
 from spherecal.estimation.circle import half_chord_depth
-from spherecal.estimation.linear_start import MIN_ROWS, LinearStart, centres_start
+from spherecal.estimation.linear_start import (
+    MIN_ROWS, SIDES_DECISIVE_CHI2, LinearStart, centres_start, side_free_sides, sides_and_offset,
+)
 from spherecal.estimation.problem import KIND_PROFILE, Problem, orientation_groups
 from spherecal.estimation.refine import RefineResult
 from spherecal.estimation.robust import median
@@ -118,29 +120,78 @@ def linear_start_of_rows(problem: Problem, fits: dict, flags: list[ObservationFl
                          nominal=None) -> tuple[LinearStart, np.ndarray]:
     """The start from any orientations of the rows of ``problem`` (every row in
     ``fits``), and the rows it kept. Rows whose side of the laser plane is not known (a
-    circle, a profile) take it from the ``nominal`` transform (a :class:`Pose`), then from
-    each start in turn until the sides settle; without a nominal they need another way
-    (:class:`DegenerateDataError` says so)."""
+    circle, a profile) take it from the ``nominal`` transform (a :class:`Pose`), else from
+    the circles alone (:func:`.linear_start.side_free_sides`, which refuses when the rows
+    do not decide it), then from each start in turn until the sides settle."""
     C, depth, known = sensor_centres(problem, fits)
     undecided = ~known & (depth > 0)
-    if undecided.any():
-        if nominal is None:
-            raise DegenerateDataError(
-                f"{int(undecided.sum())} row(s) are circles (profiles, or circles fitted on board), and without "
-                "stations of pure translations nothing decides on which side of the laser plane each sphere centre "
-                "lies: give a nominal transform (calibration.nominal_transform; spherecal solve --nominal), or "
-                "sphere centres instead of circles, or stations of pure translations")
+    side_figures = {}
+    if undecided.any() and nominal is not None:
         C = sides_from_nominal(problem, C, depth, known, nominal.rotation_matrix, nominal.translation)
+    elif undecided.any():
+        x, side_figures = side_free_sides(problem.R_sphere_from_mount, problem.t_sphere_from_mount, C[:, 1:], depth)
+        C[~known, 0] = x[~known]
     keep = np.ones(problem.n_profiles, dtype=bool)
-    start = _without_gross_rows(problem, C, flags, budget, keep)
-    for _ in range(SIDE_ROUNDS if undecided.any() else 0):
-        C_new = sides_from(problem, C, depth, known, start.R, start.t, start.centre)
-        if np.array_equal(np.sign(C_new[:, 0]), np.sign(C[:, 0])):
+    rounds = SIDE_ROUNDS if undecided.any() else 0
+    # the sides first, from every row (a row on the wrong side would pass for a gross one),
+    # then the gross rows left out, then the sides again from what is left
+    for _ in range(rounds):
+        start = centres_start(problem.R_sphere_from_mount, problem.t_sphere_from_mount, C)
+        C, settled = _resided(problem, C, depth, known, start)
+        if settled:
             break
-        C = C_new
+    start = _without_gross_rows(problem, C, flags, budget, keep)
+    for _ in range(rounds):
+        C, settled = _resided(problem, C, depth, known, start)
+        if settled:
+            break
         start = _without_gross_rows(problem, C, flags, budget, keep)
     start.diagnostics["sides_decided"] = int(undecided.sum())
+    if undecided.any():
+        start.diagnostics["sides_from"] = "nominal" if nominal is not None else "circles alone"
+        start.diagnostics.update(side_figures)
+        if known[keep].any():
+            return start, keep  # a sphere centre's known side fixes the others'
+        start.diagnostics["twin"] = _twin_check(problem, start, depth, keep, nominal)
     return start, keep
+
+
+#: A nominal transform tells apart two solutions that differ by a move along the laser
+#: plane's normal when it lies within this share of their distance of the one kept.
+NOMINAL_TWIN_SHARE = 0.25
+
+
+def _twin_check(problem: Problem, start: LinearStart, depth: np.ndarray, keep: np.ndarray, nominal) -> dict:
+    """Whether another choice of the sides fits the circles alike: the same rotation with
+    the translation moved along the laser plane's normal (the sphere at about one distance
+    from the laser plane in every row). Refuses unless the ``nominal`` transform lies
+    within :data:`NOMINAL_TWIN_SHARE` of their distance of the one kept."""
+    R_A, t_A = problem.R_sphere_from_mount[keep], problem.t_sphere_from_mount[keep]
+    p = (np.einsum("nji,nj->ni", R_A, start.centre - t_A) - start.t) @ start.R[:, 0]  # predicted x
+    _, _, figures = sides_and_offset(p, depth[keep])
+    if figures["margin_chi2"] >= SIDES_DECISIVE_CHI2:
+        return {"margin_chi2": figures["margin_chi2"]}
+    apart = figures["other_offset_mm"] - figures["offset_mm"]
+    todo = ("add rows with the sphere at other distances on both sides of the laser plane, or give sphere centres "
+            "instead of circles")
+    if nominal is None:
+        raise DegenerateDataError(
+            f"two choices of the sides of the laser plane fit the circles alike, the translation {abs(apart):.2f} mm "
+            f"apart along the laser plane's normal: give a nominal transform, or {todo}")
+    along = float((nominal.translation - start.t) @ start.R[:, 0]) - figures["offset_mm"]
+    if abs(along) > NOMINAL_TWIN_SHARE * abs(apart):
+        raise DegenerateDataError(
+            f"two choices of the sides of the laser plane fit the circles alike, the translation {abs(apart):.2f} mm "
+            f"apart along the laser plane's normal (the sphere at about one distance from the laser plane in every "
+            f"row), and the nominal transform lies {abs(along):.2f} and {abs(along - apart):.2f} mm from them along "
+            f"it: too far to tell (within {NOMINAL_TWIN_SHARE * abs(apart):.2f} mm of one is needed); {todo}")
+    return {"margin_chi2": figures["margin_chi2"], "apart_mm": abs(apart), "nominal_from_kept_mm": abs(along)}
+
+
+def _resided(problem: Problem, C: np.ndarray, depth: np.ndarray, known: np.ndarray, start: LinearStart):
+    """``C`` with the sides of the laser plane from ``start``, and whether none changed."""
+    C_new = sides_from(problem, C, depth, known, start.R, start.t, start.centre)
+    return C_new, bool(np.array_equal(np.sign(C_new[:, 0]), np.sign(C[:, 0])))
 
 
 def orientation_stations(problem: Problem, tolerance_deg: float) -> tuple[Problem, dict[str, int], int]:

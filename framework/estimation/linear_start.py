@@ -49,9 +49,13 @@ CENTRE_AXIS_SHARE = 0.05
 #: ... and at least this, mm.
 MIN_CENTRE_EXTENT_MM = 0.5
 #: The translation and sphere centre count as determined when the smallest singular value
-#: of their block of the equations is at least this share of the largest (the two-step's
-#: rule for its step 2, :func:`.twostep.translation_from_orientations`).
-TRANSLATION_CONDITION_SHARE = 1e-3
+#: of their block of the equations is at least this share of the largest: about 1 deg of
+#: turn about a second axis (rows tilted about 20 deg: 0.1-0.15). Ten times the two-step's
+#: rule for its stations (:func:`.twostep.translation_from_orientations`), whose
+#: orientations are distinct by construction: rows turned a few tenths of a degree about
+#: a second axis (a station whose orientation drifted) determine the translation along it
+#: to millimetres, and are better told to add a turn than given such a result.
+TRANSLATION_CONDITION_SHARE = 1e-2
 #: Gauss-Newton steps on (R, t, c) after the projection onto the rotations.
 REFINE_STEPS = 5
 
@@ -131,7 +135,7 @@ def _check_orientations(R_A: np.ndarray) -> tuple[float, np.ndarray]:
     spread, axes = rotation_spread_deg(R_A)
     if share < TRANSLATION_CONDITION_SHARE:
         if spread[0] < 1.0:
-            cause = (f"all {n} rows share one orientation (turned at most {spread[0]:.2g} deg RMS): the translation "
+            cause = (f"all {n} rows are at about one orientation (within {spread[0]:.2g} deg RMS): the translation "
                      "and the sphere centre are not determined; add rows at other orientations, tilted about two "
                      "different axes (10-30 deg)")
         else:
@@ -216,3 +220,116 @@ def centres_start(R_A: np.ndarray, t_A: np.ndarray, C: np.ndarray) -> LinearStar
         "linear_rotation_orthogonality": orthogonality,
         "rms_mm": float(np.sqrt(np.mean(err**2))),
     })
+
+
+# --- circles whose side of the laser plane is not known, without a nominal transform --------------
+#: Fewest rows the side-free equations take: 20 unknowns up to scale, about 2 equations a row.
+MIN_SIDE_FREE_ROWS = 10
+#: The side-free equations fix one solution when their smallest singular value is below
+#: this share of the next (clean simulated logs of 12-40 rows: 0.002-0.01).
+SIDE_FREE_GAP = 0.1
+#: Two choices of the sides count as told apart when the better fits by a likelihood ratio
+#: of at least 1000:1 (as :mod:`.starts` decides between starts).
+SIDES_DECISIVE_CHI2 = 2.0 * np.log(1000.0)
+#: Levi-Civita symbol: ``np.einsum("abc,b,c->a", _EPS, u, v) == np.cross(u, v)``.
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+
+
+def side_free_rotation(R_A: np.ndarray, t_A: np.ndarray, yz: np.ndarray):
+    """The rotation, sphere centre and translation across the laser plane's normal from
+    circles alone, whatever side of the laser plane each sphere centre is on.
+
+    With ``x_i r1 = R_Ai^T (c - t_Ai) - y_i r2 - z_i r3 - t`` (the row's equation, r_k the
+    columns of R), the left side lies along r1 whatever x_i is: its cross product with r1
+    vanishes. With r1 x r2 = r3 and r1 x r3 = -r2 (R a rotation) that is
+    ``r1 x R_Ai^T c - r1 x R_Ai^T t_Ai - y_i r3 + z_i r2 - r1 x t = 0``: homogeneous and
+    linear in r1, r2, r3, w = r1 x t and the nine entries of Q = r1 c^T (21 unknowns up to
+    scale). Its null vector (smallest singular vector, columns scaled) gives them; the
+    sign is the one with det R > 0 (the mirror image is no rotation). Returns (R, c, the
+    translation's part across r1, the singular values' gap: smallest over next)."""
+    n = len(R_A)
+    B = np.swapaxes(R_A, 1, 2)
+    t_bar = t_A.mean(axis=0)
+    u = np.einsum("nij,nj->ni", B, t_A - t_bar)
+    y_bar, z_bar = yz.mean(axis=0)
+    dy, dz = yz[:, 0] - y_bar, yz[:, 1] - z_bar
+    M = np.zeros((n, 3, 21))
+    M[:, :, 0:3] = geo.skew(u)  # -r1 x u
+    M[:, :, 3:6] = dz[:, None, None] * np.eye(3)
+    M[:, :, 6:9] = -dy[:, None, None] * np.eye(3)
+    M[:, :, 9:12] = -np.eye(3)  # w' = r1 x t - y_bar r3 + z_bar r2
+    M[:, :, 12:21] = np.einsum("abc,ncm->nabm", _EPS, B).reshape(n, 3, 9)  # r1 x (R_Ai^T c'), c' = c - t_bar
+    A = M.reshape(3 * n, 21)
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    _, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
+    v = Vt[-1] / scale
+    r1, r2, r3, w, Q = v[0:3], v[3:6], v[6:9], v[9:12], v[12:21].reshape(3, 3)
+    k = (np.linalg.norm(r2) + np.linalg.norm(r3)) / 2.0
+    if np.linalg.det(np.column_stack([r1, r2, r3])) < 0:
+        k = -k
+    r1, r2, r3, w, Q = r1 / k, r2 / k, r3 / k, w / k, Q / k
+    R = geo.proper_procrustes(np.eye(3), np.column_stack([r1, r2, r3]))
+    r1, r2, r3 = R.T
+    c = Q.T @ r1 + t_bar
+    w = w - y_bar * r3 + z_bar * r2
+    return R, c, np.cross(w, r1), float(s[-1] / max(s[-2], 1e-300))
+
+
+def sides_and_offset(p: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float, dict]:
+    """x_i = p_i - alpha with |x_i| as near h_i as can be: the sides (signs of x) and the
+    offset alpha, every choice of the sides tried (each row's candidate offsets
+    ``p_i -+ h_i`` start one), least squares within each. Returns the signed x, alpha and
+    how decisively the best choice beats the best other one whose offset lies more than
+    1 mm away (``margin_chi2``: their cost difference over the best's residual variance;
+    inf when there is none)."""
+    cands = np.unique(np.concatenate([p - h, p + h]))
+    S = np.where(p[None, :] - cands[:, None] >= 0.0, 1.0, -1.0)
+    alpha = np.mean(p[None, :] - S * h[None, :], axis=1)
+    S = np.where(p[None, :] - alpha[:, None] >= 0.0, 1.0, -1.0)
+    alpha = np.mean(p[None, :] - S * h[None, :], axis=1)
+    cost = np.sum((p[None, :] - alpha[:, None] - S * h[None, :]) ** 2, axis=1)
+    best = int(np.argmin(cost))
+    n = len(p)
+    variance = max(float(cost[best]) / max(n - 1, 1), 1e-4)
+    far = np.abs(alpha - alpha[best]) > 1.0
+    margin = float((cost[far].min() - cost[best]) / variance) if far.any() else float("inf")
+    other = float(alpha[far][np.argmin(cost[far])]) if far.any() else None
+    return S[best] * h, float(alpha[best]), {"margin_chi2": margin, "other_offset_mm": other,
+                                             "offset_mm": float(alpha[best])}
+
+
+def side_free_sides(R_A: np.ndarray, t_A: np.ndarray, yz: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, dict]:
+    """The side of the laser plane of each row's sphere centre from circles alone
+    (:func:`side_free_rotation`, then :func:`sides_and_offset` on the centres' distances
+    along the laser plane's normal): the signed x (n,), mm, and the figures. Refuses
+    (:class:`DegenerateDataError`, saying what to add) when the rows are too few, when
+    the side-free equations do not fix one solution, or when two choices of the sides
+    fit alike (the sphere at about one distance from the laser plane in every row)."""
+    R_A, t_A, yz, h = (np.asarray(a, dtype=float) for a in (R_A, t_A, yz, h))
+    n = len(yz)
+    todo = ("give a nominal transform (calibration.nominal_transform; spherecal solve --nominal), a few degrees and "
+            "millimetres off is enough, or sphere centres instead of circles")
+    if n < MIN_SIDE_FREE_ROWS:
+        raise DegenerateDataError(
+            f"{n} circle row(s) at orientations of their own: without a nominal transform the sides of the laser "
+            f"plane need at least {MIN_SIDE_FREE_ROWS} (20 unknowns, about 2 equations a row); {todo}")
+    _check_orientations(R_A)
+    R, c, t_across, gap = side_free_rotation(R_A, t_A, yz)
+    if not gap < SIDE_FREE_GAP:
+        raise DegenerateDataError(
+            f"the circles do not fix one solution without a nominal transform (the side-free equations' two smallest "
+            f"singular values are {gap:.2g} apart, under 1/{1 / SIDE_FREE_GAP:g} needed): {todo}; or add rows with "
+            "the sphere elsewhere in the field of view (at other distances on both sides of the laser plane, along "
+            "the line, nearer and farther) and at orientations turned about other axes")
+    p = (np.einsum("nji,nj->ni", R_A, c - t_A) - yz[:, :1] * R[:, 1] - yz[:, 1:] * R[:, 2] - t_across) @ R[:, 0]
+    x, alpha, decided = sides_and_offset(p, h)
+    if decided["margin_chi2"] < SIDES_DECISIVE_CHI2:
+        raise DegenerateDataError(
+            f"on which side of the laser plane the sphere centre lies is not decided without a nominal transform: "
+            f"two choices of the sides fit alike (offsets {alpha:.2f} and {decided['other_offset_mm']:.2f} mm along "
+            "the laser plane's normal; the sphere at about one distance from the laser plane in every row?); "
+            f"{todo}; or add rows with the sphere at other distances on both sides of the laser plane")
+    return x, {"side_free_gap": gap, **decided}

@@ -386,7 +386,7 @@ def _any_pose_start(problem: Problem, opt, table_flags: list[ObservationFlag], s
     used = np.array(sorted(fits), dtype=int)
     sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
     sub_fits = {j: fits[int(i)] for j, i in enumerate(used)}
-    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
+    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)), stations=False)
     try:
         start, keep = linear_start_of_rows(sub, sub_fits, flags, budget, opt.nominal_transform)
     except DegenerateDataError as exc:
@@ -399,21 +399,21 @@ def _any_pose_start(problem: Problem, opt, table_flags: list[ObservationFlag], s
     sub, split, largest = orientation_stations(sub, orientation_diagnostics["tolerance_deg"])
     notes = [f"station {label}: its rows are at {n} orientations, not one station of pure translations: grouped by "
              "orientation" for label, n in split.items()]
-    effects = dict(robot_effects)
+    effects, robot_notes = dict(robot_effects), []
     if largest < 2 and effects["station_effects"].enabled:
         note, use_kinematic = robot_error_without_stations(opt.robot_error_model,
                                                            kinematics is not None and joints_known)
         effects["station_effects"] = replace(effects["station_effects"], enabled=False)
         if use_kinematic and effects["kinematic_effects"] is None:
             effects["kinematic_effects"] = kinematic_effects(opt, kinematics.chain)
-        notes.append(note)
-    for note in notes:
+        robot_notes.append(note)
+    for note in notes + robot_notes:
         say(note)
     diagnostics = {**{k: orientation_diagnostics[k] for k in ("tolerance_deg", "tolerance_derived",
                                                              "rotation_noise_seen_deg")},
                    "orientation_groups": len(sub.station_labels), "largest_orientation_group": largest,
-                   "split_by_orientation": split, "notes": notes}
-    return as_start(start), sub, sub_fits, budget, flags, diagnostics, effects, notes
+                   "split_by_orientation": split, "notes": notes + robot_notes}
+    return as_start(start), sub, sub_fits, budget, flags, diagnostics, effects, robot_notes
 
 
 #: A recording's fit is screened on a thinned copy of its points when it has more than

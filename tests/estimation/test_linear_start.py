@@ -114,7 +114,7 @@ def test_orientations_about_one_axis_leave_a_translation_component_free_and_say_
                                                   r"\(about \[-?0\.3\d*, -?0\.2\d*, -?0\.9\d*\] in the sphere frame.*"
                                                   r"add rows rotated about a second axis"):
         centres_start(R_A, p.t_sphere_from_mount, p.centre_meas)
-    with pytest.raises(DegenerateDataError, match=r"all 10 rows share one orientation .* add rows at other "
+    with pytest.raises(DegenerateDataError, match=r"all 10 rows are at about one orientation .* add rows at other "
                                                   r"orientations, tilted about two different axes"):
         centres_start(np.broadcast_to(R_A[0], R_A.shape), p.t_sphere_from_mount, p.centre_meas)
 
