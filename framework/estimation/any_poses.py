@@ -252,9 +252,10 @@ def robot_error_without_stations(model: str, kinematic_known: bool) -> tuple[str
         return (f"robot_error_model {model!r}: the station model needs shots that share an orientation and no two "
                 "rows do: the kinematic model (the arm's geometric error, from the joints) was used", True)
     return (f"robot_error_model {model!r}: the station model needs shots that share an orientation and no two rows "
-            "do: the robot's error was taken as pose noise ('none', its size estimated from the residuals), so the "
-            "robot's error shared by every row (its accuracy) is not in the uncertainty; record joints with the poses "
-            "for the kinematic model, or take several shots per orientation", False)
+            "do: the robot's error at each row was taken as pose noise ('none', its size estimated from the "
+            "residuals), and its error shared by every row (its stated accuracy, robot_accuracy_mm and "
+            "robot_accuracy_deg) is in the uncertainty as the station model puts it; record joints with the poses "
+            "for the kinematic model", False)
 
 
 def as_start(start: LinearStart) -> TwoStepResult:

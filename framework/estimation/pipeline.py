@@ -403,7 +403,7 @@ def _any_pose_start(problem: Problem, opt, table_flags: list[ObservationFlag], s
     if largest < 2 and effects["station_effects"].enabled:
         note, use_kinematic = robot_error_without_stations(opt.robot_error_model,
                                                            kinematics is not None and joints_known)
-        effects["station_effects"] = replace(effects["station_effects"], enabled=False)
+        effects["station_effects"] = replace(effects["station_effects"], enabled=False, common_only=not use_kinematic)
         if use_kinematic and effects["kinematic_effects"] is None:
             effects["kinematic_effects"] = kinematic_effects(opt, kinematics.chain)
         robot_notes.append(note)

@@ -98,3 +98,28 @@ def test_the_station_model_asked_for_rows_at_their_own_orientations_takes_the_ki
         res.robot_error.model_choice
     rot = geo.rotation_angle_deg(res.transform.rotation_matrix, cell.true_transform.rotation_matrix)
     assert rot < 0.3, rot
+
+
+@pytest.mark.parametrize("mounting_", ["eye_in_hand", "eye_to_hand"])
+def test_rows_at_their_own_orientations_without_joints_state_the_robots_shared_error(mounting_):
+    """An arm 0.5-2 mm off its reported poses, sphere centres each at its own orientation,
+    no joints: no station offsets to estimate, so the robot's error shared by every row
+    (its stated accuracy; in eye-in-hand also constant on the flange, which the transform
+    takes whole) is considered in the reported covariance, and the transform lies within
+    it; the covariance relative to the robot's frame leaves it out."""
+    from spherecal.plugins.host import PluginHost
+
+    kin = PluginHost().arm_kinematics({"type": "abb_irb2400"})
+    for seed in range(3):
+        cell = standard_cell(mounting_, seed=seed, noise=NOISE, robot_error=RobotErrorModel(), arm=kin,
+                             fov=reference_fov())
+        ds = simulate_general_dataset(cell, 30, kind="sphere_centre", centre_noise_mm=0.02, plan_seed=seed)
+        ds = ds.model_copy(update={"observations": [o.model_copy(update={"joints_deg": None})
+                                                    for o in ds.observations]})
+        res = solve(ds).result
+        assert res.robot_error.model == "none" and "is in the uncertainty" in res.robot_error.model_choice
+        X = cell.true_transform
+        w = geo.rotvec_from_matrix(res.transform.rotation_matrix @ X.rotation_matrix.T)
+        e = np.concatenate([w, res.transform.translation - X.translation])
+        assert e @ np.linalg.solve(np.array(res.covariance)[:6, :6], e) < 27.86, (seed, e)
+        assert max(res.robot_error.std_translation_mm_robot_frame) < max(res.std_translation_mm)
