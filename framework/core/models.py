@@ -523,6 +523,15 @@ class ResultDiagnostics(BaseModel):
     two_step_vs_refined: dict[str, Any] | None = Field(
         None, description="how far the two-step start lies from the refined transform: rotation_deg (deg), "
         "translation_mm (mm)")
+    start: dict[str, Any] | None = Field(
+        None, description="the start of the joint fit: method ('two-step': the published method, on stations of "
+        "pure translations; 'linear': closed-form from the sphere centres at any orientations, for rows that are "
+        "not such stations). A linear start gives its figures: rows, centre_spread_mm and rotation_spread_deg "
+        "(RMS along the principal axes, largest first), translation_condition (1), linear_condition_number (1), "
+        "rms_mm, sides_decided (count), vs_refined (rotation_deg, translation_mm). A two-step start on data where "
+        "the linear start applies too gives linear: linear_vs_two_step and linear_vs_refined (rotation_deg, "
+        "translation_mm, chi2_6dof against the result's covariance), agree (bool), and when they do not agree "
+        "refined_from_linear and chosen ('two-step' or 'linear', by the fit)")
     station_consistency: dict[str, Any] | None = Field(
         None, description="per station label: n_profiles (count), rms_mm and max_mm (mm), the deviation of the "
         "station's measured sphere centres from the predicted ones after removing their means")

@@ -24,7 +24,7 @@ from spherecal.estimation.problem import (
     KIND_CIRCLE, KIND_NAMES, KIND_PROFILE, Problem, build_problem,
     fill_unknown, screen_station_orientations, several_stations_under_one_label, spread_per_station,
 )
-from spherecal.estimation.options import kinematic_effects, station_effects
+from spherecal.estimation.options import kinematic_effects, station_effects, station_rotation_tolerance_deg
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
 from spherecal.estimation.refine.timing import with_start
 from spherecal.estimation.centres import (
@@ -36,6 +36,10 @@ from spherecal.estimation.screening import (
     require_usable_stations, trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
 )
 from spherecal.estimation.starts import settle_alternative_starts
+from spherecal.estimation.any_poses import (
+    as_start, beside_the_linear_start, linear_start_beside, linear_start_of_rows, orientation_stations,
+    robot_error_without_stations, start_diagnostics, stations_of_single_rows,
+)
 from spherecal.estimation.twostep import CentreShot, TwoStepResult
 
 @dataclass
@@ -245,7 +249,12 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         every_point = problem
         problem = problem.with_profiles([p[::thin] if len(p) >= 2 * thin else p for p in problem.profiles])
         say(f"screening on every {thin}th point of each profile ({sum(len(p) for p in problem.profiles)} points)")
+    # labels of one row each carry no stations: the rows that share an orientation make them
+    problem, grouped = stations_of_single_rows(problem, station_rotation_tolerance_deg(opt))
+    if grouped:
+        say(grouped)
     # within a station the robot may only translate: turned shots are left out or split off
+    unscreened = problem
     ori = screen_station_orientations(
         problem, opt.station_rotation_tolerance_deg, opt.pose_rotation_noise_deg, opt.estimate_pose_noise,
         opt.min_profiles_per_station,
@@ -259,25 +268,22 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
     facing = arcs_facing_away(problem, fits)
     if facing is not None:
         raise DegenerateDataError(facing)
+    orientation_diagnostics, start_notes = ori.diagnostics, []
     try:
-        require_usable_stations(problem, fits, flags, opt, hint)
-        say("two-step solution (rotation from translations, translation from orientations)")
-        budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
-        # a recording's poses are read at each profile's time, not paired with it: no shot
-        # is mis-paired, and the profiles near the sphere's rim, whose centres the two-step
-        # sees poorly, would pass for such
-        if time_effects is None:
-            ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
-        else:
-            ts, sub, sub_fits = _recording_start(problem, fits, flags, opt, hint)
+        ts, sub, sub_fits, budget = _station_start(problem, fits, flags, opt, hint, say, time_effects)
     except DegenerateDataError as exc:
         scattered = ori.diagnostics.get("scattered_stations")
-        if not scattered:
-            raise
         # what is left says too little because a label held several stations: that is the cause to name
-        raise DegenerateDataError(f"{several_stations_under_one_label(scattered)}; the observations left cannot "
-                                  "determine the transform") from exc
-    noise = _noise_assumptions(opt, sub_fits, ori.diagnostics, say)
+        cause = exc if not scattered else DegenerateDataError(
+            f"{several_stations_under_one_label(scattered)}; the observations left cannot determine the transform")
+        if time_effects is not None:
+            raise cause from (exc if scattered else None)
+        # rows the pure-translation rule showed wrong stay out: that rule holds whatever the start
+        wrong = [f for f in flags[len(table_flags):] if f.reason.startswith("inconsistent")]
+        general = _any_pose_start(unscreened, opt, table_flags + wrong, say, cause, ori.diagnostics, robot_effects,
+                                  kinematics, joints_known)
+        ts, sub, sub_fits, budget, flags, orientation_diagnostics, robot_effects, start_notes = general
+    noise = _noise_assumptions(opt, sub_fits, orientation_diagnostics, say)
 
     def refit(clean_: Problem, start) -> RefineResult:
         timing = {} if time_effects is None else {"time_effects": with_start(time_effects, getattr(start, "timing", None))}
@@ -296,6 +302,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         ts, ref = settle_alternative_starts(clean, ts, refit, cost, say)
     else:
         ref = refit(clean, ts)
+    linear = None if ts.diagnostics.get("start") == "linear" else linear_start_beside(sub, ts, opt)
     # data that fit nothing (another mounting's data, poses in other units): the refinement
     # does not converge and leaves residuals many times the noise. Screening them would
     # only refit, once per profile left out, each refit as slow and as futile (minutes);
@@ -319,6 +326,12 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
             ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius,
                          opt.estimate_pose_noise and reweighed is None, **robot_effects, **timing)
 
+    compared = None
+    if linear is not None and not absurd:
+        def cost(r: RefineResult, scale: float) -> float:
+            return cost_at(clean, r, noise, opt.fit_radius, scale, **robot_effects, time_effects=time_effects)
+
+        ref, compared = beside_the_linear_start(clean, ts, ref, linear, refit, cost, say)
     if not (clean.kinds == KIND_PROFILE).any() and opt.point_noise_mm is None:
         # no profile shows the sensor's point noise: the centres' per-axis noise stands in
         # for it (in the expected residual and the point-error budget)
@@ -326,11 +339,82 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
     n_point_rejected = sum(original_points.get(int(i), 0) - len(p) for i, p in zip(clean.obs_index, clean.profiles))
     orientations = len(clean.station_labels)
     result = _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, noise, opt)
-    added = {"station_orientation": ori.diagnostics}
+    if grouped:
+        orientation_diagnostics = {**orientation_diagnostics, "single_row_labels_grouped": grouped}
+    added = {"station_orientation": orientation_diagnostics, "start": start_diagnostics(ts, ref, compared)}
+    if start_notes:
+        robot = result.robot_error
+        choice = "; ".join([*start_notes, *([robot.model_choice] if robot.model_choice else [])])
+        result = result.model_copy(update={"robot_error": robot.model_copy(update={"model_choice": choice})})
     if opt.nominal_transform is None and (clean.kinds == KIND_CIRCLE).all():
         added["mirror_twin"] = {"excluded": False, "text": CIRCLE_TWIN}
     result = result.model_copy(update={"diagnostics": result.diagnostics.model_copy(update=added)})
     return Solution(result, clean, ts, ref, fits, extras={"kinds": {o.index: o.kind for o in dataset.observations}})
+
+
+def _station_start(problem: Problem, fits: dict, flags: list[ObservationFlag], opt, hint: str, say, time_effects):
+    """The two-step start of station data (:func:`.screening.two_step_without_gross_outliers`;
+    a recording's from a subsample, :func:`_recording_start`): (start, the problem of the
+    shots used, their fits, the rejection budget). :class:`DegenerateDataError` when the
+    stations cannot give it."""
+    require_usable_stations(problem, fits, flags, opt, hint)
+    say("two-step solution (rotation from translations, translation from orientations)")
+    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)))
+    # a recording's poses are read at each profile's time, not paired with it: no shot
+    # is mis-paired, and the profiles near the sphere's rim, whose centres the two-step
+    # sees poorly, would pass for such
+    if time_effects is None:
+        ts, sub, sub_fits = two_step_without_gross_outliers(problem, fits, flags, opt, hint, budget)
+    else:
+        ts, sub, sub_fits = _recording_start(problem, fits, flags, opt, hint)
+    return ts, sub, sub_fits, budget
+
+
+def _any_pose_start(problem: Problem, opt, table_flags: list[ObservationFlag], say, cause: DegenerateDataError,
+                    orientation_diagnostics: dict, robot_effects: dict, kinematics, joints_known: bool):
+    """The start from any orientations (:mod:`.any_poses`) of every row of ``problem``
+    (before the orientation screening: no row is left out as turned) but those
+    ``table_flags`` name, when the two-step cannot start (``cause``). Returns what :func:`_solve` goes on with: the start, the
+    problem of the rows used (stations regrouped by orientation), their fits, the
+    rejection budget, the flags, the orientation diagnostics, the robot error effects
+    (without station offsets when no two rows share an orientation) and what the result
+    says of them. When it cannot start either, :class:`DegenerateDataError` gives both
+    causes."""
+    flags = list(table_flags)
+    out = {f.index for f in table_flags}
+    problem = problem.subset(~np.isin(problem.obs_index, list(out))) if out else problem
+    fits = _fit_shots(problem, opt, flags, say)
+    used = np.array(sorted(fits), dtype=int)
+    sub = problem.subset(np.isin(np.arange(problem.n_profiles), used))
+    sub_fits = {j: fits[int(i)] for j, i in enumerate(used)}
+    budget = RejectionBudget(int(opt.max_rejected_profile_fraction * len(fits)), stations=False)
+    try:
+        start, keep = linear_start_of_rows(sub, sub_fits, flags, budget, opt.nominal_transform)
+    except DegenerateDataError as exc:
+        raise DegenerateDataError(f"{cause}. Nor can the start from any orientations solve it: {exc}") from None
+    if not keep.all():
+        sub_fits = {j: sub_fits[int(i)] for j, i in enumerate(np.flatnonzero(keep))}
+        sub = sub.subset(keep)
+    say(f"the rows are not stations of pure translations ({cause}): the start from any orientations, linear in the "
+        f"sphere centres of {int(keep.sum())} rows, is used")
+    sub, split, largest = orientation_stations(sub, orientation_diagnostics["tolerance_deg"])
+    notes = [f"station {label}: its rows are at {n} orientations, not one station of pure translations: grouped by "
+             "orientation" for label, n in split.items()]
+    effects, robot_notes = dict(robot_effects), []
+    if largest < 2 and effects["station_effects"].enabled:
+        note, use_kinematic = robot_error_without_stations(opt.robot_error_model,
+                                                           kinematics is not None and joints_known)
+        effects["station_effects"] = replace(effects["station_effects"], enabled=False, common_only=not use_kinematic)
+        if use_kinematic and effects["kinematic_effects"] is None:
+            effects["kinematic_effects"] = kinematic_effects(opt, kinematics.chain)
+        robot_notes.append(note)
+    for note in notes + robot_notes:
+        say(note)
+    diagnostics = {**{k: orientation_diagnostics[k] for k in ("tolerance_deg", "tolerance_derived",
+                                                             "rotation_noise_seen_deg")},
+                   "orientation_groups": len(sub.station_labels), "largest_orientation_group": largest,
+                   "split_by_orientation": split, "notes": notes + robot_notes}
+    return as_start(start), sub, sub_fits, budget, flags, diagnostics, effects, robot_notes
 
 
 #: A recording's fit is screened on a thinned copy of its points when it has more than
@@ -562,6 +646,7 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
     # the transform's and sphere's block (the identified geometric parameters' spreads go to
     # robot_error.kinematic_parameters): result.covariance is that block, as readers check
     n_geo = 10 if opt.fit_radius else 9
+    linear = ts.diagnostics.get("start") == "linear"
     cov = ref.covariance[:n_geo, :n_geo] * 1.0
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     res = np.concatenate(ref.residuals)
@@ -611,17 +696,17 @@ def _result(dataset, clean, ts, ref, flags, n_point_rejected, orientations, nois
             **centre_stats,
         ),
         flagged=sorted(flags, key=lambda f: f.index),
-        method="two-step (Ren, Yin and Zhu 2012) start, then joint refinement over all points "
+        method=("closed-form linear start from the sphere centres at any orientations" if linear else
+                "two-step (Ren, Yin and Zhu 2012) start") + ", then joint refinement over all points "
         "(generalised least squares with robot pose noise, stray points and inconsistent profiles rejected)"
         + (" and centre observations, each with its covariance" if clean.has_centres else ""),
-        two_step_transform=Pose.from_rt(ts.R, ts.t),
+        **({} if linear else {"two_step_transform": Pose.from_rt(ts.R, ts.t)}),
         diagnostics=ResultDiagnostics(
             orientations=orientations,
-            two_step={k: v for k, v in ts.diagnostics.items() if k != "obs_index"},
-            two_step_vs_refined={
-                "rotation_deg": geo.rotation_angle_deg(ts.R, ref.R),
-                "translation_mm": float(np.linalg.norm(ts.t - ref.t)),
-            },
+            **({} if linear else {
+                "two_step": {k: v for k, v in ts.diagnostics.items() if k != "obs_index"},
+                "two_step_vs_refined": {"rotation_deg": geo.rotation_angle_deg(ts.R, ref.R),
+                                        "translation_mm": float(np.linalg.norm(ts.t - ref.t))}}),
             station_consistency=station_consistency(clean, ts, ref),
             refinement={
                 "iterations": ref.iterations,

@@ -22,6 +22,7 @@ from spherecal.estimation.problem import KIND_NAMES, KIND_PROFILE, KIND_SPHERE_C
 from spherecal.estimation.refine import NoiseAssumptions, RefineResult
 from spherecal.estimation.robust import median
 from spherecal.estimation.centres import GROSS_MOVE_MM, GROSS_MOVE_RELATIVE
+from spherecal.estimation.linear_start import MIN_ROWS
 from spherecal.estimation.twostep import (
     StationCentres, TwoStepResult, rotation_from_translations, station_centres, two_step,
 )
@@ -255,12 +256,22 @@ def _left_out_summary(flags: list[ObservationFlag]) -> str:
     return "; ".join(f"{n} x {kind}" for kind, n in sorted(why.items(), key=lambda kv: -kv[1])[:3])
 
 
-def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str) -> Problem:
-    """``problem`` without the profiles not kept (already flagged) and without the
-    stations left too thin (flagged here); raises when what is left cannot determine
-    the transform."""
+def _drop_profiles(problem: Problem, keep: np.ndarray, flags: list[ObservationFlag], opt, context: str,
+                   stations: bool = True) -> Problem:
+    """``problem`` without the profiles not kept (already flagged) and, with ``stations``,
+    without the stations left too thin (flagged here); raises when what is left cannot
+    determine the transform (without ``stations``: fewer rows than the start from any
+    orientations needs)."""
     if keep.all():
         return problem
+    if not stations:
+        left = problem.subset(keep)
+        if left.n_profiles < MIN_ROWS:
+            raise DegenerateDataError(
+                f"{left.n_profiles} row(s) are left once the rows inconsistent with the others were left out, and "
+                f"the start from any orientations needs at least {MIN_ROWS}: check the pairing of poses and "
+                "profiles and re-acquire")
+        return left
     keep = _thin_stations(problem, keep, flags, opt, context)
     left = problem.subset(keep)
     if left.n_profiles == 0:
@@ -417,6 +428,9 @@ class RejectionBudget:
 
     max_reject: int
     rejected: int = 0
+    #: whether each station must keep its minimum of shots (the two-step's stations); the
+    #: start from any orientations needs none, only its minimum of rows in all
+    stations: bool = True
 
 
 #: A line sensor sees the side of the sphere that faces it: a profile's points lie above
@@ -582,7 +596,7 @@ def trim_stray_points(clean: Problem, ref: RefineResult, noise: NoiseAssumptions
                                          f"{limit:.3f} mm): "
                                          + likely_cause_of_inconsistent_profile(ref.predicted[j], ref.radius)))
         budget.rejected += len(drop)
-        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
+        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ", budget.stations)
         ref = refit(clean, ref)
     if any(not k.all() for k in keep_pts):
         clean = clean.with_profiles([p if k.all() else p[k] for p, k in zip(clean.profiles, keep_pts)])
@@ -610,7 +624,7 @@ def reject_inconsistent_shots(clean: Problem, ref: RefineResult, opt, flags: lis
             for j in worst_first:
                 flags.append(flag_shot(clean, int(j), f"inconsistent with the other profiles (chi2 {chi2[j]:.1f} on 3 "
                                                       "dof): its pose and its profile disagree"))
-            clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
+            clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ", budget.stations)
             budget.rejected += len(worst_first)
             ref = refit(clean, ref)
             continue
@@ -627,7 +641,7 @@ def reject_inconsistent_shots(clean: Problem, ref: RefineResult, opt, flags: lis
                                              "pairing"))
         keep = np.ones(clean.n_profiles, dtype=bool)
         keep[worst] = False
-        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ")
+        clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ", budget.stations)
         budget.rejected += 1
         ref = refit(clean, ref)
     return clean, ref

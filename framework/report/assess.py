@@ -521,7 +521,7 @@ def start_disagreement_explained(result: CalibrationResult, thresholds: Threshol
     refinement allows for it, so they part by about its size (a translation within the
     expected error of a point at a new pose, no rotation beyond the note's limit)."""
     th = thresholds or Thresholds()
-    tsr = result.diagnostics.two_step_vs_refined or {}
+    tsr = start_vs_refined(result.diagnostics)
     err = result.robot_error
     return (err is not None and robot_error_dominates(result, th) and not is_absurd(result, th)
             and tsr.get("rotation_deg", 0.0) <= th.start_disagreement_deg
@@ -583,8 +583,9 @@ def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
     else:
         seen = (f"The stations disagree by about {station_disagreement_text(err)}, more than the noise explains: the "
                 "robot's flange is not where its controller says, by an amount that changes with the joints.")
-    tsr = result.diagnostics.two_step_vs_refined or {}
-    start = (f" The two-step start, which leaves this error out, differs from the result by "
+    tsr = start_vs_refined(result.diagnostics)
+    which = "two-step" if result.diagnostics.two_step_vs_refined else "linear"
+    start = (f" The {which} start, which leaves this error out, differs from the result by "
              f"{tsr.get('rotation_deg', 0.0):.3f} deg and {tsr.get('translation_mm', 0.0):.3f} mm: that is this error "
              "too, not bad data." if start_disagreement_explained(result, th) and _start_disagrees(tsr, th) else "")
     return [Advice(
@@ -745,6 +746,12 @@ def _stray_point_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
     return out
 
 
+def start_vs_refined(diag) -> Mapping:
+    """How far the fit's start (the two-step's, else the start from any orientations) is
+    from the refined result: ``rotation_deg``, ``translation_mm`` ({} when not known)."""
+    return diag.two_step_vs_refined or (diag.start or {}).get("vs_refined") or {}
+
+
 def _start_disagrees(tsr: Mapping, th: Thresholds) -> bool:
     return tsr.get("rotation_deg", 0) > th.start_disagreement_deg or tsr.get("translation_mm", 0) > th.start_disagreement_mm
 
@@ -753,11 +760,12 @@ def _estimator_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]
     """The two-step start far from the refined result, or a refinement that did not converge."""
     out: list[Advice] = []
     diag = result.diagnostics
-    tsr = diag.two_step_vs_refined or {}
+    tsr = start_vs_refined(diag)
+    which = "Two-step" if diag.two_step_vs_refined else "Linear"
     # the robot's error explains a start the refinement left (the robot error advice says so): not the data's fault
     if _start_disagrees(tsr, th) and not start_disagreement_explained(result, th):
         out.append(Advice(
-            "start_disagrees", "amber", "Two-step start and refinement disagree",
+            "start_disagrees", "amber", f"{which} start and refinement disagree",
             f"They differ by {tsr.get('rotation_deg', 0):.3f} deg and {tsr.get('translation_mm', 0):.3f} mm. "
             "With good data they agree to a few hundredths; a large difference points at bad observations "
             "that were not caught, or at too little rotation between stations.",

@@ -27,6 +27,8 @@ _WHERE = {
     "plan_stations": "spherecal.motion.planning",
     "simulate_centre_dataset": ".datasets",
     "simulate_dataset": ".datasets",
+    "simulate_general_dataset": ".datasets",
+    "general_pose_targets": ".datasets",
     "RobotErrorModel": "spherecal.config",
     "OnTheFlyPlan": "spherecal.config",
     "StreamSimSettings": "spherecal.config",

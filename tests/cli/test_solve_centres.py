@@ -87,25 +87,34 @@ def test_eye_in_hand_centres_labelled_eye_to_hand_are_red_with_the_likely_cause(
     assert verdict["level"] == "red" and verdict["written_with_force"]
 
 
-def test_centre_rows_of_several_orientations_under_one_label_are_a_data_error(tmp_path, capsys):
-    """One sphere-centre row at each of five orientations, all labelled S1 (a table whose
-    station column was left at its default): a data error (exit 3) naming station S1 and
-    its orientations, never an internal error."""
-    from spherecal.cli import EXIT_DATA
+def test_centre_rows_of_several_orientations_under_one_label_are_solved_or_a_data_error(tmp_path, capsys):
+    """Two sphere-centre rows at each of five orientations, all labelled S1 (a table whose
+    station column was left at its default): too few per orientation for the two-step, so
+    the start from any orientations solves it (exit 0) and the terminal names station S1
+    with its orientations. One row at each of four orientations is too few for it: a data
+    error (exit 3) naming station S1, its orientations and what the start from any
+    orientations needs; never an internal error."""
+    from spherecal.cli import EXIT_DATA, EXIT_OK
 
     cell = standard_cell("eye_in_hand", seed=9, noise=NOISE, fov=reference_fov())
     tilts = [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, 20.0), (-20.0, 0.0, 0.0)]
     ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4, tilts_deg=tilts), kind="sphere_centre",
                                  centre_noise_mm=0.02)
     rows = [o.model_copy(update={"station": "S1", "index": k})
-            for k, o in enumerate(o for o in ds.observations if o.index % 4 == 0)]
+            for k, o in enumerate(o for o in ds.observations if o.index % 4 in (0, 3))]
     path = tmp_path / "centres.dataset.jsonl"
     dataio.write_dataset(path, ds.model_copy(update={"observations": rows}))
-    assert main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"]) == EXIT_DATA
+    assert main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"]) == EXIT_OK
+    err = capsys.readouterr().err
+    assert "station S1: its rows are at 5 orientations, not one station of pure translations" in err, err
+    path = tmp_path / "four.dataset.jsonl"
+    dataio.write_dataset(path, ds.model_copy(update={"observations": rows[:8:2]}))
+    assert main(["solve", str(path), "--out", str(tmp_path / "res4"), "--no-report"]) == EXIT_DATA
     err = capsys.readouterr().err
     assert "internal error" not in err, err
-    assert "error: station S1: its 5 observations are at 5 different orientations" in err, err
+    assert "error: station S1: its 4 observations are at 4 different orientations" in err, err
     assert "label each orientation a station of its own" in err, err
+    assert "Nor can the start from any orientations solve it: 4 row(s) with a sphere centre" in err, err
 
 
 def _swapped_circles(ds):

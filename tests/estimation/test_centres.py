@@ -162,10 +162,24 @@ def test_three_non_collinear_translations_fix_the_rotation_and_collinear_ones_do
     three = [o for o in ds.observations if o.index != 3]  # S1: three shots, not on one line
     res = solve(ds.model_copy(update={"observations": three}), CalibrationOptions(robot_error_model="none")).result
     assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
-    # every station of two shots: each move on one line and all parallel in the sensor -> no rotation
+    # every station of two shots: each move on one line and all parallel in the sensor, so no station's
+    # moves fix the rotation; the stations' sweeps at different places of the field of view do (the start
+    # from any orientations)
     pairs = [o for o in ds.observations if (o.index % 4) in (0, 3)]
-    with pytest.raises(DegenerateDataError, match="all along one line: the rotation is not determined"):
+    res = solve(ds.model_copy(update={"observations": pairs}), CalibrationOptions(robot_error_model="none")).result
+    assert res.diagnostics.start["method"] == "linear" and res.two_step_transform is None
+    assert_known_answer(res, cell, rot_deg=0.3, trans_mm=0.5)
+    # every sweep at one place of the field of view: the centres lie along one line of the sensor frame
+    one_place = SweepPlan(profiles_per_station=4, station_offsets_mm=[(0.0, 0.0)], lateral_amplitude_mm=0.0)
+    ds = minimal(simulate_centre_dataset(cell, one_place, kind="sphere_centre", centre_noise_mm=0.01))
+    pairs = [o for o in ds.observations if (o.index % 4) in (0, 3)]
+    with pytest.raises(DegenerateDataError) as caught:
         solve(ds.model_copy(update={"observations": pairs}), CalibrationOptions(robot_error_model="none"))
+    said = str(caught.value)
+    assert "all along one line: the rotation is not determined" in said, said
+    assert re.search(r"Nor can the start from any orientations solve it: the sphere centre is along one line "
+                     r"\(about \[.*\]\) of the sensor frame in every row", said), said
+    assert "add rows with the sphere elsewhere in the field of view" in said, said
 
 
 def test_a_circle_station_needs_two_shots_a_sphere_centre_station_one():
@@ -397,20 +411,46 @@ def one_label_for_five_orientations(per_orientation: int) -> tuple[Dataset, Data
 
 
 @pytest.mark.parametrize("per_orientation", [1, 3])
-def test_rows_of_several_orientations_under_one_label_are_named_not_blamed_as_typos(per_orientation):
+def test_rows_of_several_orientations_under_one_label_are_named_and_solved_by_orientation(per_orientation):
     """Within a station the robot may only translate: rows at five orientations under one
-    label are a labelling error. With fewer rows per orientation than a split station
-    needs, what is left cannot determine the transform, and the refusal names the station,
-    how many orientations it holds and how far apart, and what to do; never a crash (one
-    row per orientation), never the rows flagged one by one as typos, and never 'all
+    label are not a station. With fewer rows per orientation than a split station needs,
+    the two-step cannot start, and the start from any orientations solves them: the known
+    answer, no row blamed as a typo, the label named with the orientations it holds. With
+    one row per orientation no two rows share one, so the station robot error model (the
+    default without joints) has nothing to estimate: the fit takes the robot's error as
+    pose noise and says so; with three, the rows are grouped by orientation for it."""
+    _, one, cell = one_label_for_five_orientations(per_orientation)
+    res = solve(one).result
+    # five rows (one per orientation) determine the transform to about 0.2 deg (stated): the chi^2 checks that
+    assert_known_answer(res, cell, rot_deg=0.5 if per_orientation == 1 else 0.15)
+    assert res.flagged == [] and res.diagnostics.start["method"] == "linear"
+    orientation = res.diagnostics.station_orientation
+    assert orientation["split_by_orientation"] == {"S1": 5}, orientation
+    assert orientation["notes"][0] == ("station S1: its rows are at 5 orientations, not one station of pure "
+                                       "translations: grouped by orientation"), orientation
+    if per_orientation == 1:
+        assert res.robot_error.model == "none"
+        assert "the station model needs shots that share an orientation and no two rows do" in \
+            res.robot_error.model_choice, res.robot_error.model_choice
+    else:
+        assert res.robot_error.model == "station" and orientation["largest_orientation_group"] == 3
+
+
+def test_too_few_rows_of_several_orientations_under_one_label_name_both_causes():
+    """Four rows at four orientations under one label: neither start can solve them. The
+    refusal names the label with its orientations and what the start from any
+    orientations needs; never a crash, never the rows blamed as typos, never 'all
     stations share one orientation', the opposite of the cause."""
-    _, one, _ = one_label_for_five_orientations(per_orientation)
+    _, one, _ = one_label_for_five_orientations(1)
+    four = one.model_copy(update={"observations": one.observations[:4]})
     with pytest.raises(DegenerateDataError) as caught:
-        solve(one)
+        solve(four)
     said = str(caught.value)
-    assert re.match(rf"station S1: its {5 * per_orientation} observations are at 5 different orientations \(up to "
-                    r"4\d\.\d deg apart\)", said), said
+    assert re.match(r"station S1: its 4 observations are at 4 different orientations \(up to \d+\.\d deg apart\)",
+                    said), said
     assert "label each orientation a station of its own" in said, said
+    assert ("Nor can the start from any orientations solve it: 4 row(s) with a sphere centre: the start from any "
+            "orientations needs at least 5") in said, said
     assert "share one orientation" not in said and "typo" not in said, said
 
 
@@ -430,13 +470,20 @@ def test_rows_of_several_orientations_under_one_label_are_split_and_solved_as_la
     assert_known_answer(res, cell)
 
 
-def test_stations_of_one_sphere_centre_each_say_the_rotation_needs_moves():
+def test_stations_of_one_sphere_centre_each_are_solved_from_any_orientations():
     """Every station one sphere centre: no pure-translation move, so the two-step cannot
-    find the rotation, and says so (not an index error)."""
-    labelled, _, _ = one_label_for_five_orientations(1)
-    with pytest.raises(DegenerateDataError, match="no station has two shots the robot moved between by a pure "
-                                                  "translation: the rotation is not determined"):
-        solve(labelled)
+    find the rotation; the start from any orientations can (five rows, turned about three
+    axes), and gives the known answer. Four such rows are too few, and the refusal says
+    how many it needs."""
+    labelled, _, cell = one_label_for_five_orientations(1)
+    res = solve(labelled).result
+    assert res.diagnostics.start["method"] == "linear"
+    assert_known_answer(res, cell, rot_deg=0.5)  # five rows: about 0.2 deg stated, the chi^2 checks it
+    four = labelled.model_copy(update={"observations": labelled.observations[:4]})
+    with pytest.raises(DegenerateDataError, match=r"no station has two shots the robot moved between by a pure "
+                                                  r"translation: the rotation is not determined.*Nor can the start "
+                                                  r"from any orientations solve it: 4 row\(s\)"):
+        solve(four)
 
 
 def test_a_hand_typed_table_with_a_non_unit_quaternion_names_the_line(tmp_path):

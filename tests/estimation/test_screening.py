@@ -248,11 +248,27 @@ def test_station_whose_shots_all_differ_is_dropped_with_flags():
 
 
 def test_nothing_left_after_turning_says_what_to_do():
+    """Every shot turned a few tenths of a degree within its station: the two-step has
+    nothing left. Two stations turned about one axis cannot give the translation either
+    way, and the refusal says what to do for both starts; four stations turned about three
+    axes are solved from any orientations, within their stated uncertainty."""
     cell = cell_for(2, mounting="eye_to_hand")
     rng = np.random.default_rng(6)
     turns = {(s, k): tuple(rng.normal(size=3) * 0.2) for s in ("S1", "S2", "S3", "S4") for k in range(10)}
-    with pytest.raises(DegenerateDataError, match=r"turned within their station.*station_rotation_tolerance_deg"):
-        solve(turned_dataset(cell, turns))
+    ds = turned_dataset(cell, turns)
+    two = ds.model_copy(update={"observations": [o for o in ds.observations if o.station in ("S1", "S2")]})
+    with pytest.raises(DegenerateDataError, match=r"turned within their station.*station_rotation_tolerance_deg.*"
+                                                  r"Nor can the start from any orientations solve it: the rows' "
+                                                  r"orientations differ only by rotations about one axis.*add rows "
+                                                  r"rotated about a second axis"):
+        solve(two)
+    res = solve(ds).result
+    assert res.diagnostics.start["method"] == "linear"
+    assert "station S1: its rows are at 10 orientations" in res.diagnostics.station_orientation["notes"][0]
+    X = cell.true_transform
+    w = geo.rotvec_from_matrix(res.transform.rotation_matrix @ X.rotation_matrix.T)
+    e = np.concatenate([w, res.transform.translation - X.translation])
+    assert e @ np.linalg.solve(np.array(res.covariance)[:6, :6], e) < 27.86
 
 
 def test_station_rotation_tolerance_is_settable():

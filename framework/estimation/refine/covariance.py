@@ -134,6 +134,8 @@ def covariances_at_solution(fit: RefineState, lin: _Linearisation) -> Covariance
     cov_at_scales = None
     if fit.se is not None and fit.ke is None:
         cov, cov_robot_frame, cov_at_scales = _with_common_error(fit, lin, At, As, blocks, cov, Cinv)
+    elif fit.common_only is not None and fit.ke is None:
+        cov = _with_common_error_only(fit, lin, At, cov)
     if len(fit.id_cols):
         kin_sd[fit.id_cols] = np.sqrt(np.maximum(np.diag(cov)[fit.n_geo:fit.n_geo + len(fit.id_cols)], 0.0))
     return Covariances(cov, cov_fixed, cov_robot_frame, cov_at_scales, condition, kin_sd, kinematic_terms, evidence)
@@ -223,6 +225,29 @@ def _kinematic_terms(fit: RefineState, cov, cov_robot_frame, A_tr, A_rr, Cinv, o
             "posterior_cov": post,
         }
     return None
+
+
+def _with_common_error_only(fit: RefineState, lin: _Linearisation, At, cov):
+    """``cov`` (no station offsets) with the robot's common error added as a 'consider'
+    parameter, as the station model adds it (:func:`_with_common_error`): rows that share
+    no orientation have no station offsets to estimate, and their robot's error shared
+    by every row is still not measured by one sphere location. In eye-in-hand it is
+    considered in the base axes and as an error constant in the flange frame too (the
+    wrist's and flange's own error, at every orientation the same on the flange), which
+    the transform on the flange takes whole; the station model's station offsets, turned
+    with their stations, stand in for that part on station data."""
+    ce = fit.common_only
+    problem = fit.current()
+    common = np.diag([np.radians(ce.common_rotation_deg) ** 2] * 3 + [ce.common_translation_mm**2] * 3)
+    S = cov @ lin.red.gram(At, lin.columns(_common_error_design(problem, lin.Jd)))
+    out = cov + S @ common @ S.T
+    if problem.mounting == "eye_in_hand":
+        M = np.zeros((problem.n_profiles, 6, 6))  # flange-frame (omega, tau) in base axes: R0 each
+        M[:, :3, :3] = problem.R0
+        M[:, 3:, 3:] = problem.R0
+        S = cov @ lin.red.gram(At, lin.columns(lin.Jd @ M))
+        out = out + S @ common @ S.T
+    return out
 
 
 def _with_common_error(fit: RefineState, lin: _Linearisation, At, As, blocks, cov, Cinv):

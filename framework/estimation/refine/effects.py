@@ -33,6 +33,9 @@ class StationEffects:
     translation_mm: float | None = None
     common_rotation_deg: float = 0.0
     common_translation_mm: float = 0.0
+    #: not ``enabled`` (no station offsets: rows that share no orientation), the robot's
+    #: common error still considered in the covariance
+    common_only: bool = False
 
 
 @dataclass(frozen=True)

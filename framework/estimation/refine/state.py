@@ -58,6 +58,9 @@ class RefineState:
         self.n_geo = 10 if fit_radius else 9
         K = self.K = len(problem.station_labels)
         self.se = station_effects if station_effects is not None and station_effects.enabled and K >= 2 else None
+        # the robot's common error considered without station offsets (StationEffects.common_only)
+        self.common_only = (station_effects if station_effects is not None and station_effects.common_only
+                            and not station_effects.enabled else None)
         self.ke = kinematic_effects if kinematic_effects is not None and problem.q_rad is not None else None
         self.delta = np.zeros((K, 6))
         self.station_shots = [np.flatnonzero(problem.station_of == k) for k in range(K)]

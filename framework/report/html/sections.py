@@ -18,7 +18,7 @@ from spherecal.estimation.pipeline import POINT_ERROR_PARTS
 from spherecal.io.exporters import CALIBRATED_URDF_NAME, ExportNote, calibrated_model_warning
 from spherecal.report import export
 from spherecal.report.assess import (Thresholds, expected_rms_mm, inconsistent_stations, station_disagreement_text,
-                                     station_prediction)
+                                     start_vs_refined, station_prediction)
 from spherecal.report.html.data import K_EXPANDED, interactive_points, point_uncertainty
 from spherecal.report.html.signing import is_simulated, provenance_rows
 from spherecal.report.terminal import point_error_lines
@@ -456,14 +456,15 @@ def details_html(result: CalibrationResult) -> str:
     d = result.diagnostics
     ref = d.refinement or {}
     noise = d.noise or {}
-    tsr = d.two_step_vs_refined or {}
+    tsr = start_vs_refined(d)
+    start = "two-step" if d.two_step_vs_refined or not d.start else f"{d.start.get('method', '?')} start"
     rows = [
         ["method", _e(result.method)],
         ["variance factor (chi&sup2;/dof)", _n(result.variance_factor, 3)],
         ["refinement", f"{ref.get('iterations', '?')} iterations, converged: {ref.get('converged', '?')}"],
         ["information condition number", f"{ref.get('information_condition_number', float('nan')):.3g}"],
         ["orientations (stations)", str("?" if d.orientations is None else d.orientations)],
-        ["two-step vs refined", f"{_n(tsr.get('rotation_deg'))} deg, {_n(tsr.get('translation_mm'))} mm"],
+        [f"{start} vs refined", f"{_n(tsr.get('rotation_deg'))} deg, {_n(tsr.get('translation_mm'))} mm"],
         ["noise used (point / pose translation / pose rotation)",
          f"{_n(noise.get('point_noise_mm'))} mm / {_n(noise.get('pose_translation_noise_mm'))} mm / "
          f"{_n(noise.get('pose_rotation_noise_deg'))} deg"],
