@@ -22,7 +22,8 @@ Cases, both mountings:
 - ``c``: the same raw profiles without a nominal: a correct result, a refusal (an error,
   or a RED verdict: exit 7), or a wrong result with exit 0 (not RED, and the transform
   more than 5 stated standard deviations off in a component, or more than 1 deg or 2
-  mm off).
+  mm off while more than 3 stated standard deviations off in a component: with the
+  arm's geometric error an eye-to-hand result is often 2 mm off and says so).
 
 Printed per mounting and case: solved / refused / wrong-with-exit-0 counts, median
 rotation (deg) and translation (mm) errors, the median of the error over the stated
@@ -61,8 +62,8 @@ CENTRE_NOISE_MM = 0.02
 OPTIONS = dict(pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.01)
 STATION_TILTS = [(0, 0, 0), (0, 20, 10), (-20, 0, 15), (15, -15, -20), (0, 0, -25)]
 #: A result with exit 0 is wrong beyond this many stated standard deviations in a
-#: component, or beyond these absolute errors.
-WRONG_SDS, WRONG_DEG, WRONG_MM = 5.0, 1.0, 2.0
+#: component, or beyond these absolute errors and OFF_SDS stated standard deviations.
+WRONG_SDS, WRONG_DEG, WRONG_MM, OFF_SDS = 5.0, 1.0, 2.0, 3.0
 
 
 def off_by(X: Pose, deg: float, mm: float, rng: np.random.Generator) -> Pose:
@@ -90,10 +91,13 @@ def judged(ds, cell, opts: CalibrationOptions, kin) -> dict:
     nees = float(e @ np.linalg.solve(P, e))
     rot, trans = float(np.degrees(np.linalg.norm(w))), float(np.linalg.norm(e[3:]))
     level = verdict(res).level
-    wrong = bool(np.any(np.abs(e) > WRONG_SDS * np.sqrt(np.diag(P))) or rot > WRONG_DEG or trans > WRONG_MM)
+    z = np.abs(e) / np.sqrt(np.diag(P))
+    wrong = bool(np.any(z > WRONG_SDS) or ((rot > WRONG_DEG or trans > WRONG_MM) and np.any(z > OFF_SDS)))
     outcome = "refused" if level == "red" else ("wrong" if wrong else "solved")
     return {"outcome": outcome, "rot": rot, "trans": trans, "nees": nees, "z": float(np.sqrt(nees / 6)), "s": s,
-            "level": level, "why": f"RED: {verdict(res).headline}"[:160] if level == "red" else ""}
+            "level": level, "why": f"RED: {verdict(res).headline}"[:160] if level == "red" else (
+                f"{rot:.3f} deg, {trans:.3f} mm off, largest component {z.max():.1f} "
+                "stated sd" if wrong else "")}
 
 
 def cell_for(mounting: str, seed: int, kin):
