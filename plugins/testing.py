@@ -219,6 +219,8 @@ class RobotHarness:
         *,
         flange_pose_from_joints: Callable[[Any], "Pose"] | None = None,
         kinematics_tolerance_mm: float | None = None,
+        report_tolerance_mm: float | None = None,
+        report_tolerance_deg: float | None = None,
         check_close: bool = True,
     ) -> RobotReport:
         """Assert that ``robot`` honours the Robot protocol on ``self.cell``.
@@ -226,8 +228,10 @@ class RobotHarness:
         - it is a :class:`spherecal.plugins.Robot`;
         - after ``move_linear(target, speed)`` the cell's flange is at the target (within
           ``move_tolerance_mm`` / ``_deg``): the move landed where commanded;
-        - ``read_flange_pose()`` agrees with the target within six standard deviations of
-          the cell's pose noise (plus 1 um and 1e-4 deg for rounding);
+        - ``read_flange_pose()`` agrees with the target within ``report_tolerance_mm`` /
+          ``_deg`` (default: six standard deviations of the cell's pose noise, plus 1 um
+          and 1e-4 deg for rounding; give more for a protocol that carries poses with
+          fewer decimals);
         - ``read_joints_deg()`` is None or one finite number per joint; with
           ``flange_pose_from_joints`` (joints_deg -> base_from_flange), the pose computed
           from them agrees with the target within ``kinematics_tolerance_mm`` (default:
@@ -248,8 +252,10 @@ class RobotHarness:
             f"read_joints_deg, move_linear and close"
         )
         noise = self.cell.noise
-        tol_report_mm = 6 * noise.pose_translation_noise_mm * np.sqrt(3) + 1e-3
-        tol_report_deg = 6 * noise.pose_rotation_noise_deg * np.sqrt(3) + 1e-4
+        tol_report_mm = (6 * noise.pose_translation_noise_mm * np.sqrt(3) + 1e-3 if report_tolerance_mm is None
+                         else float(report_tolerance_mm))
+        tol_report_deg = (6 * noise.pose_rotation_noise_deg * np.sqrt(3) + 1e-4 if report_tolerance_deg is None
+                          else float(report_tolerance_deg))
         if kinematics_tolerance_mm is None:
             kinematics_tolerance_mm = 6 * noise.pose_translation_noise_mm * np.sqrt(3) + JOINT_ROUNDING_MM
         report = RobotReport(0, 0.0, 0.0, 0.0, 0.0)
@@ -265,9 +271,10 @@ class RobotHarness:
             reported = robot.read_flange_pose()
             rt, ra = pose_error(reported, target)
             assert rt <= tol_report_mm and ra <= tol_report_deg, (
-                f"read_flange_pose() is {rt:.4f} mm / {ra:.4f} deg from the commanded pose ({where}); "
-                f"the cell's pose noise allows {tol_report_mm:.4f} mm / {tol_report_deg:.4f} deg. "
-                f"Is the pose base_from_flange, in mm, quaternion (w, x, y, z)?"
+                f"read_flange_pose() is {rt:.3g} mm / {ra:.3g} deg from the commanded pose ({where}); "
+                f"allowed {tol_report_mm:.3g} mm / {tol_report_deg:.3g} deg (the cell's pose noise and rounding, "
+                "or check(report_tolerance_mm=, report_tolerance_deg=)). Is the pose base_from_flange, in mm, "
+                "quaternion (w, x, y, z)?"
             )
             joints = robot.read_joints_deg()
             if joints is not None:
@@ -280,9 +287,9 @@ class RobotHarness:
                     kt, _ = pose_error(flange_pose_from_joints(j), target)
                     kin_errors.append(kt)
                     assert kt <= kinematics_tolerance_mm, (
-                        f"forward kinematics of read_joints_deg() = {j.tolist()} is {kt:.4f} mm from the "
-                        f"commanded pose ({where}); allowed {kinematics_tolerance_mm:.4f} mm (the cell's pose "
-                        f"noise and joint rounding)"
+                        f"forward kinematics of read_joints_deg() = {j.tolist()} is {kt:.3g} mm from the "
+                        f"commanded pose ({where}); allowed {kinematics_tolerance_mm:.3g} mm (the cell's pose "
+                        f"noise and joint rounding, or check(kinematics_tolerance_mm=))"
                     )
             report.n_moves += 1
             report.max_move_error_mm = max(report.max_move_error_mm, dt)

@@ -117,6 +117,33 @@ def test_robot_harness_catches_broken_robots(spherecal_cell, spherecal_robot_har
         spherecal_robot_harness.check(robot_class(spherecal_cell))
 
 
+class RoundingRobot(CellRobot):
+    """Reports the exact pose with its translation rounded to 0.01 mm (a protocol with two
+    decimals), on a noise-free cell."""
+
+    def read_flange_pose(self):
+        from spherecal.core.models import Pose
+
+        p = self.cell.current_base_from_flange
+        return Pose(translation_mm=tuple(np.round(p.translation_mm, 2)), quaternion_wxyz=p.quaternion_wxyz)
+
+
+def test_robot_harness_report_tolerance_can_be_given_and_its_message_keeps_the_margin():
+    """A protocol's rounding beyond the default bound: the message shows both figures to
+    three significant digits (not rounded to the same number), and a tolerance given to
+    check() lets the robot pass."""
+    from spherecal.plugins.testing import RobotHarness, make_cell
+    from spherecal.sim import NoiseModel
+
+    cell = make_cell({"mounting": "eye_in_hand", "noise": NoiseModel(pose_translation_noise_mm=0.0,
+                                                                     pose_rotation_noise_deg=0.0)})
+    with pytest.raises(AssertionError, match=r"read_flange_pose\(\) is 0\.00[0-9]+ mm .*allowed 0\.001 mm") as info:
+        RobotHarness(cell).check(RoundingRobot(cell))
+    assert "report_tolerance_mm=" in str(info.value)
+    report = RobotHarness(cell).check(RoundingRobot(cell), report_tolerance_mm=0.01)
+    assert 0.001 < report.max_report_error_mm <= 0.01
+
+
 def test_robot_harness_checks_kinematics_when_given(spherecal_cell, spherecal_robot_harness):
     class JointRobot(CellRobot):
         def read_joints_deg(self):
@@ -314,8 +341,8 @@ def test_robot_harness_kinematics_tolerance_follows_the_pose_noise(spherecal_cel
     # a cell without pose noise allows only the joints' rounding
     quiet = make_quiet(spherecal_cell, NoiseModel(pose_translation_noise_mm=0.0))
     stations = _stations(quiet)
-    with pytest.raises(AssertionError, match=rf"0\.0500 mm from the commanded pose .*allowed "
-                                             rf"{JOINT_ROUNDING_MM:.4f} mm \(the cell's pose noise"):
+    with pytest.raises(AssertionError, match=rf"0\.05 mm from the commanded pose .*allowed "
+                                             rf"{JOINT_ROUNDING_MM:.3g} mm \(the cell's pose noise"):
         RobotHarness(quiet, stations).check(NoisyJointRobot(quiet), flange_pose_from_joints=_fk_off_by(quiet, 0.05))
     RobotHarness(quiet, stations).check(NoisyJointRobot(quiet), flange_pose_from_joints=_fk_off_by(quiet, 0.005))
 
