@@ -74,8 +74,9 @@ STALLED_CUT_STEPS = 3
 #: recording's poses are read from a sampled stream at each shot's time, piecewise linear
 #: in the clock offset): steps of a hundredth of each parameter's standard
 #: deviation, this many in a row, end the pass as converged. A smooth cost converges
-#: quadratically through that range in one or two steps (the estimation reference results
-#: hold to 1e-9 with the rule).
+#: quadratically through that range in one or two steps. Only a recording's fit takes the
+#: rule: a stop-and-go fit that chatters fits nothing (another mounting's data) and must
+#: say so.
 CHATTER_STEP_SHARE = 1e-2
 CHATTER_STEPS = 5
 
@@ -154,7 +155,7 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
             # deviation (the cost's curvature there is not the linearisation's)
             sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
             small = bool(np.all(np.abs(step) <= STALLED_STEP_SHARE * sd))
-        if not small:
+        if not small and fit.te is not None:  # (a recording: its cost is piecewise smooth in the clock offset)
             sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
             chatter = chatter + 1 if np.all(np.abs(frac * step) <= CHATTER_STEP_SHARE * sd) else 0
             small = chatter >= CHATTER_STEPS
