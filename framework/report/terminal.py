@@ -11,7 +11,8 @@ from spherecal.core.models import CalibrationResult, Dataset, Pose
 from spherecal.estimation import Solution
 from spherecal.estimation.pipeline import POINT_ERROR_PARTS
 from spherecal.io.exporters import CALIBRATED_URDF_NAME
-from spherecal.report.assess import Verdict, advice, station_disagreement_text, verdict
+from spherecal.report.assess import (Verdict, advice, implausible_disagreement, is_absurd,
+                                     station_disagreement_text, verdict)
 from spherecal.report.export import MM_DECIMALS, QUAT_DECIMALS, fixed
 
 
@@ -58,6 +59,11 @@ def point_error_lines(result: CalibrationResult) -> list[str]:
     err = result.robot_error
     if err is None:
         return []
+    if is_absurd(result) or implausible_disagreement(result):
+        # the misfit of a data error (a radius, a mounting, a quaternion order) fills the
+        # robot's error terms: the figure is not the robot's, and the verdict names the cause
+        return [f"a point measured at a new pose: expected error {err.point_error_k2_mm:.3f} mm (k = 2) as the data "
+                "stand, which do not fit the model: not the robot's error; see the likely cause below"]
     dominant = POINT_ERROR_PARTS.get(err.dominant, err.dominant)
     if not _arm_calibrated(err):
         return [f"a point measured at a new pose, with the robot as it is: expected error {err.point_error_k2_mm:.3f} mm "

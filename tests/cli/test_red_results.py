@@ -262,6 +262,9 @@ def test_a_diameter_given_as_the_radius_is_named_and_the_robot_not_blamed(tmp_pa
     assert "Likely cause: the sphere's diameter is probably given as its radius." in out, out
     assert "with 19.1 mm the same data fit with residual RMS 0.0" in out, out
     assert "robot's own geometric error limits" not in out and "calibrate the robot" not in out, out
+    # the lead line gives the point error as the data stand, not as the robot's
+    lead = out.splitlines()[0] if out.startswith("a point") else next(ln for ln in out.splitlines() if ln.startswith("a point"))
+    assert "not the robot's error" in lead and "mostly from" not in lead, lead
     assert "a data error" in out and "the radius and not the diameter" in out
 
 
