@@ -220,6 +220,15 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
         cause = diagnose.radius_cause(result, dataset, options, fk, log, kinematics)
         if cause is not None:
             causes.append(cause)
+    if not causes and v.level == "red" and not absurd and not implausible:
+        # rows each at its own orientation written (x, y, z, w) are read as other, poorly
+        # spread orientations: the fit is not absurd but determines little; read right, it does
+        cause = diagnose.quaternions_xyzw(
+            dataset, options, fk, log, kinematics, "the result is RED",
+            lambda alt: verdict(alt, th).level != "red" and alt.residuals.rms_mm <= 1.5 * result.residuals.rms_mm,
+            absurd_ratio)
+        if cause is not None:
+            causes.append(cause)
     robot_error = result.robot_error
     if not causes and robot_error is not None and len(dataset.observations) and robot_error.station_translation_mm > 0.1:
         cause = diagnose.odd_station(solution, dataset, options, fk, log, kinematics,

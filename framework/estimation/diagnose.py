@@ -50,14 +50,9 @@ def breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log: Call
         res = solved_other_way(ds, options, fk, kinematics)
         return res if res is not None and fits(res) else None
 
-    if all(o.base_from_flange is not None for o in dataset.observations):
-        log(f"{what}: trying the quaternions as (x, y, z, w)")
-        alt = solved(quaternions_read_xyzw(dataset))
-        if alt is not None:
-            return ("the poses' quaternions are probably written (x, y, z, w): read that way the same data fit, with "
-                    f"residual RMS {alt.residuals.rms_mm:.4f} mm ({ratio(alt):.2f} x the expected). spherecal "
-                    "reads base_from_flange quaternions w first, as ABB writes them (docs/conventions.md); convert "
-                    "them, or export them w first")
+    cause = quaternions_xyzw(dataset, options, fk, log, kinematics, what, fits, ratio)
+    if cause is not None:
+        return cause
     other = other_mounting(dataset.mounting)
     log(f"{what}: checking whether the data are {other} data")
     alt = solved(dataset.model_copy(update={"mounting": other}))
@@ -66,6 +61,22 @@ def breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log: Call
                 f"same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({ratio(alt):.2f} x the "
                 "expected). Check the sensor's mounting and the 'mounting' of the configuration or dataset")
     return station_quaternions_xyzw(dataset, options, fk, log, kinematics, what, fits)
+
+
+def quaternions_xyzw(dataset: Dataset, options: CalibrationOptions, fk, log: Callable[[str], None], kinematics,
+                     what: str, fits: Criterion, ratio: Callable[[CalibrationResult], float]) -> str | None:
+    """Every pose's quaternion read (x, y, z, w) instead of (w, x, y, z) (one solve):
+    the sentence naming that reading when the result ``fits`` read so, else None."""
+    if any(o.base_from_flange is None for o in dataset.observations):
+        return None
+    log(f"{what}: trying the quaternions as (x, y, z, w)")
+    alt = solved_other_way(quaternions_read_xyzw(dataset), options, fk, kinematics)
+    if alt is None or not fits(alt):
+        return None
+    return ("the poses' quaternions are probably written (x, y, z, w): read that way the same data fit, with "
+            f"residual RMS {alt.residuals.rms_mm:.4f} mm ({ratio(alt):.2f} x the expected). spherecal "
+            "reads base_from_flange quaternions w first, as ABB writes them (docs/conventions.md); convert "
+            "them, or export them w first")
 
 
 def station_quaternions_xyzw(dataset: Dataset, options: CalibrationOptions, fk, log: Callable[[str], None],

@@ -26,10 +26,14 @@ def summary(solution: Solution, graded: Verdict | None = None, *, verbose: bool 
     the report and result.json hold too)."""
     r = solution.result
     graded = graded or verdict(r)
-    lines = [*point_error_lines(r), format_verdict(graded, everything=verbose)]
+    # a data error named (a quaternion order, a radius, a mounting): its fix is the verdict's
+    # reason; the figures and advice of the data as read are not the robot's, nor to act on
+    named = any(level == "red" and text.startswith("likely cause") for level, text in graded.reasons)
+    lines = [*point_error_lines(r, data_error=named), format_verdict(graded, everything=verbose)]
     if graded.level in ("red", "amber"):  # what to do, as the report gives it (its headline points here)
         todo = [a for a in advice(r) if a.level in ("red", "amber")]
-        shown = todo if verbose else todo[:1]
+        # with a data error named, no advice to add data: the data as read are not to be built on
+        shown = todo if verbose else [a for a in todo if not (named and a.key in ADD_DATA_ADVICE)][:1]
         lines.extend(f"  advice: {a.title}: {a.text}" for a in shown)
         if len(todo) > len(shown):
             lines.append(f"  advice: {len(todo) - len(shown)} more: {MORE}")
@@ -47,23 +51,29 @@ def summary(solution: Solution, graded: Verdict | None = None, *, verbose: bool 
     return "\n".join(lines)
 
 
+#: Advice that asks for more data (stations, tilts, profiles): not shown in the terminal
+#: when the verdict names a data error (its fix comes first).
+ADD_DATA_ADVICE = frozenset({"rotation_uncertain", "rotation_axis_x", "rotation_axis_y", "rotation_axis_z",
+                             "translation_uncertain"})
 #: Where the reasons, advice and details the terminal leaves out are.
 MORE = "with -v, and in the report"
 
 
-def point_error_lines(result: CalibrationResult) -> list[str]:
+def point_error_lines(result: CalibrationResult, data_error: bool = False) -> list[str]:
     """What the result means for a point measured by the calibrated system at a new pose
     like the calibration's (k = 2): with the robot as it is; for a kinematic calibration
     on the controller's nominal arm model first, then through spherecal's calibrated arm
-    model, where alone its accuracy holds. Empty without a robot error model."""
+    model, where alone its accuracy holds. Empty without a robot error model. With
+    ``data_error`` (the verdict names one), or data that fit nothing, the figure is said
+    to be the data's as they stand, not the robot's."""
     err = result.robot_error
     if err is None:
         return []
-    if is_absurd(result) or implausible_disagreement(result):
+    if data_error or is_absurd(result) or implausible_disagreement(result):
         # the misfit of a data error (a radius, a mounting, a quaternion order) fills the
         # robot's error terms: the figure is not the robot's, and the verdict names the cause
-        return [f"a point measured at a new pose: expected error {err.point_error_k2_mm:.3f} mm (k = 2) as the data "
-                "stand, which do not fit the model: not the robot's error; see the likely cause below"]
+        return [f"a point measured at a new pose: expected error {err.point_error_k2_mm:.3f} mm (k = 2) with the data "
+                "as read: not the robot's error; see the likely cause below"]
     dominant = POINT_ERROR_PARTS.get(err.dominant, err.dominant)
     if not _arm_calibrated(err):
         return [f"a point measured at a new pose, with the robot as it is: expected error {err.point_error_k2_mm:.3f} mm "

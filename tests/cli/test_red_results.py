@@ -249,6 +249,26 @@ def test_quaternions_written_scalar_last_in_a_centre_table_are_named_before_the_
     assert "stations disagree by 0.000 mm and at least 5 deg per axis)" in text and "5.0000 deg" not in text
 
 
+def test_centres_each_at_its_own_orientation_written_xyzw_are_named(tmp_path, capsys):
+    """A sphere-centre table whose every row has its own orientation, its quaternions
+    written (x, y, z, w): read w first the rows look like poorly spread orientations and
+    the result is RED for its uncertainty, not its residuals; the quaternion order is
+    tried and named, and the lead line does not give the figure as the robot's."""
+    from spherecal.sim import NoiseModel, simulate_general_dataset
+
+    noise = NoiseModel(point_noise_mm=0.01, pose_translation_noise_mm=0.02, pose_rotation_noise_deg=0.002)
+    cell = standard_cell("eye_in_hand", seed=1, noise=noise, fov=reference_fov())
+    ds = _quaternions_xyzw(simulate_general_dataset(cell, 30, kind="sphere_centre", centre_noise_mm=0.02, plan_seed=1))
+    path = tmp_path / "data.jsonl"
+    dataio.write_dataset(path, ds)
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    text = capsys.readouterr().out
+    assert code == EXIT_RED, text
+    assert "Likely cause: the poses' quaternions are probably written (x, y, z, w)" in text, text
+    lead = next(ln for ln in text.splitlines() if ln.startswith("a point"))
+    assert "not the robot's error" in lead and "mostly from" not in lead, lead
+
+
 @pytest.mark.slow
 def test_a_diameter_given_as_the_radius_is_named_and_the_robot_not_blamed(tmp_path, clean, capsys):
     """The sphere's diameter (38.2 mm) given as its radius: the per-station effects take in
@@ -265,6 +285,7 @@ def test_a_diameter_given_as_the_radius_is_named_and_the_robot_not_blamed(tmp_pa
     # the lead line gives the point error as the data stand, not as the robot's
     lead = out.splitlines()[0] if out.startswith("a point") else next(ln for ln in out.splitlines() if ln.startswith("a point"))
     assert "not the robot's error" in lead and "mostly from" not in lead, lead
+    assert "Add a station tilted" not in text  # (more data read the wrong way would not help)
     assert "a data error" in out and "the radius and not the diameter" in out
 
 
