@@ -602,6 +602,22 @@ def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: di
     noise = result.diagnostics.noise or {}
     exp = expected_rms_mm(result, th)
     ratio = result.residuals.rms_mm / exp
+    pose_t = noise.get("pose_translation_noise_mm")
+    groups = (result.diagnostics.station_orientation or {}).get("largest_orientation_group")
+    err = result.robot_error
+    if (err is not None and err.model == "none" and groups == 1 and not bad_stations
+            and (ratio > th.residual_ratio_amber or (pose_t or 0.0) > th.robot_repeatability_mm)):
+        # every row at its own orientation, no joints: the arm's error, which changes with the
+        # pose, has no model to go into but the pose noise and the residuals
+        return [Advice(
+            "robot_error_as_pose_noise", "amber", "The robot's own error shows as pose noise",
+            f"Every row is at its own orientation and the poses carry no joints, so the robot's geometric error, "
+            "which changes with the pose (0.3-1.2 mm on an uncalibrated arm), cannot be told from pose noise: it "
+            f"shows as residuals ({result.residuals.rms_mm:.4f} mm RMS, {ratio:.1f} x the expected) and a pose "
+            f"noise of about {pose_t or 0.0:.3f} mm per axis. Record the joints with the poses and give the robot "
+            "type (solve --robot TYPE) for the kinematic model, or take several shots at each orientation (stations). "
+            f"A wrong sphere radius looks alike: check it (now {result.sphere_radius_mm:.4f} mm).",
+        )]
     if ratio > th.residual_ratio_amber and not bad_stations:
         lvl: Level = "red" if ratio > th.residual_ratio_red else "amber"
         out.append(Advice(
@@ -613,7 +629,6 @@ def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: di
             "what radius the data prefer; check the sensor exposure "
             "(a saturated or too dark line biases the points) and that the sphere is clean and matte.",
         ))
-    pose_t = noise.get("pose_translation_noise_mm")
     if pose_t is not None and pose_t > th.pose_noise_factor * th.robot_repeatability_mm:
         out.append(Advice(
             "pose_noise_high", "amber", "Robot poses scatter more than the robot repeats",
