@@ -285,7 +285,8 @@ def _check_moves(problem: Problem, rows: list[int], keep: np.ndarray, flags: lis
                     flags.append(_flag(problem, i, (
                         f"inconsistent with observation {int(problem.obs_index[rows[y]])} of its station: the robot "
                         f"moved {moved[x, y]:.3f} mm between them, the sphere centre moved otherwise in the sensor "
-                        f"frame (the distances differ by {gap[x, y]:.3f} mm) (a pure translation moves both alike); "
+                        f"frame (the distances differ by {gap[x, y]:.3f} mm, the least the error can be: within a "
+                        "station of two rows only distances can be compared) (a pure translation moves both alike); "
                         + PAIR_UNDECIDED)))
                 pairs.append((rows[a], rows[b]))
             break
