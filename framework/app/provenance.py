@@ -3,25 +3,18 @@ with which software (docs/results.md, "Identity and traceability")."""
 
 from __future__ import annotations
 
-import hashlib
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from spherecal import __version__
 from spherecal.core.models import Dataset
+from spherecal.io.files import sha256_of
 
 if TYPE_CHECKING:
     from spherecal.config import LoadedConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
 
 
-def sha256_of(path: Path) -> str:
-    """SHA-256 of a file's bytes, hex."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def provenance_type(dataset: Dataset, kind: str = "robot") -> str | None:

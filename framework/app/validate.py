@@ -16,7 +16,7 @@ from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup, calibrated_urdf_in
 from spherecal.app.plan_checks import VALIDATION_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
-from spherecal.app.provenance import sha256_of
+from spherecal.io.files import sha256_of
 from spherecal.app.solving import calibration_options
 from spherecal.config import LoadedConfig
 from spherecal.core.errors import ConfigError

@@ -12,6 +12,7 @@ rename it into place, which replaces a link instead of following it).
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import stat
 from pathlib import Path
@@ -189,3 +190,12 @@ def text_encoding_problem(data: bytes) -> str | None:
     if b"\r" in data and b"\n" not in data:
         return "its lines end in CR only (old Mac style); convert the line ends to LF (or CR LF)"
     return None
+
+
+def sha256_of(path: str | Path) -> str:
+    """SHA-256 of a file's bytes, hex (read a megabyte at a time)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -15,7 +15,6 @@ provenance as a table.
 
 from __future__ import annotations
 
-import hashlib
 import html
 import re
 from collections.abc import Mapping
@@ -23,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from spherecal.io.files import sha256_of
 from spherecal.report import export
 
 #: The calibration's own report: version 1.
@@ -73,12 +73,6 @@ def report_versions(out: Path) -> dict[int, Path]:
     return dict(sorted(found.items()))
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def next_version(out: Path, added: str, after: int | None = None) -> ReportVersion:
@@ -90,7 +84,7 @@ def next_version(out: Path, added: str, after: int | None = None) -> ReportVersi
     number = max(2, (latest or 1) + 1, (after or 0) + 1)
     previous = versions.get(latest) if latest is not None else None
     return ReportVersion(number, added, previous.name if previous else None,
-                         _sha256(previous) if previous else None)
+                         sha256_of(previous) if previous else None)
 
 
 def version_html(version: ReportVersion) -> str:
