@@ -81,6 +81,36 @@ def journal_holds_shots(folder: Path | None) -> bool:
         return False
 
 
+def interrupted_runs(config_path: Path, near: list[Path]) -> list[Path]:
+    """Folders (one level below each of ``near``, and ``near`` themselves) that hold an
+    interrupted calibration of the configuration at ``config_path``: a journal with shots,
+    no result, and a header naming that configuration. For a ``--resume`` that found a
+    finished run where an interrupted one was meant."""
+    import json
+
+    want = str(Path(config_path).resolve())
+    found: list[Path] = []
+    seen: set[Path] = set()
+    for base in near:
+        try:
+            folders = [base, *(p for p in sorted(base.iterdir()) if p.is_dir())] if base.is_dir() else []
+        except OSError:
+            continue
+        for folder in folders:
+            folder = folder.resolve()
+            if folder in seen or (folder / RESULT_NAME).exists() or not journal_holds_shots(folder):
+                continue
+            seen.add(folder)
+            try:
+                with open(folder / JOURNAL_NAME, "rb") as fh:
+                    header = json.loads(fh.readline())
+            except (OSError, ValueError):
+                continue
+            if isinstance(header, dict) and (header.get("provenance") or {}).get("config") == want:
+                found.append(folder)
+    return found
+
+
 def result_for(loaded: LoadedConfig, section, out: Path) -> tuple[Path, CalibrationResult]:
     """The calibration result ``section`` (validate's or scan's) names, else the one in
     ``out``; InputError when it is of another mounting than the configuration's."""

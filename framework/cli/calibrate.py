@@ -9,7 +9,7 @@ from pathlib import Path
 from shlex import quote
 
 from spherecal.app.calibrate import run_calibrate
-from spherecal.app.outputs import JOURNAL_NAME, journal_holds_shots
+from spherecal.app.outputs import JOURNAL_NAME, interrupted_runs, journal_holds_shots
 from spherecal.cli.finish import finish, say_result
 from spherecal.cli.output import EXIT_OK, result_json
 from spherecal.cli.session import Session, ask
@@ -39,6 +39,10 @@ def run(args, session: Session) -> int:
     if outcome.finished:
         session.say(f"{out} holds a finished run ({out / 'result.json'}): nothing to resume; its result, exports "
                     "and report were left as they are")
+        if not args.out:  # an interrupted run given its own folder is not here: say where it is
+            for folder in interrupted_runs(loaded.path, [out.parent, loaded.path.parent, Path.cwd()]):
+                session.say(f"an interrupted run of this configuration is in {folder}: continue it with "
+                            f"spherecal calibrate {quote(str(args.config))} --out {quote(str(folder))} --resume")
         return EXIT_OK
     if outcome.solution is None:
         return EXIT_OK

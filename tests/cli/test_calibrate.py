@@ -1,6 +1,7 @@
 """End-to-end runs of the CLI through the simulated serial controller and the simulated
 USB sensor, resume after a kill, bad configurations."""
 
+import json
 import os
 import signal
 import subprocess
@@ -241,3 +242,28 @@ def test_a_device_failure_prints_the_command_that_goes_on(sim_config, monkeypatc
     assert main([*resume.split()[1:], "--no-report"]) == EXIT_OK
     assert (out / "result.json").exists()
     assert len(dataio.read_dataset(out / "journal.jsonl").observations) == 40
+
+
+def test_resume_of_a_finished_run_says_where_an_interrupted_one_is(sim_config, tmp_path, capsys):
+    """`--resume` without `--out` opens the default folder; when that holds a finished run
+    but this configuration's interrupted run was given a folder of its own (a journal with
+    shots, no result), it says where that run is and prints the command to continue it.
+    Another configuration's interrupted run is not named."""
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_OK
+    journal = (tmp_path / "out" / "journal.jsonl").read_text().splitlines(keepends=True)
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    (cut / "journal.jsonl").write_text("".join(journal[:12]))  # the header and some shots
+    other = tmp_path / "other"
+    other.mkdir()
+    header = json.loads(journal[0])
+    header["provenance"]["config"] = str(tmp_path / "another.toml")
+    (other / "journal.jsonl").write_text(json.dumps(header) + "\n" + "".join(journal[1:12]))
+    capsys.readouterr()
+    assert main(["calibrate", str(cfg), "--resume", "--no-report"]) == EXIT_OK
+    said = capsys.readouterr().out
+    assert "holds a finished run" in said and "nothing to resume" in said
+    assert (f"an interrupted run of this configuration is in {cut.resolve()}: continue it with spherecal calibrate "
+            f"{cfg} --out {cut.resolve()} --resume") in said, said
+    assert str(other) not in said
