@@ -111,7 +111,8 @@ def solve_and_write(
         from spherecal.report.html import CALIBRATION_VERSION, write_report
 
         chosen = {} if report_settings is None else {"point_distance_mm": report_settings.point_distance_mm}
-        write_report(solution, out, verdict_override=graded, notes=notes, version=CALIBRATION_VERSION, calibrated_urdf=urdf, **chosen)
+        write_report(solution, out, verdict_override=graded, notes=notes, version=CALIBRATION_VERSION,
+                     calibrated_urdf=urdf, **chosen)
     return solution, graded, written
 
 

@@ -516,8 +516,9 @@ def robot_error_evidence(err) -> str:
 
 
 def start_disagreement_explained(result: CalibrationResult, thresholds: Thresholds | None = None) -> bool:
-    """True when the two-step start differs from the refined result by no more than the
-    robot's error that dominates explains: the two-step leaves that error out, the
+    """True when the fit's start (the two-step's, or the start from any orientations)
+    differs from the refined result by no more than the robot's error that dominates
+    explains: the start leaves that error out, the
     refinement allows for it, so they part by about its size (a translation within the
     expected error of a point at a new pose, no rotation beyond the note's limit)."""
     th = thresholds or Thresholds()

@@ -149,6 +149,7 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
         if fit.any_random:
             small = small and step_delta < tolerance * 1e3
         cut_steps = cut_steps + 1 if frac < 1.0 else 0
+        sd = None
         if not small and cut_steps >= STALLED_CUT_STEPS:
             # Gauss-Newton stalled (its steps raise the cost and are cut, again and again):
             # converged when the whole step is a sliver of each parameter's standard
@@ -156,7 +157,8 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
             sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
             small = bool(np.all(np.abs(step) <= STALLED_STEP_SHARE * sd))
         if not small and fit.te is not None:  # (a recording: its cost is piecewise smooth in the clock offset)
-            sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
+            if sd is None:
+                sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(normal))[:fit.n_par], 0.0))
             chatter = chatter + 1 if np.all(np.abs(frac * step) <= CHATTER_STEP_SHARE * sd) else 0
             small = chatter >= CHATTER_STEPS
         if it == 1:
