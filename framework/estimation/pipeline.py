@@ -255,9 +255,11 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         say(grouped)
     # within a station the robot may only translate: turned shots are left out or split off
     unscreened = problem
+    # (rows of sphere centres need no sweep: two at one orientation make a station)
+    centres_only = bool(len(problem.kinds)) and not (problem.kinds == KIND_PROFILE).any()
     ori = screen_station_orientations(
         problem, opt.station_rotation_tolerance_deg, opt.pose_rotation_noise_deg, opt.estimate_pose_noise,
-        opt.min_profiles_per_station,
+        min(opt.min_profiles_per_station, 2) if centres_only else opt.min_profiles_per_station,
     )
     problem = ori.problem
     flags: list[ObservationFlag] = table_flags + list(ori.flags)

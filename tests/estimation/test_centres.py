@@ -413,27 +413,31 @@ def one_label_for_five_orientations(per_orientation: int) -> tuple[Dataset, Data
 @pytest.mark.parametrize("per_orientation", [1, 3])
 def test_rows_of_several_orientations_under_one_label_are_named_and_solved_by_orientation(per_orientation):
     """Within a station the robot may only translate: rows at five orientations under one
-    label are not a station. With fewer rows per orientation than a split station needs,
-    the two-step cannot start, and the start from any orientations solves them: the known
-    answer, no row blamed as a typo, the label named with the orientations it holds. With
-    one row per orientation no two rows share one, so the station robot error model (the
-    default without joints) has nothing to estimate: the fit takes the robot's error as
-    pose noise and says so; with three, the rows are grouped by orientation for it."""
+    label are not a station. With one row per orientation the two-step cannot start, and
+    the start from any orientations solves them: the known answer, no row blamed as a
+    typo, the label named with the orientations it holds; no two rows share an
+    orientation, so the station robot error model (the default without joints) has
+    nothing to estimate: the fit takes the robot's error as pose noise and says so. With
+    three, each orientation's rows (sphere centres need no sweep) are split off as a
+    station of their own, each named, and the two-step starts as on labelled stations."""
     _, one, cell = one_label_for_five_orientations(per_orientation)
     res = solve(one).result
     # five rows (one per orientation) determine the transform to about 0.2 deg (stated): the chi^2 checks that
     assert_known_answer(res, cell, rot_deg=0.5 if per_orientation == 1 else 0.15)
-    assert res.flagged == [] and res.diagnostics.start["method"] == "linear"
+    assert res.flagged == []
     orientation = res.diagnostics.station_orientation
-    assert orientation["split_by_orientation"] == {"S1": 5}, orientation
-    assert orientation["notes"][0] == ("station S1: its rows are at 5 orientations, not one station of pure "
-                                       "translations: grouped by orientation"), orientation
     if per_orientation == 1:
+        assert res.diagnostics.start["method"] == "linear"
+        assert orientation["split_by_orientation"] == {"S1": 5}, orientation
+        assert orientation["notes"][0] == ("station S1: its rows are at 5 orientations, not one station of pure "
+                                           "translations: grouped by orientation"), orientation
         assert res.robot_error.model == "none"
         assert "the station model needs shots that share an orientation and no two rows do" in \
             res.robot_error.model_choice, res.robot_error.model_choice
     else:
-        assert res.robot_error.model == "station" and orientation["largest_orientation_group"] == 3
+        assert orientation["split_stations"] == {"S1": ["S1", "S1/b", "S1/c", "S1/d", "S1/e"]}, orientation
+        assert all("solved as a station of their own" in n for n in orientation["notes"]), orientation
+        assert res.robot_error.model == "station"
 
 
 def test_too_few_rows_of_several_orientations_under_one_label_name_both_causes():
@@ -659,3 +663,17 @@ def test_medians_of_the_others_are_those_of_numpy():
                 x = np.round(x)
             np.testing.assert_array_equal(_medians_of_the_others(x),
                                           [np.median(np.delete(x, k)) for k in range(n)])
+
+
+def test_three_centre_rows_turned_under_one_label_become_a_station_of_their_own():
+    """A label holding four centre rows at one orientation and three at another: the three
+    share an orientation, and sphere centres need no sweep, so they are solved as a station
+    of their own (not left out as turned), and the answer is the known one."""
+    cell = standard_cell("eye_in_hand", seed=2, noise=NOISE, fov=reference_fov())
+    ds = simulate_centre_dataset(cell, SweepPlan(profiles_per_station=4), kind="sphere_centre", centre_noise_mm=0.02)
+    moved = [o.index for o in ds.observations if o.station == "S2"][:3]
+    obs = [o.model_copy(update={"station": "S1"}) if o.index in moved else o for o in ds.observations]
+    obs = [o for o in obs if not (o.station == "S2")]  # (S2's fourth row goes: only the three turned ones remain)
+    result = solve(ds.model_copy(update={"observations": obs})).result
+    assert not result.flagged, [f.reason for f in result.flagged]
+    assert_known_answer(result, cell)
