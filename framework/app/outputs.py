@@ -3,6 +3,7 @@ writing, and the calibration's result read back from it."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -86,8 +87,6 @@ def interrupted_runs(config_path: Path, near: list[Path]) -> list[Path]:
     interrupted calibration of the configuration at ``config_path``: a journal with shots,
     no result, and a header naming that configuration. For a ``--resume`` that found a
     finished run where an interrupted one was meant."""
-    import json
-
     want = str(Path(config_path).resolve())
     found: list[Path] = []
     seen: set[Path] = set()
