@@ -125,9 +125,11 @@ def main() -> None:
         size = sum(f.stat().st_size for f in bag.iterdir()) / 1e6
         print(f"bag: {args.profiles} profiles x {args.points} points = {n / 1e6:.1f} M points, {args.storage}, "
               f"{size:.0f} MB, written in {time.perf_counter() - t:.1f} s")
-        out = Path(tmp) / "bench.stream.jsonl"
         runs = []
-        for _ in range(args.runs):
+        for k in range(args.runs):
+            # each run writes a new file, as a conversion into a new output folder does (replacing
+            # a file of 140 MB costs its unlinking, about 0.1 s here, which is not the conversion's)
+            out = Path(tmp) / f"bench-{k}.stream.jsonl"
             res = subprocess.run([sys.executable, __file__, "--convert", str(bag), str(out)], check=True,
                                  capture_output=True, text=True)
             runs.append(json.loads(res.stdout.strip().splitlines()[-1]))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 from rosbags.rosbag2 import Writer
-from rosbags.rosbag2.enums import StoragePlugin
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
 from spherecal.core import geometry as geo
@@ -81,14 +81,21 @@ def joint_state(ns: int, names, positions_rad):
                                            effort=np.zeros(0))
 
 
-def write_bag(path: Path, storage: str, topics: dict[str, tuple[str, list[tuple[int, object]]]]) -> Path:
+def write_bag(path: Path, storage: str, topics: dict[str, tuple[str, list[tuple[int, object]]]],
+              compression: str | None = None, in_log_order: bool = True) -> Path:
     """topics: name -> (message type, [(log time ns, message), ...]); messages are written
-    in log-time order across topics, as a recorder does."""
+    in log-time order across topics, as a recorder does, or (``in_log_order`` False) in
+    the order given, topic after topic. ``compression``: None, "storage" (MCAP chunks
+    compressed with zstd) or "message" (each message's bytes compressed)."""
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with Writer(path, version=9, storage_plugin=plugin) as w:
+    w = Writer(path, version=9, storage_plugin=plugin)
+    if compression is not None:
+        w.set_compression(getattr(CompressionMode, compression.upper()), CompressionFormat.ZSTD)
+    with w:
         conns = {name: w.add_connection(name, msgtype, typestore=TS) for name, (msgtype, _) in topics.items()}
-        allmsgs = sorted(((log, name, msg) for name, (_, msgs) in topics.items() for log, msg in msgs),
-                         key=lambda x: x[0])
+        allmsgs = [(log, name, msg) for name, (_, msgs) in topics.items() for log, msg in msgs]
+        if in_log_order:
+            allmsgs.sort(key=lambda x: x[0])
         for log, name, msg in allmsgs:
             w.write(conns[name], log, TS.serialize_cdr(msg, topics[name][0]))
     return path

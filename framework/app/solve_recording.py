@@ -94,4 +94,6 @@ def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic:
     target = out / "recording.jsonl"
     write_recording(target, recording, overwrite=overwrite)
     log(f"bag {path}: {recording.poses.n} poses and {recording.profiles.n} profiles, written as {target}")
-    return recording
+    # the solve takes the points in double precision, as read_recording gives them from the file
+    profiles = recording.profiles
+    return replace(recording, profiles=replace(profiles, points_yz_mm=profiles.points_yz_mm.astype(np.float64)))

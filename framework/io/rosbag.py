@@ -54,6 +54,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.core.streams import PoseStream, ProfileStream, Recording
+from spherecal.io.mcap_scan import NotPlain, scan_messages
 from spherecal.io.stream_fields import _check_mounting_radius
 
 from spherecal.io.rosbag_messages import (
@@ -141,6 +142,21 @@ def _messages(reader, connections, name: str):
         raise BagError(f"{name}: cannot read the bag's messages ({exc})") from None
 
 
+def _mcap_files(path: Path) -> list[Path]:
+    """The MCAP files of a bag in recording order (``name_0.mcap``, ``name_1.mcap``, ...),
+    none for sqlite3 storage."""
+    if path.is_file():
+        return [path] if path.suffix == ".mcap" else []
+    if any(path.glob("*.db3")):
+        return []
+
+    def order(p: Path):
+        stem, _, index = p.stem.rpartition("_")
+        return (stem, int(index)) if index.isdigit() else (p.stem, -1)
+
+    return sorted(path.glob("*.mcap"), key=order)
+
+
 def _topics_text(topics: dict[str, _Topic]) -> str:
     if not topics:
         return "the bag has no topics"
@@ -199,24 +215,16 @@ def read_bag(
         if static is not None and static.msgtype != TF_MESSAGE:
             static = None
         wanted = prof.connections + pose.connections + (static.connections if static else [])
-        parse_cloud = _CloudParser()
-        decoder = _CloudDecoder(name, profile_topic, line_axis, prof.count)
-        pose_raw: list[bytes] = []
-        pose_log: list[int] = []
-        static_raw: list[bytes] = []
-        for conn, log_ns, raw in _messages(reader, wanted, name):
-            topic = conn.topic
-            if topic == profile_topic:
-                try:
-                    cloud = parse_cloud(raw)
-                except Exception as exc:  # noqa: BLE001 - big-endian or unusual (struct.error, ValueError...)
-                    cloud, raw = _cloud_from_typestore(raw, exc, name, profile_topic, len(decoder.meta))
-                decoder.add(raw, cloud, log_ns)
-            elif topic == pose_topic:
-                pose_raw.append(raw)
-                pose_log.append(log_ns)
-            else:
-                static_raw.append(raw)
+        counts = {t.name: t.count for t in (prof, pose, static) if t is not None}
+        try:
+            if reader.compression_mode not in (None, "", "none", "storage"):
+                raise NotPlain  # each message compressed, or the whole file: rosbags undoes that
+            taken = _take(scan_messages(_mcap_files(Path(path)), counts), name, profile_topic, pose_topic, line_axis,
+                          prof.count)
+        except NotPlain:
+            taken = _take(((c.topic, log, raw) for c, log, raw in _messages(reader, wanted, name)), name,
+                          profile_topic, pose_topic, line_axis, prof.count)
+        decoder, pose_raw, pose_log, static_raw = taken
     finally:
         reader.close()
 
@@ -262,6 +270,29 @@ def read_bag(
     return Recording(mounting=mounting, sphere_radius_mm=float(sphere_radius_mm), poses=poses,
                      profiles=ProfileStream(t_sensor, profiles, start), sweeps=[], provenance=provenance,
                      clocks=clocks)
+
+
+def _take(messages, name: str, profile_topic: str, pose_topic: str, line_axis: str, n_profiles: int):
+    """(cloud decoder, pose messages, their log times, static transform messages) of the
+    bag's messages, (topic, log time ns, CDR bytes) in each topic's log-time order."""
+    parse_cloud = _CloudParser()
+    decoder = _CloudDecoder(name, profile_topic, line_axis, n_profiles)
+    pose_raw: list[bytes] = []
+    pose_log: list[int] = []
+    static_raw: list[bytes] = []
+    for topic, log_ns, raw in messages:
+        if topic == profile_topic:
+            try:
+                cloud = parse_cloud(raw)
+            except Exception as exc:  # noqa: BLE001 - big-endian or unusual (struct.error, ValueError...)
+                cloud, raw = _cloud_from_typestore(bytes(raw), exc, name, profile_topic, len(decoder.meta))
+            decoder.add(raw, cloud, log_ns)
+        elif topic == pose_topic:
+            pose_raw.append(bytes(raw))
+            pose_log.append(log_ns)
+        else:
+            static_raw.append(bytes(raw))
+    return decoder, pose_raw, pose_log, static_raw
 
 
 def _require_topic(topics: dict[str, _Topic], topic: str, types: tuple[str, ...], name: str, what: str) -> _Topic:

@@ -4,6 +4,7 @@ messages (PointCloud2, PoseStamped) read with ``struct``, and the clouds decoded
 profiles (y, z) mm with NumPy, a run of messages at a time."""
 
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -86,7 +87,7 @@ def _align(p: int, n: int) -> int:
 def _string(raw: bytes, p: int) -> tuple[str, int]:
     (n,) = unpack_from("<I", raw, p)
     p += 4
-    return raw[p:p + max(n - 1, 0)].decode("utf-8", "replace"), p + n
+    return bytes(raw[p:p + max(n - 1, 0)]).decode("utf-8", "replace"), p + n
 
 
 @dataclass
@@ -108,8 +109,8 @@ class _Cloud:
 
 
 class _CloudParser:
-    """Reads PointCloud2 messages in little-endian CDR (ValueError or struct.error when a
-    message is not one). The block from the field count to ``point_step`` (the fields and
+    """Reads PointCloud2 messages in little-endian CDR, given as bytes or a bytes view
+    (ValueError or struct.error when a message is not one). The block from the field count to ``point_step`` (the fields and
     the byte order) is the same in every message of one driver: a block seen in the
     message before is matched byte for byte instead of parsed again."""
 
@@ -122,14 +123,14 @@ class _CloudParser:
         if raw[:2] != _CDR_LE:
             raise ValueError(f"encapsulation {raw[:2].hex()} is not little-endian CDR")
         sec, nanosec, n = unpack_from("<iII", raw, 4)
-        frame = raw[16:16 + max(n - 1, 0)]
+        frame = bytes(raw[16:16 + max(n - 1, 0)])
         frame_id = self._frames.get(frame)
         if frame_id is None:
             frame_id = self._frames.setdefault(frame, frame.decode("utf-8", "replace"))
         p = _align(16 + n, 4)
         height, width = unpack_from("<II", raw, p)
         q = p + 8
-        if self._parsed is not None and raw.startswith(self._block, q):
+        if self._parsed is not None and raw[q:q + len(self._block)] == self._block:
             fields, is_bigendian, point_step = self._parsed
             r = q + len(self._block)
         else:
@@ -172,6 +173,7 @@ def _parse_pose_stamped(raw: bytes) -> tuple[int, int, str, tuple[float, ...]]:
     return sec, nanosec, frame_id, unpack_from("<7d", raw, p)
 
 
+@functools.cache
 def _typestore():
     from rosbags.typesys import Stores, get_typestore
 
@@ -250,7 +252,11 @@ class _CloudDecoder:
             lay = self._layouts[key] = _layout(cloud, self.axes, self.name, self.topic, i,
                                                cloud.sec + cloud.nanosec * 1e-9)
         if self.points is None:
-            self.points = PointBuffer(self.n_expected * cloud.width * cloud.height)
+            # FLOAT32 clouds stay single precision: float32 metres times 1000, rounded once to
+            # float32, is the value the stream file stores (the product is exact in double, so
+            # float32 arithmetic rounds it as a detour through float64 would)
+            self.points = PointBuffer(self.n_expected * cloud.width * cloud.height,
+                                      np.float32 if lay[2].itemsize == 4 else np.float64)
         if self._run and (lay != self._run_layout or self._run_bytes >= _RUN_BYTES):
             self._decode_run()
         self._run.append((raw, cloud))
@@ -277,7 +283,7 @@ class _CloudDecoder:
             normal, line, rng = (np.ndarray((n,), dtype, buf, o, (step,)) for o in offsets)
             block[:, 0] = line  # column by column: NumPy's fastest strided cast
             block[:, 1] = rng
-            block *= 1000.0  # m -> mm, in double precision
+            block *= block.dtype.type(1000.0)  # m -> mm
             # sums of squares (strided BLAS dot products) carry a NaN or an infinity through, and bound the
             # largest off-plane coordinate: the point-by-point look is needed only when one says so
             normal_sq = float(np.dot(normal, normal))

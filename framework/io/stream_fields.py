@@ -229,13 +229,14 @@ def _check_stamps(t: np.ndarray, previous: float | None, field: str, clock: str)
 
 
 class PointBuffer:
-    """Profile points (y, z) appended profile by profile into one float64 array, with the
-    profiles' starts. The array grows by doubling; ``np.empty`` only reserves address
-    space (a page costs when it is first written), so a generous first capacity, such as
-    an upper bound from a file's size, is free, and no point is copied twice."""
+    """Profile points (y, z) appended profile by profile into one array (float64, or
+    float32 where the points are single precision from end to end), with the profiles'
+    starts. The array grows by doubling; ``np.empty`` only reserves address space (a page
+    costs when it is first written), so a generous first capacity, such as an upper bound
+    from a file's size, is free, and no point is copied twice."""
 
-    def __init__(self, capacity: int):
-        self._a = np.empty((max(int(capacity), 1024), 2))
+    def __init__(self, capacity: int, dtype=np.float64):
+        self._a = np.empty((max(int(capacity), 1024), 2), dtype)
         self.n = 0
         self.starts = [0]
 
@@ -243,7 +244,7 @@ class PointBuffer:
         """Room for k more points; returns the (k, 2) block to fill (then call :meth:`added`)."""
         need = self.n + k
         if need > len(self._a):
-            grown = np.empty((max(need, 2 * len(self._a)), 2))
+            grown = np.empty((max(need, 2 * len(self._a)), 2), self._a.dtype)
             grown[:self.n] = self._a[:self.n]
             self._a = grown
         return self._a[self.n:need]

@@ -51,8 +51,9 @@ def seconds(ns) -> np.ndarray:
 
 
 def expected_yz_mm(truth, cols=(1, 2)) -> np.ndarray:
-    """The points as read: float32 metres, then mm in double precision."""
-    return np.concatenate(truth.points_m)[:, cols].astype(np.float32).astype(np.float64) * 1000.0
+    """The points as read: float32 metres times 1000, rounded to float32 (the value the
+    stream file stores)."""
+    return (np.concatenate(truth.points_m)[:, cols].astype(np.float32).astype(np.float64) * 1000.0).astype(np.float32)
 
 
 def read(path, allow=(), **kw):
@@ -99,8 +100,9 @@ def test_pose_stamped_bag_round_trip(tmp_path, storage):
     out = tmp_path / "bag.stream.jsonl"
     write_recording(out, rec)
     back = read_recording(out)
-    # the file holds float32 mm (m -> mm in double precision, then rounded: at most 2e-6 mm here)
-    np.testing.assert_array_equal(back.profiles.points_yz_mm, rec.profiles.points_yz_mm.astype(np.float32))
+    # the file holds float32 mm, the values read from the bag, bit for bit
+    assert rec.profiles.points_yz_mm.dtype == np.float32
+    np.testing.assert_array_equal(back.profiles.points_yz_mm, rec.profiles.points_yz_mm)
     np.testing.assert_array_equal(back.poses.t_robot_s, rec.poses.t_robot_s)
     np.testing.assert_allclose(back.poses.R, rec.poses.R, atol=2e-15)
     assert back.clocks == rec.clocks and back.provenance == rec.provenance
@@ -327,7 +329,8 @@ def test_empty_and_non_finite_clouds(tmp_path):
                                sphere_radius_mm=19.05)
             keep = [np.delete(p, np.flatnonzero(~np.isfinite(p).all(axis=1)), axis=0) for p in nan]
             np.testing.assert_array_equal(rec.profiles.points_yz_mm,
-                                          np.concatenate(keep)[:, 1:].astype(np.float32).astype(float) * 1000)
+                                          (np.concatenate(keep)[:, 1:].astype(np.float32).astype(float) * 1000)
+                                          .astype(np.float32))
             np.testing.assert_array_equal(rec.profiles.counts, [len(p) for p in keep])
 
 
