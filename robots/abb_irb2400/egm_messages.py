@@ -156,6 +156,9 @@ def decode_egm_robot(data: bytes) -> EgmSample:
         robot.ParseFromString(data)
     except DecodeError as exc:
         raise EgmDecodeError(f"EGM datagram of {len(data)} bytes is not an EgmRobot message: {exc}") from None
+    if not robot.IsInitialized():  # a required field (a coordinate, a quaternion component) is missing
+        raise EgmDecodeError(f"EGM datagram of {len(data)} bytes is not an EgmRobot message: required field(s) "
+                             f"{', '.join(robot.FindInitializationErrors())} missing")
     if not robot.HasField("header") or not robot.header.HasField("seqno"):
         raise EgmDecodeError(f"EGM message without header.seqno ({len(data)} bytes)")
     header, fb = robot.header, robot.feedBack

@@ -408,13 +408,13 @@ MODULE SpherecalServer
 
   LOCAL PROC StreamFailed(string kind, string seqText, num err)
     ! Answers a stream request that failed with error err: ERR 7.
-    TEST err
-    CASE ERR_REFUNKPRC, ERR_CALLPROC:
+    IF err = ERR_REFUNKPRC OR err = ERR_CALLPROC THEN
+      ! The late-bound routine is not there: the module is not loaded.
       ReplyError seqText, E_STREAM, "SpherecalEgm.mod is not loaded";
-    DEFAULT:
+    ELSE
       ErrWrite \W, "SpherecalServer: stream failed",
         kind + " " + seqText + ": error " + NumToStr(err, 0);
       ReplyError seqText, E_STREAM, "stream error " + NumToStr(err, 0);
-    ENDTEST
+    ENDIF
   ENDPROC
 ENDMODULE
