@@ -198,10 +198,11 @@ class AbbIrb2400Robot(LineRobot):
                 "(docs/robot-abb-irb2400.md, 'Pose streaming')") from exc
         self._egm = receiver
         if not receiver.wait_first(settings.first_sample_timeout_s):
+            port = receiver.port
             self._abandon_stream()
             raise PoseStreamError(
                 f"{self.name}: the controller started the EGM stream but no sample reached UDP "
-                f"{settings.address}:{receiver.port} within {settings.first_sample_timeout_s:g} s "
+                f"{settings.address}:{port} within {settings.first_sample_timeout_s:g} s "
                 "(robot.egm.first_sample_timeout_s). Check the UDPUC device's remote address (this PC's address on "
                 "the robot's network) and remote port (robot.egm.port), and that the PC's firewall lets UDP in")
         try:

@@ -135,6 +135,16 @@ class SimulatedEgmServer:
         self._period_true_s = 0.0
         self._T_next = 0.0  # true time of the next sample
 
+    def set_faults(self, **changes) -> int:
+        """Change :attr:`faults` between two samples; returns the samples sent until then
+        (so that a test knows which samples a fault applies to)."""
+        with self._lock:
+            for name, value in changes.items():
+                if not hasattr(self.faults, name):
+                    raise AttributeError(f"EgmFaults has no {name!r}")
+                setattr(self.faults, name, value)
+            return self.sent
+
     # --- time ------------------------------------------------------------------------------------
     def now_true_s(self) -> float:
         """Simulated true time now: ``clock()``, or the internal clock."""
