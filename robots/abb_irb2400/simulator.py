@@ -115,8 +115,8 @@ class SimulatedIrb2400(SimulatedController):
     def _move(self, msg: P.Message) -> bytes:
         """The core's move; an executed move also streams its samples (before the reply)."""
         moves, start_joints, start_pose = self.moves, self.joints_deg.copy(), self.nominal_flange_pose()
+        self.egm.pause()  # simulated time stands (internal clock) until the move is done
         T0 = self.egm.now_true_s()
-        self.egm.pause()
         try:
             reply = super()._move(msg)
         finally:
