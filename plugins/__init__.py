@@ -11,6 +11,10 @@ modules behind these names may move between releases, these names stay. What it 
   :class:`SensorType`, :class:`DeviceContext`, :class:`ControllerFrame`,
   :func:`device_identity`, and the value objects :class:`SensorFieldOfView`,
   :class:`SensorBody` and :class:`WorkspaceBox`;
+- pose streaming, for a robot that streams its pose while it moves:
+  :class:`PoseStreamingRobot`, :class:`PoseStream` (what a stream gives),
+  :class:`PoseStreamCounts` and the errors :class:`PoseStreamError`,
+  :class:`PoseStreamStalled`, :class:`PoseStreamClockError`;
 - robot safety whatever the protocol: :class:`MotionSafety` (speed at the tool point,
   workspace box, reach along the path, the first move from where the arm stands, the
   controller's frame), :class:`MotionLimits`, :class:`FrameOffset`;
@@ -71,6 +75,12 @@ _WHERE = {
     "Sensor": "spherecal.devices.contract",
     "SensorType": "spherecal.devices.contract",
     "device_identity": "spherecal.devices.contract",
+    "PoseStreamingRobot": "spherecal.devices.pose_streaming",
+    "PoseStreamCounts": "spherecal.devices.pose_streaming",
+    "PoseStreamError": "spherecal.devices.pose_streaming",
+    "PoseStreamStalled": "spherecal.devices.pose_streaming",
+    "PoseStreamClockError": "spherecal.devices.pose_streaming",
+    "PoseStream": "spherecal.core.streams",
     "SensorBody": "spherecal.core.field_of_view",
     "SensorFieldOfView": "spherecal.core.field_of_view",
     "WorkspaceBox": "spherecal.core.workspace",

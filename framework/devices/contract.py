@@ -3,8 +3,9 @@
 The core talks to devices only through these interfaces; it never imports a plugin.
 A plugin registers a :class:`RobotType` or :class:`SensorType` (a name, a pydantic
 configuration model and a factory) through the ``spherecal_register_devices`` hook, one
-of the hooks in :mod:`spherecal.plugins.hookspecs`. Plugins import these names from
-:mod:`spherecal.plugins`; :class:`SensorFieldOfView` and :class:`SensorBody` are value
+of the hooks in :mod:`spherecal.plugins.hookspecs`. A robot that streams its pose while
+it moves also implements :class:`PoseStreamingRobot` (:mod:`spherecal.devices.pose_streaming`,
+re-exported here). Plugins import these names from :mod:`spherecal.plugins`; :class:`SensorFieldOfView` and :class:`SensorBody` are value
 objects of :mod:`spherecal.core.field_of_view`, re-exported here.
 """
 
@@ -18,12 +19,15 @@ from pydantic import BaseModel
 
 from spherecal.core.field_of_view import SensorBody, SensorFieldOfView
 from spherecal.core.models import Pose, Profile
+from spherecal.devices.pose_streaming import (PoseStreamClockError, PoseStreamCounts, PoseStreamError,
+                                              PoseStreamingRobot, PoseStreamStalled)
 from spherecal.io.runlog import progress_log
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.kinematics import ArmKinematics
 
-__all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "Robot", "RobotType",
+__all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "PoseStreamClockError",
+           "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot", "Robot", "RobotType",
            "Sensor", "SensorBody", "SensorFieldOfView", "SensorType", "device_identity"]
 
 _LOG = progress_log("devices")  # the default ``log``: logger spherecal.devices

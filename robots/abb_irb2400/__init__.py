@@ -1,6 +1,7 @@
 """ABB IRB 2400 robot plugin: kinematic model (Pinocchio), the spherecal line protocol,
 a driver over a serial line or TCP, the RAPID server modules (with an offline syntax
-check) and a simulated controller.
+check), pose streaming over Externally Guided Motion (EGM) and a simulated controller
+with its EGM stream.
 
 See docs/robot-abb-irb2400.md. The plugin entry point is :mod:`.plugin`.
 
@@ -18,6 +19,15 @@ _WHERE = {
     "AbbIrb2400Config": ".config",
     "SimulatedControllerSettings": ".config",
     "WorkspaceBox": ".config",
+    "EgmSettings": ".config",
+    "SimulatedEgmSettings": ".config",
+    "EgmReceiver": ".egm_receiver",
+    "EgmSample": ".egm_messages",
+    "decode_egm_robot": ".egm_messages",
+    "encode_egm_robot": ".egm_messages",
+    "ControllerMotionSource": ".egm_sim",
+    "EgmFaults": ".egm_sim",
+    "SimulatedEgmServer": ".egm_sim",
     "AbbIrb2400Robot": ".driver",
     "Irb2400Geometry": ".kinematics",
     "Irb2400Kinematics": ".kinematics",

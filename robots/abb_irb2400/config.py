@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from spherecal.plugins import BASE_DIR_CONTEXT_KEY, InputError, LineLinkSettings, Pose, Vec3
 from spherecal.plugins import SimulatedControllerSettings as CoreSimulatedControllerSettings
@@ -23,6 +23,77 @@ class WorkspaceBox(CoreWorkspaceBox):
 
     min_mm: Vec3 = Field((-1600.0, -1600.0, 0.0), description="lower corner (x, y, z) in base, mm")
     max_mm: Vec3 = Field((1600.0, 1600.0, 2000.0), description="upper corner (x, y, z) in base, mm")
+
+
+class EgmSettings(BaseModel):
+    """Pose streaming over Externally Guided Motion (EGM, IRC5 option 689-1): the
+    controller sends ``EgmRobot`` messages over UDP to this PC while ordinary moves run
+    (read-only: no EGM motion control). The controller side is ``SpherecalEgm.mod`` and a
+    UDPUC transmission protocol whose remote address and port are this PC's
+    (docs/robot-abb-irb2400.md, "Pose streaming")."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+    port: int = Field(
+        6510, ge=0, le=65535, description="the UDP port this PC listens on: the remote port of the controller's "
+        "UDPUC transmission protocol; 0 takes any free port (simulated runs and tests only: a real controller sends "
+        "to the port its configuration names)",
+    )
+    address: str = Field(
+        "0.0.0.0", min_length=1, description="the local address to listen on (0.0.0.0: every interface; or the "
+        "address of the PC's port on the robot's network)",
+    )
+    sample_period_ms: int = Field(
+        4, ge=4, le=100, description="the controller's sample period, ms (EGMStreamStart \\SampleRate): a multiple "
+        "of 4",
+    )
+    stall_timeout_s: float = Field(
+        0.25, gt=0, le=10, description="no sample for this long while the stream is on ends the stream "
+        "(PoseStreamStalled), keeping what was received",
+    )
+    first_sample_timeout_s: float = Field(
+        2.0, gt=0, le=30, description="after the start command, wait this long for the first sample before "
+        "refusing (the UDPUC device's remote address and port, a firewall)",
+    )
+    clock_jump_tolerance_ms: float = Field(
+        2.0, gt=0, le=1000, description="a stamp that differs by more than this from the previous one plus the "
+        "sequence numbers' periods is a clock jump (PoseStreamClockError); a stamp that does not increase always "
+        "is",
+    )
+    receive_buffer_bytes: int = Field(
+        4 * 1024 * 1024, ge=64 * 1024, le=256 * 1024 * 1024, description="the UDP socket's receive buffer asked "
+        "for, bytes (the system may grant less: net.core.rmem_max on Linux)",
+    )
+
+    @field_validator("sample_period_ms")
+    @classmethod
+    def _multiple_of_4(cls, v: int) -> int:
+        if v % 4:
+            raise ValueError(f"must be a multiple of 4 ms (the controller samples every 4 ms), got {v}")
+        return v
+
+
+class SimulatedEgmSettings(BaseModel):
+    """The simulated controller's EGM stream (simulated runs): its own clock, its stamp
+    jitter and its losses."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+    clock_epoch_s: float = Field(
+        1.7e9, ge=0, description="the controller's clock at simulated time zero, s (EgmClock counts from 1970)",
+    )
+    clock_drift_ppm: float = Field(
+        30.0, ge=-1000, le=1000, description="the controller clock's rate minus one, parts per million",
+    )
+    stamp_jitter_s: float = Field(
+        20e-6, ge=0, le=0.004, description="standard deviation of each stamp about the true sample instant, s "
+        "(stamps carry microseconds)",
+    )
+    drop_probability: float = Field(
+        0.0, ge=0, lt=1, description="probability that a sample is lost on its way (one at a time)",
+    )
+    first_seqno: int = Field(0, ge=0, lt=2**32, description="the first message's sequence number (uint32)")
+    seed: int | None = Field(None, description="seed of the jitter and the losses (None: the controller's seed)")
 
 
 class SimulatedControllerSettings(CoreSimulatedControllerSettings):
@@ -48,6 +119,9 @@ class SimulatedControllerSettings(CoreSimulatedControllerSettings):
         None, description="the controller's base frame, world_from_base (translation_mm, quaternion_wxyz w first), "
         "as a riser, an inverted mount or a multi-robot cell configures it: GETP reports tool0 in wobj0 (world) and "
         "TGT targets are taken in world; None: base = world. For tests of the check on connect",
+    )
+    egm: SimulatedEgmSettings = Field(
+        default_factory=SimulatedEgmSettings, description="the simulated EGM pose stream (used when robot.egm is set)",
     )
 
 
@@ -97,6 +171,10 @@ class AbbIrb2400Config(LineLinkSettings):
     )
     simulated: SimulatedControllerSettings = Field(
         default_factory=SimulatedControllerSettings, description="the simulated controller of simulated runs"
+    )
+    egm: EgmSettings | None = Field(
+        None, description="pose streaming over Externally Guided Motion (IRC5 with option 689-1 and "
+        "SpherecalEgm.mod): start_pose_stream / stop_pose_stream; None: the robot does not stream",
     )
     calibrated_model: Path | None = Field(
         None,

@@ -36,6 +36,18 @@ pose of q (it turns that back into q); the flange pose is read as joints (GETJ) 
 the calibrated model. The line protocol carries poses to 0.001 mm and quaternions to
 1e-6, joints to 1e-4 deg: that resolution, not the model, limits how closely a target
 is reached and a pose read (a few micrometres).
+
+Pose streaming (``config.egm``; :class:`spherecal.plugins.PoseStreamingRobot`): over
+Externally Guided Motion the controller streams the measured flange pose every 4 ms
+over UDP while ordinary moves run. :meth:`AbbIrb2400Robot.start_pose_stream` opens the
+receiver (:class:`~.egm_receiver.EgmReceiver`), sends ``SSTART`` and waits for the
+first sample, which must agree with the controller's own pose (``GETP``, within
+``base_frame_tolerance_mm`` / ``_deg``): a stream in another frame is refused before
+anything moves. :meth:`AbbIrb2400Robot.stop_pose_stream` sends ``SSTOP``, takes the
+samples still on their way and returns the :class:`~spherecal.plugins.PoseStream`
+(the controller's stamps and sequence numbers), or raises the fault that ended the
+stream with what was kept. With a calibrated model (or ``pose_source = "joints"``) the
+stream's poses come from its joints through the model, as every other pose does.
 """
 
 from __future__ import annotations
@@ -45,10 +57,12 @@ from typing import Callable
 import numpy as np
 
 from spherecal.plugins import MIN_SPEED_MM_S  # noqa: F401 - re-exported
-from spherecal.plugins import DeviceError, LineRobot, Pose, initial_seq
+from spherecal.plugins import (DeviceError, LineRobot, Pose, PoseStream, PoseStreamCounts, PoseStreamError,
+                               initial_seq, rotation_angle_deg)
 from spherecal.plugins import line_protocol as lineproto
 
-from .config import AbbIrb2400Config
+from . import protocol as SP
+from .config import AbbIrb2400Config, EgmSettings
 from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics
 
 
@@ -143,3 +157,144 @@ class AbbIrb2400Robot(LineRobot):
         if self.config.serial_number:
             found["serial_number"] = self.config.serial_number
         return found
+
+    # pose streaming (EGM) -------------------------------------------------------------------
+    _egm = None  #: the running stream's receiver, or None
+    _egm_counts = PoseStreamCounts()  #: the last stream's counts
+    simulator = None  #: the simulated controller's server in simulated runs (the plugin sets it)
+
+    def can_stream_poses(self) -> bool:
+        """Whether pose streaming is configured (``robot.egm``)."""
+        return self.config.egm is not None
+
+    def _egm_settings(self) -> EgmSettings:
+        if self.config.egm is None:
+            raise PoseStreamError(
+                f"{self.name}: pose streaming is not configured: add a [robot.egm] section (port = the UDP port this "
+                "PC listens on, the remote port of the controller's UDPUC device) and load SpherecalEgm.mod on an "
+                "IRC5 with the Externally Guided Motion option (docs/robot-abb-irb2400.md, 'Pose streaming')")
+        return self.config.egm
+
+    def start_pose_stream(self) -> None:
+        """Start the EGM stream and return once its first sample has come and agrees with
+        the controller's own pose (see the module's docstring). Raises PoseStreamError,
+        saying what to check, when it cannot; nothing moves."""
+        from .egm_receiver import EgmReceiver
+
+        settings = self._egm_settings()
+        self.check_open()
+        if self._egm is not None:
+            raise PoseStreamError(f"{self.name}: a pose stream is already running; stop it first")
+        receiver = EgmReceiver(settings, name=f"{self.name} on {self.url}").open()
+        if self.simulator is not None:  # the simulated UDPUC device sends to this receiver
+            self.simulator.controller.egm.destination = ("127.0.0.1", receiver.port)
+        try:
+            self._exchange("SSTART", lambda seq: SP.stream_start_request(seq, settings.sample_period_ms), "OK")
+        except DeviceError as exc:
+            receiver.close()
+            raise PoseStreamError(
+                f"{exc}. The server must be SpherecalServer.mod of this package with SpherecalEgm.mod loaded beside "
+                "it, on an IRC5 with the Externally Guided Motion option (689-1) and the UDPUC device configured "
+                "(docs/robot-abb-irb2400.md, 'Pose streaming')") from exc
+        self._egm = receiver
+        if not receiver.wait_first(settings.first_sample_timeout_s):
+            port = receiver.port
+            self._abandon_stream()
+            raise PoseStreamError(
+                f"{self.name}: the controller started the EGM stream but no sample reached UDP "
+                f"{settings.address}:{port} within {settings.first_sample_timeout_s:g} s "
+                "(robot.egm.first_sample_timeout_s). Check the UDPUC device's remote address (this PC's address on "
+                "the robot's network) and remote port (robot.egm.port), and that the PC's firewall lets UDP in")
+        try:
+            self._check_stream_frame(receiver)
+        except PoseStreamError:
+            self._abandon_stream()
+            raise
+
+    def _check_stream_frame(self, receiver) -> None:
+        """The newest sample's pose against the controller's own (GETP), the arm standing."""
+        sample = receiver.newest()
+        controller = self.read_controller_pose()
+        streamed = Pose.from_xyz_quat_wxyz(sample.translation_mm, sample.quaternion_wxyz)
+        offset_mm = float(np.linalg.norm(streamed.translation - controller.translation))
+        angle_deg = float(rotation_angle_deg(controller.rotation_matrix, streamed.rotation_matrix))
+        cfg = self.config
+        if offset_mm <= cfg.base_frame_tolerance_mm and angle_deg <= cfg.base_frame_tolerance_deg:
+            return
+        raise PoseStreamError(
+            f"{self.name}: the EGM stream reports the flange {offset_mm:.2f} mm and {angle_deg:.3f} deg away from "
+            f"the controller's tool0 in wobj0 (GETP), beyond robot.base_frame_tolerance_mm = "
+            f"{cfg.base_frame_tolerance_mm:g} / _deg = {cfg.base_frame_tolerance_deg:g}: the stream is in another "
+            "tool or work object. Check EGMActPose in SpherecalEgm.mod (tool0, wobj0). The stream was stopped; "
+            "nothing moved")
+
+    def _abandon_stream(self) -> None:
+        """Stop the controller's stream and drop the receiver (a failed start)."""
+        receiver, self._egm = self._egm, None
+        try:
+            self._exchange("SSTOP", SP.stream_stop_request, "OK")
+        except DeviceError:
+            pass  # the start already failed: say that, not this
+        finally:
+            if receiver is not None:
+                self._egm_counts = receiver.counts()
+                receiver.close()
+
+    def stop_pose_stream(self) -> PoseStream:
+        """Stop the EGM stream and return every sample since the start (sequence order,
+        controller stamps, ``seq`` unwrapped). Raises the fault that ended the stream
+        (PoseStreamStalled, PoseStreamClockError) or a failed stop as PoseStreamError,
+        with the samples kept in its ``stream``."""
+        receiver = self._egm
+        if receiver is None:
+            raise PoseStreamError(f"{self.name}: no pose stream is running (start_pose_stream first)")
+        self._egm = None
+        period_s = receiver.settings.sample_period_ms * 1e-3
+        failure: DeviceError | None = None
+        try:
+            self._exchange("SSTOP", SP.stream_stop_request, "OK")
+        except DeviceError as exc:
+            failure = exc
+        finally:
+            receiver.finish(quiet_s=max(5 * period_s, 0.02))
+            self._egm_counts = receiver.counts()
+        try:
+            stream = self._stream_poses(receiver.stream())
+        except PoseStreamError as exc:
+            if exc.stream is not None:
+                exc.stream = self._stream_poses(exc.stream)
+            raise
+        if failure is not None:
+            raise PoseStreamError(f"{self.name}: the EGM stream could not be stopped: {failure}", stream,
+                                  self._egm_counts) from failure
+        return stream
+
+    def pose_stream_counts(self) -> PoseStreamCounts:
+        """What the running stream has delivered so far, or the last stream's counts."""
+        return self._egm.counts() if self._egm is not None else self._egm_counts
+
+    def _stream_poses(self, stream: PoseStream) -> PoseStream:
+        """The stream as this robot gives poses: with a calibrated model (or ``pose_source
+        = "joints"``) the flange poses come from the streamed joints through the model."""
+        if not (self.config.pose_source == "joints" or self.pose_from_joints_only()):
+            return stream
+        if stream.joints_deg is None:
+            raise PoseStreamError(f"{self.name}: the EGM stream carries no joints, and poses must come from the "
+                                  "joints here (a calibrated model, or pose_source = 'joints')", None,
+                                  self._egm_counts)
+        poses = [self.kin.flange_pose_from_joints(q, check_limits=False) for q in stream.joints_deg]
+        return PoseStream(stream.t_robot_s, np.array([p.rotation_matrix for p in poses]),
+                          np.array([p.translation for p in poses]), stream.joints_deg, stream.seq, stream.sweep)
+
+    def close(self) -> None:
+        """Stop a running pose stream (best effort), then close the link."""
+        receiver, self._egm = self._egm, None
+        if receiver is not None:
+            try:
+                if not self._closed:
+                    self._exchange("SSTOP", SP.stream_stop_request, "OK")
+            except DeviceError:
+                pass  # closing: the link may be gone already
+            finally:
+                receiver.close()
+        super().close()

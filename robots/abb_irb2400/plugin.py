@@ -37,6 +37,14 @@ DESCRIPTION = (
 )
 
 
+#: ``context.extras`` keys a simulated run may set for the simulated controller's EGM
+#: stream: the pose source ``source(T_true_s) -> (R, t_mm, joints_deg | None)`` and the
+#: simulated clock ``clock() -> T_true_s`` (see :mod:`.egm_sim`); absent: the
+#: controller's own pose and an internal clock.
+POSE_STREAM_SOURCE_KEY = "pose_stream_source"
+SIM_CLOCK_KEY = "sim_clock"
+
+
 def start_simulator(*args, **kwargs):
     """:func:`.simulator.start_simulator`, imported when a simulated run starts one (the
     simulated controller's server is not needed to describe the plugin)."""
@@ -63,14 +71,17 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
     """Factory: a connected robot (checked with PING, and refused when the controller's
     wobj0 is not the robot base: :meth:`~.driver.AbbIrb2400Robot.check_base_frame`) on
     ``config.port``, or on a freshly started simulated controller when ``context.cell``
-    is set."""
+    is set (``context.extras`` may give its EGM stream a pose source and a clock:
+    :data:`POSE_STREAM_SOURCE_KEY`, :data:`SIM_CLOCK_KEY`)."""
     kin = kinematics_of(config)
     tool = context.tool_point_mm
     if context.cell is None:
         robot = AbbIrb2400Robot(config, kinematics=kin, tool_point_mm=tool)
     else:
         # the controller knows only the nominal model, calibrated or not
-        server = start_simulator(kinematics_for(config.geometry, config.j23_coupled), config.simulated, context.cell)
+        server = start_simulator(kinematics_for(config.geometry, config.j23_coupled), config.simulated, context.cell,
+                                 egm_source=context.extras.get(POSE_STREAM_SOURCE_KEY),
+                                 egm_clock=context.extras.get(SIM_CLOCK_KEY))
         context.log(f"abb_irb2400: simulated controller serving on {server.url}")
         robot = AbbIrb2400Robot(config, url=server.url, kinematics=kin, on_close=server.stop, tool_point_mm=tool)
         robot.simulator = server  # for tests and fault injection

@@ -5,7 +5,8 @@ Source: the public ABB manual "Technical reference manual - RAPID Instructions,
 Functions and Data types" (RobotWare 5 and 6 editions), its A-Z indexes of instructions,
 functions and data types, and the predefined data it names (error numbers of ERRNO,
 speeddata and zonedata, socket states, the string sets of StrFind). The lists hold the
-common part, not every option's names: a valid name missing here makes the check refuse
+common part, not every option's names (those of Externally Guided Motion, option 689-1,
+from its application manual, are in): a valid name missing here makes the check refuse
 a correct module, and is added here (with its manual section in mind), never worked
 around in the module. RAPID names are case-insensitive; every set holds upper case.
 """
@@ -30,7 +31,9 @@ INSTRUCTIONS = _upper("""
 AccSet ActUnit Add AliasIO BitClear BitSet BookErrNo Break CallByVar CancelLoad CheckProgRef
 CirPathMode Clear ClearIOBuff ClearPath ClearRawBytes ClkReset ClkStart ClkStop Close CloseDir
 Comment Compact ConfJ ConfL CopyFile CopyRawBytes CorrClear CorrCon CorrDiscon CorrWrite
-DeactUnit Decr DropWObj EOffsOff EOffsOn EOffsSet EraseModule ErrLog ErrRaise ErrWrite
+DeactUnit Decr DropWObj EGMActJoint EGMActMove EGMActPose EGMGetId EGMMoveC EGMMoveL EGMReset
+EGMRunJoint EGMRunPose EGMSetupAI EGMSetupAO EGMSetupGI EGMSetupLTAPP EGMSetupUC EGMStop EGMStreamStart
+EGMStreamStop EOffsOff EOffsOn EOffsSet EraseModule ErrLog ErrRaise ErrWrite
 ExitCycle GetDataVal GetSysData GetTrapData GripLoad IDelete IDisable IEnable IError Incr
 IndAMove IndCMove IndDMove IndReset IndRMove InvertDO IOBusStart IOBusState IODisable IOEnable
 IPers IRMQMessage ISignalAI ISignalAO ISignalDI ISignalDO ISignalGI ISignalGO ISleep ITimer
@@ -61,7 +64,7 @@ FUNCTIONS = _upper("""
 Abs ACos AInput AOutput ArgName ASin ATan ATan2 BitAnd BitCheck BitLSh BitNeg BitOr BitRSh
 BitXOr ByteToStr CalcJointT CalcRobT CalcRotAxFrameZ CalcRotAxisFrame CDate CJointT ClkRead
 CorrRead Cos CPos CRobT CSpeedOverride CTime CTool CWObj DecToHex DefAccFrame DefDFrame
-DefFrame Dim Distance DnumToNum DotProd DOutput EulerZYX EventType ExecHandler ExecLevel Exp
+DefFrame Dim Distance DnumToNum EGMGetState DotProd DOutput EulerZYX EventType ExecHandler ExecLevel Exp
 FileSize FileTime FSSize GetMecUnitName GetNextMechUnit GetNextSym GetServiceInfo
 GetSignalOrigin GetSysInfo GetTaskName GetTime GInput GOutput HexToDec IndInpos IndSpeed
 IOUnitState IsFile IsMechUnitActive IsPers IsStopMoveAct IsStopStateEvent IsSyncMoveOn
@@ -79,7 +82,7 @@ UINumEntry UINumTune ValidIO ValToStr VectMagn
 #: Data types (atomic, record and alias types of the manual's data type index).
 DATA_TYPES = _upper("""
 aiotrigg bool btnres busstate buttondata byte clock confdata corrdescr datapos dionum dir
-dnum errdomain errnum errstr errtype event_type exec_level extjoint handler_type icondata
+dnum egm_minmax egmframetype egmident egmstate egmstopmode errdomain errnum errstr errtype event_type exec_level extjoint handler_type icondata
 identno intnum iodev iounit_state jointtarget listitem loaddata loadidnum loadsession
 mecunit motsetdata num opcalc opnum orient paridnum paridvalidnum pathrecid pos pose progdisp
 rawbytes restartdata rmqheader rmqmessage rmqslot robjoint robtarget shapedata signalai
@@ -92,6 +95,9 @@ wztemporary zonedata
 #: Predefined data: constants and system data a module may use without declaring them.
 PREDEFINED_DATA = _upper("""
 tool0 wobj0 load0 ERRNO INTNO pi WAIT_MAX EOF_BIN EOF_NUM
+ROB_1
+EGM_FRAME_BASE EGM_FRAME_TOOL EGM_FRAME_WOBJ EGM_FRAME_WORLD EGM_FRAME_JOINT
+EGM_STATE_DISCONNECTED EGM_STATE_CONNECTED EGM_STATE_RUNNING EGM_STOP_HOLD EGM_STOP_RAMP_DOWN
 STR_DIGIT STR_UPPER STR_LOWER STR_WHITE
 USINT UINT UDINT ULINT SINT INT DINT LINT
 SOCKET_CREATED SOCKET_CONNECTED SOCKET_BOUND SOCKET_LISTENING SOCKET_CLOSED

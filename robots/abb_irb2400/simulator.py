@@ -21,6 +21,15 @@ model a read that ends without a line, so that tests can show a line is never se
 twice (a loop that goes on with ``Serve line`` after such a read serves its last line
 again: tests/robots/test_irb2400_no_replay.py).
 
+The server's EGM position stream (``SpherecalEgm.mod``): ``SSTART`` and ``SSTOP``
+start and stop a :class:`~.egm_sim.SimulatedEgmServer`, which sends ``EgmRobot``
+messages over UDP to :attr:`SimulatedIrb2400.egm`'s ``destination`` (the UDPUC
+device's remote address and port; the driver sets it in simulated runs). Each executed
+``MOVL`` is a move in simulated time: its samples, covering the move's duration, are
+all sent before its ``OK``. The poses come from ``egm_source`` (default: the
+controller's own pose, held while standing and along each move's straight line) on the
+simulated clock ``egm_clock`` (default: an internal one; see :mod:`.egm_sim`).
+
 The controller's base frame (``settings.base_frame``, world_from_base), as a riser, an
 inverted mount or a multi-robot cell configures it, is the core controller's: the server
 reads and moves tool0 in wobj0, the WORLD frame, so ``GETP`` reports world poses and
@@ -30,18 +39,32 @@ the robot base.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from spherecal.plugins import ControllerServer, Faults, SimulatedController
+from spherecal.plugins import line_protocol as P
 
+from . import protocol as SP
 from .config import SimulatedControllerSettings
+from .egm_sim import ControllerMotionSource, PoseSource, SimulatedEgmServer
 from .kinematics import Irb2400Kinematics
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.plugins import SimulatedCell
 
-#: The server of a simulated IRB 2400 (the core's, under the name the tests use).
-SimulatorServer = ControllerServer
+
+class SimulatorServer(ControllerServer):
+    """The server of a simulated IRB 2400: the core's, which also stops the EGM stream
+    when it stops."""
+
+    def stop(self) -> None:
+        try:
+            super().stop()
+        finally:
+            egm = getattr(self.controller, "egm", None)
+            if egm is not None:
+                egm.close()
+
 
 __all__ = ["Faults", "SimulatedIrb2400", "SimulatorServer", "start_simulator"]
 
@@ -54,10 +77,61 @@ class SimulatedIrb2400(SimulatedController):
         kinematics: Irb2400Kinematics | None = None,
         settings: SimulatedControllerSettings | None = None,
         cell: "SimulatedCell | None" = None,
+        egm_source: PoseSource | None = None,
+        egm_clock: Callable[[], float] | None = None,
     ):
         super().__init__(kinematics or Irb2400Kinematics(), settings or SimulatedControllerSettings(), cell, 6)
         # (wobj0 is world: the core controller's base frame, settings.base_frame, puts GETP
         # (CRobT tool0 in wobj0) and TGT in the world frame)
+        #: the default EGM pose source: the controller's pose, held and along each move
+        self.egm_motion = ControllerMotionSource(self.nominal_flange_pose(), self.joints_deg,
+                                                 egm_clock() if egm_clock is not None else 0.0)
+        #: the EGM stream (its ``destination``, ``faults``, ``sent``, ``lost``)
+        self.egm = SimulatedEgmServer(self.settings.egm, egm_source or self.egm_motion, clock=egm_clock,
+                                      seed=self.settings.seed, report_frame=self.settings.base_frame)
+
+    # the EGM stream ------------------------------------------------------------------------
+    def _serve(self, line: bytes) -> bytes:
+        try:
+            msg = SP.decode_stream_request(line)
+        except P.ProtocolError as exc:
+            return P.error_reply(None, P.ErrorCode.SYNTAX, str(exc))
+        if msg is None:
+            return super()._serve(line)
+        self.requests.append(msg.kind)
+        if msg.kind == "SSTOP":
+            self.egm.stop()
+            return P.ok_reply(msg.seq)
+        try:
+            period_ms = SP.parse_stream_start(msg)
+        except P.ProtocolError as exc:
+            return P.error_reply(msg.seq, P.ErrorCode.RANGE, str(exc))
+        try:
+            self.egm.start(period_ms)
+        except RuntimeError as exc:  # no UDPUC destination: the device is not configured
+            return P.error_reply(msg.seq, SP.ERR_STREAM, str(exc))
+        return P.ok_reply(msg.seq)
+
+    def _move(self, msg: P.Message) -> bytes:
+        """The core's move; an executed move also streams its samples (before the reply)."""
+        moves, start_joints, start_pose = self.moves, self.joints_deg.copy(), self.nominal_flange_pose()
+        self.egm.pause()  # simulated time stands (internal clock) until the move is done
+        T0 = self.egm.now_true_s()
+        try:
+            reply = super()._move(msg)
+        finally:
+            if self.moves > moves:
+                duration = self.last_move["duration_s"]
+                self.egm_motion.add_move(T0, duration, start_pose, self.nominal_flange_pose(), start_joints,
+                                         self.joints_deg)
+                self.egm.move_done(T0, duration)
+            else:
+                self.egm.resume()
+        return reply
+
+    def jog(self, joints_deg) -> None:
+        super().jog(joints_deg)
+        self.egm_motion.hold(self.egm.now_true_s(), self.nominal_flange_pose(), self.joints_deg)
 
     # the RAPID server's read loop -------------------------------------------------------
     # SpherecalServer.mod loops: ``line := "";``, ``line := ReadStr(channel
@@ -109,9 +183,12 @@ def start_simulator(
     kinematics: Irb2400Kinematics | None = None,
     settings: SimulatedControllerSettings | None = None,
     cell: "SimulatedCell | None" = None,
-) -> ControllerServer:
+    egm_source: PoseSource | None = None,
+    egm_clock: Callable[[], float] | None = None,
+) -> SimulatorServer:
     """Start a simulated IRB 2400 controller on the settings' transport; returns the
-    running server (its ``url`` is the driver's port)."""
+    running server (its ``url`` is the driver's port). ``egm_source`` and ``egm_clock``:
+    the EGM stream's pose source and simulated clock (:mod:`.egm_sim`)."""
     settings = settings or SimulatedControllerSettings()
-    controller = SimulatedIrb2400(kinematics, settings, cell)
-    return ControllerServer(controller, settings.transport).start()
+    controller = SimulatedIrb2400(kinematics, settings, cell, egm_source=egm_source, egm_clock=egm_clock)
+    return SimulatorServer(controller, settings.transport).start()

@@ -161,3 +161,34 @@ def test_rapid_server_uses_the_same_version_and_error_codes():
     assert "CRobT(\\Tool:=tool0 \\WObj:=wobj0)" in text and "WaitTime \\InPos, 0;" in text
     assert not re.search(r"^\s*WaitRob\b", text, re.M)
     assert "NumToStr(p.rot.q1, 6)" in text and "NumToStr(j.robax.rax_1, 4)" in text
+
+
+def test_rapid_server_stream_requests_match_the_driver():
+    """SSTART and SSTOP: the server's error code, period limit and field counts are the
+    driver's (a field count off by one would answer every SSTART with ERR 2)."""
+    import re
+    from importlib import resources
+
+    from spherecal.robots.abb_irb2400 import protocol as SP
+
+    text = (resources.files("spherecal.robots.abb_irb2400") / "rapid" / "SpherecalServer.mod").read_text()
+    consts = {m[0]: int(m[1]) for m in re.findall(r"CONST num (\w+) := (\d+);", text)}
+    assert consts["E_STREAM"] == SP.ERR_STREAM and SP.ERR_STREAM not in {c.value for c in P.ErrorCode}
+    assert consts["MAX_SAMPLE_MS"] == SP.MAX_STREAM_PERIOD_MS
+    for kind, n_args in SP.STREAM_REQUEST_ARGS.items():
+        assert re.search(rf'CASE "{kind}":\s*want := {n_args + 2};', text), kind
+
+
+def test_stream_requests_round_trip_and_refuse_bad_periods():
+    from spherecal.robots.abb_irb2400 import protocol as SP
+
+    msg = SP.decode_stream_request(SP.stream_start_request(41, 8))
+    assert (msg.kind, msg.seq, SP.parse_stream_start(msg)) == ("SSTART", 41, 8)
+    assert SP.decode_stream_request(SP.stream_stop_request(999)) == P.Message("SSTOP", 999, ())
+    assert SP.decode_stream_request(P.getj_request(3)) is None  # the core protocol's request
+    for bad in (0, 6, 3.5, 104, True):
+        with pytest.raises(P.ProtocolError, match="multiple of 4 ms in 4..100"):
+            SP.stream_start_request(1, bad)
+    with pytest.raises(P.ProtocolError, match="SSTART takes 1 arguments, got 0"):
+        SP.decode_stream_request(P.frame("SSTART 5"))
+

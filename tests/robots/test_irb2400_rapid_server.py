@@ -1,5 +1,6 @@
-"""Offline safety checks of the RAPID server modules: SpherecalServer.mod (the protocol)
-and its two link modules, SpherecalSerial.mod and SpherecalSocket.mod.
+"""Offline safety checks of the RAPID server modules: SpherecalServer.mod (the protocol),
+its two link modules, SpherecalSerial.mod and SpherecalSocket.mod, and its pose stream
+module, SpherecalEgm.mod.
 
 Nothing here runs RAPID: a small checker reads each module's text and enforces the rules
 that keep the server from moving the arm unasked or hiding faults (see "How the server
@@ -40,6 +41,7 @@ MODULES = {
                                       "spherecal_link_session"}),
     "SpherecalSocket.mod": frozenset({"spherecal_link_open", "spherecal_link_read", "spherecal_link_write",
                                       "spherecal_link_session"}),
+    "SpherecalEgm.mod": frozenset({"spherecal_egm_start", "spherecal_egm_stop"}),
 }
 TEXTS = {name: (RAPID_DIR / name).read_text() for name in MODULES}
 MODULE_TEXT = TEXTS["SpherecalServer.mod"]

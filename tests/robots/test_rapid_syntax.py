@@ -24,6 +24,7 @@ from reference_sensor import reference_fov
 RAPID_DIR = resources.files("spherecal.robots.abb_irb2400") / "rapid"
 CORE = (RAPID_DIR / "SpherecalServer.mod").read_text()
 LINKS = {name: (RAPID_DIR / name).read_text() for name in ("SpherecalSerial.mod", "SpherecalSocket.mod")}
+EGM = (RAPID_DIR / "SpherecalEgm.mod").read_text()
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
@@ -65,6 +66,33 @@ def _doc_modules() -> dict[str, str]:
 def test_the_server_modules_pass_together(link):
     assert check_modules({"SpherecalServer.mod": CORE, link: LINKS[link]}) == {"SpherecalServer.mod": [],
                                                                                 link: []}
+
+
+@pytest.mark.parametrize("link", sorted(LINKS))
+def test_the_pose_stream_module_passes_with_the_server(link):
+    modules = {"SpherecalServer.mod": CORE, link: LINKS[link], "SpherecalEgm.mod": EGM}
+    assert check_modules(modules) == {name: [] for name in modules}
+
+
+def test_the_server_calls_the_pose_stream_module_by_name():
+    """The server loads without SpherecalEgm.mod (a controller without the EGM option):
+    it names the module's routines only in late-bound calls, which the check does not
+    resolve, and the module declares both."""
+    assert '%"spherecal_egm_start"% periodMs;' in CORE and '%"spherecal_egm_stop"%;' in CORE
+    assert not re.search(r"^\s*spherecal_egm_", CORE, re.M)
+    assert check_module(EGM, "SpherecalEgm.mod") == []
+    assert {"SPHERECAL_EGM_START", "SPHERECAL_EGM_STOP"} <= set(re.findall(r"^  PROC (\w+)", EGM.upper(), re.M))
+
+
+@pytest.mark.parametrize("old, new, expected", [
+    ("EGMStreamStart egmId", "EGMStremStart egmId", "unknown instruction or procedure EGMStremStart"),
+    ("LOCAL VAR egmident egmId;", "LOCAL VAR egmid egmId;", "unknown data type egmid"),
+    ("EGM_FRAME_WOBJ, FRAME_WOBJ,", "EGM_FRAME_WOBJECT, FRAME_WOBJ,", "unknown data EGM_FRAME_WOBJECT"),
+])
+def test_a_broken_pose_stream_module_fails(old, new, expected):
+    assert EGM.count(old) == 1
+    problems = check_module(EGM.replace(old, new), "SpherecalEgm.mod")
+    assert any(expected in p for p in problems), problems
 
 
 def test_the_server_needs_its_link_module():
@@ -217,7 +245,7 @@ def rapidchecker():
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # rapidchecker calls old pyparsing names
 def test_rapidchecker_parses_every_module(rapidchecker, exported_modules):
-    for name, text in {"SpherecalServer.mod": CORE, **LINKS, **exported_modules}.items():
+    for name, text in {"SpherecalServer.mod": CORE, **LINKS, "SpherecalEgm.mod": EGM, **exported_modules}.items():
         assert [str(e) for e in rapidchecker.check_format(_for_rapidchecker(text))] == [], name
 
 

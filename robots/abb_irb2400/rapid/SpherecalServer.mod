@@ -8,6 +8,7 @@ MODULE SpherecalServer
   !   line    = body "*" XX LF   (XX: XOR of the body's bytes, 2 hex digits)
   !   request = PING seq token | GETJ seq | GETP seq
   !           | TGT seq x y z q1 q2 q3 q4 | MOVL seq speed target_seq v_ori
+  !           | SSTART seq period_ms | SSTOP seq
   !   reply   = PONG seq 3 token | J seq j1..j6 | P seq x y z q1 q2 q3 q4
   !           | OK seq | ERR seq code text      (seq "-" if unreadable)
   !
@@ -26,6 +27,11 @@ MODULE SpherecalServer
   ! SpherecalSocket.mod (a TCP socket server; IRC5 with the PC Interface
   ! option). It provides spherecal_link_open, spherecal_link_read,
   ! spherecal_link_write and spherecal_link_session.
+  !
+  ! SSTART and SSTOP start and stop the pose stream over Externally
+  ! Guided Motion (read-only: the arm moves by MOVL as ever). They call
+  ! SpherecalEgm.mod by name, so this module loads without it (and
+  ! without the EGM option); the server then answers them with ERR 7.
   !
   ! Entry routine: spherecal_server_main. Call it from your main, or make
   ! it the entry routine of the task. The optional event routine
@@ -63,6 +69,10 @@ MODULE SpherecalServer
   LOCAL CONST num E_NO_TARGET := 4;
   LOCAL CONST num E_UNREACHABLE := 5;
   LOCAL CONST num E_MOTION := 6;
+  ! A stream request failed on the controller (the IRB 2400's server).
+  LOCAL CONST num E_STREAM := 7;
+  ! Longest sample period a SSTART may ask for, ms (a multiple of 4).
+  LOCAL CONST num MAX_SAMPLE_MS := 100;
 
   ! The request line being served, and whether the last read gave one.
   LOCAL VAR string line := "";
@@ -203,6 +213,10 @@ MODULE SpherecalServer
       want := 9;
     CASE "MOVL":
       want := 5;
+    CASE "SSTART":
+      want := 3;
+    CASE "SSTOP":
+      want := 2;
     DEFAULT:
       ReplyError seqText, E_SYNTAX, "unknown request";
       RETURN;
@@ -230,6 +244,10 @@ MODULE SpherecalServer
       StageTarget seq, seqText;
     CASE "MOVL":
       MoveToTarget seqText;
+    CASE "SSTART":
+      StartStream seqText;
+    CASE "SSTOP":
+      StopStream seqText;
     ENDTEST
   ERROR
     ! Any error of this request (the link handles its own): log it,
@@ -356,5 +374,47 @@ MODULE SpherecalServer
       "MOVL " + seqText + ": error " + NumToStr(ERRNO, 0);
     ReplyError seqText, E_MOTION, "motion error " + NumToStr(ERRNO, 0);
     RETURN;
+  ENDPROC
+
+  ! --- the pose stream (SpherecalEgm.mod) ---------------------------------
+  LOCAL PROC StartStream(string seqText)
+    ! SSTART: the EGM stream, one sample every periodMs. Moves nothing.
+    VAR num periodMs;
+    IF NOT StrToVal(fields{3}, periodMs) THEN
+      ReplyError seqText, E_SYNTAX, "bad number";
+      RETURN;
+    ENDIF
+    IF periodMs < 4 OR periodMs > MAX_SAMPLE_MS
+        OR Trunc(periodMs / 4) * 4 <> periodMs THEN
+      ReplyError seqText, E_RANGE, "sample period not a multiple of 4 in 4.."
+        + NumToStr(MAX_SAMPLE_MS, 0);
+      RETURN;
+    ENDIF
+    %"spherecal_egm_start"% periodMs;
+    Reply "OK " + seqText;
+  ERROR
+    StreamFailed "SSTART", seqText, ERRNO;
+    RETURN;
+  ENDPROC
+
+  LOCAL PROC StopStream(string seqText)
+    ! SSTOP: stop the EGM stream (OK also when none runs).
+    %"spherecal_egm_stop"%;
+    Reply "OK " + seqText;
+  ERROR
+    StreamFailed "SSTOP", seqText, ERRNO;
+    RETURN;
+  ENDPROC
+
+  LOCAL PROC StreamFailed(string kind, string seqText, num err)
+    ! Answers a stream request that failed with error err: ERR 7.
+    IF err = ERR_REFUNKPRC OR err = ERR_CALLPROC THEN
+      ! The late-bound routine is not there: the module is not loaded.
+      ReplyError seqText, E_STREAM, "SpherecalEgm.mod is not loaded";
+    ELSE
+      ErrWrite \W, "SpherecalServer: stream failed",
+        kind + " " + seqText + ": error " + NumToStr(err, 0);
+      ReplyError seqText, E_STREAM, "stream error " + NumToStr(err, 0);
+    ENDIF
   ENDPROC
 ENDMODULE
