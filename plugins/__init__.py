@@ -9,7 +9,9 @@ modules behind these names may move between releases, these names stay. What it 
   (:class:`DeviceRegistry`, :class:`ExporterRegistry`);
 - the devices' contract: :class:`Robot`, :class:`Sensor`, :class:`RobotType`,
   :class:`SensorType`, :class:`DeviceContext`, :class:`ControllerFrame`,
-  :func:`device_identity`, and the value objects :class:`SensorFieldOfView`,
+  :func:`device_identity`, the optional streaming contract
+  (:class:`ProfileStreamingSensor`, :class:`ProfileStreamCounts`, :class:`ProfileStreamError`,
+  :class:`ProfileStream`), and the value objects :class:`SensorFieldOfView`,
   :class:`SensorBody` and :class:`WorkspaceBox`;
 - robot safety whatever the protocol: :class:`MotionSafety` (speed at the tool point,
   workspace box, reach along the path, the first move from where the arm stands, the
@@ -71,6 +73,10 @@ _WHERE = {
     "Sensor": "spherecal.devices.contract",
     "SensorType": "spherecal.devices.contract",
     "device_identity": "spherecal.devices.contract",
+    "ProfileStreamCounts": "spherecal.devices.contract",
+    "ProfileStreamError": "spherecal.devices.contract",
+    "ProfileStreamingSensor": "spherecal.devices.contract",
+    "ProfileStream": "spherecal.core.streams",
     "SensorBody": "spherecal.core.field_of_view",
     "SensorFieldOfView": "spherecal.core.field_of_view",
     "WorkspaceBox": "spherecal.core.workspace",

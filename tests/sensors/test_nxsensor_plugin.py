@@ -99,7 +99,7 @@ def test_a_broken_pyusb_stops_the_factory_with_a_device_error_naming_it(sphereca
 def test_the_package_lists_and_loads_its_lazy_names():
     import spherecal.sensors.nxsensor_i as nx
 
-    assert {"NxSensorDriver", "SimulatedNxSensorBackend", "StreamedProfile"} <= set(dir(nx))
+    assert {"NxSensorDriver", "SimulatedNxSensorBackend", "SensorClock", "cell_source"} <= set(dir(nx))
     assert nx.NxSensorDriver is NxSensorDriver
     with pytest.raises(AttributeError, match="no attribute 'Nope'"):
         nx.Nope
