@@ -475,6 +475,7 @@ class NxSensorDriver:
         period_s = cfg.period_us * 1e-6
         self._stamps.begin_stream(period_s, self.wire.exposure_middle_shift_s(cfg.exposure_us),
                                   cfg.late_after_periods * period_s, cfg.clock_jump_periods * period_s)
+        started_s = self._host_clock_s()
         self._attempt(operation, lambda: self._command_raw(Command("start_stream")))
         self._streaming = True
         self._flushed = False
@@ -487,7 +488,7 @@ class NxSensorDriver:
             retries=cfg.retries, log=lambda msg: self._log(f"{self.device_name}: {msg}"),
             max_elapsed_s=lambda: math.inf if last is None else
             (self._host_clock_s() - last) * 1.001 + cfg.stall_timeout_ms / 1000 + STREAM_GAP_SLACK_S,
-            on_fault=self._stop_device_quietly,
+            on_fault=self._stop_device_quietly, started_s=started_s, period_s=period_s,
         )
         self._reader.start()
 
@@ -509,6 +510,12 @@ class NxSensorDriver:
                 self._command_raw(Command("stop_stream"))
         except usb.core.USBError:
             pass
+
+    @property
+    def profile_stream_progress(self) -> ProfileStreamCounts | None:
+        """The running stream's counts so far (None when none runs)."""
+        reader = self._reader
+        return None if reader is None else reader.counts
 
     @property
     def profile_stream_error(self) -> ProfileStreamError | None:

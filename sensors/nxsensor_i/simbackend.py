@@ -19,7 +19,7 @@ at once, as before.
 
 Faults can be injected to test a driver: :meth:`inject_timeouts`, :meth:`inject_stalls`,
 :meth:`inject_corrupt_frames`, :meth:`drop_frames`, :meth:`delay_exposures`,
-:meth:`hang_stream`, :meth:`wrap_soon`, :meth:`stream_unasked`, :meth:`disconnect` and
+:meth:`step_clock`, :meth:`hang_stream`, :meth:`wrap_soon`, :meth:`stream_unasked`, :meth:`disconnect` and
 :meth:`reconnect`. Errors are raised as libusb-1.0 would: ``usb.core.USBTimeoutError``
 (code -7, ETIMEDOUT), ``usb.core.USBError`` with ENODEV (-4) for a device that is gone,
 EPIPE (-9) for a stalled endpoint, EOVERFLOW (-8) for a frame larger than the read.
@@ -144,8 +144,10 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         self._late_pending = 0
         self._stalls_pending = 0
         self._corruptions: list[CorruptionKind] = []
-        self._drops_pending = 0
-        self._late_exposures_s: list[float] = []
+        # streamed-frame faults, by the frame's index in ``streamed`` (every frame measured)
+        self._drops: set[int] = set()
+        self._late_s: dict[int, float] = {}
+        self._clock_steps: list[tuple[int, float]] = []
         # what was measured, for tests: list of (frame_counter, (N, 2) mm points), and
         # where: the cell's true base_from_flange at each measurement (same order)
         self.measured: list[tuple[int, np.ndarray]] = []
@@ -162,7 +164,7 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         self._queue: list[bytes] = []
         self._halted: set[int] = set()
         self._schedule: FrameSchedule | None = None
-        self._hang_after: int | None = None
+        self._hang_at: int | None = None  # the stream's index at which the firmware hangs
 
     # --- fault injection --------------------------------------------------------------
     def inject_timeouts(self, n: int = 1) -> None:
@@ -183,23 +185,34 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         beyond the header's point count, or (with a CRC-32 trailer) a flipped bit."""
         self._corruptions.extend([kind] * n)
 
-    def drop_frames(self, n: int = 1) -> None:
-        """While streaming, the next ``n`` frames are measured (their counters used) but
-        never sent, as when the device's buffer overflows."""
-        self._drops_pending += n
-
-    def delay_exposures(self, late_s: float, n: int = 1) -> None:
-        """While streaming, the next ``n`` frames are exposed (and stamped) ``late_s``
-        seconds after their slot, as when the sensor's trigger slips; the frames after
-        them keep their slots."""
+    def drop_frames(self, n: int = 1, after: int = 0) -> None:
+        """While streaming, ``n`` frames, ``after`` frames from the next one measured, are
+        measured (their counters used) but never sent, as when the device's buffer
+        overflows."""
         with self._lock:
-            self._late_exposures_s.extend([float(late_s)] * n)
+            first = len(self.streamed) + after
+            self._drops.update(range(first, first + n))
+
+    def delay_exposures(self, late_s: float, n: int = 1, after: int = 0) -> None:
+        """While streaming, ``n`` frames, ``after`` frames from the next one measured, are
+        exposed (and stamped) ``late_s`` seconds after their slot, as when the sensor's
+        trigger slips; the frames after them keep their slots."""
+        with self._lock:
+            first = len(self.streamed) + after
+            self._late_s.update({k: float(late_s) for k in range(first, first + n)})
+
+    def step_clock(self, dt_s: float, after: int = 0) -> None:
+        """The sensor's clock steps by ``dt_s`` seconds (forward, or back when negative)
+        before the frame ``after`` frames from the next one measured: that frame and every
+        later one are stamped ``dt_s`` off, though exposed on schedule."""
+        with self._lock:
+            self._clock_steps.append((len(self.streamed) + after, float(dt_s)))
 
     def hang_stream(self, after_frames: int = 0) -> None:
-        """The stream stalls: after ``after_frames`` more frames the firmware sends
-        nothing, though it says it streams, until it is powered up afresh."""
+        """The stream stalls: after ``after_frames`` more frames the firmware measures and
+        sends nothing, though it says it streams, until it is powered up afresh."""
         with self._lock:
-            self._hang_after = after_frames
+            self._hang_at = len(self.streamed) + after_frames
 
     def wrap_soon(self, frames: int) -> None:
         """Put the frame counter and the sensor clock's timestamp ``frames`` frame periods
@@ -275,24 +288,21 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
         dropped by a fault are measured (their counters used) and skipped."""
         sched = self._schedule
         while sched is not None:
-            late = self._late_exposures_s[0] if self._late_exposures_s else 0.0
-            if self._hang_after == 0 or not sched.due(self.now_s(), late):
+            index = len(self.streamed)
+            late = self._late_s.get(index, 0.0)
+            if index == self._hang_at or not sched.due(self.now_s(), late):
                 if sched.end_s is not None:
                     self._schedule = None  # stopped and drained: nothing more will come
                 return None
-            if self._late_exposures_s:
-                self._late_exposures_s.pop(0)
             T, t_sensor = sched.slot(sched.k, late)
+            t_sensor += sum(dt for at, dt in self._clock_steps if at <= index)
             sched.k += 1
             counter = self.frame_counter
             self.frame_counter = (counter + 1) % self.wire.frame_counter_modulus
-            sent = self._drops_pending == 0
+            sent = index not in self._drops
             self.streamed.append(StreamedFrameTruth(counter, T, t_sensor, late, sent))
             if not sent:
-                self._drops_pending -= 1
                 continue
-            if self._hang_after is not None:
-                self._hang_after -= 1
             pts = np.asarray(self.source(T), dtype=float).reshape(-1, 2)
             stamp = round((t_sensor - self.wire.exposure_middle_shift_s(self.exposure_us))
                           / (self.wire.timestamp_us_per_count * 1e-6))

@@ -155,8 +155,9 @@ class StreamStamps:
                 f"(header field frame_counter, wrapping at {self.counter_modulus})", "counter")
         if step_counts == 0 or step_counts >= self.stamp_modulus // 2:
             back_s = ((self._stamp - stamp) % self.stamp_modulus) * self.tick_s
+            what = "did not advance" if step_counts == 0 else f"went back by {back_s * 1e3:.3f} ms"
             raise StampFault(
-                f"the sensor's timestamp went back by {back_s * 1e3:.3f} ms at frame {counter} (stamp {stamp} after "
+                f"the sensor's timestamp {what} at frame {counter} (stamp {stamp} after "
                 f"{self._stamp}, counts of {self.tick_s * 1e6:g} us, wrapping at {self.stamp_modulus}); not a wrap: "
                 f"{steps} frame period(s) of {self.period_s * 1e3:.3f} ms had to pass", "clock_backwards")
         late_s = step_counts * self.tick_s - steps * self.period_s

@@ -7,11 +7,18 @@ keeps it. It ends:
 
 * when asked to stop (:meth:`StreamReader.request_stop`, after ``stop_stream`` was sent):
   it takes the frames still in flight, until a read begun after the request gets nothing;
-* with a named fault, keeping every frame taken before it: no frame for ``stall_s``
-  seconds of the host clock (a stall), a USB error the driver cannot recover from (the
+* with a named fault, keeping every frame taken before it: a stall, a USB error the driver cannot recover from (the
   device gone, an endpoint halted again and again), more malformed frames in a row than
   ``retries``, a counter or clock that breaks the time line, or a sensor that keeps
   sending after it was told to stop.
+
+A stall is judged on the sensor's own time line, not by when frames happen to be read:
+the frames kept cover the host clock from the stream's start (``started_s``) until
+``started_s + (t_last - t_first) + period`` (the sensor's clock from the first frame
+kept to the last, one period for the first to come); when the host clock is more than
+``stall_s`` past that, while running or when stopped, the stream stalled. So frames read
+in a burst after a simulated move count for the time they were exposed, and a sensor
+whose rate lags by a drift of d covers d x duration less (100 ppm: 0.36 s an hour).
 
 USB specifics stay with the driver: the reader gets ``read(timeout_ms) -> bytes`` and
 ``recover(exc) -> str | None`` (None: recovered, go on; a text: the fault).
@@ -41,11 +48,12 @@ class StreamReader(threading.Thread):
     def __init__(self, read: Callable[[int], bytes], recover: Callable[[BaseException], str | None],
                  wire: WireConfig, stamps: StreamStamps, clock_s: Callable[[], float], stall_s: float, poll_ms: int,
                  retries: int, max_elapsed_s: Callable[[], float], log: Callable[[str], None],
-                 on_fault: Callable[[], None]):
+                 on_fault: Callable[[], None], started_s: float, period_s: float):
         super().__init__(name="nxsensor-stream-reader", daemon=True)
         self._read, self._recover, self._wire, self._stamps = read, recover, wire, stamps
         self._clock_s, self._stall_s, self._poll_ms, self._retries = clock_s, stall_s, poll_ms, retries
         self._max_elapsed_s, self._log, self._on_fault = max_elapsed_s, log, on_fault
+        self._started_s, self._period_s = started_s, period_s
         self._stop_asked = threading.Event()
         self._lock = threading.Lock()
         self.t_sensor_s: list[float] = []
@@ -76,8 +84,21 @@ class StreamReader(threading.Thread):
                 self.fault, self.fault_kind = fault, kind
         self._on_fault()
 
+    def covered_until_s(self) -> float:
+        """Host time up to which the frames kept account for the stream (module docstring)."""
+        if not self.frames:
+            return self._started_s
+        return self._started_s + (self.t_sensor_s[-1] - self.t_sensor_s[0]) + self._period_s
+
+    def _stalled(self, now_s: float) -> bool:
+        behind = now_s - self.covered_until_s()
+        if behind <= self._stall_s:
+            return False
+        self._fail(f"no frame for {1e3 * behind:.0f} ms of the stream (stall_timeout_ms = {1e3 * self._stall_s:.0f}): "
+                   f"the stream stalled after {len(self.frames)} frame(s)", "stall")
+        return True
+
     def _drain(self) -> None:
-        since_s = self._clock_s()
         draining_since: float | None = None
         misses = 0
         while True:
@@ -90,11 +111,11 @@ class StreamReader(threading.Thread):
             try:
                 data = self._read(self._poll_ms)
             except usb.core.USBTimeoutError:
-                if draining:
-                    return  # a read begun after the stop got nothing: drained
-                if self._clock_s() - since_s > self._stall_s:
-                    return self._fail(f"no frame for {1e3 * (self._clock_s() - since_s):.0f} ms (stall_timeout_ms = "
-                                      f"{1e3 * self._stall_s:.0f}): the stream stalled", "stall")
+                if draining:  # a read begun after the stop got nothing: drained
+                    self._stalled(draining_since)
+                    return
+                if self._stalled(now):  # the clock as the read began: nothing was due then either
+                    return
                 continue
             except usb.core.USBError as exc:
                 fault = self._recover(exc)
@@ -114,7 +135,6 @@ class StreamReader(threading.Thread):
             misses = 0
             if not self._keep(frame):
                 return
-            since_s = self._clock_s()
 
     def _keep(self, frame) -> bool:
         elapsed = self._max_elapsed_s() if not self.frames else float("inf")
