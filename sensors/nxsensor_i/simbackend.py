@@ -216,8 +216,9 @@ class SimulatedNxSensorBackend(usb.backend.IBackend):
 
     def wrap_soon(self, frames: int) -> None:
         """Put the frame counter and the sensor clock's timestamp ``frames`` frame periods
-        before their wraps at the next stream's start (set the period first), so that both
-        wrap within the stream."""
+        before their wraps at the next stream's start (set the period first, start the
+        stream at the simulated time now), so that both wrap within the stream. The
+        sensor's clock becomes a :class:`SensorClock` with its offset moved."""
         with self._lock:
             self.frame_counter = (self.wire.frame_counter_modulus - frames) % self.wire.frame_counter_modulus
             wrap_s = self.wire.timestamp_modulus * self.wire.timestamp_us_per_count * 1e-6

@@ -6,8 +6,8 @@ per measured frame, sent or not) and the timestamp (counts of ``timestamp_us_per
 us). :class:`StreamStamps` turns them into what a recording needs:
 
 * ``frame``: the counter unwrapped into a growing integer (a stream's first frame keeps
-  the number the sensor sent), so that its gaps are the lost frames (measured by the sensor, never received: dropped in the device, on the bus, or
-  corrupt);
+  the number the sensor sent), so that its gaps are the lost frames (measured by the
+  sensor, never received: dropped in the device, on the bus, or corrupt);
 * ``t_sensor_s``: the timestamp unwrapped into seconds of the sensor's clock, monotonic
   across the timestamp's wrap (every 71.6 min with the default u32 microseconds), moved
   to the middle of the exposure (``timestamp_marks``).

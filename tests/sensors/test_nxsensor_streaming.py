@@ -253,3 +253,11 @@ def test_the_factory_takes_the_simulated_time_clock_and_source_from_the_context(
     assert stream.n == 10 and seen == pytest.approx(10.0 + 0.01 * np.arange(1, 11))
     np.testing.assert_allclose(stream.t_sensor_s, 5.0 + 0.01 * np.arange(1, 11), atol=0.6e-6)
     np.testing.assert_allclose(stream.profile(3), [[0.0, -20.0], [1.0, -20.0]], atol=HALF_COUNT_MM)
+
+
+def test_closing_while_streaming_stops_the_device_and_the_reader(driver, backend):
+    driver.start_profile_stream()
+    backend.advance_s(0.05)
+    reader = driver._reader
+    driver.close()
+    assert backend.streaming is False and not reader.is_alive()
