@@ -9,7 +9,9 @@ modules behind these names may move between releases, these names stay. What it 
   (:class:`DeviceRegistry`, :class:`ExporterRegistry`);
 - the devices' contract: :class:`Robot`, :class:`Sensor`, :class:`RobotType`,
   :class:`SensorType`, :class:`DeviceContext`, :class:`ControllerFrame`,
-  :func:`device_identity`, and the value objects :class:`SensorFieldOfView`,
+  :func:`device_identity`, the optional streaming contract
+  (:class:`ProfileStreamingSensor`, :class:`ProfileStreamCounts`, :class:`ProfileStreamError`,
+  :class:`ProfileStream`), and the value objects :class:`SensorFieldOfView`,
   :class:`SensorBody` and :class:`WorkspaceBox`;
 - pose streaming, for a robot that streams its pose while it moves:
   :class:`PoseStreamingRobot`, :class:`PoseStream` (what a stream gives),
@@ -81,6 +83,10 @@ _WHERE = {
     "PoseStreamStalled": "spherecal.devices.pose_streaming",
     "PoseStreamClockError": "spherecal.devices.pose_streaming",
     "PoseStream": "spherecal.core.streams",
+    "ProfileStreamCounts": "spherecal.devices.contract",
+    "ProfileStreamError": "spherecal.devices.contract",
+    "ProfileStreamingSensor": "spherecal.devices.contract",
+    "ProfileStream": "spherecal.core.streams",
     "SensorBody": "spherecal.core.field_of_view",
     "SensorFieldOfView": "spherecal.core.field_of_view",
     "WorkspaceBox": "spherecal.core.workspace",

@@ -7,6 +7,9 @@ from spherecal.devices.contract import (
     RESERVED_OPTION_NAMES,
     ControllerFrame,
     DeviceContext,
+    ProfileStreamCounts,
+    ProfileStreamError,
+    ProfileStreamingSensor,
     Robot,
     RobotType,
     Sensor,
@@ -16,5 +19,6 @@ from spherecal.devices.contract import (
     device_identity,
 )
 
-__all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "Robot", "RobotType",
-           "Sensor", "SensorBody", "SensorFieldOfView", "SensorType", "device_identity"]
+__all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "ProfileStreamCounts",
+           "ProfileStreamError", "ProfileStreamingSensor", "Robot", "RobotType", "Sensor", "SensorBody",
+           "SensorFieldOfView", "SensorType", "device_identity"]

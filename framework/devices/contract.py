@@ -17,8 +17,10 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 import numpy as np
 from pydantic import BaseModel
 
+from spherecal.core.errors import DeviceError
 from spherecal.core.field_of_view import SensorBody, SensorFieldOfView
 from spherecal.core.models import Pose, Profile
+from spherecal.core.streams import ProfileStream
 from spherecal.devices.pose_streaming import (PoseStreamClockError, PoseStreamCounts, PoseStreamError,
                                               PoseStreamingRobot, PoseStreamStalled)
 from spherecal.io.runlog import progress_log
@@ -27,8 +29,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.kinematics import ArmKinematics
 
 __all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "PoseStreamClockError",
-           "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot", "Robot", "RobotType",
-           "Sensor", "SensorBody", "SensorFieldOfView", "SensorType", "device_identity"]
+           "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot", "ProfileStreamCounts",
+           "ProfileStreamError", "ProfileStreamingSensor", "Robot", "RobotType", "Sensor", "SensorBody",
+           "SensorFieldOfView", "SensorType", "device_identity"]
 
 _LOG = progress_log("devices")  # the default ``log``: logger spherecal.devices
 
@@ -80,6 +83,60 @@ class Sensor(Protocol):
 
     def close(self) -> None:
         """Release the device. Safe to call twice."""
+
+
+@dataclass(frozen=True)
+class ProfileStreamCounts:
+    """What one profile stream took: ``received`` frames kept, ``lost`` frames the sensor
+    numbered but that never arrived (the gaps in its frame counter), ``late`` frames the
+    sensor exposed later than their slot in its own schedule (kept: their stamps say
+    when). Counts, unitless."""
+
+    received: int = 0
+    lost: int = 0
+    late: int = 0
+
+
+class ProfileStreamError(DeviceError):
+    """A profile stream ended abnormally (no frame for too long, the device failed, its
+    clock or counter broke the stream's time line). The message names the cause;
+    ``taken`` holds the :class:`~spherecal.core.streams.ProfileStream` of the frames
+    received before it (None when there were none) and ``counts`` its
+    :class:`ProfileStreamCounts`, so that the caller keeps what was taken and says what
+    was not."""
+
+    def __init__(self, message: str, taken: ProfileStream | None = None,
+                 counts: ProfileStreamCounts | None = None):
+        super().__init__(message)
+        self.taken = taken
+        self.counts = counts or ProfileStreamCounts()
+
+
+@runtime_checkable
+class ProfileStreamingSensor(Sensor, Protocol):
+    """A sensor that can also stream profiles at a rate, each stamped by its own clock
+    (optional: the core asks ``isinstance(sensor, ProfileStreamingSensor)`` before an
+    on-the-fly acquisition).
+
+    Between :meth:`start_profile_stream` and :meth:`stop_profile_stream` the sensor keeps
+    its input drained by itself (the caller moves the robot meanwhile). The profiles come
+    back as a :class:`~spherecal.core.streams.ProfileStream`: ``t_sensor_s`` the middle of
+    each exposure in seconds of the sensor's clock (monotonic: a wrapping hardware counter
+    is unwrapped), ``points_yz_mm`` and ``start`` the profiles ((y, z) mm in the sensor
+    frame; a profile that saw nothing has no points), ``frame`` the sensor's frame
+    counters, increasing, whose gaps are the lost frames."""
+
+    #: The counts of the last stream stopped (all zero before the first).
+    profile_stream_counts: ProfileStreamCounts
+
+    def start_profile_stream(self, rate_hz: float | None = None) -> None:
+        """Start streaming at ``rate_hz`` (None: the sensor's configured rate). Raises
+        :class:`~spherecal.core.errors.DeviceError` when a stream already runs or the
+        sensor refuses."""
+
+    def stop_profile_stream(self) -> ProfileStream:
+        """Stop, take the frames still in flight, and return the stream. A stream that
+        ended abnormally raises :class:`ProfileStreamError` here, with what was taken."""
 
 
 @dataclass

@@ -26,6 +26,36 @@ class NxSensorConfig(BaseModel):
         description="attempts after a timeout, stall, corrupt frame or disconnect before the error is raised (count)",
     )
 
+    stall_timeout_ms: int = Field(
+        500, ge=1, le=60_000,
+        description="a profile stream that brings no frame for this long ends with an error, ms of the host's clock "
+        "(must exceed two frame periods)",
+    )
+    late_after_periods: float = Field(
+        0.5, gt=0, le=100,
+        description="a streamed frame stamped more than this many frame periods after its slot is counted late "
+        "(periods)",
+    )
+    clock_jump_periods: float = Field(
+        4.0, gt=0, le=1000,
+        description="a streamed frame stamped more than this many frame periods after its slot is a jump of the "
+        "sensor's clock, which ends the stream (periods; above late_after_periods)",
+    )
+
+    @model_validator(mode="after")
+    def _stream_limits(self):
+        if self.stall_timeout_ms <= 2 * self.period_us / 1000:
+            raise ValueError(
+                f"stall_timeout_ms = {self.stall_timeout_ms} ms must exceed two frame periods of rate_hz = "
+                f"{self.rate_hz} Hz ({2 * self.period_us / 1000:g} ms); raise stall_timeout_ms"
+            )
+        if self.late_after_periods >= self.clock_jump_periods:
+            raise ValueError(
+                f"late_after_periods = {self.late_after_periods} must be below clock_jump_periods = "
+                f"{self.clock_jump_periods}"
+            )
+        return self
+
     @model_validator(mode="after")
     def _exposure_fits_period(self):
         period_us = 1e6 / self.rate_hz

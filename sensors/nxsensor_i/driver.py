@@ -7,7 +7,10 @@ code runs against libusb and real hardware or against
 
 Profiles are (y, z) in mm in the sensor frame's x = 0 plane, z positive towards the
 sensor (``docs/conventions.md``). Implements the :class:`spherecal.plugins.Sensor`
-protocol (``read_profile``, ``close``) and adds streaming (:meth:`NxSensorDriver.stream`).
+protocol (``read_profile``, ``close``) and the optional
+:class:`spherecal.plugins.ProfileStreamingSensor` (``start_profile_stream``,
+``stop_profile_stream``: a stream at a set rate, drained by a reader thread, each frame
+on the sensor's clock, :mod:`.streaming` and :mod:`.stamps`).
 
 Failures become :class:`spherecal.plugins.DeviceError` naming the device (USB
 vendor:product id, serial number) and the operation. Recovery, up to
@@ -25,16 +28,19 @@ flushed on open, reopen and after a stream, and the next shot learns the counter
 from __future__ import annotations
 
 import errno
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+import math
+import time
+from collections.abc import Callable
 
 import usb.core
 import usb.util
 
-from spherecal.plugins import DeviceError, Profile
+from spherecal.plugins import DeviceError, Profile, ProfileStream, ProfileStreamCounts, ProfileStreamError
 
 from .config import NxSensorConfig
 from .shots import CounterMismatch, FrameCounter, Shot
+from .stamps import StreamStamps
+from .streaming import StreamReader
 from .wire import Command, Frame, FrameFormatError, encode_bulk_command, encode_control_command, decode_frame
 
 _LIBUSB_ERROR_NO_DEVICE = -4
@@ -66,16 +72,11 @@ def _is_busy(exc: usb.core.USBError) -> bool:
     return exc.errno == errno.EBUSY or exc.backend_error_code == _LIBUSB_ERROR_BUSY
 
 
-@dataclass(frozen=True)
-class StreamedProfile:
-    """One profile of a stream. ``profile`` is None when the line saw nothing valid;
-    ``dropped_before`` counts frames the sensor numbered but that never arrived (or
-    arrived corrupt) between the previous item and this one."""
-
-    frame_counter: int
-    timestamp_us: int
-    profile: Profile | None
-    dropped_before: int
+#: Longest wait of one read of the stream's reader, ms: how long a stop may wait for it.
+STREAM_POLL_MS = 50
+#: Slack on the time that can have passed between two streams, seconds (latency of the
+#: last frame's delivery, the clocks' rate difference).
+STREAM_GAP_SLACK_S = 1.0
 
 
 class _Gone(Exception):
@@ -88,17 +89,28 @@ class NxSensorDriver:
     ``backend`` is a pyusb backend (None: pyusb's default, libusb-1.0 first). The device
     is found by ``config.wire.vendor_id``/``product_id`` (and ``config.serial_number``
     when set), configured, its interface claimed and the exposure and rate sent.
-    ``log`` receives one line per recovery (retry, halt cleared, reopened)."""
+    ``log`` receives one line per recovery (retry, halt cleared, reopened) and per lost or
+    late streamed frame. ``host_clock_s()`` is the host's clock for a stream's stall limit
+    (seconds, default ``time.monotonic``; a simulated run gives its simulated clock)."""
 
-    def __init__(self, config: NxSensorConfig, backend=None, log: Callable[[str], None] | None = None):
+    def __init__(self, config: NxSensorConfig, backend=None, log: Callable[[str], None] | None = None,
+                 host_clock_s: Callable[[], float] | None = None):
         self.config = config
         self.wire = config.wire
         self._log = log or (lambda msg: None)
         self._backend = backend
+        self._host_clock_s = host_clock_s or time.monotonic
         self._dev: usb.core.Device | None = None
         self._streaming = False
         self._closed = False
-        self.frames_dropped = 0
+        self._reader: StreamReader | None = None
+        self._stamps: StreamStamps | None = None  # the sensor clock's time line of this device session
+        self._last_frame_host_s: float | None = None
+        #: the counts of the last profile stream stopped
+        self.profile_stream_counts = ProfileStreamCounts()
+        #: which time line of the sensor's clock streams are on: +1 each time it cannot be
+        #: followed from the previous stream (the device reopened, or too long between)
+        self.sensor_clock_session = 0
         #: the counter the next measured profile will carry (see :mod:`.shots`)
         self.counter = FrameCounter(self.wire.frame_counter_modulus)
         self._flushed = False  # the input was flushed and nothing triggered since
@@ -180,6 +192,7 @@ class NxSensorDriver:
         self._setup_device()
 
     def _setup_device(self) -> None:
+        self._stamps = None  # a device opened afresh: its clock's count cannot be followed
         dev, wire = self._dev, self.wire
         step = "opening the device"
         try:
@@ -438,52 +451,115 @@ class NxSensorDriver:
             return None
         return Profile.from_points(frame.points_mm, shot_id=str(frame.frame_counter))
 
-    def stream(self, rate_hz: float | None = None, max_frames: int | None = None) -> Iterator[StreamedProfile]:
-        """Profiles sent by the sensor at ``rate_hz`` (default: the configured rate),
-        as :class:`StreamedProfile` items with the sensor's frame counter. Gaps in the
-        counter (frames lost in the device, on the bus, or corrupt) are reported in
-        ``dropped_before`` and summed in :attr:`frames_dropped`. Streaming stops when the
-        iterator is closed, exhausted (``max_frames``) or garbage collected."""
+    # --- profile streaming (spherecal.plugins.ProfileStreamingSensor) -------------------
+    def start_profile_stream(self, rate_hz: float | None = None) -> None:
+        """Stream profiles at ``rate_hz`` (default: the configured rate): the sensor
+        measures one every period on its own clock, and a reader thread keeps the input
+        drained until :meth:`stop_profile_stream`. Single reads are refused meanwhile."""
+        operation = "starting the profile stream"
+        self._check_open(operation)
         if self._streaming:
-            raise DeviceError(f"{self.device_name}: a stream is already running; close it first")
+            raise DeviceError(f"{self.device_name}: a profile stream is already running; stop it first")
+        if self.wire.timestamp_modulus is None:
+            raise DeviceError(f"{self.device_name}: sensor.wire.header_layout has no timestamp_us field, so streamed "
+                              "frames carry no sensor time; a stream needs the sensor's stamps")
         if rate_hz is not None:
             self.configure(rate_hz=rate_hz)
-        # one read may wait up to a frame period on top of the transfer timeout
-        read_timeout = self.config.timeout_ms + int(2 * self.config.period_us / 1000) + 1
-        self._flushed = False
-        self.counter.forget()  # streamed frames use counters: single shots learn it again afterwards
-        self._attempt("starting the stream", lambda: self._command_raw(Command("start_stream")))
+        cfg = self.config
+        self._attempt(operation, lambda: self._flush_input(operation))  # frames of earlier use are no stream's
+        if self._stamps is None:
+            self._stamps = StreamStamps(self.wire.frame_counter_modulus, self.wire.timestamp_modulus,
+                                        self.wire.timestamp_us_per_count * 1e-6)
+        if not self._stamps.continues:
+            self.sensor_clock_session += 1
+        period_s = cfg.period_us * 1e-6
+        self._stamps.begin_stream(period_s, self.wire.exposure_middle_shift_s(cfg.exposure_us),
+                                  cfg.late_after_periods * period_s, cfg.clock_jump_periods * period_s)
+        started_s = self._host_clock_s()
+        self._attempt(operation, lambda: self._command_raw(Command("start_stream")))
         self._streaming = True
-        return self._stream_items(read_timeout, max_frames)
+        self._flushed = False
+        last = self._last_frame_host_s
+        dev = self._dev
+        self._reader = StreamReader(
+            read=lambda timeout_ms: dev.read(self.wire.bulk_in_endpoint, self._read_size, timeout_ms),
+            recover=self._recover_in_stream, wire=self.wire, stamps=self._stamps, clock_s=self._host_clock_s,
+            stall_s=cfg.stall_timeout_ms / 1000, poll_ms=max(5, min(STREAM_POLL_MS, math.ceil(2 * cfg.period_us / 1000))),
+            retries=cfg.retries, log=lambda msg: self._log(f"{self.device_name}: {msg}"),
+            max_elapsed_s=lambda: math.inf if last is None else
+            (self._host_clock_s() - last) * 1.001 + cfg.stall_timeout_ms / 1000 + STREAM_GAP_SLACK_S,
+            on_fault=self._stop_device_quietly, started_s=started_s, period_s=period_s,
+        )
+        self._reader.start()
 
-    def _stream_items(self, read_timeout: int, max_frames: int | None) -> Iterator[StreamedProfile]:
-        modulus = self.wire.frame_counter_modulus
-        previous: int | None = None
-        reopened = False
-        n = 0
+    def _recover_in_stream(self, exc: BaseException) -> str | None:
+        """A USB error of the reader: None after clearing a halted endpoint (go on), else
+        the fault that ends the stream (the stream is not restarted on a reopened device:
+        its clock and counter would start again)."""
+        if isinstance(exc, usb.core.USBError) and _is_pipe(exc):
+            self._log(f"{self.device_name}: endpoint stalled while streaming; clearing the halt")
+            self._clear_halt_quietly()
+            return None
+        if isinstance(exc, usb.core.USBError) and _is_no_device(exc):
+            return f"the device is gone (disconnected) ({exc}); check the USB cable and the sensor's power"
+        return f"USB error ({exc})"
 
-        def restart():
-            # a reopened device counts afresh: no gap can be told across the reopening
-            nonlocal reopened
-            reopened = True
-            self._command_raw(Command("start_stream"))
-
+    def _stop_device_quietly(self) -> None:
         try:
-            while max_frames is None or n < max_frames:
-                frame = self._attempt("streaming profiles", lambda: self._read_frame_raw(read_timeout), after_reopen=restart)
-                if reopened:
-                    previous, reopened = None, False
-                dropped = 0 if previous is None else (frame.frame_counter - previous - 1) % modulus
-                if dropped:
-                    self.frames_dropped += dropped
-                    self._log(f"{self.device_name}: {dropped} frame(s) lost before frame {frame.frame_counter}")
-                previous = frame.frame_counter
-                n += 1
-                profile = Profile.from_points(frame.points_mm) if len(frame.points_mm) else None
-                yield StreamedProfile(frame.frame_counter, frame.timestamp_us, profile, dropped)
-        finally:
-            self._streaming = False
-            self._stop_stream_quietly()
+            if self._dev is not None:
+                self._command_raw(Command("stop_stream"))
+        except usb.core.USBError:
+            pass
+
+    @property
+    def profile_stream_progress(self) -> ProfileStreamCounts | None:
+        """The running stream's counts so far (None when none runs)."""
+        reader = self._reader
+        return None if reader is None else reader.counts
+
+    @property
+    def profile_stream_error(self) -> ProfileStreamError | None:
+        """The fault that has ended the running stream (its frames come with
+        :meth:`stop_profile_stream`), or None while it runs well."""
+        reader = self._reader
+        if reader is None or reader.fault is None:
+            return None
+        return ProfileStreamError(self._stream_fault_message(reader), None, reader.counts)
+
+    def _stream_fault_message(self, reader: StreamReader) -> str:
+        return (f"{self.device_name}: {reader.fault} while streaming profiles; the stream ended there, keeping "
+                f"{reader.counts.received} frame(s) ({reader.counts.lost} lost, {reader.counts.late} late)")
+
+    def stop_profile_stream(self) -> ProfileStream:
+        """Stop the stream, take the frames still in flight and return every frame kept as
+        a :class:`~spherecal.core.streams.ProfileStream` (``t_sensor_s``: the middle of
+        each exposure on the sensor's clock, unwrapped; ``frame``: the frame counters,
+        unwrapped). :attr:`profile_stream_counts` then holds received, lost and late. A
+        stream that ended with a fault (stall, device error, clock or counter) raises
+        :class:`~spherecal.plugins.ProfileStreamError` naming it, with what was taken."""
+        reader = self._reader
+        if reader is None:
+            raise DeviceError(f"{self.device_name}: no profile stream is running; start one first")
+        if reader.fault is None:
+            self._stop_device_quietly()
+        reader.request_stop()
+        reader.join(timeout=self.config.stall_timeout_ms / 1000 + 2 * STREAM_POLL_MS / 1000 + 1.0)
+        self._reader = None
+        self._streaming = False
+        if reader.is_alive():  # the reader cannot be joined: leave it reading nothing of ours
+            reader.fault = reader.fault or "the stream's reader did not end after stop_stream"
+        self.counter.forget()  # single shots learn the counter again
+        if reader.last_frame_s is not None:
+            self._last_frame_host_s = reader.last_frame_s
+        self.profile_stream_counts = reader.counts
+        taken = reader.taken()
+        if reader.fault is not None:
+            if self._stamps is not None and reader.fault_kind in ("clock_backwards", "clock_jump"):
+                self._stamps.new_session()  # the clock broke the time line: follow it no further
+            raise ProfileStreamError(self._stream_fault_message(reader), taken, reader.counts)
+        if taken is None:
+            return ProfileStream.from_profiles([], [], frame=[])
+        return taken
 
     def _stop_stream_quietly(self) -> None:
         if self._dev is None or self._closed:
@@ -513,6 +589,11 @@ class NxSensorDriver:
         """Release the interface and the device. Safe to call twice."""
         if self._closed:
             return
+        if self._reader is not None:
+            self._stop_device_quietly()
+            self._reader.request_stop()
+            self._reader.join(timeout=2 * STREAM_POLL_MS / 1000 + 1.0)
+            self._reader = None
         if self._streaming:
             self._stop_stream_quietly()
             self._streaming = False

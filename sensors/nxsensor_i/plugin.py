@@ -3,7 +3,10 @@
 With a simulated cell in the device context, the factory puts
 :class:`~spherecal.sensors.nxsensor_i.simbackend.SimulatedNxSensorBackend` over that cell
 under the real driver, so simulated runs exercise the same pyusb code path as the
-hardware; otherwise pyusb's default backend (libusb-1.0) is used.
+hardware; otherwise pyusb's default backend (libusb-1.0) is used. A simulated stream runs
+on the backend's own simulated time (moved by ``backend.advance_s``) at the cell's current
+pose, unless the context's ``extras`` give the simulated time, the sensor's clock and the
+profile source (the ``SIM_*_KEY`` names below).
 """
 
 from __future__ import annotations
@@ -26,6 +29,14 @@ if importlib.util.find_spec("usb") is None:
     raise ImportError("the nxsensor_i plugin needs pyusb, which is not installed: pip install pyusb")
 
 NAME = "nxsensor_i"
+
+#: ``DeviceContext.extras`` keys a simulated run may set to drive the simulated device's
+#: stream (docs/sensor-nxsensor-i.md, "Simulation"): the simulated time now
+#: (``() -> seconds``), the sensor's clock (an object with ``to_sensor_s(T)`` and
+#: ``to_true_s(t)``), the profile at a true time (``(T_true_s) -> (N, 2) (y, z) mm``).
+SIM_NOW_KEY = "sim_now_s"
+SIM_SENSOR_CLOCK_KEY = "sim_sensor_clock"
+SIM_PROFILE_SOURCE_KEY = "sim_profile_source"
 
 #: The nxSensor-I's measuring range (NextWare's data, docs/sensor-nxsensor-i.md): z from
 #: -60 mm (far end, line 48 mm wide) to +40 mm (near end, 28 mm), sensor frame; a
@@ -56,10 +67,14 @@ def create_sensor(config: NxSensorConfig, context: DeviceContext) -> NxSensorDri
                           "(pip install --force-reinstall pyusb)") from exc
 
     if context.cell is not None:
+        extras = context.extras
         backend = SimulatedNxSensorBackend(
-            context.cell, wire=config.wire, serial_number=config.serial_number or "NXS-SIM-0001"
+            context.cell, wire=config.wire, serial_number=config.serial_number or "NXS-SIM-0001",
+            now_s=extras.get(SIM_NOW_KEY), clock=extras.get(SIM_SENSOR_CLOCK_KEY),
+            source=extras.get(SIM_PROFILE_SOURCE_KEY),
         )
-        return NxSensorDriver(config, backend=backend, log=context.log)
+        # the stall limit of a stream runs on simulated time, as the simulated device's frames do
+        return NxSensorDriver(config, backend=backend, log=context.log, host_clock_s=backend.now_s)
     return NxSensorDriver(config, backend=None, log=context.log)
 
 

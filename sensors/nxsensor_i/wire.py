@@ -22,6 +22,11 @@ Assumed protocol (defaults in brackets):
   magic u32 = b"NXPF", frame counter u32, timestamp u32 in microseconds, point count
   u16, flags u16; little-endian), then ``point count`` records of two signed integer
   counts (by default int16 y then int16 z), then an optional CRC-32 trailer [none].
+* The timestamp counts ``timestamp_us_per_count`` microseconds of the sensor's own clock
+  [1 us] and wraps at 2^bits of its header type [u32: every 71.6 min]; it gives the start
+  of the exposure [``timestamp_marks="exposure_start"``]. While streaming, the sensor
+  measures one frame every set period on its own clock (internally triggered) and numbers
+  every frame it measures, sent or not (:mod:`.stamps` unwraps both counters).
 * A point is invalid when its y or z count equals ``invalid_count`` [-32768]; invalid
   points are dropped on decoding.
 * Counts become millimetres as ``mm = offset_mm + count * scale_mm_per_count`` [scale
@@ -121,6 +126,16 @@ class WireConfig(BaseModel):
     z_offset_mm: float = Field(-10.0, description="z: mm at count 0 (middle of the -60 .. +40 mm range)")
     invalid_count: int = Field(-32768, description="count marking an invalid point (in y or z); must fit count_type")
     max_points: int = Field(2048, ge=1, le=65535, description="most points one frame may carry (points)")
+    timestamp_us_per_count: float = Field(
+        1.0, gt=0, le=1e6,
+        description="microseconds of the sensor's clock per count of the header's timestamp_us field (us per count; "
+        "the field wraps at 2^bits counts)",
+    )
+    timestamp_marks: Literal["exposure_start", "exposure_middle", "exposure_end"] = Field(
+        "exposure_start",
+        description="which moment of the exposure a frame's timestamp gives; the driver turns it into the "
+        "exposure's middle with exposure_us",
+    )
     checksum: Literal["none", "crc32"] = Field("none", description="frame trailer: none, or CRC-32 (zlib) of header + records as u32")
 
     @field_validator("header_layout")
@@ -190,6 +205,18 @@ class WireConfig(BaseModel):
     def frame_counter_modulus(self) -> int:
         """The frame counter wraps to 0 at this value."""
         return 1 << _BITS[dict(self.header_layout)["frame_counter"]]
+
+    @property
+    def timestamp_modulus(self) -> int | None:
+        """The header's timestamp wraps to 0 at this count; None when the header has no
+        timestamp (a stream then cannot be stamped)."""
+        typ = dict(self.header_layout).get("timestamp_us")
+        return None if typ is None else 1 << _BITS[typ]
+
+    def exposure_middle_shift_s(self, exposure_us: float) -> float:
+        """Seconds to add to a frame's timestamp to get the middle of its exposure."""
+        half = 0.5e-6 * exposure_us
+        return {"exposure_start": half, "exposure_middle": 0.0, "exposure_end": -half}[self.timestamp_marks]
 
     @property
     def usb_id(self) -> str:

@@ -197,8 +197,8 @@ def test_a_run_stops_when_the_controller_closes_the_connection(tmp_path, monkeyp
     servers = []
     real_start = plugin.start_simulator
 
-    def start(kin, settings, cell):
-        srv = real_start(kin, settings, cell)
+    def start(kin, settings, cell, **kw):
+        srv = real_start(kin, settings, cell, **kw)
         servers.append(srv)
         if len(servers) == 1:  # the first run: drop the connection during the 5th move
             real_move = srv.controller._move

@@ -97,53 +97,6 @@ def test_settings_are_sent_on_open_and_on_configure(driver, backend):
     assert driver.config.exposure_us == 300
 
 
-def test_stream_at_a_rate_with_frame_counters(driver, backend, cell):
-    first = driver.read_frame().frame_counter
-    items = list(driver.stream(rate_hz=250, max_frames=5))
-    assert backend.period_us == 4000
-    assert [i.frame_counter for i in items] == list(range(first + 1, first + 6))
-    assert all(i.dropped_before == 0 for i in items)
-    assert [i.timestamp_us for i in items] == [i.frame_counter * 4000 for i in items]
-    for item, (counter, measured) in zip(items, backend.measured[-5:]):
-        assert item.frame_counter == counter
-        assert np.max(np.abs(item.profile.points_mm - measured)) <= HALF_COUNT_MM
-    assert backend.streaming is False  # stopped when the iterator ended
-    assert [c.name for c in backend.commands[-2:]] == ["start_stream", "stop_stream"]
-
-
-def test_stream_detects_dropped_frames(driver, backend, logs):
-    stream = driver.stream(max_frames=4)
-    a = next(stream)
-    backend.drop_frames(3)
-    b = next(stream)
-    assert b.frame_counter == a.frame_counter + 4 and b.dropped_before == 3
-    backend.inject_corrupt_frames(1, kind="truncate")  # one corrupt frame: skipped, counted
-    c = next(stream)
-    assert c.frame_counter == b.frame_counter + 2 and c.dropped_before == 1
-    assert driver.frames_dropped == 4
-    assert any("3 frame(s) lost" in m for m in logs)
-    stream.close()
-    assert backend.streaming is False
-
-
-def test_no_single_reads_while_streaming(driver):
-    stream = driver.stream(max_frames=2)
-    next(stream)
-    with pytest.raises(DeviceError, match="cannot read a single profile while streaming"):
-        driver.read_profile()
-    with pytest.raises(DeviceError, match="a stream is already running"):
-        driver.stream()
-    stream.close()
-    assert driver.read_profile() is not None
-
-
-def test_stream_with_out_of_view_frames(driver, cell):
-    pose = cell.current_base_from_flange
-    cell.move_flange_to(Pose.from_rt(pose.rotation_matrix, pose.translation + [0.0, 0.0, 400.0]))
-    items = list(driver.stream(max_frames=2))
-    assert [i.profile for i in items] == [None, None]
-
-
 def test_recovers_from_a_transient_timeout(driver, backend, logs):
     backend.inject_timeouts(1)
     profile = driver.read_profile()
@@ -174,18 +127,6 @@ def test_persistent_timeout_is_a_clear_device_error(driver, backend):
     assert driver.read_profile() is not None  # the device itself is fine afterwards
 
 
-def test_timeout_while_streaming(driver, backend):
-    stream = driver.stream(max_frames=3)
-    next(stream)
-    backend.inject_timeouts(1)
-    item = next(stream)  # recovered; the frame the timeout ate is counted as dropped
-    assert item.dropped_before == 1
-    backend.inject_timeouts(2)
-    with pytest.raises(DeviceError, match="no answer within timeout_ms = 50 ms .* while streaming profiles"):
-        next(stream)
-    assert backend.streaming is False
-
-
 def test_disconnect_is_a_clear_device_error(driver, backend):
     backend.disconnect()
     with pytest.raises(DeviceError, match=r"nxSensor-I \(USB 04b4:5a01\): the device is gone \(disconnected\) "
@@ -197,14 +138,6 @@ def test_disconnect_is_a_clear_device_error(driver, backend):
     driver.close()
 
 
-def test_disconnect_while_streaming(driver, backend):
-    stream = driver.stream(max_frames=5)
-    next(stream)
-    backend.disconnect()
-    with pytest.raises(DeviceError, match="the device is gone .* while streaming profiles"):
-        next(stream)
-
-
 def test_reconnected_device_is_found_again(driver, backend, logs):
     backend.disconnect()
     backend.reconnect()  # new address, firmware restarted with default settings
@@ -212,20 +145,6 @@ def test_reconnected_device_is_found_again(driver, backend, logs):
     assert driver.read_profile() is not None
     assert backend.exposure_us == 200 and backend.period_us == 10_000  # settings sent again
     assert any("reappeared" in m for m in logs)
-
-
-def test_stream_resumes_after_the_device_comes_back(driver, backend, logs):
-    stream = driver.stream(max_frames=3)
-    next(stream)
-    next(stream)
-    backend.disconnect()
-    backend.reconnect()
-    item = next(stream)  # reopened, settings and start_stream sent again
-    assert backend.streaming is True
-    assert item.frame_counter == 0 and item.dropped_before == 0  # fresh counter, no false gap
-    assert driver.frames_dropped == 0
-    stream.close()
-    assert backend.streaming is False
 
 
 def test_reset_reopens_the_device(driver, backend):

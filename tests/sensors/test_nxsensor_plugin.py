@@ -48,6 +48,14 @@ def test_simulated_sensor_uses_the_configured_wire_and_serial(spherecal_cell):
         ({"type": "nxsensor_i", "wire": {"vendor_id": 70000}}, "vendor_id"),
         ({"type": "nxsensor_i", "exposure_us": 20000, "rate_hz": 100}, "exposure_us = 20000 us does not fit"),
         ({"type": "nxsensor_i", "rate_hz": 0}, "rate_hz"),
+        ({"type": "nxsensor_i", "rate_hz": 2, "exposure_us": 200}, r"stall_timeout_ms = 500 ms must exceed two frame "
+                                                                   r"periods of rate_hz = 2\.0 Hz \(1000 ms\)"),
+        ({"type": "nxsensor_i", "stall_timeout_ms": 0}, "stall_timeout_ms"),
+        ({"type": "nxsensor_i", "late_after_periods": 5, "clock_jump_periods": 4},
+         "late_after_periods = 5.0 must be below clock_jump_periods = 4.0"),
+        ({"type": "nxsensor_i", "late_after_periods": 0}, "late_after_periods"),
+        ({"type": "nxsensor_i", "wire": {"timestamp_us_per_count": 0}}, "timestamp_us_per_count"),
+        ({"type": "nxsensor_i", "wire": {"timestamp_marks": "exposure_centre"}}, "timestamp_marks"),
     ],
 )
 def test_bad_configuration_is_a_config_error(spherecal_host, section, message):
@@ -99,7 +107,7 @@ def test_a_broken_pyusb_stops_the_factory_with_a_device_error_naming_it(sphereca
 def test_the_package_lists_and_loads_its_lazy_names():
     import spherecal.sensors.nxsensor_i as nx
 
-    assert {"NxSensorDriver", "SimulatedNxSensorBackend", "StreamedProfile"} <= set(dir(nx))
+    assert {"NxSensorDriver", "SimulatedNxSensorBackend", "SensorClock", "cell_source"} <= set(dir(nx))
     assert nx.NxSensorDriver is NxSensorDriver
     with pytest.raises(AttributeError, match="no attribute 'Nope'"):
         nx.Nope

@@ -152,7 +152,9 @@ def test_single_shots_after_a_stream_learn_the_counter_again(cell):
     backend = SimulatedNxSensorBackend(cell)
     with NxSensorDriver(NxSensorConfig(timeout_ms=20), backend=backend) as d:
         shoot_at(d, backend, cell, cell.poses[0])
-        list(d.stream(max_frames=3))
+        d.start_profile_stream()
+        backend.advance_s(0.035)
+        assert d.stop_profile_stream().n == 3
         assert not d.counter.known
         backend.inject_late_frames(1)
         for pose in cell.poses[1:]:
@@ -161,7 +163,8 @@ def test_single_shots_after_a_stream_learn_the_counter_again(cell):
 
 def test_a_sensor_that_keeps_sending_is_refused_on_open(cell):
     backend = SimulatedNxSensorBackend(cell)
-    backend.streaming = True  # left streaming by another program
+    backend.stream_unasked()  # left streaming by another program
+    backend.advance_s(1.0)
     with pytest.raises(DeviceError, match=r"frames kept arriving unasked \(64 in a row\) while flushing the input "
                                           r"\(opening the device\)"):
         NxSensorDriver(NxSensorConfig(), backend=backend)

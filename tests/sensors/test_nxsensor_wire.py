@@ -198,3 +198,18 @@ def test_bad_commands():
 def test_config_rejects(fields, message):
     with pytest.raises(ValidationError, match=message):
         WireConfig.model_validate(fields)
+
+
+@pytest.mark.parametrize("marks, shift_s", [("exposure_start", 100e-6), ("exposure_middle", 0.0),
+                                            ("exposure_end", -100e-6)])
+def test_a_stamp_is_moved_to_the_exposure_middle(marks, shift_s):
+    assert WireConfig(timestamp_marks=marks).exposure_middle_shift_s(200) == pytest.approx(shift_s)
+
+
+def test_the_timestamp_wraps_at_its_header_type():
+    assert DEFAULT.timestamp_modulus == 1 << 32
+    u16 = WireConfig(header_layout=(("magic", "u32"), ("frame_counter", "u32"), ("timestamp_us", "u16"),
+                                    ("point_count", "u16")))
+    assert u16.timestamp_modulus == 1 << 16
+    assert WireConfig(header_layout=(("magic", "u32"), ("frame_counter", "u32"),
+                                     ("point_count", "u16"))).timestamp_modulus is None
