@@ -82,7 +82,10 @@ def solve_and_write(
     try:
         solution = solver() if solver is not None else solve(dataset, options, fk, progress=log, kinematics=kinematics)
     except FitBreakdownError as exc:
-        cause = _breakdown_cause(dataset, options, fk, log, kinematics)
+        if recheck is not None:  # a recording: of the re-readings, only the mounting's applies
+            cause = _other_mounting_cause(dataset.mounting, recheck, log, "the fit broke down")
+        else:
+            cause = _breakdown_cause(dataset, options, fk, log, kinematics)
         if cause is None:
             raise
         raise FitBreakdownError(f"{cause}. ({exc})") from None
@@ -157,6 +160,24 @@ def _breakdown_cause(dataset: Dataset, options: CalibrationOptions, fk, log, kin
                                     fits=lambda res: not is_absurd(res), ratio=absurd_ratio)
 
 
+def _other_mounting_cause(mounting: str, recheck: Callable[[str], CalibrationResult], log: Callable[[str], None],
+                          what: str) -> str | None:
+    """A recording solved as the other mounting (``recheck``) after ``what``: the cause
+    named when the same data fit that way, else None."""
+    th = Thresholds()
+    other = diagnose.other_mounting(mounting)
+    log(f"{what}: checking whether the recording is {other} data")
+    try:
+        alt = recheck(other)
+    except SpherecalError:
+        return None
+    if is_absurd(alt, th):
+        return None
+    return (f"likely cause: the recording's mounting is probably wrong: it says {mounting}, but solved as {other} "
+            f"the same data fit with residual RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt, th):.2f} x the "
+            "expected). Check the sensor's mounting (--mounting)")
+
+
 def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOptions, fk=None,
                     log: Callable[[str], None] = _LOG, kinematics=None,
                     recheck: Callable[[str], CalibrationResult] | None = None) -> Verdict:
@@ -184,19 +205,11 @@ def assess_solution(solution: Solution, dataset: Dataset, options: CalibrationOp
     v = verdict(result, th)
     if not dataset.observations:  # a recording: of the re-readings below, only the mounting's applies
         if is_absurd(result, th) and recheck is not None:
-            other = diagnose.other_mounting(dataset.mounting)
-            log(f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected): checking whether the "
-                f"recording is {other} data")
-            try:
-                alt = recheck(other)
-            except SpherecalError:
-                alt = None
-            if alt is not None and not is_absurd(alt, th):
+            cause = _other_mounting_cause(dataset.mounting, recheck, log,
+                                          f"the result is absurd ({absurd_ratio(result, th):.3g} x the expected)")
+            if cause is not None:
                 v.level = "red"
-                v.reasons.append(("red", f"likely cause: the recording's mounting is probably wrong: it says "
-                                         f"{dataset.mounting}, but solved as {other} the same data fit with residual "
-                                         f"RMS {alt.residuals.rms_mm:.4f} mm ({absurd_ratio(alt, th):.2f} x the "
-                                         "expected). Check the sensor's mounting (--mounting)"))
+                v.reasons.append(("red", cause))
                 v.headline = f"{v.headline} Likely cause: the mounting."
         return v
     absurd = is_absurd(result, th)

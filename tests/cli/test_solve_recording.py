@@ -48,3 +48,23 @@ def test_a_recording_of_the_other_mounting_is_named_as_such(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert code == 7
     assert "likely cause: the recording's mounting is probably wrong: it says eye_to_hand" in printed
+
+
+@pytest.mark.slow
+def test_a_recording_whose_fit_breaks_down_names_the_mounting(tmp_path, capsys):
+    """An eye-to-hand recording whose header says eye-in-hand: the fit breaks down before
+    any result, and the error names the mounting (the recording solved as eye-to-hand
+    fits), not only a list of suspects."""
+    from dataclasses import replace
+
+    cell = standard_cell("eye_to_hand", seed=4, fov=reference_fov())
+    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
+                             StreamSimSettings(sensor={"rate_hz": 25.0}, seed=4))
+    path = tmp_path / "wrong.recording.jsonl"
+    write_recording(path, replace(rec, mounting="eye_in_hand"))
+    code = main(["solve", str(path), "--out", str(tmp_path / "res"), "--no-report"])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert ("likely cause: the recording's mounting is probably wrong: it says eye_in_hand, but solved as "
+            "eye_to_hand the same data fit") in err
+    assert not (tmp_path / "res" / "result.json").exists()
