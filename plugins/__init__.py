@@ -34,7 +34,11 @@ modules behind these names may move between releases, these names stay. What it 
   :class:`Dataset`, :class:`CalibrationResult`, :class:`DeviceError`, ...), the
   ``base_dir`` validation-context key (:data:`BASE_DIR_CONTEXT_KEY`), the host
   (:class:`PluginHost`, for a plugin's tests), the simulated cell and planner a plugin's
-  tests run on, and :func:`lazy_attributes` (names a package defines on first use).
+  tests run on, the simulated world's time for a simulated streaming device
+  (:class:`SimClock`, :class:`MotionTimeline` and its :meth:`~MotionTimeline.sample`,
+  :class:`DeviceClock`, :class:`SmoothNoise`, :class:`Samples`) and the devices' own
+  random streams (:func:`device_rng`), and :func:`lazy_attributes` (names a package
+  defines on first use).
 
 Importing this package is cheap: every name but the markers and constants loads on first
 use (PEP 562), so that ``spherecal --help`` and ``spherecal plugins`` load nothing a
@@ -170,6 +174,13 @@ _WHERE = {
     # the simulated cell and the planner a plugin's tests run on
     "SimulatedCell": "spherecal.sim.cell",
     "standard_cell": "spherecal.sim.cell",
+    # simulated time and the devices' random streams, for simulated streaming devices
+    "SimClock": "spherecal.sim.timeline",
+    "MotionTimeline": "spherecal.sim.timeline",
+    "DeviceClock": "spherecal.sim.timeline",
+    "SmoothNoise": "spherecal.sim.timeline",
+    "Samples": "spherecal.sim.timeline",
+    "device_rng": "spherecal.sim.rngs",
     "SweepPlan": "spherecal.motion.planning",
     "plan_stations": "spherecal.motion.planning",
 }

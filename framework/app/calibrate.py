@@ -170,6 +170,11 @@ def _acquired(run: _Calibration, outcome: Outcome, *, dry_run: bool, resume: boo
     outcome.notes.extend(rep.skipped)
     for s in rep.skipped:
         run.log(f"skipped {s}")
+    if rep.taken and rep.robot_time_s > 0:
+        run.log(f"acquisition: {rep.robot_time_line()}")
+        outcome.acquisition = {"profiles": rep.taken, "robot_time_s": rep.robot_time_s,
+                               "profiles_per_minute": 60.0 * rep.taken / rep.robot_time_s,
+                               "simulated": rep.simulated_time}
     dataset = dataio.read_dataset(journal)
     run.host.acquisition_finished(dataset=dataset, robot_type=run.cfg.robot["type"],
                                   sensor_type=run.cfg.sensor["type"])
@@ -286,7 +291,8 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
                 return acquire(robot, sensor, plan.targets, writer, acq, resumed.done, notify, log,
                                Progress(len(plan.targets), progress_stream),
                                taken=resumed.previous.observations if resumed.done else (),
-                               min_points=cfg.calibration.min_points_per_profile, before_station=before_station)
+                               min_points=cfg.calibration.min_points_per_profile, before_station=before_station,
+                               clock=cell.clock if cell is not None else None)
             except SensorBlindError as exc:
                 q = ", ".join(f"{v:g}" for v in cfg.nominal_transform.quaternion_wxyz)
                 raise SensorBlindError(f"{exc}. This configuration: mounting = \"{cfg.mounting}\", "

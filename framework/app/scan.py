@@ -56,9 +56,11 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         with PlyWriter(ply_path, format=cfg.scan.format, with_profile=True, frame=frame,
                        comments=(f"spherecal scan, {result.transform_name} from {result_path}",)) as writer:
             summary = scan(robot, sensor, targets, result.transform, cfg.acquisition, cfg.mounting, writer, log,
-                           Progress(len(targets), progress_stream))
+                           Progress(len(targets), progress_stream), clock=cell.clock if cell is not None else None)
     log(f"scan: {summary.points} points from {summary.profiles} profiles ({summary.empty_profiles} empty) in "
         f"{frame} frame")
+    if summary.robot_time_s > 0:
+        log(f"scan: {summary.robot_time_line()}")
     if doubt:
         summary.calibration_doubt, summary.calibration_remedy = doubt.text, doubt.remedy
     return ply_path, summary

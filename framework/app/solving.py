@@ -45,6 +45,9 @@ class Outcome:
     finished: bool = False
     #: the dataset solved (the journal or replayed file of calibrate, solve's dataset)
     dataset: Dataset | None = None
+    #: calibrate's acquisition timing, when it took shots: ``profiles``, ``robot_time_s``,
+    #: ``profiles_per_minute``, ``simulated`` (simulated robot time or the wall clock)
+    acquisition: dict | None = None
 
 
 def calibration_options(cfg: RunConfig) -> CalibrationOptions:

@@ -48,6 +48,8 @@ def run(args, session: Session) -> int:
         return EXIT_OK
     say_result(session, outcome.solution, outcome.verdict, verbose=bool(args.verbose))
     session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
+    if outcome.acquisition is not None:
+        session.summary["acquisition"] = outcome.acquisition
     if outcome.files.get("journal") is not None:
         check = truth_check(outcome.solution, outcome.dataset)
         if check:

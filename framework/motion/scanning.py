@@ -12,7 +12,7 @@ import numpy as np
 
 from spherecal.core import geometry as geo
 from spherecal.io.runlog import progress_log
-from spherecal.motion.acquisition import Progress, Target, move_and_shoot, targets_from_poses
+from spherecal.motion.acquisition import Progress, Target, WallClock, move_and_shoot, robot_time_line, targets_from_poses
 from spherecal.config import AcquisitionConfig, ScanConfig
 from spherecal.core.errors import ConfigError
 from spherecal.core.mapping import frame_from_sensor_stack, map_profile_list
@@ -55,18 +55,31 @@ class ScanSummary:
     calibration_doubt: str | None = None
     #: What to do about it: the remedy of the cause its validation named, or None.
     calibration_remedy: str | None = None
+    #: How long the scan took on its clock (moves, settles, shots), s, and whether that
+    #: is simulated robot time (a simulated cell's clock) or the wall clock.
+    robot_time_s: float = 0.0
+    simulated_time: bool = False
+
+    def robot_time_line(self) -> str:
+        """How fast the profiles were taken (:func:`~spherecal.motion.acquisition.robot_time_line`)."""
+        return robot_time_line(self.profiles + self.empty_profiles, self.robot_time_s, self.simulated_time)
 
 
 def scan(robot, sensor, targets: list[Target], X: Pose, acq: AcquisitionConfig, mounting: MountingMode,
-         writer: PlyWriter, log: Callable[[str], None] = _LOG, progress: Progress | None = None) -> ScanSummary:
+         writer: PlyWriter, log: Callable[[str], None] = _LOG, progress: Progress | None = None,
+         clock=None) -> ScanSummary:
     """Take every target (with the pose checks and retries of ``acq``) and append its
     points, mapped through ``X`` into the frame the object is fixed in, to ``writer``
-    straight away."""
+    straight away. ``clock`` (default the wall clock; a simulated run's ``cell.clock``)
+    times the waits and the scan's ``robot_time_s``."""
     frame = SPHERE_FRAME[mounting]
-    summary = ScanSummary()
+    clock = clock if clock is not None else WallClock()
+    summary = ScanSummary(simulated_time=bool(getattr(clock, "simulated", False)))
     progress = progress or Progress(len(targets))
+    started = clock.now_s
     for n, t in enumerate(targets, start=1):
-        pose, _j, profile, _ = move_and_shoot(robot, sensor, t, acq, log)
+        pose, _j, profile, _ = move_and_shoot(robot, sensor, t, acq, log, clock.wait)
+        summary.robot_time_s = clock.now_s - started
         if profile is None:
             summary.empty_profiles += 1
         else:

@@ -35,6 +35,11 @@ _WHERE = {
     "simulate_recording": ".streams",
     "simulate_recording_with_truth": ".streams",
     "SimulatedArm": ".robot_error",
+    "DeviceClock": ".timeline",
+    "MotionTimeline": ".timeline",
+    "SimClock": ".timeline",
+    "SmoothNoise": ".timeline",
+    "device_rng": ".rngs",
 }
 
 __all__ = sorted(_WHERE)

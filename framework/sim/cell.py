@@ -10,6 +10,15 @@ is added to y and z of every point (isotropic in the laser plane); stray points
 (reflections, edge points) are added to some profiles. Robot pose noise: the reported
 pose is the true one with rotation ``exp(eps_r) R`` and translation ``t + eps_t``, both
 errors in the base frame.
+
+Time: the cell keeps the simulated world's true time (``clock``, a
+:class:`~spherecal.sim.timeline.SimClock`) and the arm's motion over it (``timeline``,
+a :class:`~spherecal.sim.timeline.MotionTimeline`, which a simulated controller extends
+with every move), and the clocks of its two devices (``controller_clock``,
+``sensor_clock``). A shot at the current pose (:meth:`SimulatedCell.measure_profile`
+without a pose) takes ``exposure_s`` of it. Random numbers: each simulated device draws
+from a generator of its own (:meth:`SimulatedCell.device_rng`,
+:meth:`SimulatedCell.standstill_rng`), so that one device's draws never shift another's.
 """
 
 from __future__ import annotations
@@ -23,7 +32,31 @@ from spherecal.core import geometry as geo
 from spherecal.devices.contract import SensorFieldOfView
 from spherecal.core.models import SPHERE_FRAME, TRANSFORM_NAME, MountingMode, Pose
 from spherecal.sim.objects import BallBar, SceneObject, Sphere
+from spherecal.sim.rngs import device_rng
 from spherecal.sim.robot_error import SimulatedArm
+from spherecal.sim.timeline import DeviceClock, MotionTimeline, SimClock
+
+#: Simulated time a shot at a standstill takes (a triggered exposure), s: the
+#: nxSensor-I's default exposure (200 us); a sensor simulator that knows its own sets
+#: ``SimulatedCell.exposure_s``.
+DEFAULT_EXPOSURE_S = 200e-6
+#: Where the devices' clocks start counting, s: the controller from its power-on an hour
+#: before, the sensor from 1970 (2026-01-01 UTC), as :class:`~spherecal.config.ClockSettings`.
+CONTROLLER_EPOCH_S = 3725.25
+SENSOR_EPOCH_S = 1767225600.0
+
+
+def device_clocks(seed: int | None) -> tuple[DeviceClock, DeviceClock]:
+    """The controller's and the sensor's clocks of a cell seeded ``seed``: their epochs
+    (:data:`CONTROLLER_EPOCH_S`, :data:`SENSOR_EPOCH_S`, 1.77e9 s apart), each a rate
+    error of 10-50 ppm of either sign and a phase under a second, drawn from the
+    stream of the device key "clocks"; stamp jitter 20 us (controller) and 10 us
+    (sensor), as the stream simulation's defaults."""
+    rng = device_rng(seed, "clocks")
+    drift = rng.uniform(10.0, 50.0, 2) * rng.choice([-1.0, 1.0], 2)
+    offset = rng.uniform(0.0, 1.0, 2)
+    return (DeviceClock(float(offset[0]), float(drift[0]), CONTROLLER_EPOCH_S, 2e-5),
+            DeviceClock(float(offset[1]), float(drift[1]), SENSOR_EPOCH_S, 1e-5))
 
 
 def _field_of_view(fov, who: str) -> SensorFieldOfView:
@@ -85,16 +118,28 @@ class SimulatedCell:
         self.fov = _field_of_view(fov, "SimulatedCell")
         self.noise = noise or NoiseModel()
         self.seed = seed
+        #: The sensor's stream (profile noise and strays); the dataset simulators, which
+        #: play no devices, draw the pose noise from it too (:meth:`report_pose`).
         self.rng = np.random.default_rng(seed)
-        #: When True, every standstill draws its noise from a generator seeded by (seed,
-        #: pose): the same pose gives the same noisy readings whatever came before, so an
-        #: interrupted and resumed simulated acquisition reproduces an uninterrupted one.
+        #: When True, every standstill draws its noise from generators seeded by (seed,
+        #: pose), one per device: the same pose gives the same noisy readings whatever came
+        #: before, so an interrupted and resumed simulated acquisition reproduces an
+        #: uninterrupted one.
         self.noise_per_pose = False
         self.current_base_from_flange = base_from_flange or Pose.identity()
         #: The arm's geometric error (None: the arm is exactly its nominal model).
         self.robot_error = robot_error
         #: Set by :meth:`attach_arm`: the simulated arm with its true geometry.
         self.arm: SimulatedArm | None = None
+        #: True time of the simulated world, s: moved on by simulated events only.
+        self.clock = SimClock()
+        #: The arm's flange over true time; a simulated controller appends its moves.
+        self.timeline = MotionTimeline(self.current_base_from_flange, clock=self.clock)
+        #: Simulated time a shot at a standstill takes, s.
+        self.exposure_s = DEFAULT_EXPOSURE_S
+        #: The devices' clocks against true time (seeded: the same seed, the same clocks).
+        self.controller_clock, self.sensor_clock = device_clocks(seed)
+        self._standstill_rngs: dict[str, np.random.Generator] = {}
 
     def attach_arm(self, kinematics) -> SimulatedArm:
         """Give the cell a robot arm described by a plugin's
@@ -220,9 +265,13 @@ class SimulatedCell:
         return self.cast_fan(base_from_flange).points_mm
 
     # measurement -----------------------------------------------------------------------
-    def measure_profile(self, base_from_flange: Pose | None = None) -> np.ndarray:
+    def measure_profile(self, base_from_flange: Pose | None = None, exposure_s: float | None = None) -> np.ndarray:
         """A noisy profile (N, 2) in mm at the given true pose (default: where the robot
-        is now); empty when the sphere is out of view."""
+        is now: a shot, which takes ``exposure_s`` of simulated time, default the cell's
+        :attr:`exposure_s`); empty when the sphere is out of view. The noise comes from
+        :attr:`rng`, the sensor's stream."""
+        if base_from_flange is None:
+            self.clock.advance(self.exposure_s if exposure_s is None else exposure_s)
         pose = base_from_flange or self.current_base_from_flange
         pts = self.ideal_profile(pose)
         if len(pts) == 0:
@@ -290,24 +339,52 @@ class SimulatedCell:
             reported.append(self.report_pose(pose))
         return reported, profiles
 
-    def report_pose(self, true_base_from_flange: Pose) -> Pose:
-        """The pose a robot controller would report: the true one plus pose noise."""
+    def report_pose(self, true_base_from_flange: Pose, rng: np.random.Generator | None = None) -> Pose:
+        """The pose a robot controller would report: the true one plus pose noise, drawn
+        from ``rng`` (a simulated controller passes its own,
+        ``standstill_rng("controller")``; default the cell's :attr:`rng`, which the
+        dataset simulators share between pose and profile noise)."""
         n = self.noise
+        rng = self.rng if rng is None else rng
         R = true_base_from_flange.rotation_matrix
         t = true_base_from_flange.translation
         if n.pose_rotation_noise_deg > 0:
-            R = geo.matrix_from_rotvec(self.rng.normal(0, np.radians(n.pose_rotation_noise_deg), 3)) @ R
+            R = geo.matrix_from_rotvec(rng.normal(0, np.radians(n.pose_rotation_noise_deg), 3)) @ R
         if n.pose_translation_noise_mm > 0:
-            t = t + self.rng.normal(0, n.pose_translation_noise_mm, 3)
+            t = t + rng.normal(0, n.pose_translation_noise_mm, 3)
         return Pose.from_rt(R, t)
 
     def move_flange_to(self, true_base_from_flange: Pose) -> None:
-        """Where the (simulated) robot has put its flange."""
+        """Where the (simulated) robot has put its flange: a new standstill."""
         self.current_base_from_flange = true_base_from_flange
         if self.noise_per_pose:
-            key = np.round(np.concatenate([true_base_from_flange.translation_mm,
-                                           true_base_from_flange.quaternion_wxyz]) * 1e4).astype(np.int64)
-            self.rng = np.random.default_rng([self.seed or 0, *(int(k) & 0xFFFFFFFF for k in key)])
+            self._standstill_rngs.clear()
+            self.rng = np.random.default_rng([self.seed or 0, *self._pose_key()])
+
+    def _pose_key(self) -> list[int]:
+        """The current standstill's pose as non-negative integers (0.1 um, 1e-4 of a
+        quaternion component)."""
+        pose = self.current_base_from_flange
+        key = np.round(np.concatenate([pose.translation_mm, pose.quaternion_wxyz]) * 1e4).astype(np.int64)
+        return [int(k) & 0xFFFFFFFF for k in key]
+
+    def device_rng(self, device: str) -> np.random.Generator:
+        """A generator for the simulated device named ``device`` ("controller", "sensor
+        stream", "pose stream", ...): its own stream, spawned from the cell's seed by the
+        name (:func:`spherecal.sim.rngs.device_rng`), whatever the other devices draw.
+        Each call starts the stream afresh: a device asks once and keeps it."""
+        return device_rng(self.seed, device)
+
+    def standstill_rng(self, device: str) -> np.random.Generator:
+        """The generator ``device`` draws a standstill's noise from (a controller's pose
+        noise). With :attr:`noise_per_pose`, one per device and standstill, from (seed,
+        device, pose): the same pose gives the same reading whatever came before; else
+        the device's one stream for the cell's life."""
+        rng = self._standstill_rngs.get(device)
+        if rng is None:
+            keys = self._pose_key() if self.noise_per_pose else []
+            rng = self._standstill_rngs[device] = device_rng(self.seed, device, *keys)
+        return rng
 
     @property
     def transform_name(self) -> str:

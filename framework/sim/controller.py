@@ -30,6 +30,13 @@ nominal forward kinematics of the joints through the pose noise. A configured ba
 (``settings.base_frame``, world_from_base: a riser, an inverted mount, a multi-robot
 cell) puts ``GETP`` and ``TGT`` in the world frame, while the joints, the kinematics and
 the cell stay in the robot base.
+Time: every move takes simulated time on the cell's timeline
+(:class:`~spherecal.sim.timeline.MotionTimeline`; without a cell, the controller's own):
+a trapezoid over the move from its speed and ``acceleration_mm_s2``, then ``settle_s``
+at the fine point, after which the ``MOVL`` is answered and the clock stands at the
+move's end. Nothing waits in real time unless ``motion_time_scale`` asks for it. The
+pose noise of ``GETP`` comes from the controller's own random stream
+(``cell.standstill_rng("controller")``), never from the sensor's.
 Safety, as a controller: a speed above ``max_controller_speed_mm_s`` or a target out of
 reach or beyond a joint limit is refused with an ``ERR`` and nothing moves; nothing moves
 but on a ``MOVL``.
@@ -52,6 +59,7 @@ from spherecal.devices import line_protocol as P
 from spherecal.core.errors import DeviceError, InputError
 from spherecal.core.models import Pose
 from spherecal.sim.settings import SimulatedControllerSettings
+from spherecal.sim.timeline import MotionTimeline, SimClock
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.sim.cell import SimulatedCell
@@ -98,6 +106,17 @@ class SimulatedController:
             self.arm = cell.arm if cell.arm is not None else (
                 cell.attach_arm(self.kin) if cell.robot_error is not None else None)
             cell.move_flange_to(self.true_flange_pose())
+        #: The arm's motion over simulated time: the cell's, or the controller's own.
+        self.timeline = cell.timeline if cell is not None else MotionTimeline(clock=SimClock())
+        self.timeline.arm = self.arm if self.arm is not None else _exact_arm(self.kin)
+        self.timeline.acceleration_mm_s2 = self.settings.acceleration_mm_s2
+        self.timeline.settle_s = self.settings.settle_s
+        self.timeline.jump(self.nominal_flange_pose(), self.joints_deg)
+
+    @property
+    def clock(self) -> SimClock:
+        """The simulated world's clock (the cell's, or the controller's own)."""
+        return self.timeline.clock
 
     def true_flange_pose(self) -> Pose:
         """``base_from_flange`` where the simulated robot really is: its true geometry
@@ -131,6 +150,7 @@ class SimulatedController:
         served and the staged target stays."""
         self.joints_deg = self.kin.check_joint_limits(joints_deg, "jog: joints_deg")
         self._reported = self._reported_joints = None
+        self.timeline.jump(self.nominal_flange_pose(), self.joints_deg)
         if self.cell is not None:
             self.cell.move_flange_to(self.true_flange_pose())
 
@@ -196,7 +216,7 @@ class SimulatedController:
         true = self.nominal_flange_pose()  # a controller reports its model's pose of the actual joints
         s = self.settings
         if s.pose_noise == "cell":
-            return self.cell.report_pose(true) if self.cell is not None else true
+            return self.cell.report_pose(true, self.cell.standstill_rng("controller")) if self.cell is not None else true
         R, t = true.rotation_matrix, true.translation
         if s.pose_rotation_noise_deg > 0:
             R = geo.matrix_from_rotvec(self.rng.normal(0, np.radians(s.pose_rotation_noise_deg), 3)) @ R
@@ -233,8 +253,10 @@ class SimulatedController:
         distance = float(np.linalg.norm(target.translation - start.translation))
         angle = float(np.degrees(np.linalg.norm(geo.rotvec_from_matrix(start.rotation_matrix.T @ target.rotation_matrix))))
         duration = max(distance / speed, angle / v_ori)  # as speeddata's v_tcp and v_ori limit a MoveL
+        timing = self.timeline.move_linear(target, speed, v_ori, joints_deg=joints)
         self.last_move = {"distance_mm": distance, "angle_deg": angle, "speed_mm_s": speed,
-                          "orientation_speed_deg_s": v_ori, "duration_s": duration}
+                          "orientation_speed_deg_s": v_ori, "duration_s": duration,
+                          "start_s": timing.start_s, "motion_s": timing.motion_s, "settle_s": timing.settle_s}
         if self.settings.motion_time_scale > 0:
             self._wait(self.settings.motion_time_scale * duration)
         self.joints_deg = joints
@@ -244,6 +266,19 @@ class SimulatedController:
         if self.cell is not None:
             self.cell.move_flange_to(self.true_flange_pose())
         return P.ok_reply(msg.seq)
+
+
+def _exact_arm(kinematics):
+    """An arm exactly its nominal model, for the timeline's joints when the cell's arm has
+    no geometric error (None for kinematics that describe no serial chain)."""
+    if getattr(kinematics, "chain", None) is None:
+        return None
+    from spherecal.config import RobotErrorModel
+    from spherecal.sim.robot_error import SimulatedArm
+
+    none = RobotErrorModel(joint_zero_offset_deg=(0, 0), link_length_mm=(0, 0), link_offset_mm=(0, 0),
+                           axis_tilt_deg=(0, 0))
+    return SimulatedArm(kinematics, none, 0)
 
 
 @dataclass

@@ -36,9 +36,15 @@ class SimulatedControllerSettings(BaseModel):
         True, description="round reported values to 32-bit floats, as many controllers' number types do"
     )
     motion_time_scale: float = Field(
-        0.0, ge=0, le=100, description="a move lasts this factor times its duration (distance / speed or angle / "
-        "reorientation speed, the longer), s (0: instantaneous)"
+        0.0, ge=0, le=100, description="a move also waits this factor times its duration (distance / speed or "
+        "angle / reorientation speed, the longer) in real time, s (0: no real waiting; every move takes its "
+        "simulated time on the cell's clock whatever this is)"
     )
+    acceleration_mm_s2: float = Field(
+        2000.0, gt=0, le=100_000, description="path acceleration and deceleration of every move in simulated time, "
+        "mm/s^2 (an assumption for an IRB 2400-class arm: 2 m/s^2)")
+    settle_s: float = Field(0.2, ge=0, le=60, description="simulated standstill at the end of every move before "
+                            "the controller answers (a fine point's settling), s")
     max_controller_speed_mm_s: float = Field(7000.0, gt=0, le=100_000,
                                              description="the controller's own TCP speed limit, mm/s")
     home_joints_deg: tuple[float, ...] | None = Field(

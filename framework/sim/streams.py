@@ -49,95 +49,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from spherecal.config import OnTheFlyPlan, StreamSimSettings, SweepPlan
 from spherecal.core import geometry as geo
-from spherecal.core.models import Pose
 from spherecal.core.streams import PoseStream, ProfileStream, Recording, SweepInfo
 from spherecal.motion.planning import plan_stations, with_standoff
 from spherecal.sim.cell import SimulatedCell
 from spherecal.sim.objects import BallBar, Sphere
+from spherecal.sim.timeline import (KNOT_DEG, KNOT_MM, MotionTimeline, Segment, _gauss_markov, _grid,  # noqa: F401
+                                    _losses, _trapezoid_duration, _with_noise)
 
 __all__ = ["Segment", "StreamTruth", "plan_segments", "simulate_recording", "simulate_recording_with_truth"]
 
-#: Spacing of the inverse-kinematics knots along a move (mm of travel, deg of turn):
-#: cubic splines through joints this far apart follow the straight path to well under
-#: a micrometre on an arm of a metre's reach.
-KNOT_MM = 5.0
-KNOT_DEG = 1.0
 #: The recording's clock names (:attr:`Recording.clocks`): two clocks, so a drift is there to see.
 CLOCK_NAMES = {"robot": "spherecal simulated controller", "sensor": "spherecal simulated profiler"}
 #: Poses ray-cast at once (bounds the temporary arrays' memory).
 CHUNK_PROFILES = 256
-
-
-@dataclass(frozen=True)
-class Segment:
-    """One piece of the commanded motion, in true time: from flange pose (R0, t0) to
-    (R1, t1) (base_from_flange, mm), the translation along the straight line and the
-    rotation about one fixed axis, at path fraction ``s(tau) / length_mm`` with ``s`` a
-    trapezoidal profile (cruise ``speed_mm_s``, ``acceleration_mm_s2``). ``kind`` is
-    'pause' (no motion), 'sweep' (``sweep`` indexes the recording's sweeps) or 'transit'
-    (a move between sweeps; ``sweep`` -1). ``length_mm`` of a move with reorientation is
-    the longer of its travel and its turn at the transit speeds, in mm of travel."""
-
-    kind: str
-    sweep: int
-    station: str
-    T0_s: float
-    duration_s: float
-    R0: np.ndarray
-    t0_mm: np.ndarray
-    R1: np.ndarray
-    t1_mm: np.ndarray
-    length_mm: float
-    speed_mm_s: float
-    acceleration_mm_s2: float
-
-    @property
-    def T1_s(self) -> float:
-        return self.T0_s + self.duration_s
-
-    def fraction(self, T_s) -> np.ndarray:
-        """Path fraction u in [0, 1] at true times ``T_s`` (clipped to the segment)."""
-        tau = np.clip(np.asarray(T_s, dtype=float) - self.T0_s, 0.0, self.duration_s)
-        if self.length_mm <= 0:
-            return np.zeros_like(tau)
-        return np.clip(_trapezoid_position(tau, self.length_mm, self.speed_mm_s, self.acceleration_mm_s2)
-                       / self.length_mm, 0.0, 1.0)
-
-    def poses(self, u) -> tuple[np.ndarray, np.ndarray]:
-        """Commanded (R (n, 3, 3), t (n, 3) mm) at path fractions ``u`` (n,)."""
-        u = np.asarray(u, dtype=float)
-        phi = geo.rotvec_from_matrix(self.R0.T @ self.R1)
-        R = self.R0 @ geo.matrix_from_rotvec(u[:, None] * phi)
-        t = self.t0_mm + u[:, None] * (self.t1_mm - self.t0_mm)
-        return R, t
-
-
-def _trapezoid_duration(length_mm: float, speed: float, accel: float) -> float:
-    """Time of a rest-to-rest move of ``length_mm`` at cruise ``speed`` and ``accel``
-    (triangular when it never reaches the cruise speed)."""
-    if length_mm <= 0:
-        return 0.0
-    if length_mm >= speed * speed / accel:
-        return length_mm / speed + speed / accel
-    return 2.0 * np.sqrt(length_mm / accel)
-
-
-def _trapezoid_position(tau, length_mm: float, speed: float, accel: float) -> np.ndarray:
-    """Distance travelled (mm) after ``tau`` (s) of a rest-to-rest trapezoidal move."""
-    tau = np.asarray(tau, dtype=float)
-    v = min(speed, np.sqrt(length_mm * accel))  # the peak speed
-    t_ramp = v / accel
-    d_ramp = 0.5 * v * t_ramp
-    total = _trapezoid_duration(length_mm, speed, accel)
-    up = 0.5 * accel * tau**2
-    cruise = d_ramp + v * (tau - t_ramp)
-    left = total - tau
-    down = length_mm - 0.5 * accel * left**2
-    return np.where(tau <= t_ramp, up, np.where(left <= t_ramp, down, cruise))
 
 
 def _flange_translation_mm(cell: SimulatedCell, R_bf: np.ndarray, centre_in_sensor_mm: np.ndarray) -> np.ndarray:
@@ -237,103 +164,6 @@ class StreamTruth:
     sample_kept: np.ndarray
     sample_noise: np.ndarray
     segments: list[Segment]
-
-
-class _Motion:
-    """The commanded path (and, with an arm, its joints) at any true times."""
-
-    def __init__(self, cell: SimulatedCell, segments: list[Segment]):
-        self.cell = cell
-        self.segments = segments
-        self.T0 = np.array([s.T0_s for s in segments])
-        self.splines: list[CubicSpline | np.ndarray] = []
-        self.n_joints = 0
-        arm = cell.arm
-        if arm is None:
-            return
-        q = None
-        for seg in segments:
-            if seg.length_mm <= 0:
-                q = arm.joints_for(Pose.from_rt(seg.R0, seg.t0_mm), q)
-                self.splines.append(np.asarray(q, dtype=float).copy())
-                continue
-            travel = float(np.linalg.norm(seg.t1_mm - seg.t0_mm))
-            turn = geo.rotation_angle_deg(seg.R0, seg.R1)
-            n = int(max(2, np.ceil(travel / KNOT_MM), np.ceil(turn / KNOT_DEG))) + 1
-            u = np.linspace(0.0, 1.0, n)
-            R, t = seg.poses(u)
-            knots = []
-            for Ri, ti in zip(R, t):
-                q = arm.joints_for(Pose.from_rt(Ri, ti), q)
-                knots.append(np.asarray(q, dtype=float).copy())
-            self.splines.append(CubicSpline(u, np.array(knots), axis=0))
-        self.n_joints = len(q)
-
-    def segment_of(self, T_s: np.ndarray) -> np.ndarray:
-        return np.clip(np.searchsorted(self.T0, T_s, side="right") - 1, 0, len(self.segments) - 1)
-
-    def at(self, T_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-        """At true times ``T_s`` (n,): the commanded (R, t), the joints (n, J) deg or
-        None without an arm, and the sweep index (-1 between sweeps)."""
-        T_s = np.asarray(T_s, dtype=float)
-        k = self.segment_of(T_s)
-        R = np.empty((len(T_s), 3, 3))
-        t = np.empty((len(T_s), 3))
-        sweep = np.full(len(T_s), -1, dtype=np.int64)
-        q = None if self.cell.arm is None else np.empty((len(T_s), self.n_joints))
-        for i in np.unique(k):
-            sel = np.flatnonzero(k == i)
-            seg = self.segments[i]
-            u = seg.fraction(T_s[sel])
-            R[sel], t[sel] = seg.poses(u)
-            sweep[sel] = seg.sweep
-            if q is not None:
-                spline = self.splines[i]
-                q[sel] = spline if isinstance(spline, np.ndarray) else spline(u)
-        return R, t, q, sweep
-
-
-def _gauss_markov(rng: np.random.Generator, T_s: np.ndarray, sd: np.ndarray, tau_s: float) -> np.ndarray:
-    """A stationary first-order Gauss-Markov process (per column, standard deviations
-    ``sd``) sampled exactly at the increasing times ``T_s`` (n,): (n, len(sd))."""
-    n, d = len(T_s), len(sd)
-    w = rng.standard_normal((n, d))
-    a = np.exp(-np.diff(T_s) / tau_s)
-    b = np.sqrt(1.0 - a * a)
-    x = np.empty((n, d))
-    x[0] = w[0]
-    for i in range(1, n):  # exact discretisation of the process over each interval
-        x[i] = a[i - 1] * x[i - 1] + b[i - 1] * w[i]
-    return x * sd
-
-
-def _losses(rng: np.random.Generator, n: int, rate: float, bursts_per_s: float, burst_length, duration_s: float) -> \
-        np.ndarray:
-    """A mask of kept samples: each lost with probability ``rate``, and a Poisson number
-    of bursts (``bursts_per_s`` x ``duration_s``) of ``burst_length`` consecutive ones."""
-    kept = rng.random(n) >= rate
-    if bursts_per_s > 0:
-        lo, hi = burst_length
-        for start in rng.integers(0, n, rng.poisson(bursts_per_s * duration_s)):
-            kept[start:start + rng.integers(lo, hi + 1)] = False
-    return kept
-
-
-def _grid(rng: np.random.Generator, period_s: float, rate_error: float, duration_s: float, jitter_s: float):
-    """Ticks of a clock with this period and rate error over ``duration_s`` of true time
-    (a random phase): their clock readings since its epoch (n,), their true times, and
-    stamp jitters (n,), normal, cut at a quarter period so that the stamps increase."""
-    phase = rng.uniform(0.0, period_s)
-    n = int(np.floor(((1.0 + rate_error) * duration_s - phase) / period_s)) + 1
-    clock = phase + period_s * np.arange(n)
-    jitter = np.clip(rng.normal(0.0, jitter_s, n), -period_s / 4, period_s / 4) if jitter_s > 0 else np.zeros(n)
-    return clock, clock / (1.0 + rate_error), jitter
-
-
-def _with_noise(R: np.ndarray, t: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The true pose of a reported one: (exp(-[eps_r]) R, t - eps_t), ``noise`` (n, 6)
-    (eps_t mm, eps_r rad, base frame)."""
-    return geo.matrix_from_rotvec(-noise[:, 3:]) @ R, t - noise[:, :3]
 
 
 def _frame_from_sensor(cell: SimulatedCell, frame: str, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -487,7 +317,7 @@ def simulate_recording_with_truth(cell: SimulatedCell, plan: OnTheFlyPlan | None
     settings = settings or StreamSimSettings()
     stations = with_standoff(stations or SweepPlan(), cell.fov)
     segments, sweeps = plan_segments(cell, stations, plan, settings.lead_in_s)
-    motion = _Motion(cell, segments)
+    motion = MotionTimeline.of_segments(segments, cell.arm)
     duration = segments[-1].T1_s
     rng = np.random.default_rng([settings.seed if settings.seed is not None else (cell.seed or 0), 0x57EA])
     ps, ss, clk = settings.pose, settings.sensor, settings.clocks

@@ -3,6 +3,7 @@ USB sensor, resume after a kill, bad configurations."""
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -47,6 +48,11 @@ def test_calibrate_end_to_end_in_both_modes(sim_config, name, capsys):
     # the uncertainty tables: in run.log (and printed with -v, tests/cli/test_terminal_headline.py)
     expanded = "expanded U (k = 2): rotation " + ", ".join(f"{2 * v:.4f}" for v in result.std_rotation_deg)
     assert expanded not in printed and expanded in (out / "run.log").read_text()
+    # the acquisition's time on the simulated cell's clock (moves, settles, shots), not the wall clock's
+    timed = re.search(r"acquisition: 40 profiles in (\d+\.\d) s of simulated robot time, (\d+\.\d) profiles a "
+                      r"minute", (out / "run.log").read_text())
+    assert timed and 10.0 < float(timed.group(1)) < 120.0
+    assert float(timed.group(2)) == pytest.approx(60 * 40 / float(timed.group(1)), rel=0.01)
     # identity and traceability: what the simulated devices said, the files' hashes, who and when
     p = result.provenance
     assert p["configuration_sha256"] == hashlib.sha256(cfg.read_bytes()).hexdigest()

@@ -11,11 +11,11 @@ from spherecal.cli import EXIT_OK, main
 @pytest.mark.slow
 def test_the_eye_to_hand_example_names_one_cause(sim_config, capsys):
     """The simulated arm is off its nominal geometry: the stations' differences show
-    0.033 mm of its error, a point at a new pose is expected 1.4 mm off (k = 2), and the
-    two-step start, which leaves the arm's error out, parts from the result by 1.04 mm.
-    The headline names the arm, the advice explains the gap as the same error and asks
-    for the arm's calibration; nothing blames bad observations or says the stations
-    disagree beyond the noise."""
+    0.034 mm of its error and a point at a new pose is expected 0.67 mm off (k = 2). The
+    headline names the arm and the advice asks for the arm's calibration; nothing blames
+    bad observations, the start or says the stations disagree beyond the noise. (The
+    advice's explanation of a start that parts from the result by the arm's error is
+    tested in tests/estimation/test_robot_error.py.)"""
     assert main(["calibrate", str(sim_config("sim-eye-to-hand.toml"))]) == EXIT_OK
     out = capsys.readouterr().out
     headline = re.search(r"^verdict: AMBER: (.*)$", out, re.M).group(1)
@@ -25,8 +25,8 @@ def test_the_eye_to_hand_example_names_one_cause(sim_config, capsys):
     advice = re.findall(r"^  advice: (.*)$", out, re.M)
     assert len(advice) == 1 and advice[0].startswith("The robot's own geometric error limits this calibration")
     assert f"expect {expected} mm (k = 2)" in advice[0] and "calibrate the arm's geometry with spherecal" in advice[0]
-    assert "that is this error too, not bad data" in advice[0]
     assert "bad observations" not in out and "disagree by more than the noise" not in out
+    assert "start and refinement disagree" not in out
 
 
 @pytest.mark.slow
