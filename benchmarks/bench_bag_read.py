@@ -3,11 +3,11 @@
 Writes a rosbag2 recording with rosbags: 10,000 profiles of 1,280 points (PointCloud2,
 float32 x, y, z in metres, 200 Hz) and the flange pose at 250 Hz (PoseStamped) over the
 same 50 s. Then converts it, each run in a fresh process: ``read_bag`` and
-``write_recording`` (the stream format, version 3). Prints the median of the runs in
-points a second (target: at least 20 M/s; also by CPU time, which a busy machine
-disturbs less), the converting process's peak memory (and
-what it held before converting), and the median time ``read_recording`` takes to read
-the stream file back (target: well under 2 s).
+``write_recording`` (the stream format, version 3), on one core (the converting
+process pinned, one BLAS thread). Prints the median of the runs in points a second
+(target: at least 20 M/s; also by CPU time, which a busy machine disturbs less), the
+converting process's peak memory (and what it held before converting), and the median
+time ``read_recording`` takes to read the stream file back (target: well under 2 s).
 
     python benchmarks/bench_bag_read.py [--profiles 10000] [--points 1280] [--runs 3] [--storage mcap|sqlite3]
 """
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import statistics
 import subprocess
@@ -24,7 +25,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"  # one core, as the issue's figures are stated (children inherit it)
+
+import numpy as np  # noqa: E402 - after the thread settings
 
 
 def write_bag(path: Path, storage: str, n_profiles: int, n_points: int) -> int:
@@ -84,6 +88,8 @@ def convert(bag: str, out: str) -> None:
     """One conversion (run in its own process): prints JSON with the time and memory."""
     import warnings
 
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
     t = time.perf_counter()
     import rosbags.rosbag2  # noqa: F401 - read_bag imports it on first use: timed apart, once per process
 

@@ -328,7 +328,57 @@ def _quaternions_wxyz(q_xyzw: np.ndarray, name: str, topic: str) -> np.ndarray:
     return np.where(q[:, :1] < 0, -q, q)
 
 
+def _pose_stamped_block(raws):
+    """(sec, nanosec, frame ids, (n, 7) values) of PoseStamped messages that all share one
+    layout (little-endian CDR, one frame id, one length), read at once; None otherwise."""
+    n = len(raws)
+    if not n or len({len(r) for r in raws}) != 1:
+        return None
+    try:
+        _, _, frame, _ = _parse_pose_stamped(raws[0])
+    except Exception:  # noqa: BLE001 - the message by message reading says what is wrong
+        return None
+    size = len(raws[0])
+    at = _align_8(12 + 4 + len(frame.encode("utf-8")) + 1)
+    if at + 56 != size:
+        return None
+    a = np.frombuffer(b"".join(raws), np.uint8).reshape(n, size)
+    if not (a[:, 0:4] == a[0, 0:4]).all() or not (a[:, 12:at] == a[0, 12:at]).all() or bytes(a[0, :2]) != b"\x00\x01":
+        return None
+    sec = a[:, 4:8].copy().view("<i4")[:, 0].astype(np.int64)
+    nsec = a[:, 8:12].copy().view("<u4")[:, 0].astype(np.int64)
+    vals = a[:, at:at + 56].copy().view("<f8").astype(np.float64)
+    return sec, nsec, {frame}, vals
+
+
+def _align_8(p: int) -> int:
+    """A message offset (4 bytes of encapsulation header first) aligned to 8 in the payload."""
+    return 4 + ((p - 4 + 7) & ~7)
+
+
 def _poses_from_pose_stamped(raws, log_ns, name, topic, base_frame):
+    block = _pose_stamped_block(raws)
+    if block is not None:  # one driver's messages, all alike: read at once
+        sec, nsec, frames, vals = block
+    else:
+        sec, nsec, frames, vals = _pose_stamped_one_by_one(raws, name, topic)
+    if not np.all(np.isfinite(vals)):
+        i = int(np.flatnonzero(~np.isfinite(vals).all(axis=1))[0])
+        raise BagTopicError(f"{name}: {topic}: message {i} has a non-finite pose {vals[i].tolist()}")
+    if len(frames) > 1:
+        raise BagTopicError(f"{name}: {topic}: poses in {len(frames)} frames ({', '.join(sorted(map(repr, frames)))}); "
+                            "the flange poses must all be in the robot's base frame")
+    frame = next(iter(frames))
+    if base_frame and frame != base_frame:
+        raise BagTopicError(f"{name}: {topic}: the poses are in frame {frame!r}, not base_frame {base_frame!r}")
+    ns = sec * 1_000_000_000 + nsec
+    _check_stamps(ns, log_ns, name, topic, "poses")
+    q = _quaternions_wxyz(vals[:, 3:], name, topic)
+    return (_seconds(sec, nsec), geo.matrix_from_quat_wxyz(q), vals[:, :3] * 1000.0, None,
+            {"base_frame_id": frame}, log_ns)
+
+
+def _pose_stamped_one_by_one(raws, name, topic):
     n = len(raws)
     vals = np.empty((n, 7))
     sec = np.empty(n, np.int64)
@@ -350,20 +400,7 @@ def _poses_from_pose_stamped(raws, log_ns, name, topic, base_frame):
         sec[i], nsec[i] = s, ns_
         vals[i] = v
         frames.add(frame)
-    if not np.all(np.isfinite(vals)):
-        i = int(np.flatnonzero(~np.isfinite(vals).all(axis=1))[0])
-        raise BagTopicError(f"{name}: {topic}: message {i} has a non-finite pose {vals[i].tolist()}")
-    if len(frames) > 1:
-        raise BagTopicError(f"{name}: {topic}: poses in {len(frames)} frames ({', '.join(sorted(map(repr, frames)))}); "
-                            "the flange poses must all be in the robot's base frame")
-    frame = next(iter(frames))
-    if base_frame and frame != base_frame:
-        raise BagTopicError(f"{name}: {topic}: the poses are in frame {frame!r}, not base_frame {base_frame!r}")
-    ns = sec * 1_000_000_000 + nsec
-    _check_stamps(ns, log_ns, name, topic, "poses")
-    q = _quaternions_wxyz(vals[:, 3:], name, topic)
-    return (_seconds(sec, nsec), geo.matrix_from_quat_wxyz(q), vals[:, :3] * 1000.0, None,
-            {"base_frame_id": frame}, log_ns)
+    return sec, nsec, frames, vals
 
 
 def _poses_from_tf(raws, log_ns, static_raws, name, topic, static_topic, base_frame, flange_frame):

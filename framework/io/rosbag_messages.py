@@ -281,16 +281,21 @@ class _CloudDecoder:
         block = points.reserve(n)
         if n:
             normal, line, rng = (np.ndarray((n,), dtype, buf, o, (step,)) for o in offsets)
-            block[:, 0] = line  # column by column: NumPy's fastest strided cast
-            block[:, 1] = rng
-            block *= block.dtype.type(1000.0)  # m -> mm
-            # sums of squares (strided BLAS dot products) carry a NaN or an infinity through, and bound the
+            mm = block.dtype.type(1000.0)
+            np.multiply(line, mm, out=block[:, 0])  # m -> mm, column by column in one pass each
+            np.multiply(rng, mm, out=block[:, 1])
+            # sums of squares (BLAS dot products) carry a NaN or an infinity through, and bound the
             # largest off-plane coordinate: the point-by-point look is needed only when one says so
+            flat = block.reshape(-1)
             normal_sq = float(np.dot(normal, normal))
             fin = None
-            if not math.isfinite(normal_sq + float(np.dot(line, line)) + float(np.dot(rng, rng))):
+            if not math.isfinite(normal_sq + float(np.dot(flat, flat))):
                 fin = np.isfinite(normal) & np.isfinite(line) & np.isfinite(rng)
-                self._bad_runs.append((base, fin))
+                if fin.all():
+                    fin = None  # finite values whose squares overflow: nothing to drop
+                else:
+                    self._bad_runs.append((base, fin))
+            if fin is not None:
                 normal_max = float(np.abs(normal[fin]).max(initial=0.0))
             elif normal_sq > MAX_OFF_PLANE_M ** 2:
                 normal_max = max(float(normal.max()), -float(normal.min()))

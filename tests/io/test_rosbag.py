@@ -395,3 +395,35 @@ def test_both_streams_stamped_by_the_recording_computer(tmp_path):
                        pose_topic="/pose", mounting="eye_in_hand", sphere_radius_mm=19.05)
     assert rec.clocks["robot"] == rec.clocks["sensor"] == "recording computer"
     assert rec.provenance["clock_check"]["same_clock"] is True
+
+
+def test_pose_stamped_read_at_once_as_one_by_one(tmp_path):
+    """A driver's PoseStamped messages, all of one layout, are read in one block; the
+    values are those of the message-by-message reading, and messages in two frames or
+    with a non-finite value are still named."""
+    from spherecal.io.rosbag import _pose_stamped_block, _pose_stamped_one_by_one
+    from bag_files import TS
+
+    truth = make_truth(n_poses=30)
+    raws = [bytes(TS.serialize_cdr(m, POSE)) for _, m in pose_messages(truth)]
+    block = _pose_stamped_block(raws)
+    assert block is not None
+    for a, b in zip(block, _pose_stamped_one_by_one(raws, "bag", "/pose")):
+        if isinstance(a, set):
+            assert a == b == {"base_link"}
+        else:
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(block[2 + 1][:, :3], truth.t_mm / 1000.0)
+
+    other = [bytes(TS.serialize_cdr(m, POSE)) for _, m in pose_messages(truth, frame="world")]
+    assert _pose_stamped_block(raws[:10] + other[10:]) is None  # two frames: read one by one
+    msgs = pose_messages(truth)
+    msgs = msgs[:10] + pose_messages(truth, frame="world")[10:]
+    bag = write_bag(tmp_path / "two", "mcap", {"/profiles": (CLOUD, profile_messages(truth)[:5]), "/pose": (POSE, msgs)})
+    with pytest.raises(BagTopicError, match=r"/pose: poses in 2 frames \('base_link', 'world'\)"):
+        read(bag)
+    bad = pose_messages(truth)
+    bad[7][1].pose.position.x = float("nan")
+    bag = write_bag(tmp_path / "nan", "mcap", {"/profiles": (CLOUD, profile_messages(truth)[:5]), "/pose": (POSE, bad)})
+    with pytest.raises(BagTopicError, match=r"/pose: message 7 has a non-finite pose"):
+        read(bag)
