@@ -181,6 +181,9 @@ _WHERE = {
     "SmoothNoise": "spherecal.sim.timeline",
     "Samples": "spherecal.sim.timeline",
     "device_rng": "spherecal.sim.rngs",
+    # a simulated device's server (TCP or UDP, in a thread), for a protocol of one's own
+    "SimulatedDeviceServer": "spherecal.sim.device_server",
+    "line_frames": "spherecal.sim.device_server",
     "SweepPlan": "spherecal.motion.planning",
     "plan_stations": "spherecal.motion.planning",
 }
