@@ -14,10 +14,13 @@ from pathlib import Path
 
 #: The modules of the reference: the plugin API (``spherecal.plugins``, with its hooks,
 #: registries, host and pytest fixtures), then the modules behind its names: poses and
-#: data (models), errors, the device protocols and descriptions (devices.contract), robot
+#: data (models), errors, the device protocols and descriptions (devices.contract), the
+#: streaming contracts (devices.pose_streaming, the streams in core.streams), robot
 #: safety (devices.motion_safety), the value objects (field of view, workspace box),
 #: kinematics and URDF, the geometry helpers, the line protocol both ends, the exporters
-#: and their formatting helpers, the simulated world (sim) and the planner (planning).
+#: and their formatting helpers, the simulated world (sim: the cell with its arm, time
+#: and random streams, the simulated controller and its settings, the device server) and
+#: the planner (planning).
 API_MODULES = (
     "spherecal.plugins",
     "spherecal.plugins.registry",
@@ -26,6 +29,8 @@ API_MODULES = (
     "spherecal.core.models",
     "spherecal.core.errors",
     "spherecal.devices.contract",
+    "spherecal.devices.pose_streaming",
+    "spherecal.core.streams",
     "spherecal.devices.motion_safety",
     "spherecal.core.field_of_view",
     "spherecal.core.workspace",
@@ -35,9 +40,15 @@ API_MODULES = (
     "spherecal.devices.line_protocol",
     "spherecal.devices.line_robot",
     "spherecal.sim.controller",
+    "spherecal.sim.settings",
     "spherecal.io.exporters",
     "spherecal.report.export",
     "spherecal.sim",
+    "spherecal.sim.cell",
+    "spherecal.sim.robot_error",
+    "spherecal.sim.timeline",
+    "spherecal.sim.rngs",
+    "spherecal.sim.device_server",
     "spherecal.motion.planning",
 )
 

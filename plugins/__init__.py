@@ -37,8 +37,40 @@ modules behind these names may move between releases, these names stay. What it 
   tests run on, the simulated world's time for a simulated streaming device
   (:class:`SimClock`, :class:`MotionTimeline` and its :meth:`~MotionTimeline.sample`,
   :class:`DeviceClock`, :class:`SmoothNoise`, :class:`Samples`) and the devices' own
-  random streams (:func:`device_rng`), and :func:`lazy_attributes` (names a package
-  defines on first use).
+  random streams (:func:`device_rng`), a simulated device's server for a protocol of
+  one's own (:class:`SimulatedDeviceServer`, :func:`line_frames`), and
+  :func:`lazy_attributes` (names a package defines on first use).
+
+What a robot author uses, and what each unlocks (docs/writing-a-robot-plugin.md; its
+worked example, ``examples/third_party_plugin``, drives an arm over a TCP protocol of
+its own):
+
+- :class:`MotionSafety` with :class:`MotionLimits` and :class:`WorkspaceBox`: every move
+  checked before anything is sent, whatever the protocol (the speed at the tool point,
+  the box at both ends, reach along the path by inverse kinematics from the joints read
+  now, the first move, the controller's frame); the robot joins the run's plan check.
+- :class:`ArmKinematics` (a protocol: ``chain``, ``model_joints_rad``,
+  ``flange_pose_from_joints``, ``joints_from_flange_pose``): given as
+  ``RobotType(arm_kinematics=...)`` it unlocks the simulated cell laid out for the arm's
+  reach and moving its simulated arm (``SimulatedCell.arm``, with a real arm's geometric
+  error), joints in simulated runs and recordings, the kinematic planner and the
+  kinematic calibration of the arm's geometry; its two kinematic methods are what
+  :class:`MotionSafety` needs for the reach checks. Build one from a URDF
+  (:func:`read_urdf_chain`, a :class:`UrdfChain`; :func:`chain_inverse_kinematics`, raising
+  :class:`IkNotConverged`) or by hand (:class:`SerialChain`).
+- ``RobotType(flange_pose_from_joints=...)``: observations that carry joints only are
+  solved, and the robot harness checks reported joints against the reported pose.
+- The simulated world a simulated controller runs on: :class:`SimulatedCell` (its
+  ``arm``, ``timeline``, a :class:`MotionTimeline` whose ``move_linear`` advances
+  ``clock``, a :class:`SimClock`; ``controller_clock``, a :class:`DeviceClock`;
+  ``standstill_rng(name)`` and ``device_rng(name)``, a device's own random stream), and
+  :class:`SimulatedDeviceServer` to serve it over TCP or UDP. A controller speaking the
+  line protocol has one ready: :class:`SimulatedController` behind :class:`ControllerServer`
+  (:func:`start_controller`, :class:`SimulatedControllerSettings`, :class:`Faults`).
+- Streaming, optional: a robot that streams its pose while it moves is a
+  :class:`PoseStreamingRobot` (giving a :class:`PoseStream`), a sensor that streams
+  profiles a :class:`ProfileStreamingSensor` (giving a :class:`ProfileStream`): what an
+  on-the-fly acquisition asks its devices for.
 
 Importing this package is cheap: every name but the markers and constants loads on first
 use (PEP 562), so that ``spherecal --help`` and ``spherecal plugins`` load nothing a
@@ -181,6 +213,9 @@ _WHERE = {
     "SmoothNoise": "spherecal.sim.timeline",
     "Samples": "spherecal.sim.timeline",
     "device_rng": "spherecal.sim.rngs",
+    # a simulated device's server (TCP or UDP, in a thread), for a protocol of one's own
+    "SimulatedDeviceServer": "spherecal.sim.device_server",
+    "line_frames": "spherecal.sim.device_server",
     "SweepPlan": "spherecal.motion.planning",
     "plan_stations": "spherecal.motion.planning",
 }

@@ -3,9 +3,9 @@
     pip install ./examples/third_party_plugin
     python examples/third_party_plugin/calibrate_simulated.py --mounting eye_in_hand
 
-Steps: build a plugin host (it finds ``example_cartesian`` and ``example_profiler``
-through their entry points), validate both configuration sections, create the simulated
-robot and sensor on one cell, plan stations from a nominal transform, acquire, calibrate,
+Steps: build a plugin host (it finds ``example_arm`` and ``example_profiler`` through
+their entry points), validate both configuration sections, create the robot (its driver
+connected over XA/1 to a simulated controller) and the sensor on one cell, plan stations from a nominal transform, acquire, calibrate,
 and compare with the cell's true transform. ``--json`` prints the numbers as JSON.
 
 Everything but the calibration itself comes from the plugin API, ``spherecal.plugins``;
@@ -32,7 +32,7 @@ from spherecal.plugins import (
     standard_cell,
 )
 
-ROBOT_SECTION = {"type": "example_cartesian", "max_speed_mm_s": 200.0,
+ROBOT_SECTION = {"type": "example_arm", "max_speed_mm_s": 200.0,
                  "workspace": {"min_mm": [0.0, -1000.0, 0.0], "max_mm": [2000.0, 1000.0, 1400.0]}}
 SENSOR_SECTION = {"type": "example_profiler", "min_points": 20}
 
@@ -73,12 +73,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     host = PluginHost()
-    robot_config = host.validate_robot_config("example_cartesian", ROBOT_SECTION)
+    robot_config = host.validate_robot_config("example_arm", ROBOT_SECTION)
     sensor_config = host.validate_sensor_config("example_profiler", SENSOR_SECTION)
 
-    # the cell measures with the field of view the profiler declares
+    # the cell measures with the field of view the profiler declares, laid out for the arm's reach
     fov = host.registry.sensor_type("example_profiler").field_of_view
-    cell = standard_cell(args.mounting, seed=args.seed, fov=fov)
+    cell = standard_cell(args.mounting, seed=args.seed, fov=fov, arm=host.arm_kinematics(ROBOT_SECTION))
     context = DeviceContext(cell=cell, log=lambda message: print(message, file=sys.stderr))
     robot = host.create_robot(ROBOT_SECTION, context)
     sensor = host.create_sensor(SENSOR_SECTION, context)

@@ -167,8 +167,11 @@ class RobotType:
     the forward kinematics ``joints_deg -> base_from_flange`` (or None when the robot
     only reports poses); the core uses it for observations that carry joints only.
     ``arm_kinematics(config)`` describes the arm's nominal geometry as an
-    :class:`~spherecal.core.kinematics.ArmKinematics` (or None when unknown); the simulated
-    cell uses it to give a simulated arm a real arm's geometric error."""
+    :class:`~spherecal.core.kinematics.ArmKinematics` (or None when unknown). It unlocks
+    the simulated cell laid out for the arm's reach, whose simulated arm carries a real
+    arm's geometric error (``[simulation.robot_error]``) and gives the joints of simulated
+    runs and recordings; the kinematic planner; and the kinematic calibration of the arm
+    (the estimator models the robot's error through its chain)."""
 
     name: str
     config_model: type[BaseModel]

@@ -40,6 +40,8 @@ _WHERE = {
     "SimClock": ".timeline",
     "SmoothNoise": ".timeline",
     "device_rng": ".rngs",
+    "SimulatedDeviceServer": ".device_server",
+    "line_frames": ".device_server",
 }
 
 __all__ = sorted(_WHERE)

@@ -94,6 +94,26 @@ class SimulatedCell:
     flange, join the scene with :meth:`add_object`; the fan sees the nearest surface
     along each ray (objects occlude each other). Simulated devices share one cell: the
     robot calls :meth:`move_flange_to`, the sensor :meth:`measure_profile`.
+
+    What a simulated controller uses besides (docs/writing-a-robot-plugin.md, "A simulator
+    of your own protocol"):
+
+    - ``arm``: the simulated arm (:class:`~spherecal.sim.robot_error.SimulatedArm`), or
+      None until :meth:`attach_arm` gives the cell one: ``true_flange_pose(joints_deg)`` is
+      where its true geometry (with ``robot_error``) puts the flange, and
+      ``nominal_flange_pose`` what its controller reports;
+    - ``clock``: the simulated world's true time (:class:`~spherecal.sim.timeline.SimClock`),
+      moved on by simulated events only;
+    - ``timeline``: the arm's flange over that time
+      (:class:`~spherecal.sim.timeline.MotionTimeline`): a controller's
+      ``timeline.move_linear(target, speed_mm_s, orientation_speed_deg_s, joints_deg=...)``
+      adds a move and its settle and advances ``clock``;
+    - ``controller_clock``, ``sensor_clock``: the devices' clocks against true time
+      (:class:`~spherecal.sim.timeline.DeviceClock`: ``stamp(T)``);
+    - ``exposure_s``: the simulated time a shot takes;
+    - :meth:`standstill_rng`, :meth:`device_rng`: a device's own random stream, so that a
+      seeded run is the same whatever order the devices draw in; :attr:`rng` is the
+      sensor's.
     """
 
     def __init__(

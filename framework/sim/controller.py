@@ -309,7 +309,10 @@ class ControllerServer:
 
     ``url`` is the robot's port (``socket://127.0.0.1:PORT``, or a pty's device path).
     Use as a context manager or call :meth:`stop`; stopping closes every socket and file
-    descriptor and joins the thread."""
+    descriptor and joins the thread. A simulated device of another protocol is served by
+    :class:`~spherecal.sim.device_server.SimulatedDeviceServer`; this one keeps a stream
+    loop of its own because it also serves a pseudo-terminal and injects the line
+    protocol's faults between a request's bytes and its reply."""
 
     def __init__(self, controller: SimulatedController, transport: Literal["tcp", "pty", "socket"] = "tcp"):
         if transport not in ("tcp", "pty", "socket"):

@@ -30,14 +30,14 @@ def example_plugins_host(monkeypatch):
     from spherecal.plugins.host import PluginHost
 
     monkeypatch.syspath_prepend(str(EXAMPLE_SRC))
-    mods = [importlib.import_module(f"spherecal_example_plugins.{m}") for m in ("cartesian", "profiler")]
-    host = lambda enable=None: PluginHost(plugins=[("example_cartesian", mods[0]),  # noqa: E731
+    mods = [importlib.import_module(f"spherecal_example_plugins.{m}") for m in ("arm", "profiler")]
+    host = lambda enable=None: PluginHost(plugins=[("example_arm", mods[0]),  # noqa: E731
                                                    ("example_profiler", mods[1])])
     monkeypatch.setattr(plugin_host, "make_host", host)
     return host
 
 
-@pytest.mark.parametrize("page, device", [("writing-a-robot-plugin.md", "example_cartesian"),
+@pytest.mark.parametrize("page, device", [("writing-a-robot-plugin.md", "example_arm"),
                                           ("writing-a-sensor-plugin.md", "example_profiler")])
 @pytest.mark.slow
 def test_the_pages_configuration_calibrates_on_the_simulated_cell(page, device, example_plugins_host, tmp_path,
@@ -65,19 +65,20 @@ def test_the_pages_configuration_calibrates_on_the_simulated_cell(page, device, 
 
 
 def test_the_robot_pages_plugin_listing_is_what_the_host_prints(example_plugins_host):
-    """Section 7's sample of `spherecal plugins`: the built-in plugins' lines and the
+    """The sample of `spherecal plugins` in "Install it and see it": the built-in plugins' lines and the
     example robot's are those the host prints today (the example's plugin lines say
     "entry point" when installed; registered here, they are checked by name)."""
     text = (REPO / "docs" / "writing-a-robot-plugin.md").read_text()
-    section = text[text.index("## 7. Install it and see it"):text.index("## 8.")]
+    start = text.index("Install it and see it")
+    section = text[start:text.index("\n## ", start)]
     sample = re.findall(r"```\n(plugins:\n.*?)```", section, re.S)[0].splitlines()
     listing = example_plugins_host().format_description().splitlines()
     builtins = [line for line in listing if ": built-in, " in line]
     assert [line for line in sample if ": built-in, " in line] == builtins
     assert [line.split(":")[0] for line in sample if ": entry point, " in line] == [
-        "  example_cartesian", "  example_profiler"]
-    start = listing.index("robot type 'example_cartesian' (plugin 'example_cartesian'): "
-                          "simulated Cartesian robot with a wrist (example plugin)")
+        "  example_arm", "  example_profiler"]
+    start = listing.index("robot type 'example_arm' (plugin 'example_arm'): "
+                          "six-axis arm on the XA/1 TCP protocol, simulated on a simulated cell (example plugin)")
     end = next(i for i in range(start + 1, len(listing)) if not listing[i].startswith("    "))
     block = listing[start:end]
     assert sample[sample.index(block[0]):sample.index(block[0]) + len(block)] == block

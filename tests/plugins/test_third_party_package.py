@@ -83,7 +83,7 @@ host = PluginHost()
 out = {"plugins": {i.name: [i.source, i.distribution] for i in host.plugins},
        "robots": sorted(host.registry.robots), "sensors": sorted(host.registry.sensors)}
 try:
-    host.validate_robot_config("example_cartesian", {"workspace": {"min_mm": [0, -1000, 0], "max_mm": ["far", 1000, 1500]},
+    host.validate_robot_config("example_arm", {"workspace": {"min_mm": [0, -1000, 0], "max_mm": ["far", 1000, 1500]},
                                                      "max_speed_mm_s": 0})
 except ConfigError as exc:
     out["robot_error"] = str(exc)
@@ -95,7 +95,7 @@ print(json.dumps(out))
 DISABLED = (
     "from spherecal.plugins.host import PluginHost\n"
     "h = PluginHost()\n"
-    "print(sorted(h.registry.robots)); h.create_robot({'type': 'example_cartesian'})"
+    "print(sorted(h.registry.robots)); h.create_robot({'type': 'example_arm'})"
 )
 
 CALIBRATE_BOTH = """
@@ -167,12 +167,12 @@ def test_installed_package_is_discovered_and_its_config_validated(children):
     proc = children.result("discover")
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
-    assert out["plugins"]["example_cartesian"] == ["entry point", "spherecal-example-plugins 0.1.0"]
+    assert out["plugins"]["example_arm"] == ["entry point", "spherecal-example-plugins 0.1.0"]
     assert out["plugins"]["example_profiler"] == ["entry point", "spherecal-example-plugins 0.1.0"]
-    assert "example_cartesian" in out["robots"] and "example_profiler" in out["sensors"]
+    assert "example_arm" in out["robots"] and "example_profiler" in out["sensors"]
     assert out["fields"] == ["min_points", "decimate", "order"]
     lines = out["robot_error"].splitlines()
-    assert lines[0].startswith("invalid configuration for robot type 'example_cartesian' (plugin 'example_cartesian'), 2 errors")
+    assert lines[0].startswith("invalid configuration for robot type 'example_arm' (plugin 'example_arm'), 2 errors")
     assert "robot.max_speed_mm_s: Input should be greater than 0 (got 0)" in lines[1:][0] + lines[1:][1]
     assert any("robot.workspace.max_mm[0]: Input should be a valid number" in line for line in lines)
 
@@ -180,8 +180,8 @@ def test_installed_package_is_discovered_and_its_config_validated(children):
 def test_disabling_autoload_hides_the_installed_package(children):
     proc = children.result("disabled")
     assert proc.returncode != 0
-    assert "ConfigError: robot.type: unknown robot type 'example_cartesian'; installed robot types:" in proc.stderr
-    assert "example_cartesian" not in proc.stdout
+    assert "ConfigError: robot.type: unknown robot type 'example_arm'; installed robot types:" in proc.stderr
+    assert "example_arm" not in proc.stdout
 
 
 @pytest.mark.slow

@@ -1,7 +1,8 @@
-"""Example spherecal plugins (simulation only).
+"""Example spherecal plugins.
 
-- :mod:`.cartesian`: robot type ``example_cartesian``, a Cartesian robot with a wrist
-  that puts the simulated cell's flange exactly where it is told.
+- :mod:`.arm`: robot type ``example_arm``, a six-axis arm whose controller speaks XA/1,
+  a TCP protocol of its own (:mod:`.xa_protocol`); its geometry in :mod:`.arm_kinematics`,
+  its simulated controller on the simulated cell in :mod:`.arm_sim`.
 - :mod:`.profiler`: sensor type ``example_profiler``, which reads profiles from the
   simulated cell.
 
