@@ -117,9 +117,10 @@ class ProgrammedLineSettings(BaseModel):
         "may be from the programmed line): stated with the result, never checked here",
     )
     duration_tolerance_s: float = Field(
-        0.05, gt=0, le=5, description="a move whose stamps (start to in position) last less than the profile "
-        "assumed minus this, or more than it plus settle_max_s, did not follow the programmed line (a speed "
-        "override below 100 %, a stop): its stream ends with an error",
+        0.02, gt=0, le=5, description="a move whose two stamps along the path lie further apart in time than the "
+        "programmed speed puts them, by more than this, s (or whose time from the second to in position is "
+        "shorter than the profile assumed, or longer by more than settle_max_s), did not follow the programmed "
+        "line (a speed override below 100 %, a stop): its stream ends with an error",
     )
     settle_max_s: float = Field(
         0.5, ge=0, le=10, description="the most a fine point may take to be in position after the motion, s",

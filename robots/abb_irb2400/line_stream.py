@@ -84,10 +84,11 @@ class ProgrammedLineStreaming:
             raise PoseStreamError(
                 f"{where}: the controller has stamped {stamps.moves} moves since LSTART, not {n}: the program was "
                 "restarted or a move was not stamped (SpherecalLine.mod)")
-        if stamps.start_ms is None or stamps.end_ms is None:
-            missing = ("its start (the TriggInt along the path did not fire)" if stamps.start_ms is None else
-                       "its end")
-            raise PoseStreamError(f"{where}: the controller has no stamp of {missing}")
+        missing = [what for what, v in (("its start (the first TriggInt did not fire)", stamps.start_ms),
+                                        ("its path's end (the second TriggInt did not fire)", stamps.cruise_end_ms),
+                                        ("its end in position", stamps.end_ms)) if v is None]
+        if missing:
+            raise PoseStreamError(f"{where}: the controller has no stamp of {' and '.join(missing)}")
         if stamps.end_ms > SP.MAX_CLOCK_MS:
             raise PoseStreamClockError(
                 f"{where}: the controller's clock reads {stamps.end_ms} ms, beyond the {SP.MAX_CLOCK_MS} ms RAPID's "
@@ -98,7 +99,8 @@ class ProgrammedLineStreaming:
                 f"{where}: its start stamp {stamps.start_ms} ms comes before the previous move's end "
                 f"{self._line[-1].t_end_s * 1e3:.0f} ms: the controller's clock went back (restarted)")
         move = ProgrammedMove(start, target, float(speed_mm_s), float(orientation_speed_deg_s),
-                              stamps.start_ms * 1e-3, stamps.end_ms * 1e-3, settings.stamp_distance_mm)
+                              stamps.start_ms * 1e-3, stamps.cruise_end_ms * 1e-3, stamps.end_ms * 1e-3,
+                              settings.stamp_distance_mm)
         check_move_stamps(move, settings, where)
         return move
 

@@ -47,13 +47,15 @@ class ProgrammedMove:
     """One stamped move: from ``start`` to ``end`` (base_from_flange, mm) at
     ``speed_mm_s`` (v_tcp) and ``orientation_speed_deg_s`` (v_ori); the controller's
     clock (s since its reset) when the path passed ``stamp_distance_mm`` from its start
-    (``t_stamp_s``) and when the arm was in position at its end (``t_end_s``)."""
+    (``t_stamp_s``), the same distance before its end (``t_cruise_end_s``), and when the
+    arm was in position at its end (``t_end_s``)."""
 
     start: Pose
     end: Pose
     speed_mm_s: float
     orientation_speed_deg_s: float
     t_stamp_s: float
+    t_cruise_end_s: float
     t_end_s: float
     stamp_distance_mm: float = 0.0
 
@@ -113,13 +115,14 @@ def time_at_distance_s(distance_mm: float, length_mm: float, speed_mm_s: float, 
 class _Timing:
     """A move as assumed, s after its path's start: the motion's duration, the end of the
     acceleration ramp, the start of the deceleration ramp, when it passes the stamp's
-    distance, and whether that lies on the constant-speed part (with a third of margin
-    on the ramp's length)."""
+    distance and the same distance before its end, and whether both lie on the
+    constant-speed part (with half a ramp's length of margin)."""
 
     total: float
     up_end: float
     down_start: float
     stamp: float
+    cruise_end: float
     stamp_on_cruise: bool
 
 
@@ -131,31 +134,43 @@ def _timing(move: ProgrammedMove, settings: ProgrammedLineSettings) -> _Timing:
     ramp_mm = 0.5 * peak**2 / a
     d = move.stamp_distance_mm
     on_cruise = peak >= move.speed_mm_s and 1.5 * ramp_mm <= d <= length - 1.5 * ramp_mm
-    return _Timing(total, peak / a, total - peak / a, time_at_distance_s(d, length, move.speed_mm_s, a), on_cruise)
+    return _Timing(total, peak / a, total - peak / a, time_at_distance_s(d, length, move.speed_mm_s, a),
+                   time_at_distance_s(length - d, length, move.speed_mm_s, a), on_cruise)
 
 
 def check_move_stamps(move: ProgrammedMove, settings: ProgrammedLineSettings, name: str) -> None:
     """The move's stamps against the profile assumed: PoseStreamClockError naming the
-    move when the time from its stamp to in position is less than the motion assumed
-    (minus ``duration_tolerance_s``) or more than it plus ``settle_max_s`` (and the
-    tolerance): the arm did not follow the programmed line at the programmed speed (a
-    speed override, a stop), or the clock did not run."""
+    move when the time between its two stamps along the path differs from the profile's
+    by more than ``duration_tolerance_s`` (on the constant-speed part: the speed was not
+    the programmed one), or when the time from the second to in position is less than
+    the profile's (minus the tolerance) or more than it plus ``settle_max_s``: the arm did
+    not follow the programmed line at the programmed speed (a speed override, a stop),
+    or the clock did not run."""
     tm = _timing(move, settings)
-    took = move.t_end_s - move.t_stamp_s
-    expect = tm.total - tm.stamp
-    low = expect - settings.duration_tolerance_s
-    high = expect + settings.settle_max_s + settings.duration_tolerance_s
-    if low <= took <= high:
+    tol = settings.duration_tolerance_s
+    where = (f"{name}: the controller's stamps of the move to {np.round(move.end.translation, 1).tolist()} mm "
+             f"({move.length_mm:.1f} mm at {move.speed_mm_s:g} mm/s; stamps {move.stamp_distance_mm:g} mm after its "
+             f"start and before its end at {move.t_stamp_s:.3f} and {move.t_cruise_end_s:.3f} s, in position at "
+             f"{move.t_end_s:.3f} s, controller clock)")
+    cruise = move.t_cruise_end_s - move.t_stamp_s
+    expect = tm.cruise_end - tm.stamp
+    if tm.stamp_on_cruise and abs(cruise - expect) > tol:
+        raise PoseStreamClockError(
+            f"{where} are {cruise:.3f} s apart, but the programmed speed takes {expect:.3f} s "
+            f"(robot.pose_stream.duration_tolerance_s = {tol:g}): the arm did not move at the programmed speed "
+            f"(the speed override must be 100 %), or the controller's clock did not run. Its poses cannot be "
+            "computed; nothing after it is used")
+    took = move.t_end_s - move.t_cruise_end_s
+    expect = tm.total - tm.cruise_end
+    if expect - tol <= took <= expect + settings.settle_max_s + tol:
         return
     raise PoseStreamClockError(
-        f"{name}: the controller stamped the move to {np.round(move.end.translation, 1).tolist()} mm as lasting "
-        f"{took:.3f} s from its stamp {move.stamp_distance_mm:g} mm along ({move.t_stamp_s:.3f} s) to in position "
-        f"({move.t_end_s:.3f} s, controller clock), but at {move.speed_mm_s:g} mm/s over {move.length_mm:.1f} mm "
-        f"with the acceleration assumed (robot.pose_stream.acceleration_mm_s2 = {settings.acceleration_mm_s2:g}) "
-        f"that takes {expect:.3f} s, and at most robot.pose_stream.settle_max_s = {settings.settle_max_s:g} s "
-        f"more to settle (robot.pose_stream.duration_tolerance_s = {settings.duration_tolerance_s:g}): the arm did "
-        "not follow the programmed line at its speed (the speed override must be 100 %), or the controller's clock "
-        "did not run. Its poses cannot be computed; nothing after it is used")
+        f"{where} put {took:.3f} s from the second stamp to in position, but with the acceleration assumed "
+        f"(robot.pose_stream.acceleration_mm_s2 = {settings.acceleration_mm_s2:g}) the motion takes {expect:.3f} s "
+        f"and at most robot.pose_stream.settle_max_s = {settings.settle_max_s:g} s more to settle "
+        f"(robot.pose_stream.duration_tolerance_s = {tol:g}): the arm did not follow the programmed line (a stop, "
+        "a speed override), or the acceleration assumed is far off. Its poses cannot be computed; nothing after it "
+        "is used")
 
 
 def programmed_line_stream(moves: list[ProgrammedMove], settings: ProgrammedLineSettings) -> PoseStream:

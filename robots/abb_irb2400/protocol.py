@@ -22,9 +22,10 @@ start and end with its own clock, and the PC computes the poses along the progra
   connection), 0 keeps it running; ``OK``;
 * ``LSTOP <seq>``: ``MOVL`` runs as a plain ``MoveL`` again; ``OK``;
 * ``LTIME <seq>``: the stamps of the last stamped move, ``T <seq> <moves> <start_ms>
-  <end_ms>``: the moves stamped since ``LSTART``, the clock (whole ms since its reset)
-  when the path passed the stamp's distance from its start, and when the arm was in
-  position at its end; -1 for a stamp not taken.
+  <cruise_end_ms> <end_ms>``: the moves stamped since ``LSTART``, the clock (whole ms
+  since its reset) when the path passed the stamp's distance from its start, when it
+  passed the same distance before its end, and when the arm was in position at its
+  end; -1 for a stamp not taken.
 
 ``ERR <seq> 7`` (:data:`ERR_STREAM`) says the stream could not start or stop (the EGM
 or line module not loaded, an EGM error); a server without these requests answers
@@ -95,7 +96,7 @@ STREAM_REQUEST_ARGS = {"SSTART": 1, "SSTOP": 0, "LSTART": 2, "LSTOP": 0, "LTIME"
 #: Largest stamp distance a ``LSTART`` may ask for, mm.
 MAX_STAMP_DISTANCE_MM = 500.0
 #: Replies of those requests beyond the core protocol's -> number of arguments.
-LINE_REPLY_ARGS = {"T": 3}
+LINE_REPLY_ARGS = {"T": 4}
 #: Largest clock stamp, ms, a ``T`` reply carries exactly: RAPID's num holds whole
 #: numbers exactly up to 2**23 (2 h 19 min of clock).
 MAX_CLOCK_MS = 2**23
@@ -187,20 +188,22 @@ def parse_line_start(msg) -> tuple[bool, float]:
 @dataclass(frozen=True)
 class LineStamps:
     """A ``T`` reply: ``moves`` stamped since ``LSTART``; the controller's clock (whole ms
-    since its reset) when the last one's path left its start (``start_ms``) and when the
+    since its reset) when the last one's path passed the stamp's distance from its start
+    (``start_ms``) and the same distance before its end (``cruise_end_ms``), and when the
     arm was in position at its end (``end_ms``); None for a stamp not taken."""
 
     moves: int
     start_ms: int | None
+    cruise_end_ms: int | None
     end_ms: int | None
 
 
 def line_time_reply(seq: int, stamps: LineStamps) -> bytes:
-    """``T seq moves start_ms end_ms`` (-1 for a stamp not taken)."""
+    """``T seq moves start_ms cruise_end_ms end_ms`` (-1 for a stamp not taken)."""
     def ms(v):
         return "-1" if v is None else str(int(v))
     return _line_protocol.frame(f"T {_line_protocol._check_seq(seq)} {int(stamps.moves)} {ms(stamps.start_ms)} "
-                                f"{ms(stamps.end_ms)}")
+                                f"{ms(stamps.cruise_end_ms)} {ms(stamps.end_ms)}")
 
 
 def parse_line_time_reply(msg) -> LineStamps:
@@ -209,11 +212,11 @@ def parse_line_time_reply(msg) -> LineStamps:
     if msg.kind != "T":
         raise _line_protocol.ProtocolError(f"expected a T reply, got {msg.kind}")
     values = []
-    for name, text in zip(("moves", "start_ms", "end_ms"), msg.args):
+    for name, text in zip(("moves", "start_ms", "cruise_end_ms", "end_ms"), msg.args):
         low = 0 if name == "moves" else -1
         if not re.fullmatch(r"-?[0-9]{1,9}", text) or int(text) < low:
             raise _line_protocol.ProtocolError(
                 f"T reply {name} {text!r}: expected a whole number of at most 9 digits, at least {low}")
         values.append(int(text))
-    moves, start, end = values
-    return LineStamps(moves, None if start < 0 else start, None if end < 0 else end)
+    moves, start, cruise_end, end = values
+    return LineStamps(moves, *(None if v < 0 else v for v in (start, cruise_end, end)))

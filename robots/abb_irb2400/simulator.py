@@ -116,9 +116,10 @@ class SimulatedIrb2400(SimulatedController):
         self.line_clock_reset_s: float | None = None  #: true time of the clock's reset (None: never started)
         self.line_moves = 0  #: moves stamped since LSTART
         self.line_distance_mm = 0.0  #: the stamp's distance from each path's start, mm
-        self.line_stamps_ms: tuple[int | None, int | None] = (None, None)  #: the last stamped move's
-        #: per stamped move: (true start, true end in position, start stamp ms, end stamp ms)
-        self.line_log: list[tuple[float, float, int | None, int]] = []
+        #: the last stamped move's stamps, ms: start, cruise end, in position
+        self.line_stamps_ms: tuple[int | None, int | None, int | None] = (None, None, None)
+        #: per stamped move: (true start, true end in position, its three stamps, ms)
+        self.line_log: list[tuple] = []
         self.line_faults = LineFaults()
 
     # the programmed-line stamps ------------------------------------------------------------
@@ -143,19 +144,20 @@ class SimulatedIrb2400(SimulatedController):
                 return P.error_reply(msg.seq, P.ErrorCode.RANGE, str(exc))
             if reset:
                 self.line_clock_reset_s = self.clock.now_s
-            self.line_on, self.line_moves, self.line_stamps_ms = True, 0, (None, None)
+            self.line_on, self.line_moves, self.line_stamps_ms = True, 0, (None, None, None)
             return P.ok_reply(msg.seq)
         if msg.kind == "LSTOP":
             self.line_on = False
             return P.ok_reply(msg.seq)
-        start, end = self.line_stamps_ms
-        return SP.line_time_reply(msg.seq, SP.LineStamps(self.line_moves, start, end))
+        return SP.line_time_reply(msg.seq, SP.LineStamps(self.line_moves, *self.line_stamps_ms))
 
-    def _passes(self, T0: float, distance_mm: float) -> float:
+    def _passes(self, T0: float, distance_mm: float, from_end: bool = False) -> float:
         """True time at which the move on the timeline that starts at ``T0`` passes
-        ``distance_mm`` of its path (bisection on the timeline's own path fraction)."""
+        ``distance_mm`` from its start (or before its end) (bisection on the timeline's own
+        path fraction)."""
         seg = next(s for s in reversed(self.timeline.segments) if s.T0_s == T0 and s.kind == "move")
         goal = min(distance_mm / seg.length_mm, 1.0) if seg.length_mm > 0 else 0.0
+        goal = 1.0 - goal if from_end else goal
         lo, hi = seg.T0_s, seg.T1_s
         for _ in range(60):
             mid = 0.5 * (lo + hi)
@@ -168,16 +170,21 @@ class SimulatedIrb2400(SimulatedController):
         T0 = lm["start_s"]
         T1 = T0 + lm["motion_s"] + lm["settle_s"]
         T_stamp = self._passes(T0, self.line_distance_mm)
+        T_cruise_end = self._passes(T0, self.line_distance_mm, from_end=True)
+        def trap(T: float) -> int:
+            jitter = self.line_rng.normal(0.0, line.start_jitter_s) if line.start_jitter_s > 0 else 0.0
+            return int(np.round(1e3 * self.line_clock_s(T + line.start_latency_s + jitter)))
+
         start: int | None = None
         if self.line_faults.miss_start_next > 0:
             self.line_faults.miss_start_next -= 1
         else:
-            jitter = self.line_rng.normal(0.0, line.start_jitter_s) if line.start_jitter_s > 0 else 0.0
-            start = int(np.round(1e3 * self.line_clock_s(T_stamp + line.start_latency_s + jitter)))
+            start = trap(T_stamp)
+        cruise_end = trap(T_cruise_end)
         end = int(np.round(1e3 * self.line_clock_s(T1)))
         self.line_moves += 1
-        self.line_stamps_ms = (start, end)
-        self.line_log.append((T0, T1, start, end))
+        self.line_stamps_ms = (start, cruise_end, end)
+        self.line_log.append((T0, T1, start, cruise_end, end))
 
     # the EGM stream ------------------------------------------------------------------------
     def _serve(self, line: bytes) -> bytes:

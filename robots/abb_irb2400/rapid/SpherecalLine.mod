@@ -10,7 +10,9 @@ MODULE SpherecalLine
   ! at any time along the programmed line.
   !
   ! The start stamp: TriggL with a TriggInt at stampDist mm from the
-  ! start point (\Start); its trap routine reads the clock. The end: the
+  ! start point (\Start); its trap routine reads the clock. A second
+  ! TriggInt stamps the path stampDist mm before its end point (the PC
+  ! checks the speed between the two). The end: the
   ! clock read once the fine point is reached (WaitTime \InPos). The
   ! clock: a RAPID clock, reset and started by an LSTART that asks for
   ! it (the PC's first stream of a connection), read in whole ms.
@@ -29,13 +31,16 @@ MODULE SpherecalLine
 
   LOCAL VAR clock lineClock;
   LOCAL VAR intnum startInt;
+  LOCAL VAR intnum cruiseEndInt;
   LOCAL VAR bool connected := FALSE;
   LOCAL VAR triggdata startTrigg;
+  LOCAL VAR triggdata cruiseEndTrigg;
   ! Where along each path the start stamp is taken, mm from its start.
   LOCAL VAR num stampDist := 0;
   ! Moves stamped since LSTART; the last one's stamps, ms (-1: not taken).
   LOCAL VAR num moves := 0;
   LOCAL VAR num startMs := -1;
+  LOCAL VAR num cruiseEndMs := -1;
   LOCAL VAR num endMs := -1;
 
   PROC spherecal_line_start(num resetClock, num distMm)
@@ -43,6 +48,7 @@ MODULE SpherecalLine
     ! clock from zero.
     IF NOT connected THEN
       CONNECT startInt WITH StartTrap;
+      CONNECT cruiseEndInt WITH CruiseEndTrap;
       connected := TRUE;
     ENDIF
     IF resetClock = 1 THEN
@@ -52,32 +58,38 @@ MODULE SpherecalLine
     stampDist := distMm;
     moves := 0;
     startMs := -1;
+    cruiseEndMs := -1;
     endMs := -1;
   ENDPROC
 
   PROC spherecal_line_stop()
     ! Stamping off: nothing to undo (the server runs MoveL again).
     startMs := -1;
+    cruiseEndMs := -1;
     endMs := -1;
   ENDPROC
 
   PROC spherecal_line_move(robtarget target, speeddata speed)
     ! The server's MoveL, stamped: the trap stamps the path's passing
-    ! stampDist from its start.
+    ! stampDist from its start, and stampDist before its end.
     startMs := -1;
+    cruiseEndMs := -1;
     endMs := -1;
     TriggInt startTrigg, stampDist \Start, startInt;
-    TriggL target, speed, startTrigg, fine, tool0 \WObj:=wobj0;
+    TriggInt cruiseEndTrigg, stampDist, cruiseEndInt;
+    TriggL target, speed, startTrigg \T2:=cruiseEndTrigg, fine,
+      tool0 \WObj:=wobj0;
     WaitTime \InPos, 0;
     endMs := ClockMs();
     Incr moves;
   ENDPROC
 
   PROC spherecal_line_stamps(INOUT num n, INOUT num tStart,
-      INOUT num tEnd)
+      INOUT num tCruiseEnd, INOUT num tEnd)
     ! The moves stamped since LSTART and the last one's stamps, ms.
     n := moves;
     tStart := startMs;
+    tCruiseEnd := cruiseEndMs;
     tEnd := endMs;
   ENDPROC
 
@@ -87,5 +99,9 @@ MODULE SpherecalLine
 
   LOCAL TRAP StartTrap
     startMs := ClockMs();
+  ENDTRAP
+
+  LOCAL TRAP CruiseEndTrap
+    cruiseEndMs := ClockMs();
   ENDTRAP
 ENDMODULE

@@ -11,7 +11,7 @@ MODULE SpherecalServer
   !           | SSTART seq period_ms | SSTOP seq
   !           | LSTART seq reset distance_mm | LSTOP seq | LTIME seq
   !   reply   = PONG seq 3 token | J seq j1..j6 | P seq x y z q1 q2 q3 q4
-  !           | T seq moves start_ms end_ms
+  !           | T seq moves start_ms cruise_end_ms end_ms
   !           | OK seq | ERR seq code text      (seq "-" if unreadable)
   !
   ! A line holds at most 80 characters before its LF (a RAPID string).
@@ -475,13 +475,16 @@ MODULE SpherecalServer
   ENDPROC
 
   LOCAL PROC SendLineStamps(string seqText)
-    ! LTIME: T seq moves start_ms end_ms (-1: a stamp not taken).
+    ! LTIME: T seq moves start_ms cruise_end_ms end_ms (-1: a stamp not
+    ! taken).
     VAR num n := 0;
     VAR num tStart := -1;
+    VAR num tCruiseEnd := -1;
     VAR num tEnd := -1;
-    %"spherecal_line_stamps"% n, tStart, tEnd;
+    %"spherecal_line_stamps"% n, tStart, tCruiseEnd, tEnd;
     Reply "T " + seqText + " " + NumToStr(n, 0) + " "
-      + NumToStr(tStart, 0) + " " + NumToStr(tEnd, 0);
+      + NumToStr(tStart, 0) + " " + NumToStr(tCruiseEnd, 0) + " "
+      + NumToStr(tEnd, 0);
   ERROR
     StreamFailed "LTIME", seqText, ERRNO;
     RETURN;
