@@ -16,7 +16,9 @@ modules behind these names may move between releases, these names stay. What it 
 - pose streaming, for a robot that streams its pose while it moves:
   :class:`PoseStreamingRobot`, :class:`PoseStream` (what a stream gives),
   :class:`PoseStreamCounts` and the errors :class:`PoseStreamError`,
-  :class:`PoseStreamStalled`, :class:`PoseStreamClockError`;
+  :class:`PoseStreamStalled`, :class:`PoseStreamClockError`; for a stream computed from
+  the programmed line (not measured), the text its ``assumption`` starts with
+  (:data:`PROGRAMMED_LINE_ASSUMPTION`);
 - robot safety whatever the protocol: :class:`MotionSafety` (speed at the tool point,
   workspace box, reach along the path, the first move from where the arm stands, the
   controller's frame), :class:`MotionLimits`, :class:`FrameOffset`;
@@ -119,6 +121,7 @@ _WHERE = {
     "PoseStreamStalled": "spherecal.devices.pose_streaming",
     "PoseStreamClockError": "spherecal.devices.pose_streaming",
     "PoseStream": "spherecal.core.streams",
+    "PROGRAMMED_LINE_ASSUMPTION": "spherecal.core.streams",
     "ProfileStreamCounts": "spherecal.devices.contract",
     "ProfileStreamError": "spherecal.devices.contract",
     "ProfileStreamingSensor": "spherecal.devices.contract",

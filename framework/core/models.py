@@ -601,6 +601,10 @@ class TimingEstimate(BaseModel):
     identifiable: bool = Field(description="the data separate the offset from the sphere's position and the transform")
     identifiability: str = Field(description="what the data show of the timing, in words; what to add if not enough")
     start_offset_ms: float | None = Field(None, description="where the fit started (the robust search's offset), ms")
+    poses_assumed: str | None = Field(
+        None, description="what the pose stream's poses assume when they were not measured (computed along the "
+        "programmed line of a controller that cannot stream): the arm's path error at speed is then in the "
+        "result's error, beyond its stated uncertainty; None: measured")
 
 
 class CalibrationResult(BaseModel):

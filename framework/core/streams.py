@@ -31,12 +31,20 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.clock import sensor_to_robot_time
 
-__all__ = ["PoseAtTimes", "PoseStream", "ProfileStream", "Recording", "SweepInfo", "sensor_to_robot_time"]
+__all__ = ["POSES_ASSUMED_KEY", "PROGRAMMED_LINE_ASSUMPTION", "PoseAtTimes", "PoseStream", "ProfileStream",
+           "Recording", "SweepInfo", "sensor_to_robot_time"]
 
 #: A gap between two pose samples longer than this many median sample periods is a gap
 #: in the stream: a profile inside it has no measured pose (it is left out, never
 #: interpolated across).
 GAP_PERIODS = 3.5
+#: What a pose stream whose poses come from the programmed line (not measured) says in
+#: its ``assumption``, before the details of the profile assumed.
+#: The recording provenance's key that keeps a computed pose stream's ``assumption``
+#: (the stream form writes it there; :attr:`Recording.poses_assumption` reads it).
+POSES_ASSUMED_KEY = "poses_assumed"
+PROGRAMMED_LINE_ASSUMPTION = ("poses from the programmed line, not measured: the arm's path error at speed is in "
+                              "the result's error")
 
 
 @dataclass(frozen=True)
@@ -67,7 +75,15 @@ class PoseStream:
     ``seq`` (n,) the controller's sequence numbers if it sends them (lost samples are
     the gaps in them), else None; ``sweep`` (n,) the sweep each sample was taken in (an
     index into :attr:`Recording.sweeps`), -1 outside a sweep, or None when the recording
-    does not say."""
+    does not say.
+
+    A stream whose poses were not measured but computed (a controller that cannot stream:
+    the pose along the programmed line at the controller's time) says so in
+    ``assumption`` (what the poses assume, starting with
+    :data:`PROGRAMMED_LINE_ASSUMPTION`; None: measured), and marks in ``on_ramp`` (n,)
+    the samples where the computed pose is least sure (the speed ramps at the ends of a
+    move, where the arm's acceleration is assumed): :meth:`at` treats a time next to such
+    a sample like a time in a gap, so nothing is mapped there."""
 
     t_robot_s: np.ndarray
     R: np.ndarray
@@ -75,6 +91,8 @@ class PoseStream:
     joints_deg: np.ndarray | None = None
     seq: np.ndarray | None = None
     sweep: np.ndarray | None = None
+    on_ramp: np.ndarray | None = None
+    assumption: str | None = None
 
     def __post_init__(self):
         n = len(self.t_robot_s)
@@ -84,7 +102,7 @@ class PoseStream:
             raise ValueError(f"pose stream: {n} stamps but rotations {self.R.shape} and translations {self.t_mm.shape}")
         if self.joints_deg is not None and len(self.joints_deg) != n:
             raise ValueError(f"pose stream: {n} stamps but {len(self.joints_deg)} joint samples")
-        for name in ("seq", "sweep"):
+        for name in ("seq", "sweep", "on_ramp"):
             a = getattr(self, name)
             if a is not None and len(a) != n:
                 raise ValueError(f"pose stream: {n} stamps but {len(a)} {name} entries")
@@ -125,15 +143,27 @@ class PoseStream:
         k = np.flatnonzero(dt > periods * self.period_s)
         return [(float(self.t_robot_s[i]), float(self.t_robot_s[i + 1])) for i in k]
 
+    def ramp_at(self, t_robot_s) -> np.ndarray:
+        """Whether each robot time lies next to a sample marked ``on_ramp`` (all False
+        when the stream marks none)."""
+        tq = np.atleast_1d(np.asarray(t_robot_s, dtype=float))
+        if self.on_ramp is None:
+            return np.zeros(len(tq), dtype=bool)
+        k = np.clip(np.searchsorted(self.t_robot_s, tq, side="right") - 1, 0, self.n - 2)
+        ramp = np.asarray(self.on_ramp, dtype=bool)
+        return ramp[k] | ramp[k + 1]
+
     def at(self, t_robot_s, periods: float = GAP_PERIODS) -> PoseAtTimes:
         """Poses at robot times ``t_robot_s`` (n,), interpolated between the samples around
-        each (see :class:`PoseAtTimes`)."""
+        each (see :class:`PoseAtTimes`); not ``ok`` next to a sample marked ``on_ramp``."""
         tq = np.atleast_1d(np.asarray(t_robot_s, dtype=float))
         ts = self.t_robot_s
         k = np.clip(np.searchsorted(ts, tq, side="right") - 1, 0, self.n - 2)
         h = ts[k + 1] - ts[k]
         s = (tq - ts[k]) / h
         ok = (tq >= ts[0]) & (tq <= ts[-1]) & (h <= periods * self.period_s)
+        if self.on_ramp is not None:
+            ok &= ~self.ramp_at(tq)
         Rk, Rk1 = self.R[k], self.R[k + 1]
         phi = geo.rotvec_from_matrix(np.swapaxes(Rk, 1, 2) @ Rk1)  # body-frame rotation over the segment
         R = Rk @ geo.matrix_from_rotvec(s[:, None] * phi)
@@ -231,3 +261,11 @@ class Recording:
     def t_sensor0_s(self) -> float:
         """The first profile's sensor stamp, the drift's reference time."""
         return float(self.profiles.t_sensor_s[0])
+
+    @property
+    def poses_assumption(self) -> str | None:
+        """What the pose stream's poses assume when they were not measured (the stream's
+        own ``assumption``, else the provenance's ``poses_assumed``, as the stream form
+        keeps it), or None: measured."""
+        found = self.poses.assumption or self.provenance.get(POSES_ASSUMED_KEY)
+        return str(found) if found else None

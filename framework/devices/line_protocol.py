@@ -183,9 +183,16 @@ def decode_request(line: bytes | str) -> Message:
     return _decode(line, REQUEST_ARGS, "request")
 
 
-def decode_reply(line: bytes | str, n_joints: int = 6) -> Message:
-    """Decode a reply line (as the PC does); a ``J`` reply must carry ``n_joints`` values."""
+def decode_reply(line: bytes | str, n_joints: int = 6, extra: dict[str, int] | None = None) -> Message:
+    """Decode a reply line (as the PC does); a ``J`` reply must carry ``n_joints`` values.
+    ``extra``: reply kinds of a plugin's own requests -> their number of arguments (they
+    may not redefine the protocol's)."""
     table = REPLY_ARGS if n_joints == REPLY_ARGS["J"] else {**REPLY_ARGS, "J": _joint_count(n_joints)}
+    if extra:
+        clash = sorted(set(extra) & set(REPLY_ARGS))
+        if clash:
+            raise ProtocolError(f"a plugin's reply kinds may not redefine the protocol's: {clash}")
+        table = {**table, **extra}
     return _decode(line, table, "reply")
 
 

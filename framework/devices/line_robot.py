@@ -255,6 +255,9 @@ class LineRobot(MotionSafety):
 
     #: The speeds a MOVL carries have one decimal.
     speed_step = 10.0**-P.SPEED_DECIMALS
+    #: Reply kinds of the plugin's own requests -> their number of arguments (beside the
+    #: protocol's, which they may not redefine): :func:`~spherecal.devices.line_protocol.decode_reply`.
+    extra_replies: dict[str, int] = {}
     #: What to check when no valid reply comes.
     server_hint = "that the controller's spherecal line server is running"
     #: What to check when a socket:// port cannot be opened.
@@ -365,6 +368,14 @@ class LineRobot(MotionSafety):
         v_tcp, v_ori, duration = self.move_speeds(start, base_from_flange, speed_mm_s)
         timeout = self.config.timeout_s + 2.0 * duration + self.config.move_timeout_extra_s
         self._exchange("MOVL", lambda seq: P.movl_request(seq, v_tcp, target_seq, v_ori), "OK", timeout)
+        self.moved(start, base_from_flange, v_tcp, v_ori)
+
+    def moved(self, start: Pose, target: Pose, speed_mm_s: float, orientation_speed_deg_s: float) -> None:
+        """Called once a move is done (its MOVL answered OK): from ``start`` (the pose of
+        the joints read before it, this robot's kinematics) to ``target``
+        (base_from_flange), at the flange speed and reorientation speed sent. Nothing
+        here; a plugin that times its moves (a pose stream computed along the programmed
+        line) overrides it."""
 
     def close(self) -> None:
         """Close the link (and stop the simulated controller, if any). Idempotent."""
@@ -452,7 +463,7 @@ class LineRobot(MotionSafety):
                         self._buffer.clear()
                     break
                 try:
-                    msg = P.decode_reply(raw, self.n_joints)
+                    msg = P.decode_reply(raw, self.n_joints, self.extra_replies)
                 except P.ProtocolError as exc:  # corrupted, partial or garbage: resend
                     problem = str(exc)
                     break
@@ -502,7 +513,7 @@ class LineRobot(MotionSafety):
                 break
             held += 1
             try:
-                msg = P.decode_reply(raw, self.n_joints)
+                msg = P.decode_reply(raw, self.n_joints, self.extra_replies)
             except P.ProtocolError as exc:
                 text = raw.decode("ascii", "replace")
                 noted = str(exc) + (self._old_server_hint() if text.startswith("PONG ") else "")

@@ -13,19 +13,28 @@ A stream that misbehaves ends with a :class:`PoseStreamError` that names what ha
 streaming; :class:`PoseStreamClockError`: the controller's clock went backwards or jumped)
 and keeps what was received before the fault in ``stream``, so a run can stop with its
 data kept; nothing after the fault is used.
+
+A controller that cannot stream (an S4C+) may still offer the contract by computing the
+poses: the programmed line between a move's two ends, timed by the controller's own
+stamps of the move's start and end. Such a stream says what its poses assume in
+:attr:`~spherecal.core.streams.PoseStream.assumption`, and the robot says it before any
+stream runs through an optional ``pose_stream_assumption()`` method
+(:func:`pose_stream_assumption`), so that a recording's header can carry it into the
+result (the recording provenance's ``poses_assumed``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from spherecal.core.errors import DeviceError
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.streams import PoseStream
 
-__all__ = ["PoseStreamClockError", "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot"]
+__all__ = ["PoseStreamClockError", "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot",
+           "pose_stream_assumption"]
 
 
 @dataclass(frozen=True)
@@ -95,3 +104,16 @@ class PoseStreamingRobot(Protocol):
 
     def pose_stream_counts(self) -> PoseStreamCounts:
         """What the current (or last) stream has delivered so far."""
+
+
+def pose_stream_assumption(robot: Any) -> str | None:
+    """What the poses of ``robot``'s stream assume when they are not measured (the
+    robot's optional ``pose_stream_assumption()``: a text starting with
+    :data:`~spherecal.core.streams.PROGRAMMED_LINE_ASSUMPTION`), or None: measured (or
+    the robot does not say). For a recording's provenance (``poses_assumed``), before the
+    first stream runs."""
+    method = getattr(robot, "pose_stream_assumption", None)
+    if not callable(method):
+        return None
+    found = method()
+    return str(found) if found else None

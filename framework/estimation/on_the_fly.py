@@ -152,6 +152,9 @@ def _solve_recording(recording: Recording, options, kinematics, progress, offset
     timing = timing_estimate(ref, te, start_info["offset_ms"], epochs)
     diag = solution.result.diagnostics.model_copy(update={"refinement": {
         **(solution.result.diagnostics.refinement or {}), "time_correlation": detail}})
+    if recording.poses_assumption:
+        say(f"pose stream: {recording.poses_assumption}")
+        timing = timing.model_copy(update={"poses_assumed": recording.poses_assumption})
     result = solution.result.model_copy(update={
         "timing": timing, "diagnostics": diag,
         "provenance": {**solution.result.provenance, "recording": recording.provenance.get("source", "unknown")},
@@ -260,13 +263,15 @@ def _problem(recording: Recording, rows: np.ndarray, labels: np.ndarray, names: 
     ps = recording.profiles
     t_r = te.robot_times(ps.t_sensor_s[rows], te.start())
     ok = recording.poses.at(t_r).ok
+    ramp = recording.poses.ramp_at(t_r)
     gaps = recording.poses.gaps()
     flags = []
     s0, r0 = epochs
-    for j, t in zip(rows[~ok], t_r[~ok]):
+    for j, t, on_ramp in zip(rows[~ok], t_r[~ok], ramp[~ok]):
         gap = next(((a, b) for a, b in gaps if a < t < b), None)
         where = (f"in a gap of the pose stream ({gap[0] + r0:.3f} to {gap[1] + r0:.3f} s, robot clock)"
-                 if gap is not None else "outside the pose stream's time span")
+                 if gap is not None else "on a speed ramp of a computed pose stream (the acceleration there is "
+                 "assumed)" if on_ramp else "outside the pose stream's time span")
         flags.append(ObservationFlag(index=int(j), station=names[labels[j]] if labels[j] >= 0 else "-",
                                      reason=f"sensor time {ps.t_sensor_s[j] + s0:.6f} s maps to robot time "
                                             f"{t + r0:.6f} s, "

@@ -15,7 +15,7 @@ import numpy as np
 
 from spherecal import __version__
 from spherecal.core.errors import DatasetFileError, FileWriteError, InputError
-from spherecal.core.streams import Recording, SweepInfo
+from spherecal.core.streams import POSES_ASSUMED_KEY, Recording, SweepInfo
 from spherecal.io.json_files import DATASET_FORMAT, MAX_ABS_VALUE, atomic_temporary, fsync_dir, json_safe
 from spherecal.io.observation_line import FieldError
 
@@ -321,12 +321,16 @@ def write_recording(path: str | os.PathLike, recording: Recording, *, overwrite:
     """Write a whole recording to ``path`` (stream form): the header, the pose stream in
     lines of :data:`POSES_PER_LINE` samples, then one line per profile. Written under a
     temporary name and renamed into place, so ``path`` never holds half a recording; an
-    existing file is replaced only with ``overwrite=True``."""
+    existing file is replaced only with ``overwrite=True``. A pose stream that was not
+    measured keeps its ``assumption`` in the provenance (``poses_assumed``)."""
     path = Path(path)
     tmp = atomic_temporary(path, overwrite)
+    provenance = recording.provenance
+    if recording.poses.assumption and POSES_ASSUMED_KEY not in provenance:
+        provenance = {**provenance, POSES_ASSUMED_KEY: recording.poses.assumption}
     try:
         with RecordingWriter(tmp, mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
-                             clocks=recording.clocks, sweeps=recording.sweeps, provenance=recording.provenance) as out:
+                             clocks=recording.clocks, sweeps=recording.sweeps, provenance=provenance) as out:
             p = recording.poses
             out.add_poses(p.t_robot_s, p.t_mm, p.quaternion_wxyz, p.joints_deg, p.seq)
             pr = recording.profiles

@@ -191,6 +191,9 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
         # a clock offset the sweeps cannot tell from the sphere's position: the transform's
         # uncertainty carries it, the advice says what to record
         reasons.append(("green" if timing.identifiable else "amber", f"clock relation: {timing.identifiability}"))
+    if timing is not None and timing.poses_assumed:
+        # (said, not graded: the data cannot show the arm's path error; the user must weigh it)
+        reasons.append(("green", f"robot poses not measured: {timing.poses_assumed}"))
 
     twin = result.diagnostics.mirror_twin or {}
     if twin.get("excluded") is False:  # a result the data cannot tell from its twin: the user must choose

@@ -172,7 +172,7 @@ def _timing_lines(timing) -> list[str]:
         + (f", {timing.offset_ms / 1e3:.7f} s: the clocks count from different epochs" if abs(timing.offset_ms) > 1e6
            else "") + f"); {drift}",
         f"  {'identified' if timing.identifiable else 'NOT identified'}: {timing.identifiability}",
-    ]
+    ] + ([f"  robot poses NOT MEASURED: {timing.poses_assumed}"] if timing.poses_assumed else [])
 
 
 def _robot_error_lines(robot_error) -> list[str]:

@@ -8,7 +8,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.plugins import BASE_DIR_CONTEXT_KEY, InputError, LineLinkSettings, Pose, Vec3
+from spherecal.plugins import (BASE_DIR_CONTEXT_KEY, PROGRAMMED_LINE_ASSUMPTION, InputError, LineLinkSettings, Pose,
+                               Vec3)
 from spherecal.plugins import SimulatedControllerSettings as CoreSimulatedControllerSettings
 from spherecal.plugins import WorkspaceBox as CoreWorkspaceBox
 
@@ -73,6 +74,86 @@ class EgmSettings(BaseModel):
         return v
 
 
+class ProgrammedLineSettings(BaseModel):
+    """Pose streaming without EGM (an S4C+, an IRC5 without the option): the poses are
+    computed on the PC along the programmed line of each move, not measured. The
+    controller (``SpherecalLine.mod``) stamps each move where its path passes
+    ``stamp_distance_mm`` from its start (past the acceleration ramp) and when it is in
+    position at its end, with its own clock; the flange is taken to follow the straight
+    line at the move's speed, timed from that stamp, with a trapezoidal speed profile of
+    ``acceleration_mm_s2`` at both ends (which only the ramps depend on). The arm's path
+    error at speed and any difference from that profile are in the poses, so in the
+    result's error: the result says so (docs/robot-abb-irb2400.md, "Programmed-line
+    poses")."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+    mode: Literal["programmed_line"] = Field(
+        description="programmed_line: poses along each move's programmed line, timed by the controller's stamps "
+        "of its start and end (the only mode here; EGM streaming is configured in [robot.egm])",
+    )
+    sample_period_ms: int = Field(
+        4, ge=1, le=100, description="the computed stream's sample period, ms of the controller's clock",
+    )
+    stamp_distance_mm: float = Field(
+        10.0, ge=0, le=500, description="the start stamp is taken where the path passes this distance from its "
+        "start, mm (TriggInt \\Start): past the acceleration ramp (at least speed^2 / acceleration_mm_s2, so "
+        "that an acceleration off by a third still leaves it on the constant-speed part), the constant-speed "
+        "poses do not depend on the acceleration assumed. A move whose ramp reaches it has every sample marked "
+        "on_ramp",
+    )
+    acceleration_mm_s2: float = Field(
+        2000.0, gt=0, le=100_000, description="path acceleration and deceleration assumed at both ends of every "
+        "move, mm/s^2 (a trapezoidal speed profile): an assumption, not a controller figure (ABB's profiles are "
+        "jerk-limited and depend on the load and the pose); where it is wrong, the poses near the ramps are",
+    )
+    ramp_margin_s: float = Field(
+        0.05, ge=0, le=2, description="samples within this time of a speed ramp assumed (and the ramps "
+        "themselves) are marked on_ramp: a solve leaves out the profiles there, where a wrong acceleration "
+        "moves the computed pose most; 0 marks the ramps alone",
+    )
+    path_error_mm: float = Field(
+        0.1, ge=0, le=100, description="the arm's path error at constant speed assumed, mm (how far the flange "
+        "may be from the programmed line): stated with the result, never checked here",
+    )
+    duration_tolerance_s: float = Field(
+        0.02, gt=0, le=5, description="a move whose two stamps along the path lie further apart in time than the "
+        "programmed speed puts them, by more than this, s (or whose time from the second to in position is "
+        "shorter than the profile assumed, or longer by more than settle_max_s), did not follow the programmed "
+        "line (a speed override below 100 %, a stop): its stream ends with an error",
+    )
+    settle_max_s: float = Field(
+        0.5, ge=0, le=10, description="the most a fine point may take to be in position after the motion, s",
+    )
+
+    def assumption(self) -> str:
+        """What the computed poses assume, for the stream and the result."""
+        return (f"{PROGRAMMED_LINE_ASSUMPTION} (timed from a stamp {self.stamp_distance_mm:g} mm along each move; "
+                f"trapezoidal speed, {self.acceleration_mm_s2:g} mm/s^2 assumed on the ramps, marked +-"
+                f"{self.ramp_margin_s:g} s; path error at speed assumed within {self.path_error_mm:g} mm)")
+
+
+class SimulatedLineSettings(BaseModel):
+    """The simulated controller's stamps of the programmed-line stream (simulated runs):
+    its clock and when its start stamp is taken. The simulated arm moves with
+    ``simulated.acceleration_mm_s2``, which may differ from the acceleration the PC
+    assumes (``pose_stream.acceleration_mm_s2``)."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+    clock_drift_ppm: float = Field(
+        -25.0, ge=-1000, le=1000, description="the controller clock's rate minus one, parts per million",
+    )
+    start_latency_s: float = Field(
+        0.012, ge=-0.1, le=0.5, description="the start stamp is taken this long after the path passes the stamp's "
+        "distance, s (the trap routine's latency; negative: the arm lags the interpolated path by more than that)",
+    )
+    start_jitter_s: float = Field(
+        0.001, ge=0, le=0.05, description="standard deviation of the start stamp about its latency, s",
+    )
+    seed: int | None = Field(None, description="seed of the jitter (None: the controller's seed)")
+
+
 class SimulatedEgmSettings(BaseModel):
     """The simulated controller's EGM stream (simulated runs): its own clock, its stamp
     jitter and its losses."""
@@ -122,6 +203,10 @@ class SimulatedControllerSettings(CoreSimulatedControllerSettings):
     )
     egm: SimulatedEgmSettings = Field(
         default_factory=SimulatedEgmSettings, description="the simulated EGM pose stream (used when robot.egm is set)",
+    )
+    line: SimulatedLineSettings = Field(
+        default_factory=SimulatedLineSettings, description="the simulated controller's move stamps (used when "
+        "robot.pose_stream.mode is programmed_line)",
     )
 
 
@@ -176,6 +261,10 @@ class AbbIrb2400Config(LineLinkSettings):
         None, description="pose streaming over Externally Guided Motion (IRC5 with option 689-1 and "
         "SpherecalEgm.mod): start_pose_stream / stop_pose_stream; None: the robot does not stream",
     )
+    pose_stream: ProgrammedLineSettings | None = Field(
+        None, description="pose streaming without EGM (an S4C+): poses computed along each move's programmed "
+        "line, timed by the controller's stamps (SpherecalLine.mod); None: no such stream. Not with robot.egm",
+    )
     calibrated_model: Path | None = Field(
         None,
         description="calibrated geometry of this arm: a URDF file (metres; joints joint_1..joint_6 in the serial "
@@ -202,6 +291,21 @@ class AbbIrb2400Config(LineLinkSettings):
             except InputError as exc:
                 raise ValueError(str(exc)) from None
         return v
+
+    @model_validator(mode="after")
+    def _check_pose_stream(self):
+        if self.pose_stream is None:
+            return self
+        if self.egm is not None:
+            raise ValueError(
+                "robot.pose_stream (programmed_line) and robot.egm are both set: a controller with EGM streams its "
+                "measured pose (keep [robot.egm]); one without computes it from the programmed line (keep "
+                "[robot.pose_stream]); give one")
+        if self.calibrated_model is not None:
+            raise ValueError(
+                "robot.pose_stream (programmed_line) cannot go with a calibrated_model: the controller moves along "
+                "its nominal model's line, which the calibrated arm does not follow; leave one of them out")
+        return self
 
     @model_validator(mode="after")
     def _check_calibrated_model(self):

@@ -48,6 +48,11 @@ samples still on their way and returns the :class:`~spherecal.plugins.PoseStream
 (the controller's stamps and sequence numbers), or raises the fault that ended the
 stream with what was kept. With a calibrated model (or ``pose_source = "joints"``) the
 stream's poses come from its joints through the model, as every other pose does.
+
+Without EGM (an S4C+), ``config.pose_stream`` (mode ``programmed_line``) offers the same
+contract with poses computed along each move's programmed line, timed by the
+controller's stamps of its start and end (:mod:`.line_stream`, :mod:`.programmed_line`):
+not measured, which the stream's ``assumption`` says.
 """
 
 from __future__ import annotations
@@ -64,6 +69,7 @@ from spherecal.plugins import line_protocol as lineproto
 from . import protocol as SP
 from .config import AbbIrb2400Config, EgmSettings
 from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics
+from .line_stream import ProgrammedLineStreaming
 
 
 def _initial_seq() -> int:
@@ -72,7 +78,7 @@ def _initial_seq() -> int:
     return initial_seq()
 
 
-class AbbIrb2400Robot(LineRobot):
+class AbbIrb2400Robot(ProgrammedLineStreaming, LineRobot):
     """A connected IRB 2400 (implements :class:`spherecal.plugins.Robot`).
 
     Poses are ``base_from_flange`` (tool0 in wobj0), mm, quaternion (w, x, y, z).
@@ -82,6 +88,7 @@ class AbbIrb2400Robot(LineRobot):
     server_hint = "that SpherecalServer is running on the controller"
     socket_hint = "that SpherecalSocket runs on the controller and listens on this address"
     version_hint = "load the SpherecalServer.mod shipped with this package"
+    extra_replies = SP.LINE_REPLY_ARGS  #: the T reply of LTIME (the programmed-line stream)
 
     def __init__(
         self,
@@ -164,15 +171,18 @@ class AbbIrb2400Robot(LineRobot):
     simulator = None  #: the simulated controller's server in simulated runs (the plugin sets it)
 
     def can_stream_poses(self) -> bool:
-        """Whether pose streaming is configured (``robot.egm``)."""
-        return self.config.egm is not None
+        """Whether pose streaming is configured (``robot.egm``, or ``robot.pose_stream``:
+        computed along the programmed line)."""
+        return self.config.egm is not None or self.config.pose_stream is not None
 
     def _egm_settings(self) -> EgmSettings:
         if self.config.egm is None:
             raise PoseStreamError(
                 f"{self.name}: pose streaming is not configured: add a [robot.egm] section (port = the UDP port this "
                 "PC listens on, the remote port of the controller's UDPUC device) and load SpherecalEgm.mod on an "
-                "IRC5 with the Externally Guided Motion option (docs/robot-abb-irb2400.md, 'Pose streaming')")
+                "IRC5 with the Externally Guided Motion option (docs/robot-abb-irb2400.md, 'Pose streaming'); "
+                "without EGM (an S4C+), [robot.pose_stream] mode = \"programmed_line\" with SpherecalLine.mod "
+                "computes the poses from the programmed line ('Programmed-line poses')")
         return self.config.egm
 
     def start_pose_stream(self) -> None:
@@ -181,6 +191,8 @@ class AbbIrb2400Robot(LineRobot):
         saying what to check, when it cannot; nothing moves."""
         from .egm_receiver import EgmReceiver
 
+        if self.config.pose_stream is not None:
+            return self.start_line_stream()
         settings = self._egm_settings()
         self.check_open()
         if self._egm is not None:
@@ -245,6 +257,8 @@ class AbbIrb2400Robot(LineRobot):
         controller stamps, ``seq`` unwrapped). Raises the fault that ended the stream
         (PoseStreamStalled, PoseStreamClockError) or a failed stop as PoseStreamError,
         with the samples kept in its ``stream``."""
+        if self.config.pose_stream is not None:
+            return self.stop_line_stream()
         receiver = self._egm
         if receiver is None:
             raise PoseStreamError(f"{self.name}: no pose stream is running (start_pose_stream first)")
@@ -271,6 +285,8 @@ class AbbIrb2400Robot(LineRobot):
 
     def pose_stream_counts(self) -> PoseStreamCounts:
         """What the running stream has delivered so far, or the last stream's counts."""
+        if self.config.pose_stream is not None:
+            return self.line_stream_counts()
         return self._egm.counts() if self._egm is not None else self._egm_counts
 
     def _stream_poses(self, stream: PoseStream) -> PoseStream:
@@ -288,6 +304,7 @@ class AbbIrb2400Robot(LineRobot):
 
     def close(self) -> None:
         """Stop a running pose stream (best effort), then close the link."""
+        self._close_line_stream()
         receiver, self._egm = self._egm, None
         if receiver is not None:
             try:

@@ -30,6 +30,17 @@ all sent before its ``OK``. The poses come from ``egm_source`` (default: the
 controller's own pose, held while standing and along each move's straight line) on the
 simulated clock ``egm_clock`` (default: an internal one; see :mod:`.egm_sim`).
 
+The server's programmed-line stamps (``SpherecalLine.mod``): ``LSTART`` (its reset flag
+restarts the controller's clock, a RAPID clock: ``(T - T_reset) (1 + clock_drift_ppm
+1e-6)``), ``LSTOP`` and ``LTIME``. While stamping, each executed ``MOVL`` is stamped, in
+whole ms of that clock (rounded, as ``Round(ClkRead(...) * 1000)``), when its path on the
+motion timeline passes the stamp's distance from its start (the arm's true
+acceleration), plus ``start_latency_s`` and a normal jitter of ``start_jitter_s`` (the
+trap's), and at its end in position (after the settle). The arm moves on the timeline with the controller's
+``acceleration_mm_s2``, not with the acceleration the PC assumes: the simulated world
+is not the PC's model. :attr:`SimulatedIrb2400.line_faults` injects a start stamp that
+is not taken.
+
 The controller's base frame (``settings.base_frame``, world_from_base), as a riser, an
 inverted mount or a multi-robot cell configures it, is the core controller's: the server
 reads and moves tool0 in wobj0, the WORLD frame, so ``GETP`` reports world poses and
@@ -39,7 +50,10 @@ the robot base.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
+
+import numpy as np
 
 from spherecal.plugins import ControllerServer, Faults, SimulatedController
 from spherecal.plugins import line_protocol as P
@@ -66,7 +80,14 @@ class SimulatorServer(ControllerServer):
                 egm.close()
 
 
-__all__ = ["Faults", "SimulatedIrb2400", "SimulatorServer", "start_simulator"]
+__all__ = ["Faults", "LineFaults", "SimulatedIrb2400", "SimulatorServer", "start_simulator"]
+
+
+@dataclass
+class LineFaults:
+    """Faults of the programmed-line stamps to inject; counters count down."""
+
+    miss_start_next: int = 0  #: the next N stamped moves have no start stamp (the trap did not run)
 
 
 class SimulatedIrb2400(SimulatedController):
@@ -89,6 +110,81 @@ class SimulatedIrb2400(SimulatedController):
         #: the EGM stream (its ``destination``, ``faults``, ``sent``, ``lost``)
         self.egm = SimulatedEgmServer(self.settings.egm, egm_source or self.egm_motion, clock=egm_clock,
                                       seed=self.settings.seed, report_frame=self.settings.base_frame)
+        line = self.settings.line
+        self.line_rng = np.random.default_rng(line.seed if line.seed is not None else self.settings.seed)
+        self.line_on = False  #: whether moves are stamped (LSTART .. LSTOP)
+        self.line_clock_reset_s: float | None = None  #: true time of the clock's reset (None: never started)
+        self.line_moves = 0  #: moves stamped since LSTART
+        self.line_distance_mm = 0.0  #: the stamp's distance from each path's start, mm
+        #: the last stamped move's stamps, ms: start, cruise end, in position
+        self.line_stamps_ms: tuple[int | None, int | None, int | None] = (None, None, None)
+        #: per stamped move: (true start, true end in position, its three stamps, ms)
+        self.line_log: list[tuple] = []
+        self.line_faults = LineFaults()
+
+    # the programmed-line stamps ------------------------------------------------------------
+    def line_clock_s(self, T_true_s: float) -> float:
+        """The controller's clock (s since its reset) at true time ``T_true_s``; 0 while it
+        was never started (RAPID's ClkRead of a clock not started)."""
+        if self.line_clock_reset_s is None:
+            return 0.0
+        return (T_true_s - self.line_clock_reset_s) * (1.0 + self.settings.line.clock_drift_ppm * 1e-6)
+
+    def line_clock_true_s(self, clock_s) -> np.ndarray:
+        """The true time at which the controller's clock read ``clock_s`` (inverse of
+        :meth:`line_clock_s`)."""
+        return self.line_clock_reset_s + np.asarray(clock_s, dtype=float) / (
+            1.0 + self.settings.line.clock_drift_ppm * 1e-6)
+
+    def _serve_line(self, msg) -> bytes:
+        if msg.kind == "LSTART":
+            try:
+                reset, self.line_distance_mm = SP.parse_line_start(msg)
+            except P.ProtocolError as exc:
+                return P.error_reply(msg.seq, P.ErrorCode.RANGE, str(exc))
+            if reset:
+                self.line_clock_reset_s = self.clock.now_s
+            self.line_on, self.line_moves, self.line_stamps_ms = True, 0, (None, None, None)
+            return P.ok_reply(msg.seq)
+        if msg.kind == "LSTOP":
+            self.line_on = False
+            return P.ok_reply(msg.seq)
+        return SP.line_time_reply(msg.seq, SP.LineStamps(self.line_moves, *self.line_stamps_ms))
+
+    def _passes(self, T0: float, distance_mm: float, from_end: bool = False) -> float:
+        """True time at which the move on the timeline that starts at ``T0`` passes
+        ``distance_mm`` from its start (or before its end) (bisection on the timeline's own
+        path fraction)."""
+        seg = next(s for s in reversed(self.timeline.segments) if s.T0_s == T0 and s.kind == "move")
+        goal = min(distance_mm / seg.length_mm, 1.0) if seg.length_mm > 0 else 0.0
+        goal = 1.0 - goal if from_end else goal
+        lo, hi = seg.T0_s, seg.T1_s
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if float(seg.fraction(mid)) < goal else (lo, mid)
+        return hi
+
+    def _stamp_move(self) -> None:
+        """Stamp the move just executed (its timeline start and end in position)."""
+        lm, line = self.last_move, self.settings.line
+        T0 = lm["start_s"]
+        T1 = T0 + lm["motion_s"] + lm["settle_s"]
+        T_stamp = self._passes(T0, self.line_distance_mm)
+        T_cruise_end = self._passes(T0, self.line_distance_mm, from_end=True)
+        def trap(T: float) -> int:
+            jitter = self.line_rng.normal(0.0, line.start_jitter_s) if line.start_jitter_s > 0 else 0.0
+            return int(np.round(1e3 * self.line_clock_s(T + line.start_latency_s + jitter)))
+
+        start: int | None = None
+        if self.line_faults.miss_start_next > 0:
+            self.line_faults.miss_start_next -= 1
+        else:
+            start = trap(T_stamp)
+        cruise_end = trap(T_cruise_end)
+        end = int(np.round(1e3 * self.line_clock_s(T1)))
+        self.line_moves += 1
+        self.line_stamps_ms = (start, cruise_end, end)
+        self.line_log.append((T0, T1, start, cruise_end, end))
 
     # the EGM stream ------------------------------------------------------------------------
     def _serve(self, line: bytes) -> bytes:
@@ -99,6 +195,8 @@ class SimulatedIrb2400(SimulatedController):
         if msg is None:
             return super()._serve(line)
         self.requests.append(msg.kind)
+        if msg.kind in ("LSTART", "LSTOP", "LTIME"):
+            return self._serve_line(msg)
         if msg.kind == "SSTOP":
             self.egm.stop()
             return P.ok_reply(msg.seq)
@@ -125,6 +223,8 @@ class SimulatedIrb2400(SimulatedController):
                 self.egm_motion.add_move(T0, duration, start_pose, self.nominal_flange_pose(), start_joints,
                                          self.joints_deg)
                 self.egm.move_done(T0, duration)
+                if self.line_on:
+                    self._stamp_move()
             else:
                 self.egm.resume()
         return reply

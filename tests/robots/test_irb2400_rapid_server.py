@@ -1,6 +1,6 @@
 """Offline safety checks of the RAPID server modules: SpherecalServer.mod (the protocol),
 its two link modules, SpherecalSerial.mod and SpherecalSocket.mod, and its pose stream
-module, SpherecalEgm.mod.
+modules, SpherecalEgm.mod and SpherecalLine.mod.
 
 Nothing here runs RAPID: a small checker reads each module's text and enforces the rules
 that keep the server from moving the arm unasked or hiding faults (see "How the server
@@ -42,6 +42,8 @@ MODULES = {
     "SpherecalSocket.mod": frozenset({"spherecal_link_open", "spherecal_link_read", "spherecal_link_write",
                                       "spherecal_link_session"}),
     "SpherecalEgm.mod": frozenset({"spherecal_egm_start", "spherecal_egm_stop"}),
+    "SpherecalLine.mod": frozenset({"spherecal_line_start", "spherecal_line_stop", "spherecal_line_move",
+                                    "spherecal_line_stamps"}),
 }
 TEXTS = {name: (RAPID_DIR / name).read_text() for name in MODULES}
 MODULE_TEXT = TEXTS["SpherecalServer.mod"]

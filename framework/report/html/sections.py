@@ -438,6 +438,8 @@ def identity_html(result: CalibrationResult) -> str:
         ["configuration (SHA-256)", sha("configuration_sha256", "configuration_file")],
     ]
     rows.append(["data from", _e(p.get("dataset") or "&ndash;") if p.get("dataset") else "&ndash;"])
+    if result.timing is not None and result.timing.poses_assumed:
+        rows.append(["robot poses", f"<b>not measured</b>: {_e(result.timing.poses_assumed)}"])
     rows.append(["simulated", "<b>yes: SIMULATED</b>, not a real cell" if is_simulated(p)
                  else "no" if p.get("simulated") is False else "&ndash; (not recorded)"])
     shown = ("cell", "robot", "sensor", "sphere", "operator", "calibrated_at", "software", "dataset_sha256",

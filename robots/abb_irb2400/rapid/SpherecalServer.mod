@@ -9,7 +9,9 @@ MODULE SpherecalServer
   !   request = PING seq token | GETJ seq | GETP seq
   !           | TGT seq x y z q1 q2 q3 q4 | MOVL seq speed target_seq v_ori
   !           | SSTART seq period_ms | SSTOP seq
+  !           | LSTART seq reset distance_mm | LSTOP seq | LTIME seq
   !   reply   = PONG seq 3 token | J seq j1..j6 | P seq x y z q1 q2 q3 q4
+  !           | T seq moves start_ms cruise_end_ms end_ms
   !           | OK seq | ERR seq code text      (seq "-" if unreadable)
   !
   ! A line holds at most 80 characters before its LF (a RAPID string).
@@ -32,6 +34,12 @@ MODULE SpherecalServer
   ! Guided Motion (read-only: the arm moves by MOVL as ever). They call
   ! SpherecalEgm.mod by name, so this module loads without it (and
   ! without the EGM option); the server then answers them with ERR 7.
+  !
+  ! LSTART, LSTOP and LTIME turn on and off, and read, the stamps of the
+  ! programmed-line stream (SpherecalLine.mod, for a controller without
+  ! EGM such as the S4C+): while on, MOVL moves by spherecal_line_move,
+  ! a stamped TriggL, and LTIME answers T with the last move's stamps.
+  ! Called by name too: without the module, ERR 7.
   !
   ! Entry routine: spherecal_server_main. Call it from your main, or make
   ! it the entry routine of the task. The optional event routine
@@ -73,6 +81,8 @@ MODULE SpherecalServer
   LOCAL CONST num E_STREAM := 7;
   ! Longest sample period a SSTART may ask for, ms (a multiple of 4).
   LOCAL CONST num MAX_SAMPLE_MS := 100;
+  ! Largest stamp distance a LSTART may ask for, mm.
+  LOCAL CONST num MAX_STAMP_DIST := 500;
 
   ! The request line being served, and whether the last read gave one.
   LOCAL VAR string line := "";
@@ -85,6 +95,8 @@ MODULE SpherecalServer
   LOCAL VAR num targetSeq := -1;
   LOCAL VAR num targetSession := -1;
   LOCAL VAR bool targetReached := FALSE;
+  ! Whether MOVL moves stamped (LSTART .. LSTOP; SpherecalLine.mod).
+  LOCAL VAR bool lineOn := FALSE;
   ! The seq of the MOVL being executed ("" when no move is under way).
   LOCAL VAR string movingSeq := "";
   LOCAL VAR speeddata moveSpeed := [100, 500, 5000, 1000];
@@ -217,6 +229,12 @@ MODULE SpherecalServer
       want := 3;
     CASE "SSTOP":
       want := 2;
+    CASE "LSTART":
+      want := 4;
+    CASE "LSTOP":
+      want := 2;
+    CASE "LTIME":
+      want := 2;
     DEFAULT:
       ReplyError seqText, E_SYNTAX, "unknown request";
       RETURN;
@@ -248,6 +266,12 @@ MODULE SpherecalServer
       StartStream seqText;
     CASE "SSTOP":
       StopStream seqText;
+    CASE "LSTART":
+      StartLine seqText;
+    CASE "LSTOP":
+      StopLine seqText;
+    CASE "LTIME":
+      SendLineStamps seqText;
     ENDTEST
   ERROR
     ! Any error of this request (the link handles its own): log it,
@@ -357,7 +381,12 @@ MODULE SpherecalServer
     moveSpeed.v_tcp := speed;
     moveSpeed.v_ori := oriSpeed;
     movingSeq := seqText;
-    MoveL target, moveSpeed, fine, tool0 \WObj:=wobj0;
+    IF lineOn THEN
+      ! Stamped: the same MoveL as a TriggL (SpherecalLine.mod).
+      %"spherecal_line_move"% target, moveSpeed;
+    ELSE
+      MoveL target, moveSpeed, fine, tool0 \WObj:=wobj0;
+    ENDIF
     WaitTime \InPos, 0;
     targetReached := TRUE;
     movingSeq := "";
@@ -406,10 +435,69 @@ MODULE SpherecalServer
     RETURN;
   ENDPROC
 
+  ! --- the programmed-line stream (SpherecalLine.mod) ---------------------
+  LOCAL PROC StartLine(string seqText)
+    ! LSTART: stamp every following MOVL where its path passes distance
+    ! mm from its start; reset 1 restarts the clock. Moves nothing.
+    VAR num reset;
+    VAR num distance;
+    IF NOT StrToVal(fields{3}, reset) OR NOT StrToVal(fields{4}, distance)
+        THEN
+      ReplyError seqText, E_SYNTAX, "bad number";
+      RETURN;
+    ENDIF
+    IF reset <> 0 AND reset <> 1 THEN
+      ReplyError seqText, E_RANGE, "reset not 0 or 1";
+      RETURN;
+    ENDIF
+    IF distance < 0 OR distance > MAX_STAMP_DIST THEN
+      ReplyError seqText, E_RANGE, "distance outside 0.."
+        + NumToStr(MAX_STAMP_DIST, 0);
+      RETURN;
+    ENDIF
+    %"spherecal_line_start"% reset, distance;
+    lineOn := TRUE;
+    Reply "OK " + seqText;
+  ERROR
+    lineOn := FALSE;
+    StreamFailed "LSTART", seqText, ERRNO;
+    RETURN;
+  ENDPROC
+
+  LOCAL PROC StopLine(string seqText)
+    ! LSTOP: MOVL moves unstamped again (OK also when not stamping).
+    lineOn := FALSE;
+    %"spherecal_line_stop"%;
+    Reply "OK " + seqText;
+  ERROR
+    StreamFailed "LSTOP", seqText, ERRNO;
+    RETURN;
+  ENDPROC
+
+  LOCAL PROC SendLineStamps(string seqText)
+    ! LTIME: T seq moves start_ms cruise_end_ms end_ms (-1: a stamp not
+    ! taken).
+    VAR num n := 0;
+    VAR num tStart := -1;
+    VAR num tCruiseEnd := -1;
+    VAR num tEnd := -1;
+    %"spherecal_line_stamps"% n, tStart, tCruiseEnd, tEnd;
+    Reply "T " + seqText + " " + NumToStr(n, 0) + " "
+      + NumToStr(tStart, 0) + " " + NumToStr(tCruiseEnd, 0) + " "
+      + NumToStr(tEnd, 0);
+  ERROR
+    StreamFailed "LTIME", seqText, ERRNO;
+    RETURN;
+  ENDPROC
+
   LOCAL PROC StreamFailed(string kind, string seqText, num err)
     ! Answers a stream request that failed with error err: ERR 7.
     IF err = ERR_REFUNKPRC OR err = ERR_CALLPROC THEN
       ! The late-bound routine is not there: the module is not loaded.
+      IF StrPart(kind, 1, 1) = "L" THEN
+        ReplyError seqText, E_STREAM, "SpherecalLine.mod is not loaded";
+        RETURN;
+      ENDIF
       ReplyError seqText, E_STREAM, "SpherecalEgm.mod is not loaded";
     ELSE
       ErrWrite \W, "SpherecalServer: stream failed",
