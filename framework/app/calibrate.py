@@ -99,6 +99,11 @@ def run_calibrate(
     if resume and (run.out / RESULT_NAME).exists():
         outcome.finished = True  # (the command says so, once)
         return outcome
+    if run.cfg.replay is None and not manual and run.cfg.acquisition.mode == "on_the_fly":
+        from spherecal.app.calibrate_on_the_fly import calibrate_on_the_fly
+
+        return calibrate_on_the_fly(run, outcome, dry_run=dry_run, resume=resume, yes=yes, ask=ask, report=report,
+                                    force=force, operator=operator)
     if run.cfg.replay is not None:
         source = run.loaded.resolve(run.cfg.replay)
         dataset = _replayed(run, source, dry_run)
