@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from spherecal.app.cell import make_cell
-from spherecal.app.outputs import RESULT_NAME, check_output_folder, written_files
+from spherecal.app.outputs import RESULT_NAME, STREAM_JOURNAL_NAME, check_output_folder, written_files
 from spherecal.app.plan_checks import check_plan, check_plan_solvable, confirm_motion, plan_digest
 from spherecal.app.plugin_host import open_devices
 from spherecal.app.provenance import check_same_devices, traceability
@@ -20,16 +20,14 @@ from spherecal.core.models import Dataset
 from spherecal.core.streams import Recording
 from spherecal.devices.contract import device_identity
 from spherecal.estimation.on_the_fly import solve_recording
-from spherecal.io.runlog import Notice
 from spherecal.io.stream_writer import RecordingWriter
 from spherecal.io.streams import read_recording, reopen_recording
 from spherecal.motion.acquisition import Target
 from spherecal.motion.kinematic_plan import uses_planner
-from spherecal.motion.on_the_fly import (OnTheFlyReport, PlannedSweep, SweepJournal, SweepStreamError, acquire_sweeps,
-                                         check_streaming, plan_sweeps, sweep_targets)
+from spherecal.motion.on_the_fly import (OnTheFlyReport, PlannedSweep, SweepJournal, acquire_sweeps, check_streaming,
+                                         plan_sweeps, sweep_targets)
 
-#: The stream-form journal of an on-the-fly calibration, and its finished sweeps.
-STREAM_JOURNAL_NAME = "journal.stream.jsonl"
+#: The finished sweeps of an on-the-fly calibration, beside its journal (STREAM_JOURNAL_NAME).
 SWEEPS_NAME = "journal.sweeps.jsonl"
 #: Simulated time left between an interrupted run's last stamp and a resumed run's start, s.
 RESUME_GAP_S = 1.0
@@ -192,13 +190,8 @@ def _take(run, sweeps, targets, of_sweep, cell, journal: Path, sweeps_path: Path
                                              "sensor": f"{cfg.sensor['type']} sensor"},
                                      sweeps=[s.info for s in sweeps], provenance=provenance, fsync=True)
         with writer:
-            try:
-                return acquire_sweeps(robot, sensor, sweeps, SweepJournal(writer, sweeps_path), acq, done, log,
-                                      clock=cell.clock if cell is not None else None)
-            except SweepStreamError as exc:
-                log(Notice(f"stopped: {exc.sweep.name}: the {exc.stream} stream failed ({exc.taken.text()}); the "
-                           f"journal {journal} keeps every sweep taken; --resume takes {exc.sweep.name} again"))
-                raise
+            return acquire_sweeps(robot, sensor, sweeps, SweepJournal(writer, sweeps_path), acq, done, log,
+                                  clock=cell.clock if cell is not None else None)
 
 
 def _solved(run, journal: Path, outcome: Outcome, *, report: bool, force: bool, operator: str | None) -> Outcome:

@@ -369,7 +369,8 @@ def acquire_sweeps(robot, sensor, sweeps: list[PlannedSweep], journal: SweepJour
                            pose_late=pc.late, profiles=0 if profiles is None else profiles.n,
                            frames_lost=getattr(fc, "lost", 0), frames_late=getattr(fc, "late", 0),
                            robot_time_s=clock.now_s - began,
-                           fault="; ".join(f"the {which} stream: {why}" for which, why in faults) or None)
+                           fault="; ".join(f"the {which} stream failed during the sweep: {why}"
+                                           for which, why in faults) or None)
         journal.add(s, poses, profiles, taken)
         report.sweeps.append(taken)
         report.robot_time_s = clock.now_s - started
@@ -377,7 +378,7 @@ def acquire_sweeps(robot, sensor, sweeps: list[PlannedSweep], journal: SweepJour
         if faults:
             which = faults[0][0]
             raise SweepStreamError(
-                f"{s.name}: the {which} stream failed during the sweep: {taken.fault}. The sweep's data ends at the "
+                f"{s.name}: {taken.fault}. The sweep's data ends at the "
                 f"fault ({taken.text()} written; no profile is mapped outside the pose stream's samples); the run "
                 "stopped after the move, the journal kept: --resume takes this sweep again", s, which, taken)
     return report
