@@ -15,7 +15,7 @@ from spherecal.app.calibrate import run_calibrate
 from spherecal.cli import EXIT_DATA, EXIT_DEVICE, EXIT_OK, main
 from spherecal.config import load_config
 from spherecal.core import geometry as geo
-from spherecal.core.errors import InputError
+from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Pose
 from spherecal.io import dataset as dataio
 from spherecal.io.streams import read_recording
@@ -207,3 +207,10 @@ def test_the_mode_is_refused_for_a_robot_that_does_not_stream(sim_config, opened
     robot, _ = opened[0]
     assert robot.simulator.controller.moves == 0
     assert not (cfg.parent / "out" / "journal.stream.jsonl").exists()
+
+
+def test_step_mode_is_refused_on_the_fly_before_anything_opens(sim_config, opened):
+    cfg = sim_config(EXAMPLE)
+    with pytest.raises(ConfigError, match="--step .* does not stop between sweeps"):
+        run(cfg, lambda _: None, step=True)
+    assert not opened
