@@ -16,7 +16,7 @@ from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_
 from spherecal.app.provenance import check_same_devices, traceability
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
 from spherecal.config import LoadedConfig, RunConfig
-from spherecal.core.errors import InputError
+from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Dataset
 from spherecal.devices.contract import SensorFieldOfView, device_identity
 from spherecal.io import dataset as dataio
@@ -99,6 +99,16 @@ def run_calibrate(
     if resume and (run.out / RESULT_NAME).exists():
         outcome.finished = True  # (the command says so, once)
         return outcome
+    if run.cfg.replay is None and not manual and run.cfg.acquisition.mode == "on_the_fly":
+        from spherecal.app.calibrate_on_the_fly import calibrate_on_the_fly
+
+        if step:
+            raise ConfigError("--step asks before each station of a stop-and-go plan; [acquisition] mode = "
+                              "\"on_the_fly\" does not stop between sweeps: leave out --step (the plan is shown and "
+                              "confirmed before the first motion); nothing was opened or moved")
+
+        return calibrate_on_the_fly(run, outcome, dry_run=dry_run, resume=resume, yes=yes, ask=ask, report=report,
+                                    force=force, operator=operator)
     if run.cfg.replay is not None:
         source = run.loaded.resolve(run.cfg.replay)
         dataset = _replayed(run, source, dry_run)

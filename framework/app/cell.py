@@ -12,6 +12,7 @@ from spherecal.core.models import SPHERE_FRAME, Pose
 from spherecal.devices.contract import SensorFieldOfView
 from spherecal.motion.planning import with_standoff
 from spherecal.sim import BallBar, CarDoorPanel, FlatPlate, SimulatedCell, standard_cell
+from spherecal.sim.live import add_repeatability
 
 
 def sensor_field_of_view(cfg: RunConfig, host) -> SensorFieldOfView | None:
@@ -83,6 +84,7 @@ def make_cell(cfg: RunConfig, arm=None, field_of_view: SensorFieldOfView | None 
     cell.arm = None  # laid out for the arm; the simulated controller attaches its own (nominal) arm
     cell.noise_per_pose = True  # a resumed run reproduces an uninterrupted one
     cell.robot_error = sim.robot_error  # the simulated controller gives its arm this error
+    add_repeatability(cell)  # the arm's path error along a move, which streams see
     if sim.true_transform is not None:
         cell.true_transform = sim.true_transform.pose()
     if sim.sphere_centre_mm is not None:

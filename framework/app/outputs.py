@@ -17,7 +17,8 @@ if TYPE_CHECKING:
     from spherecal.config import LoadedConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
 
 __all__ = ["CALIBRATED_URDF_NAME", "JOURNAL_NAME", "OUTPUT_PATTERNS", "RESULT_NAME", "calibrated_setup", "calibrated_urdf_in",
-           "check_output_folder", "check_output_targets", "existing_outputs", "journal_holds_shots", "result_for",
+           "STREAM_JOURNAL_NAME", "check_output_folder", "check_output_targets", "existing_outputs", "journal_holds_shots",
+           "journal_of", "result_for",
            "written_files"]
 
 #: What a calibration writes into its folder besides its exporters' files (an
@@ -70,14 +71,25 @@ def written_files(out: Path) -> dict[str, Path]:
     return {p.name: p for p in sorted(out.iterdir()) if p.is_file()} if out.exists() else {}
 
 
+#: The journal of an on-the-fly calibration (a stream recording, docs/on-the-fly.md).
+STREAM_JOURNAL_NAME = "journal.stream.jsonl"
+
+
+def journal_of(folder: Path) -> Path:
+    """The calibration journal in ``folder``: the on-the-fly one when it is there, else
+    the stop-and-go one (whether or not it exists)."""
+    stream = folder / STREAM_JOURNAL_NAME
+    return stream if stream.is_file() else folder / JOURNAL_NAME
+
+
 def journal_holds_shots(folder: Path | None) -> bool:
-    """Does the calibration journal in ``folder`` hold at least one shot? (Read a line at
-    a time, at most until the first observation.)"""
-    if folder is None or not (folder / JOURNAL_NAME).is_file():
+    """Does the calibration journal in ``folder`` hold at least one shot (an observation,
+    or an on-the-fly journal's profile)? (Read a line at a time, at most until the first.)"""
+    if folder is None or not journal_of(folder).is_file():
         return False
     try:
-        with open(folder / JOURNAL_NAME, "rb") as fh:
-            return any(b"observation" in line[:32] for line in fh)
+        with open(journal_of(folder), "rb") as fh:
+            return any(b"observation" in line[:32] or line.startswith(b'{"profile"') for line in fh)
     except OSError:
         return False
 
@@ -101,7 +113,7 @@ def interrupted_runs(config_path: Path, near: list[Path]) -> list[Path]:
                 continue
             seen.add(folder)
             try:
-                with open(folder / JOURNAL_NAME, "rb") as fh:
+                with open(journal_of(folder), "rb") as fh:
                     header = json.loads(fh.readline())
             except (OSError, ValueError):
                 continue

@@ -62,9 +62,17 @@ def tool_point_mm(cfg: RunConfig) -> tuple[float, float, float] | None:
 @contextlib.contextmanager
 def open_devices(loaded: LoadedConfig, host: PluginHost, cell: SimulatedCell | None,
                  log: Callable[[str], None]) -> Iterator:
-    """Robot and sensor from the configuration, closed on the way out whatever happens."""
+    """Robot and sensor from the configuration, closed on the way out whatever happens.
+    In a simulated run the factories get the simulated world's time, clocks and motion
+    too (:func:`spherecal.sim.live.device_extras`), so that streaming devices stream what
+    the simulated arm does at each simulated instant."""
     cfg = loaded.config
-    context = DeviceContext(cell=cell, log=log, tool_point_mm=tool_point_mm(cfg))
+    extras = {}
+    if cell is not None:
+        from spherecal.sim.live import device_extras  # (only simulated runs load the simulated world)
+
+        extras = device_extras(cell)
+    context = DeviceContext(cell=cell, log=log, extras=extras, tool_point_mm=tool_point_mm(cfg))
     robot = in_file(loaded, host.create_robot, cfg.robot, context, base_dir=loaded.path.parent)
     try:
         sensor = in_file(loaded, host.create_sensor, cfg.sensor, context)

@@ -9,7 +9,7 @@ from pathlib import Path
 from shlex import quote
 
 from spherecal.app.calibrate import run_calibrate
-from spherecal.app.outputs import JOURNAL_NAME, interrupted_runs, journal_holds_shots
+from spherecal.app.outputs import interrupted_runs, journal_holds_shots, journal_of
 from spherecal.cli.finish import finish, say_result
 from spherecal.cli.output import EXIT_OK, result_json
 from spherecal.cli.session import Session, ask
@@ -81,9 +81,9 @@ def check_step_mode(args) -> None:
 def after_failure(session: Session) -> str:
     """What to do after a calibration stopped half-way."""
     if not journal_holds_shots(session.out_dir):
-        if session.out_dir is not None and (session.out_dir / JOURNAL_NAME).is_file() and session.resume_command:
+        if session.out_dir is not None and journal_of(session.out_dir).is_file() and session.resume_command:
             # the journal holds the plan only (stopped before the first shot): a new run there would be refused
             return f"; no shot was taken yet; start again with {session.resume_command}"
         return "; no shot was taken yet: nothing to resume, run the same command again"
-    return (f"; what was taken is in the journal ({session.out_dir / 'journal.jsonl'}): continue with "
+    return (f"; what was taken is in the journal ({journal_of(session.out_dir)}): continue with "
             f"{session.resume_command or '--resume'}")

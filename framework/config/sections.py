@@ -137,8 +137,11 @@ class KinematicPlanSettings(Section):
 class AcquisitionConfig(Section):
     """How to acquire: where the sphere roughly is, the sweeps, speeds and limits."""
 
-    mode: Literal["automatic", "manual"] = Field(
-        "automatic", description="automatic: the program moves the robot; manual: the operator jogs, the program captures"
+    mode: Literal["stop_and_go", "on_the_fly", "manual"] = Field(
+        "stop_and_go", description="stop_and_go (or its former name automatic): the program moves the robot and "
+        "stops for every profile; on_the_fly: continuous sweeps while the robot streams its pose and the sensor its "
+        "profiles (both must stream; [acquisition.on_the_fly] plans the sweeps); manual: the operator jogs, the "
+        "program captures"
     )
     sphere_centre_mm: Vec3 = Field(
         description="rough sphere centre: in base (eye_in_hand) or in the flange frame (eye_to_hand), mm"
@@ -147,6 +150,9 @@ class AcquisitionConfig(Section):
         (0.0, 0.0, 1.0, 0.0), description="flange orientation of the first station, base_from_flange, (w, x, y, z)"
     )
     sweep: SweepPlan = Field(default_factory=SweepPlan, description="stations and sweeps")
+    on_the_fly: OnTheFlyPlan = Field(
+        default_factory=lambda: OnTheFlyPlan(), description="the continuous sweeps at each station of mode = "
+        "\"on_the_fly\" (forth and back, at every speed, along every direction)")
     kinematic_plan: KinematicPlanSettings | None = Field(
         None, description="plan the stations for kinematic calibration (spread over the arm's joints) instead of "
         "listing them in sweep.tilts_deg; the default with calibration.identify_kinematics when sweep.tilts_deg "
@@ -160,6 +166,11 @@ class AcquisitionConfig(Section):
     retries_per_target: int = Field(2, ge=0, le=100, description="re-takes of a shot whose poses disagree")
     workspace: WorkspaceConfig = Field(description="allowed flange positions, base frame, mm")
 
+    @field_validator("mode", mode="before")
+    @classmethod
+    def _former_mode_name(cls, v):
+        return "stop_and_go" if v == "automatic" else v
+
     @model_validator(mode="after")
     def _one_station_source(self):
         if self.kinematic_plan is not None and "tilts_deg" in self.sweep.model_fields_set:
@@ -172,6 +183,10 @@ class AcquisitionConfig(Section):
         for name in ("speed_mm_s", "approach_speed_mm_s"):
             if getattr(self, name) > self.max_speed_mm_s:
                 raise ValueError(f"{name} = {getattr(self, name)} exceeds max_speed_mm_s = {self.max_speed_mm_s}")
+        if self.mode == "on_the_fly":
+            for v in self.on_the_fly.speeds_mm_s:
+                if v > self.max_speed_mm_s:
+                    raise ValueError(f"on_the_fly.speeds_mm_s: {v} mm/s exceeds max_speed_mm_s = {self.max_speed_mm_s}")
         return self
 
 

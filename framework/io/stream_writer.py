@@ -125,6 +125,22 @@ class RecordingWriter:
         if self.fsync:
             fsync_dir(self.path)
 
+    @classmethod
+    def _continuing(cls, path: Path, fsync: bool, state: dict[str, Any]) -> "RecordingWriter":
+        """A writer appending to the recording at ``path``, whose header and lines were
+        read into ``state`` (:func:`spherecal.io.streams.reopen_recording`)."""
+        self = cls.__new__(cls)
+        self.path, self.fsync = Path(path), bool(fsync)
+        self.clocks, self.sweeps = state["clocks"], list(state["sweeps"])
+        for k in ("_last_pose_t", "_last_profile_t", "_n_joints", "_has_seq", "_has_frame", "_has_sweep",
+                  "n_pose_samples", "n_profiles"):
+            setattr(self, k, state[k])
+        try:
+            self._file = open(self.path, "ab")
+        except OSError as exc:
+            raise FileWriteError(f"{os.fspath(path)}: cannot write ({exc.strerror or exc})") from None
+        return self
+
     # -- poses ---------------------------------------------------------------------------
 
     def add_poses(self, t_robot_s, translation_mm, quaternion_wxyz, joints_deg=None, seq=None) -> None:

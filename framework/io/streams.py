@@ -84,6 +84,7 @@ __all__ = [
     "TruncatedFileWarning",
     "read_recording",
     "recording_kind",
+    "reopen_recording",
     "write_recording",
 ]
 
@@ -459,3 +460,57 @@ def _read_one(reader: _Reader, buf: mmap.mmap, a: int, b: int, lineno: int) -> N
             f"{name} line {lineno} (byte {a}): not valid JSON ({exc}). Only the last line of a file may be "
             "incomplete (an interrupted write); this one is followed by more lines, so the file is damaged") from None
     reader.read_line(obj, lineno)
+
+
+def reopen_recording(path: str | os.PathLike, fsync: bool = False) -> RecordingWriter:
+    """A :class:`RecordingWriter` that appends to the recording at ``path`` (an
+    interrupted acquisition's journal, continued): its lines are read and checked as
+    :func:`read_recording` checks them, an incomplete last line (cut by the interruption)
+    is dropped from the file with a :class:`TruncatedFileWarning`, and what is appended
+    must continue the file (stamps increasing on each clock, the same pose and profile
+    fields). It may hold no poses or profiles yet."""
+    name = os.fspath(path)
+    check_input(path, DatasetFileError, "a stream recording")
+    try:
+        with open(path, "rb+") as f:
+            data = f.read()
+            cut = data.rfind(b"\n") + 1
+            if cut < len(data):  # a last line without its newline: whole, or cut by the interruption
+                try:
+                    whole = isinstance(_parse(data[cut:]), dict)
+                except ValueError:
+                    whole = False
+                if whole:
+                    f.write(b"\n")
+                else:
+                    if cut == 0:
+                        raise DatasetFileError(f"{name}: the file ends inside its header; nothing to continue")
+                    lineno = data.count(b"\n") + 1
+                    warnings.warn(f"{name}: line {lineno} is incomplete (the acquisition was "
+                                  f"interrupted while writing it): dropped its {len(data) - cut} bytes before "
+                                  "continuing", TruncatedFileWarning, stacklevel=2)
+                    f.truncate(cut)
+    except OSError as exc:
+        raise DatasetFileError(f"{name}: cannot read ({exc.strerror or exc})") from None
+    reader = _Reader(name)
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        reader.points = PointBuffer(min(size * 3 // 32 + 16, 1 << 26))
+        buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        try:
+            _read_lines(reader, buf, size)
+        finally:
+            try:
+                buf.close()
+            except BufferError:  # pragma: no cover - a view held by an error's traceback
+                pass
+    if reader.header is None:
+        raise DatasetFileError(f"{name}: holds no header line; expected a stream recording")
+    state = {"clocks": reader.header["clocks"], "sweeps": reader.sweeps, "_last_pose_t": reader.last_pose_t,
+             "_last_profile_t": reader.prof_t[-1] if reader.prof_t else None,
+             "_n_joints": reader.n_joints if reader.pose_t else None,
+             "_has_seq": reader.has_seq if reader.pose_t else None,
+             "_has_frame": reader.has_frame if reader.prof_t else None,
+             "_has_sweep": reader.has_sweep if reader.prof_t else None,
+             "n_pose_samples": sum(len(t) for t in reader.pose_t), "n_profiles": len(reader.prof_t)}
+    return RecordingWriter._continuing(path, fsync, state)

@@ -18,7 +18,9 @@ every sample covering it at once (paced only so that a receive buffer keeps up),
 the move's reply, so that a receiver has them when the move returns. Between moves a
 thread sends the samples of the standing arm as their time comes.
 
-The controller's clock: ``t_ctrl = clock_epoch_s + T (1 + clock_drift_ppm 1e-6)`` plus
+The controller's clock: ``t_ctrl = clock_epoch_s + T (1 + clock_drift_ppm 1e-6)``, or
+``controller_clock.stamp(T)`` when a simulated world gives its controller a clock (an
+object with ``stamp(T_true_s)`` and ``rate``, a ``spherecal.sim`` ``DeviceClock``), plus
 any injected jump; samples are taken every ``sample_period_ms`` of that clock, stamped
 ``t_ctrl`` plus a normal jitter (``stamp_jitter_s``) to the microsecond
 (``feedBack.time``) and in whole milliseconds modulo 2**32 (``header.tm``). Samples are
@@ -111,10 +113,13 @@ class SimulatedEgmServer:
     """The EGM stream of a simulated controller (see the module's docstring)."""
 
     def __init__(self, settings: SimulatedEgmSettings, source: PoseSource, *, clock: Callable[[], float] | None = None,
-                 seed: int | None = None, report_frame: Pose | None = None):
+                 seed: int | None = None, report_frame: Pose | None = None, controller_clock=None):
         self.settings = settings
         self.source = source
         self.clock = clock
+        #: the controller's clock given by the simulated world (``stamp(T)``, ``rate``), or
+        #: None: ``settings.clock_epoch_s`` and ``clock_drift_ppm``
+        self.controller_clock = controller_clock
         self.report_frame = report_frame
         self.faults = EgmFaults()
         self.rng = np.random.default_rng(settings.seed if settings.seed is not None else seed)
@@ -155,8 +160,16 @@ class SimulatedEgmServer:
                 return self._T_ref
             return self._T_ref + (time.monotonic() - self._wall_ref)
 
+    def _clock_rate(self) -> float:
+        """The controller's clock seconds per true second."""
+        if self.controller_clock is not None:
+            return float(self.controller_clock.rate)
+        return 1.0 + self.settings.clock_drift_ppm * 1e-6
+
     def controller_time_s(self, T_true_s) -> np.ndarray:
         """The controller's clock at true time ``T_true_s`` (no jitter, no injected jump)."""
+        if self.controller_clock is not None:
+            return np.asarray(self.controller_clock.stamp(np.asarray(T_true_s, dtype=float)), dtype=float)
         s = self.settings
         return s.clock_epoch_s + np.asarray(T_true_s, dtype=float) * (1.0 + s.clock_drift_ppm * 1e-6)
 
@@ -169,7 +182,7 @@ class SimulatedEgmServer:
         with self._lock:
             if self._sock is None:
                 self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self._period_true_s = sample_period_ms * 1e-3 / (1.0 + self.settings.clock_drift_ppm * 1e-6)
+            self._period_true_s = sample_period_ms * 1e-3 / self._clock_rate()
             self._T_next = self.now_true_s()
             self.streaming = True
             self._held = None

@@ -38,11 +38,13 @@ DESCRIPTION = (
 
 
 #: ``context.extras`` keys a simulated run may set for the simulated controller's EGM
-#: stream: the pose source ``source(T_true_s) -> (R, t_mm, joints_deg | None)`` and the
-#: simulated clock ``clock() -> T_true_s`` (see :mod:`.egm_sim`); absent: the
-#: controller's own pose and an internal clock.
+#: stream: the pose source ``source(T_true_s) -> (R, t_mm, joints_deg | None)``, the
+#: simulated clock ``clock() -> T_true_s`` and the controller's clock (an object with
+#: ``stamp(T_true_s)`` and ``rate``) (see :mod:`.egm_sim`); absent: the controller's own
+#: pose, an internal clock and ``simulated.egm``'s clock.
 POSE_STREAM_SOURCE_KEY = "pose_stream_source"
 SIM_CLOCK_KEY = "sim_clock"
+SIM_CONTROLLER_CLOCK_KEY = "sim_controller_clock"
 
 
 def start_simulator(*args, **kwargs):
@@ -72,7 +74,7 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
     wobj0 is not the robot base: :meth:`~.driver.AbbIrb2400Robot.check_base_frame`) on
     ``config.port``, or on a freshly started simulated controller when ``context.cell``
     is set (``context.extras`` may give its EGM stream a pose source and a clock:
-    :data:`POSE_STREAM_SOURCE_KEY`, :data:`SIM_CLOCK_KEY`)."""
+    :data:`POSE_STREAM_SOURCE_KEY`, :data:`SIM_CLOCK_KEY`, :data:`SIM_CONTROLLER_CLOCK_KEY`)."""
     kin = kinematics_of(config)
     tool = context.tool_point_mm
     if context.cell is None:
@@ -81,7 +83,8 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
         # the controller knows only the nominal model, calibrated or not
         server = start_simulator(kinematics_for(config.geometry, config.j23_coupled), config.simulated, context.cell,
                                  egm_source=context.extras.get(POSE_STREAM_SOURCE_KEY),
-                                 egm_clock=context.extras.get(SIM_CLOCK_KEY))
+                                 egm_clock=context.extras.get(SIM_CLOCK_KEY),
+                                 egm_controller_clock=context.extras.get(SIM_CONTROLLER_CLOCK_KEY))
         context.log(f"abb_irb2400: simulated controller serving on {server.url}")
         robot = AbbIrb2400Robot(config, url=server.url, kinematics=kin, on_close=server.stop, tool_point_mm=tool)
         robot.simulator = server  # for tests and fault injection

@@ -100,6 +100,7 @@ class SimulatedIrb2400(SimulatedController):
         cell: "SimulatedCell | None" = None,
         egm_source: PoseSource | None = None,
         egm_clock: Callable[[], float] | None = None,
+        egm_controller_clock=None,
     ):
         super().__init__(kinematics or Irb2400Kinematics(), settings or SimulatedControllerSettings(), cell, 6)
         # (wobj0 is world: the core controller's base frame, settings.base_frame, puts GETP
@@ -109,7 +110,8 @@ class SimulatedIrb2400(SimulatedController):
                                                  egm_clock() if egm_clock is not None else 0.0)
         #: the EGM stream (its ``destination``, ``faults``, ``sent``, ``lost``)
         self.egm = SimulatedEgmServer(self.settings.egm, egm_source or self.egm_motion, clock=egm_clock,
-                                      seed=self.settings.seed, report_frame=self.settings.base_frame)
+                                      seed=self.settings.seed, report_frame=self.settings.base_frame,
+                                      controller_clock=egm_controller_clock)
         line = self.settings.line
         self.line_rng = np.random.default_rng(line.seed if line.seed is not None else self.settings.seed)
         self.line_on = False  #: whether moves are stamped (LSTART .. LSTOP)
@@ -285,10 +287,13 @@ def start_simulator(
     cell: "SimulatedCell | None" = None,
     egm_source: PoseSource | None = None,
     egm_clock: Callable[[], float] | None = None,
+    egm_controller_clock=None,
 ) -> SimulatorServer:
     """Start a simulated IRB 2400 controller on the settings' transport; returns the
-    running server (its ``url`` is the driver's port). ``egm_source`` and ``egm_clock``:
-    the EGM stream's pose source and simulated clock (:mod:`.egm_sim`)."""
+    running server (its ``url`` is the driver's port). ``egm_source``, ``egm_clock`` and
+    ``egm_controller_clock``: the EGM stream's pose source, simulated clock and the
+    controller's clock (:mod:`.egm_sim`)."""
     settings = settings or SimulatedControllerSettings()
-    controller = SimulatedIrb2400(kinematics, settings, cell, egm_source=egm_source, egm_clock=egm_clock)
+    controller = SimulatedIrb2400(kinematics, settings, cell, egm_source=egm_source, egm_clock=egm_clock,
+                                  egm_controller_clock=egm_controller_clock)
     return SimulatorServer(controller, settings.transport).start()
