@@ -20,13 +20,13 @@ from pydantic import BaseModel
 from spherecal.core.errors import DeviceError
 from spherecal.core.field_of_view import SensorBody, SensorFieldOfView
 from spherecal.core.models import Pose, Profile
-from spherecal.core.streams import ProfileStream
 from spherecal.devices.pose_streaming import (PoseStreamClockError, PoseStreamCounts, PoseStreamError,
                                               PoseStreamingRobot, PoseStreamStalled)
 from spherecal.io.runlog import progress_log
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.kinematics import ArmKinematics
+    from spherecal.core.streams import ProfileStream  # (not loaded by a dataset's solve)
 
 __all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "PoseStreamClockError",
            "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot", "ProfileStreamCounts",

@@ -8,7 +8,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from spherecal.plugins import (BASE_DIR_CONTEXT_KEY, PROGRAMMED_LINE_ASSUMPTION, InputError, LineLinkSettings, Pose,
+from spherecal.plugins import (BASE_DIR_CONTEXT_KEY, InputError, LineLinkSettings, Pose,
                                Vec3)
 from spherecal.plugins import SimulatedControllerSettings as CoreSimulatedControllerSettings
 from spherecal.plugins import WorkspaceBox as CoreWorkspaceBox
@@ -128,6 +128,8 @@ class ProgrammedLineSettings(BaseModel):
 
     def assumption(self) -> str:
         """What the computed poses assume, for the stream and the result."""
+        from spherecal.plugins import PROGRAMMED_LINE_ASSUMPTION  # (the streams' model: loaded when streaming)
+
         return (f"{PROGRAMMED_LINE_ASSUMPTION} (timed from a stamp {self.stamp_distance_mm:g} mm along each move; "
                 f"trapezoidal speed, {self.acceleration_mm_s2:g} mm/s^2 assumed on the ramps, marked +-"
                 f"{self.ramp_margin_s:g} s; path error at speed assumed within {self.path_error_mm:g} mm)")

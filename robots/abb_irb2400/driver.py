@@ -57,19 +57,23 @@ not measured, which the stream's ``assumption`` says.
 
 from __future__ import annotations
 
-from typing import Callable
+from dataclasses import replace
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from spherecal.plugins import MIN_SPEED_MM_S  # noqa: F401 - re-exported
-from spherecal.plugins import (DeviceError, LineRobot, Pose, PoseStream, PoseStreamCounts, PoseStreamError,
-                               initial_seq, rotation_angle_deg)
+from spherecal.plugins import (DeviceError, LineRobot, Pose, PoseStreamCounts, PoseStreamError, initial_seq,
+                               rotation_angle_deg)
 from spherecal.plugins import line_protocol as lineproto
 
 from . import protocol as SP
 from .config import AbbIrb2400Config, EgmSettings
 from .kinematics import CalibratedIrb2400Kinematics, Irb2400Kinematics
 from .line_stream import ProgrammedLineStreaming
+
+if TYPE_CHECKING:  # pragma: no cover - the streams' model is loaded when a stream is taken
+    from spherecal.plugins import PoseStream
 
 
 def _initial_seq() -> int:
@@ -299,8 +303,8 @@ class AbbIrb2400Robot(ProgrammedLineStreaming, LineRobot):
                                   "joints here (a calibrated model, or pose_source = 'joints')", None,
                                   self._egm_counts)
         poses = [self.kin.flange_pose_from_joints(q, check_limits=False) for q in stream.joints_deg]
-        return PoseStream(stream.t_robot_s, np.array([p.rotation_matrix for p in poses]),
-                          np.array([p.translation for p in poses]), stream.joints_deg, stream.seq, stream.sweep)
+        return replace(stream, R=np.array([p.rotation_matrix for p in poses]),
+                       t_mm=np.array([p.translation for p in poses]))
 
     def close(self) -> None:
         """Stop a running pose stream (best effort), then close the link."""

@@ -14,11 +14,16 @@ stamped. A stamp that fails ends the stream's data there: later moves are not us
 
 from __future__ import annotations
 
-from spherecal.plugins import DeviceError, Pose, PoseStream, PoseStreamClockError, PoseStreamCounts, PoseStreamError
+from typing import TYPE_CHECKING
+
+from spherecal.plugins import DeviceError, Pose, PoseStreamClockError, PoseStreamCounts, PoseStreamError
 
 from . import protocol as SP
 from .config import ProgrammedLineSettings
 from .programmed_line import ProgrammedMove, check_move_stamps, programmed_line_stream
+
+if TYPE_CHECKING:  # pragma: no cover - the streams' model is loaded when a stream is taken
+    from spherecal.plugins import PoseStream
 
 __all__ = ["ProgrammedLineStreaming"]
 

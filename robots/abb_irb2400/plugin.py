@@ -20,14 +20,18 @@ keeps the nominal model, as a real one does.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from spherecal.plugins import DeviceContext, Pose, RobotType, hookimpl
 
 from .config import AbbIrb2400Config
-from .driver import AbbIrb2400Robot
 from .export import RAPID_EXPORTER
 from .kinematics import Irb2400Kinematics, kinematics_for
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .driver import AbbIrb2400Robot
 
 NAME = "abb_irb2400"
 DESCRIPTION = (
@@ -75,6 +79,8 @@ def create_robot(config: AbbIrb2400Config, context: DeviceContext) -> AbbIrb2400
     ``config.port``, or on a freshly started simulated controller when ``context.cell``
     is set (``context.extras`` may give its EGM stream a pose source and a clock:
     :data:`POSE_STREAM_SOURCE_KEY`, :data:`SIM_CLOCK_KEY`, :data:`SIM_CONTROLLER_CLOCK_KEY`)."""
+    from .driver import AbbIrb2400Robot  # (loaded when a robot is opened: a solve needs the type alone)
+
     kin = kinematics_of(config)
     tool = context.tool_point_mm
     if context.cell is None:

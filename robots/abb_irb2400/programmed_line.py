@@ -34,9 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spherecal.plugins import Pose, PoseStream, PoseStreamClockError, matrix_from_rotvec, rotvec_from_matrix
+from typing import TYPE_CHECKING
+
+from spherecal.plugins import Pose, PoseStreamClockError, matrix_from_rotvec, rotvec_from_matrix
 
 from .config import ProgrammedLineSettings
+
+if TYPE_CHECKING:  # pragma: no cover - the streams' model is loaded when a stream is computed
+    from spherecal.plugins import PoseStream
 
 __all__ = ["ProgrammedMove", "check_move_stamps", "line_fraction", "motion_duration_s", "programmed_line_stream",
            "time_at_distance_s"]
@@ -207,4 +212,6 @@ def programmed_line_stream(moves: list[ProgrammedMove], settings: ProgrammedLine
             ramp |= (every >= -margin) & (every <= tm.total + margin)
         ramp |= ((every >= -margin) & (every <= tm.up_end + margin)) | ((every >= tm.down_start - margin)
                                                                         & (every <= tm.total + margin))
+    from spherecal.plugins import PoseStream
+
     return PoseStream(stamps, R, t, on_ramp=ramp, assumption=settings.assumption())
