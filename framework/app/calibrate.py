@@ -253,6 +253,8 @@ def _journal_provenance(run: _Calibration, digest: str, cell) -> dict:
         "sensor": cfg.sensor["type"],
         "simulated": cell is not None,
     }
+    if run.fov is not None:  # the sensor's field of view: screening names profiles it clipped
+        provenance["fov"] = run.fov.model_dump()
     if cell is not None:
         provenance.update(
             true_transform_name=cell.transform_name,
