@@ -540,8 +540,9 @@ class PluginHost:
     # devices ---------------------------------------------------------------------------
     def create_robot(self, section: Mapping[str, Any], context: DeviceContext | None = None,
                      path: str = "robot", base_dir=None) -> Robot:
-        """Validate ``section`` (``{"type": "abb_irb2400", ...settings}``) and call the
-        robot type's factory with the validated config and ``context``.
+        """Validate ``section`` (``{"type": "abb_irb2400", ...settings}``; ``base_dir`` as for
+        :meth:`validate_robot_config`) and call the robot type's factory with the validated
+        config and ``context``.
 
         :raises ConfigError: unknown type or invalid settings.
         :raises DeviceError: (and other spherecal errors) as the factory raised them.
@@ -554,10 +555,11 @@ class PluginHost:
         return self._make("robot", rt, config, context, Robot)
 
     def create_sensor(self, section: Mapping[str, Any], context: DeviceContext | None = None,
-                      path: str = "sensor") -> Sensor:
-        """The sensor twin of :meth:`create_robot`."""
+                      path: str = "sensor", base_dir=None) -> Sensor:
+        """The sensor twin of :meth:`create_robot` (``base_dir``: the configuration file's
+        folder, for the model's validators to resolve relative paths against; None: not known)."""
         type_name = self._type_of("sensor", section, path)
-        config = self.validate_sensor_config(type_name, section, path)
+        config = self.validate_sensor_config(type_name, section, path, base_dir)
         st = self.registry.sensor_type(type_name)
         return self._make("sensor", st, config, context, Sensor)
 
