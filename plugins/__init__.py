@@ -23,7 +23,9 @@ modules behind these names may move between releases, these names stay. What it 
   workspace box, reach along the path, the first move from where the arm stands, the
   controller's frame), :class:`MotionLimits`, :class:`FrameOffset`;
 - kinematics: :class:`ArmKinematics`, :class:`SerialChain`, the URDF chain
-  (:func:`read_urdf_chain`, :func:`chain_from_urdf`, :func:`chain_inverse_kinematics`)
+  (:func:`read_urdf_chain`, :func:`chain_from_urdf`, :func:`chain_inverse_kinematics`),
+  where inverse kinematics starts when no joints are known (:func:`ik_seeds_deg`,
+  :func:`joints_from_home`: the home a robot type declares)
   and the rotation helpers (:func:`matrix_from_rotvec`, ...);
 - the spherecal line protocol, both ends: :mod:`line_protocol` (the module), the PC side
   (:class:`LineRobot`, :class:`LineLinkSettings`, :class:`TcpLink`) and the simulated
@@ -138,6 +140,8 @@ _WHERE = {
     "ArmKinematics": "spherecal.core.kinematics",
     "SerialChain": "spherecal.core.kinematics",
     "chain_reach_mm": "spherecal.core.kinematics",
+    "ik_seeds_deg": "spherecal.core.kinematics",
+    "joints_from_home": "spherecal.core.kinematics",
     "IkNotConverged": "spherecal.core.urdf",
     "UrdfChain": "spherecal.core.urdf",
     "chain_from_urdf": "spherecal.core.urdf",

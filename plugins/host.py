@@ -41,11 +41,13 @@ from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Iterable, Literal, Mapping, Sequence
 
+import numpy as np
 import pluggy
 from pydantic import BaseModel, ValidationError
 from pydantic_core import PydanticUndefined
 
-from spherecal.core.errors import ConfigError, PluginError, SpherecalError
+from spherecal.core.errors import ConfigError, InputError, PluginError, SpherecalError
+from spherecal.core.kinematics import ArmWithHome, declared_home_joints_deg
 from spherecal.core.validation_errors import location_text, validation_error_lines
 from spherecal.devices.contract import DeviceContext, Robot, Sensor
 from spherecal.io.exporters import Exporter, ExportPlan, SelectedExporter
@@ -538,8 +540,9 @@ class PluginHost:
     # devices ---------------------------------------------------------------------------
     def create_robot(self, section: Mapping[str, Any], context: DeviceContext | None = None,
                      path: str = "robot", base_dir=None) -> Robot:
-        """Validate ``section`` (``{"type": "abb_irb2400", ...settings}``) and call the
-        robot type's factory with the validated config and ``context``.
+        """Validate ``section`` (``{"type": "abb_irb2400", ...settings}``; ``base_dir`` as for
+        :meth:`validate_robot_config`) and call the robot type's factory with the validated
+        config and ``context``.
 
         :raises ConfigError: unknown type or invalid settings.
         :raises DeviceError: (and other spherecal errors) as the factory raised them.
@@ -552,10 +555,11 @@ class PluginHost:
         return self._make("robot", rt, config, context, Robot)
 
     def create_sensor(self, section: Mapping[str, Any], context: DeviceContext | None = None,
-                      path: str = "sensor") -> Sensor:
-        """The sensor twin of :meth:`create_robot`."""
+                      path: str = "sensor", base_dir=None) -> Sensor:
+        """The sensor twin of :meth:`create_robot` (``base_dir``: the configuration file's
+        folder, for the model's validators to resolve relative paths against; None: not known)."""
         type_name = self._type_of("sensor", section, path)
-        config = self.validate_sensor_config(type_name, section, path)
+        config = self.validate_sensor_config(type_name, section, path, base_dir)
         st = self.registry.sensor_type(type_name)
         return self._make("sensor", st, config, context, Sensor)
 
@@ -599,11 +603,25 @@ class PluginHost:
     def arm_kinematics(self, section: Mapping[str, Any], path: str = "robot", base_dir=None):
         """The configured robot's :class:`~spherecal.core.kinematics.ArmKinematics` (its
         nominal geometry, inverse kinematics and joint convention), or None when the
-        robot type does not describe its arm."""
+        robot type does not describe its arm. When the type declares a home
+        (:attr:`~spherecal.devices.contract.RobotType.home_joints_deg`) the arm carries it
+        as ``home_joints_deg``."""
         type_name = self._type_of("robot", section, path)
         config = self.validate_robot_config(type_name, section, path, base_dir)
-        describe = self.registry.robot_type(type_name).arm_kinematics
-        return None if describe is None else describe(config)
+        rtype = self.registry.robot_type(type_name)
+        if rtype.arm_kinematics is None:
+            return None
+        arm = rtype.arm_kinematics(config)
+        home = rtype.home_joints_deg(config) if callable(rtype.home_joints_deg) else rtype.home_joints_deg
+        if home is None or arm is None:
+            return arm
+        try:
+            if np.array_equal(declared_home_joints_deg(arm), np.asarray(home, dtype=float)):
+                return arm  # the arm carries its home already
+            return ArmWithHome(arm, home)
+        except InputError as exc:
+            raise PluginError(f"plugin '{self.registry.provider('robot', type_name)}': robot type "
+                              f"'{type_name}' declares {exc}") from None
 
     # exporters -------------------------------------------------------------------------
     def export_plan(self, section: Mapping[str, Any] | BaseModel | None, mounting: str, robot_type: str | None,

@@ -128,7 +128,7 @@ def _prepare(loaded: LoadedConfig, out: Path, log: Callable[[str], None]) -> _Ca
     cfg = loaded.config
     fk = in_file(loaded, host.robot_kinematics, cfg.robot, base_dir=loaded.path.parent)
     arm = robot_arm(loaded, host)
-    in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor)
+    in_file(loaded, host.validate_sensor_config, cfg.sensor["type"], cfg.sensor, base_dir=loaded.path.parent)
     keep_out = None
     if cfg.replay is None and cfg.acquisition.mode != "manual":
         keep_out = in_file(loaded, keep_out_for, cfg, host, cfg.nominal_transform.pose(), CALIBRATION_KEEP_OUT_FIX, log,
@@ -263,6 +263,8 @@ def _journal_provenance(run: _Calibration, digest: str, cell) -> dict:
         "sensor": cfg.sensor["type"],
         "simulated": cell is not None,
     }
+    if run.fov is not None:  # the sensor's field of view: screening names profiles it clipped
+        provenance["fov"] = run.fov.model_dump()
     if cell is not None:
         provenance.update(
             true_transform_name=cell.transform_name,

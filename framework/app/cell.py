@@ -48,7 +48,7 @@ def for_sensor(cfg: RunConfig, field_of_view: SensorFieldOfView | None) -> RunCo
     update = {}
     acq = cfg.acquisition
     if acq is not None:
-        sweep = with_standoff(acq.sweep, field_of_view)
+        sweep = with_standoff(acq.sweep, field_of_view, cfg.sphere.radius_mm)
         if sweep is not acq.sweep:
             update["acquisition"] = acq.model_copy(update={"sweep": sweep})
     if cfg.scan is not None and cfg.scan.standoff_z_mm is None:

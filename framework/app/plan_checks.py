@@ -142,7 +142,7 @@ def keep_out_for(cfg, host, transform, fixes: tuple[str, str], log: Callable[[st
 def check_identification_from_here(robot, targets, cfg, arm, planned, log: Callable[[str], None]) -> None:
     """With ``identify_kinematics``, once the robot is connected: the plan check again,
     with the joints the arm will take from where it stands (the check before connecting
-    assumed zero joints; an arm that starts in another wrist or elbow configuration keeps
+    started from the arm's home; an arm that starts in another wrist or elbow configuration keeps
     it, and sees the arm's geometry from other joints). Raises before anything moves when
     the plan no longer identifies the arm from here."""
     if not cfg.calibration.identify_kinematics or arm is None:

@@ -75,7 +75,7 @@ def open_devices(loaded: LoadedConfig, host: PluginHost, cell: SimulatedCell | N
     context = DeviceContext(cell=cell, log=log, extras=extras, tool_point_mm=tool_point_mm(cfg))
     robot = in_file(loaded, host.create_robot, cfg.robot, context, base_dir=loaded.path.parent)
     try:
-        sensor = in_file(loaded, host.create_sensor, cfg.sensor, context)
+        sensor = in_file(loaded, host.create_sensor, cfg.sensor, context, base_dir=loaded.path.parent)
     except BaseException:
         robot.close()
         raise

@@ -28,6 +28,7 @@ from spherecal.io import files as safeio
 from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import Progress
 from spherecal.motion.validation import evaluate, measure, plan_validation, position_rows
+from spherecal.motion.planning import sphere_standoff_z_mm
 from spherecal.report.assess import Verdict, verdict
 from spherecal.report.html import write_report_version
 from spherecal.report.validation_advice import validation_verdict
@@ -82,7 +83,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                                record)
     outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured, shot_noise(cfg, result))
     if fov is not None:
-        outcome.line_width_mm = float(fov.width_at_mm(fov.sweep_standoff_z_mm))
+        outcome.line_width_mm = float(fov.width_at_mm(sphere_standoff_z_mm(fov, cfg.sphere.radius_mm)))
     own = verdict(result) if result is not None else Verdict(
         "green", "A transform spherecal did not compute: only its validation is graded.")
     outcome.verdict, outcome.cause = validation_verdict(own, outcome.table(), result)

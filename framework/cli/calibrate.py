@@ -16,7 +16,7 @@ from spherecal.cli.session import Session, ask
 from spherecal.config import load_config
 from spherecal.core.errors import ConfigError
 from spherecal.io.runlog import progress_log
-from spherecal.report.terminal import truth_check
+from spherecal.report.terminal import truth_check, truth_errors
 
 _log = logging.getLogger("spherecal.cli")
 
@@ -50,10 +50,12 @@ def run(args, session: Session) -> int:
     session.summary.update(result_json(outcome.solution.result, outcome.verdict, outcome.exports_written))
     if outcome.acquisition is not None:
         session.summary["acquisition"] = outcome.acquisition
+    session.summary["simulated_truth"] = None
     if outcome.files.get("journal") is not None:
         check = truth_check(outcome.solution, outcome.dataset)
         if check:
             session.say(check)
+            session.summary["simulated_truth"] = truth_errors(outcome.solution, outcome.dataset)
     if loaded.config.validation is not None and outcome.verdict.level != "red":
         folder = f" -o {quote(str(args.out))}" if args.out else ""  # (the run validate is to check)
         session.say(f"acceptance test: spherecal validate {quote(str(args.config))}{folder} (its figures then join "

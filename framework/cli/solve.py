@@ -12,7 +12,7 @@ from spherecal.cli.session import Session
 from spherecal.core.errors import ConfigError
 from spherecal.io import dataset as dataio
 from spherecal.io.runlog import progress_log
-from spherecal.report.terminal import truth_check
+from spherecal.report.terminal import truth_check, truth_errors
 
 
 def run(args, session: Session) -> int:
@@ -46,6 +46,7 @@ def _finish(args, session: Session, out: Path, outcome) -> int:
     check = truth_check(outcome.solution, outcome.dataset)
     if check:
         session.say(check)
+    session.summary["simulated_truth"] = truth_errors(outcome.solution, outcome.dataset)
     return finish(session, out, outcome.verdict, outcome.exports_written, report=not args.no_report)
 
 

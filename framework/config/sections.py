@@ -91,7 +91,7 @@ class SweepPlan(Section):
     sweep_fraction: float = Field(0.8, gt=0, lt=1, description="sweep half-length as a fraction of the radius")
     standoff_z_mm: float | None = Field(
         None, description="sensor-frame z of the sphere centre, mm (default: the sensor's declared "
-        "field of view's standoff, SensorFieldOfView.sweep_standoff_z_mm)")
+        "field of view's standoff, else sized for the sphere's radius: spherecal.motion.planning.sphere_standoff_z_mm)")
     lateral_amplitude_mm: float | None = Field(
         None, ge=0, le=1000, description="y/z wander within a sweep, mm (default: LATERAL_AMPLITUDE_PERCENT of the "
         "sensor's measuring range, 4 mm in a 100 mm range)")

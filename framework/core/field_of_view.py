@@ -25,7 +25,8 @@ class SensorFieldOfView(BaseModel):
     width_far_mm: float = Field(gt=0, description="line width at the far end, mm, more than width_near_mm")
     n_columns: int = Field(640, ge=16, le=100_000, description="points across the full line (simulation)")
     standoff_z_mm: float | None = Field(
-        None, description="z of the sphere centre in a calibration sweep, mm (default: the middle of the range)")
+        None, description="z of the sphere centre in a calibration sweep, mm (default: sized for the configured "
+        "sphere, spherecal.motion.planning.sphere_standoff_z_mm; the middle of the range for a sphere of unknown size)")
 
     @model_validator(mode="after")
     def _a_fan(self):
@@ -47,7 +48,8 @@ class SensorFieldOfView(BaseModel):
 
     @property
     def sweep_standoff_z_mm(self) -> float:
-        """z of the sphere centre in a sweep (mm): ``standoff_z_mm``, else the middle."""
+        """z of the sphere centre in a sweep (mm): ``standoff_z_mm``, else the middle (for a
+        sphere of known radius the planner sizes it: :func:`spherecal.motion.planning.sphere_standoff_z_mm`)."""
         return self.middle_z_mm if self.standoff_z_mm is None else self.standoff_z_mm
 
     def width_at_mm(self, z_mm: float) -> float:

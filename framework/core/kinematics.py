@@ -22,6 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from spherecal.core.errors import InputError
 from spherecal.core.models import Pose
 
 
@@ -123,6 +124,86 @@ class ArmKinematics(Protocol):
     def joints_from_flange_pose(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
         """Controller joints (deg) that reach the pose, nearest the seed; raises an
         :class:`~spherecal.core.errors.InputError` when out of reach."""
+
+
+# --- where inverse kinematics starts when the arm's joints are not known -------------------
+#
+# Before a robot is connected (the kinematic planner, its check of a plan) and for a
+# simulated arm's first target there are no current joints to seed inverse kinematics
+# with. Zero joints are a poor seed on many arms: a KUKA's, a UR's, are the stretched
+# elbow there, a singularity from which a numerical solver converges to the wrong branch
+# or not at all. So the solve starts from the arm's home when its robot type declares one
+# (:attr:`spherecal.devices.contract.RobotType.home_joints_deg`, carried by the arm as
+# ``home_joints_deg``: an optional attribute of an ArmKinematics, controller convention,
+# deg), and from a few spread seeds after it.
+
+#: The spread seeds tried after the home (or after zero joints, for an arm that declares
+#: no home): this many joint sets drawn uniformly within +-:data:`FALLBACK_SEED_SPREAD_DEG`
+#: on every joint, controller convention (seeded: the same seeds every time).
+FALLBACK_SEED_DRAWS = 4
+FALLBACK_SEED_SPREAD_DEG = 120.0
+
+
+def declared_home_joints_deg(arm) -> np.ndarray | None:
+    """The home an arm's kinematics carry (``arm.home_joints_deg``, controller
+    convention, deg), or None when it declares none. Raises :class:`InputError` for a
+    home of the wrong length or with non-finite values."""
+    home = getattr(arm, "home_joints_deg", None)
+    if home is None:
+        return None
+    q = np.asarray(home, dtype=float).reshape(-1)
+    n = arm.chain.n_joints
+    if q.shape != (n,) or not np.all(np.isfinite(q)):
+        raise InputError(f"home_joints_deg: expected {n} finite joint values in degrees (the arm's joints), got "
+                         f"{np.asarray(home).tolist()}")
+    return q
+
+
+def ik_seeds_deg(arm) -> list[np.ndarray]:
+    """The joints (controller convention, deg) inverse kinematics is seeded at, in turn,
+    when the arm's own joints are not known: the declared home
+    (:func:`declared_home_joints_deg`), or zero joints for an arm that declares none, then
+    :data:`FALLBACK_SEED_DRAWS` spread seeds."""
+    n = arm.chain.n_joints
+    home = declared_home_joints_deg(arm)
+    first = np.zeros(n) if home is None else home
+    spread = np.random.default_rng(0).uniform(-FALLBACK_SEED_SPREAD_DEG, FALLBACK_SEED_SPREAD_DEG,
+                                              (FALLBACK_SEED_DRAWS, n))
+    return [first, *spread]
+
+
+def joints_from_home(arm, base_from_flange: Pose) -> np.ndarray:
+    """Controller joints (deg) that reach ``base_from_flange`` when the arm's joints are
+    not known: the arm's inverse kinematics from each of :func:`ik_seeds_deg` in turn, the
+    first that reaches it. When none does, the error of the first seed (the home),
+    saying how many other seeds were tried."""
+    seeds = ik_seeds_deg(arm)
+    first: InputError | None = None
+    for seed in seeds:
+        try:
+            return arm.joints_from_flange_pose(base_from_flange, seed)
+        except InputError as exc:
+            first = first or exc
+    raise type(first)(f"{first} (nor from {len(seeds) - 1} other seeds spread over the joints)") from None
+
+
+class ArmWithHome:
+    """An arm's kinematics with the home its robot type declares
+    (:attr:`~spherecal.devices.contract.RobotType.home_joints_deg`): every attribute is the
+    arm's own, and ``home_joints_deg`` the declared home (controller convention, deg)."""
+
+    def __init__(self, arm, home_joints_deg):
+        self._arm = arm
+        self.home_joints_deg = tuple(float(v) for v in np.asarray(home_joints_deg, dtype=float).reshape(-1))
+        declared_home_joints_deg(self)  # the length and the values, checked once
+
+    def __getattr__(self, name: str):
+        if name == "_arm":  # not set yet (a copy being built): never recurse
+            raise AttributeError(name)
+        return getattr(self._arm, name)
+
+    def __repr__(self) -> str:
+        return f"ArmWithHome({self._arm!r}, home_joints_deg={list(self.home_joints_deg)})"
 
 
 # --- geometric error parameters ------------------------------------------------------------

@@ -415,7 +415,8 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 
 class IkNotConverged(InputError):
-    """Numerical inverse kinematics did not reach the pose to its tolerance."""
+    """Numerical inverse kinematics did not reach the pose to its tolerance from its seed
+    (the pose may still be reachable from another seed)."""
 
 
 def chain_inverse_kinematics(
@@ -449,8 +450,10 @@ def chain_inverse_kinematics(
         if not np.all(np.isfinite(step)):
             break
         q = q + step
+    seed_deg = np.round(np.degrees(np.asarray(seed_rad, dtype=float).reshape(-1)), 1).tolist()
     raise IkNotConverged(
-        f"inverse kinematics did not converge: {err_p:.3g} mm and {err_r:.3g} rad left after "
-        f"{max_iterations} iterations (tolerance {tol_mm:g} mm, {tol_rad:g} rad); the pose may be out of "
-        f"reach or at a singularity"
+        f"inverse kinematics did not converge from the seed {seed_deg} deg (model convention): {err_p:.3g} mm and "
+        f"{err_r:.3g} rad left after {max_iterations} iterations (tolerance {tol_mm:g} mm, {tol_rad:g} rad); the "
+        "pose may be out of reach, or reachable from another seed (a seed at a singularity, such as a stretched "
+        "elbow, converges badly)"
     )

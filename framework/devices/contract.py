@@ -12,7 +12,7 @@ objects of :mod:`spherecal.core.field_of_view`, re-exported here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 from pydantic import BaseModel
@@ -186,6 +186,15 @@ class RobotType:
     #: naming the field at fault when it is but is malformed. None: this robot type reads
     #: no such text.
     read_frame: Callable[[str], "ControllerFrame | None"] | None = None
+    #: The arm's home: the joints (controller convention, deg) where the core seeds inverse
+    #: kinematics when the arm's own joints are not known (the kinematic planner and its
+    #: check before the robot is connected, a simulated arm's first target, a simulated
+    #: controller that is given no start). A sequence, or ``home_joints_deg(config)``
+    #: returning one (or None). Choose joints in the working region away from
+    #: singularities (elbow and wrist bent). None: zero joints, then a few spread seeds
+    #: (:func:`~spherecal.core.kinematics.ik_seeds_deg`); an arm whose zero joints are a
+    #: singularity (a stretched elbow) should declare one.
+    home_joints_deg: "Sequence[float] | Callable[[BaseModel], Sequence[float] | None] | None" = None
     #: Another name for ``--controller-frame`` in the words of this controller's users
     #: (without the dashes: lower case letters, digits and ``-``, starting with a letter),
     #: which ``compare`` and ``validate`` then accept too; it needs :attr:`read_frame`.

@@ -88,12 +88,25 @@ class FrameOffset:
     """The controller's pose against a model's pose of the same joints
     (:meth:`MotionSafety.controller_frame_offset`): their distance (mm) and angle (deg),
     the joints (deg, controller convention) and ``controller_from_model`` (the
-    controller's pose times the inverse of the model's)."""
+    controller's pose times the inverse of the model's: a frame on the base's side);
+    ``model_from_controller`` the same difference on the flange's side (the inverse of
+    the model's pose times the controller's: the controller's flange frame in the model's,
+    ``tool0_from_controller_flange`` when that is what differs; None: not known)."""
 
     offset_mm: float
     angle_deg: float
     joints_deg: np.ndarray
     controller_from_model: Pose
+    model_from_controller: Pose | None = None
+
+    def flange_turn_deg(self, tolerance_mm: float) -> float | None:
+        """The angle (deg) by which the controller's flange frame is turned from the
+        model's when the difference is that alone (the flange-side difference moves the
+        origin by at most ``tolerance_mm``); else None."""
+        d = self.model_from_controller
+        if d is None or float(np.linalg.norm(d.translation)) > tolerance_mm:
+            return None
+        return float(np.degrees(np.linalg.norm(_rotvec(d.rotation_matrix))))
 
     def within(self, tolerance_mm: float, tolerance_deg: float) -> bool:
         return self.offset_mm <= tolerance_mm and self.angle_deg <= tolerance_deg
@@ -297,7 +310,7 @@ class MotionSafety:
         return FrameOffset(
             float(np.linalg.norm(reported.translation - model.translation)),
             float(np.degrees(np.linalg.norm(_rotvec(model.rotation_matrix.T @ reported.rotation_matrix)))),
-            joints, reported @ model.inverse())
+            joints, reported @ model.inverse(), model.inverse() @ reported)
 
     def check_controller_frame(self, kinematics, tolerance_mm: float, tolerance_deg: float,
                                advice: str | Callable[[FrameOffset], str] = "") -> FrameOffset:
@@ -310,6 +323,14 @@ class MotionSafety:
         if off.within(tolerance_mm, tolerance_deg):
             return off
         more = advice(off) if callable(advice) else advice
+        turn = off.flange_turn_deg(tolerance_mm)
+        if turn is not None:  # the origin agrees: the controller's flange frame is turned from the model's
+            d = off.model_from_controller
+            q = ", ".join(f"{round(v, 4) + 0.0:.4f}" for v in d.quaternion_wxyz)
+            more = (f"The flange's origin agrees: the controller's flange frame is the model's turned by {turn:.1f} "
+                    f"deg, model_from_controller = quaternion (w, x, y, z) [{q}] (a KUKA's $FLANGE has x out of the "
+                    "mounting face, spherecal's flange z): convert the controller's poses in the driver, "
+                    "docs/writing-a-robot-plugin.md \"A controller's own flange frame\". " + more).strip()
         raise DeviceError(
             f"{self.name}: the controller reports the flange {off.offset_mm:.1f} mm and {off.angle_deg:.2f} deg away "
             f"from where the model puts it at the joints it reports ({off.joints_text()} deg), beyond the tolerance "

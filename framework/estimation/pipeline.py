@@ -35,6 +35,7 @@ from spherecal.estimation.screening import (
     RejectionBudget, arcs_facing_away, copied_profiles, flag_shot, joints_against_poses, reject_inconsistent_shots,
     require_usable_stations, trim_stray_points, turned_hint, two_step_without_gross_outliers, unusable_profile_reason,
 )
+from spherecal.estimation.profile_artefacts import artefacts_note, name_profile_artefacts
 from spherecal.estimation.starts import settle_alternative_starts
 from spherecal.estimation.any_poses import (
     as_start, beside_the_linear_start, linear_start_beside, linear_start_of_rows, orientation_stations,
@@ -100,6 +101,14 @@ def solve(
         raise FitBreakdownError(
             f"the fit broke down ({exc}): the data fit no sphere seen through these poses. Check, most common "
             f"first: {BREAKDOWN_CAUSES}") from None
+    except DegenerateDataError as exc:
+        note = artefacts_note(dataset)
+        if note is None:
+            raise
+        raise type(exc)(f"{exc}; {note}") from None
+    flagged = name_profile_artefacts(solution.result.flagged, dataset)
+    if flagged != solution.result.flagged:
+        solution = replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
     nominal = options.nominal_transform if options is not None else None
     if nominal is None:
         return solution

@@ -41,7 +41,8 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.estimation.options import kinematic_effects
 from spherecal.estimation.refine import design_identifiability, plan_design
-from spherecal.core.kinematics import ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian
+from spherecal.core.kinematics import (ERROR_PARAMETERS_PER_JOINT, error_parameter_names, flange_error_jacobian,
+                                      joints_from_home)
 from spherecal.core.models import MountingMode, Pose
 from spherecal.motion.planning import SweepPlan, station_flange_poses, with_standoff
 
@@ -299,7 +300,7 @@ def plan_kinematic_stations(acq: AcquisitionConfig, calibration: CalibrationOpti
                                 [(0.0, 0.0)], ctx.R_ref)
     mid = R.shape[1] // 2
     try:
-        seed = arm.joints_from_flange_pose(Pose.from_rt(R[0, mid], t[0, mid]), None)
+        seed = joints_from_home(arm, Pose.from_rt(R[0, mid], t[0, mid]))
     except SpherecalError as exc:
         raise InputError(f"the kinematic planner: the reference station (acquisition.sphere_centre_mm seen at "
                          f"acquisition.reference_flange_quaternion_wxyz) is out of reach: {exc}; nothing was "
@@ -366,10 +367,12 @@ def _and(items: list[str]) -> str:
 
 def _sequential_joints(arm, poses, seed=None) -> np.ndarray:
     """Joints (deg) of flange poses taken in order, each solved from the last (as the
-    controller chooses them); raises the plugin's error for one out of reach."""
+    controller chooses them), the first from ``seed`` (None: from the arm's home,
+    :func:`~spherecal.core.kinematics.joints_from_home`); raises the plugin's error for
+    one out of reach."""
     out = []
     for p in poses:
-        seed = arm.joints_from_flange_pose(p, seed)
+        seed = joints_from_home(arm, p) if seed is None else arm.joints_from_flange_pose(p, seed)
         out.append(seed)
     return np.array(out)
 
@@ -408,7 +411,7 @@ def check_plan_identifies_kinematics(targets, acq: AcquisitionConfig, calibratio
     ``acquisition.sweep.tilts_deg``; with ``planned``, the planner's plan, how many more
     to ask the planner for); returns a one-line summary otherwise. The joints of the
     targets are those the arm takes reaching them in order from ``start_joints_deg``
-    (controller convention; default: zero joints, before the robot is connected; the
+    (controller convention; default: the arm's home, before the robot is connected; the
     arm's joints where it stands, once it is). The sections and ``robot_type`` are as
     for :func:`plan_kinematic_stations`."""
     if arm is None:

@@ -47,10 +47,40 @@ _NEEDS = {
 }
 
 
-def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None") -> SweepPlan:
+#: Where the range allows, a sweep puts the sphere where its diameter spans this share of
+#: the line's width: the rims inside the line with room for the stations' offsets, the
+#: line narrow enough that many of its points fall on the sphere.
+SPHERE_SHARE_OF_LINE = 0.8
+
+
+def sphere_standoff_z_mm(field_of_view: "SensorFieldOfView", sphere_radius_mm: float | None = None) -> float:
+    """z of the sphere centre in a calibration sweep (mm): the sensor's own
+    ``standoff_z_mm`` when it declares one; else, given the sphere's radius, the z where
+    the sphere's diameter spans :data:`SPHERE_SHARE_OF_LINE` of the line's width, kept
+    within the range so that every station's section stays in it (the stations' z offsets
+    and twice the wander below the centre, above the sphere's top); else the middle of
+    the range. A sphere too large for the range with those offsets gets the middle of
+    what is left."""
+    fov = field_of_view
+    if fov.standoff_z_mm is not None or sphere_radius_mm is None:
+        return float(fov.sweep_standoff_z_mm)
+    r, depth = float(sphere_radius_mm), fov.z_near_mm - fov.z_far_mm
+    below = -min(z for _, z in STATION_OFFSETS_PERCENT) + 2 * LATERAL_AMPLITUDE_PERCENT
+    above = max(z for _, z in STATION_OFFSETS_PERCENT) + 2 * LATERAL_AMPLITUDE_PERCENT
+    lowest, highest = fov.z_far_mm + below * depth / 100, fov.z_near_mm - r - above * depth / 100
+    if lowest > highest:
+        return float((lowest + highest) / 2)
+    width = 2.0 * r / SPHERE_SHARE_OF_LINE  # the line's width wanted: it grows linearly away from the sensor
+    z = fov.z_near_mm - (width - fov.width_near_mm) * depth / (fov.width_far_mm - fov.width_near_mm)
+    return float(min(max(z, lowest), highest))
+
+
+def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None",
+                  sphere_radius_mm: float | None = None) -> SweepPlan:
     """``plan`` fitted to the sensor: the settings it leaves to the sensor set from
     ``field_of_view``, each only where the plan does not give its own: the standoff
-    (:attr:`~spherecal.devices.contract.SensorFieldOfView.sweep_standoff_z_mm`), the stations'
+    (:func:`sphere_standoff_z_mm`: the sensor's own, else sized for a sphere of
+    ``sphere_radius_mm``, else the middle of the range), the stations'
     offsets (:data:`STATION_OFFSETS_PERCENT` of the line's width at the standoff and of
     the measuring range) and the wander (:data:`LATERAL_AMPLITUDE_PERCENT` of the range).
     :class:`ConfigError` naming the first setting missing when there is no field of view
@@ -63,7 +93,8 @@ def with_standoff(plan: SweepPlan, field_of_view: "SensorFieldOfView | None") ->
         name = missing[0]
         raise ConfigError(f"acquisition.sweep.{name}: not set, and the sensor type declares no field of view "
                           f"to take it from; set it ({_NEEDS[name]})")
-    standoff = plan.standoff_z_mm if plan.standoff_z_mm is not None else float(field_of_view.sweep_standoff_z_mm)
+    standoff = plan.standoff_z_mm if plan.standoff_z_mm is not None else sphere_standoff_z_mm(field_of_view,
+                                                                                               sphere_radius_mm)
     update = {"standoff_z_mm": standoff}
     if plan.station_offsets_mm is None:
         update["station_offsets_mm"] = [offset_in_field_of_view_mm(field_of_view, standoff, p)
@@ -176,8 +207,9 @@ def plan_stations(
     ``reference_flange_rotation`` (3x3, base_from_flange) defaults to flange pointing down.
     Station k is tilted by ``plan.tilts_deg[k]`` (about the sensor's axes, eye-in-hand, or
     the base's, eye-to-hand) and shifted by ``plan.station_offsets_mm`` (cycled). A plan
-    without ``standoff_z_mm`` takes the sensor's, from ``field_of_view`` (:func:`with_standoff`)."""
-    plan = with_standoff(plan or SweepPlan(), field_of_view)
+    without ``standoff_z_mm`` takes the sensor's, from ``field_of_view`` (:func:`with_standoff`,
+    for a sphere of ``radius_mm``)."""
+    plan = with_standoff(plan or SweepPlan(), field_of_view, radius_mm)
     offsets = [plan.station_offsets_mm[k % len(plan.station_offsets_mm)] for k in range(len(plan.tilts_deg))]
     R_ref = FLANGE_DOWN if reference_flange_rotation is None else geo.check_rotation_matrix(reference_flange_rotation)
     poses = _station_poses(mounting, nominal_transform, np.asarray(sphere_centre_mm, dtype=float), radius_mm, plan,

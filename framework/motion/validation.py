@@ -30,7 +30,7 @@ from spherecal.core.metrology import (
     sphere_spacing_error,
 )
 from spherecal.core.models import SPHERE_FRAME, MountingMode, Pose
-from spherecal.motion.planning import SweepPlan, plan_stations, site_offset_mm
+from spherecal.motion.planning import SweepPlan, plan_stations, site_offset_mm, sphere_standoff_z_mm
 
 if TYPE_CHECKING:  # pragma: no cover
     from spherecal.devices.contract import SensorFieldOfView
@@ -55,12 +55,13 @@ def _sweep(acq: AcquisitionConfig, mounting: MountingMode, X: Pose, label: str, 
         raise ConfigError(f"sensor type {sensor_type!r} declares no field of view: validation plans its "
                           "sweeps in it (give it in the sensor plugin, or [simulation.fov] for a simulated run)")
     # a sphere's centre at the sensor's sweep standoff, a flat's surface in the middle of the range
-    standoff = field_of_view.sweep_standoff_z_mm if kind != "flat" else field_of_view.middle_z_mm
+    radius_mm = half_length_mm / 0.9  # the sphere's or the ball's (swept over 0.9 of it)
+    standoff = sphere_standoff_z_mm(field_of_view, radius_mm) if kind != "flat" else field_of_view.middle_z_mm
     offset = site_offset_mm(site.offset_mm, site.offset_percent, field_of_view, standoff, f"validation ({label})")
     plan = SweepPlan(profiles_per_station=n, sweep_fraction=0.9, lateral_amplitude_mm=0.0,
                      standoff_z_mm=standoff,
                      station_offsets_mm=[offset], tilts_deg=[site.tilt_deg])
-    (_, poses), = plan_stations(mounting, X, centre, half_length_mm / 0.9, plan, R_ref)
+    (_, poses), = plan_stations(mounting, X, centre, radius_mm, plan, R_ref)
     return Sweep(label, kind, targets_from_poses(poses, label, first_index, acq.approach_speed_mm_s, acq.speed_mm_s))
 
 

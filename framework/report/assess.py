@@ -423,7 +423,10 @@ def inconsistent_stations(result: CalibrationResult, thresholds: Thresholds | No
     }
 
 
-_FLAG_CAUSES = [
+_FLAG_CAUSES = [  # the sensor's artefacts first: they are named in place of the generic causes
+    ("profile is clipped", "profiles clipped at the edge of the sensor's field of view", "keep the sphere inside "
+     "the field of view (acquisition.sweep); a sensor should leave out points beyond its range, not hold them"),
+    ("coarsely quantised", "depths on a coarse grid", "report depths at the sensor's full resolution"),
     ("inconsistent", "pose read at the wrong moment or paired with the wrong profile",
      "read the pose only after the robot has stopped (RAPID: a fine point and WaitRob \\InPos before CRobT) "
      "and check that no reading was lost or repeated in the sequence"),

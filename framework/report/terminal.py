@@ -254,22 +254,43 @@ def deciding_reason(v: Verdict) -> tuple[str, str]:
     return next((lvl, text) for lvl, text in v.reasons if lvl == v.level)
 
 
-def truth_check(solution: Solution, dataset: Dataset) -> str | None:
-    """For simulated data: the error against the cell's true transform."""
+def truth_errors(solution: Solution, dataset: Dataset) -> dict | None:
+    """For simulated data (the dataset's provenance holds the cell's ``true_transform``):
+    the result's error against it, ``rotation_error_deg`` (the angle between the two
+    rotations) and ``translation_error_mm``, the true transform (``true_translation_mm``,
+    ``true_quaternion_wxyz``, w first) and, for a recording with a true clock,
+    ``clock_offset_error_ms``, its ``_sd`` and ``true_clock_offset_ms`` (and
+    ``drift_error_ppm``, ``true_drift_ppm``); None for other data."""
     prov = dataset.provenance
     if "true_transform" not in prov:
         return None
     true = Pose.model_validate(prov["true_transform"])
     X = solution.result.transform
-    rot = geo.rotation_angle_deg(true.rotation_matrix, X.rotation_matrix)
-    dt = float(np.linalg.norm(true.translation - X.translation))
-    text = f"simulated truth: error {rot:.4f} deg, {dt:.4f} mm"
+    out = {"rotation_error_deg": geo.rotation_angle_deg(true.rotation_matrix, X.rotation_matrix),
+           "translation_error_mm": float(np.linalg.norm(true.translation - X.translation)),
+           "true_translation_mm": list(true.translation_mm), "true_quaternion_wxyz": list(true.quaternion_wxyz)}
     timing = solution.result.timing
     if timing is not None and "true_offset_s" in prov:
-        e_off = timing.offset_ms - 1e3 * float(prov["true_offset_s"])
-        text += (f"; clock offset error {e_off:+.4f} ms ({e_off / max(timing.offset_std_ms, 1e-12):+.1f} sd, true "
-                 f"{1e3 * float(prov['true_offset_s']):.4f} ms)")
+        true_ms = 1e3 * float(prov["true_offset_s"])
+        e_off = timing.offset_ms - true_ms
+        out.update(clock_offset_error_ms=e_off, clock_offset_error_sd=e_off / max(timing.offset_std_ms, 1e-12),
+                   true_clock_offset_ms=true_ms)
         if "true_drift" in prov:
-            e_drift = timing.drift_ppm - 1e6 * float(prov["true_drift"])
-            text += f", drift error {e_drift:+.3f} ppm (true {1e6 * float(prov['true_drift']):.3f} ppm)"
+            true_ppm = 1e6 * float(prov["true_drift"])
+            out.update(drift_error_ppm=timing.drift_ppm - true_ppm, true_drift_ppm=true_ppm)
+    return out
+
+
+def truth_check(solution: Solution, dataset: Dataset) -> str | None:
+    """For simulated data: the error against the cell's true transform
+    (:func:`truth_errors`), as the terminal prints it."""
+    e = truth_errors(solution, dataset)
+    if e is None:
+        return None
+    text = f"simulated truth: error {e['rotation_error_deg']:.4f} deg, {e['translation_error_mm']:.4f} mm"
+    if "clock_offset_error_ms" in e:
+        text += (f"; clock offset error {e['clock_offset_error_ms']:+.4f} ms ({e['clock_offset_error_sd']:+.1f} sd, "
+                 f"true {e['true_clock_offset_ms']:.4f} ms)")
+        if "drift_error_ppm" in e:
+            text += f", drift error {e['drift_error_ppm']:+.3f} ppm (true {e['true_drift_ppm']:.3f} ppm)"
     return text

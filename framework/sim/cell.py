@@ -421,14 +421,15 @@ LAYOUT_SHRINK = (1.0, 0.9, 0.8, 0.7, 0.6)
 
 def _reaches_default_plan(arm, cell: "SimulatedCell") -> bool:
     """Whether the arm's inverse kinematics reaches every target of the default plan on
-    ``cell``, each from the last one's joints (the first from a few seeds)."""
+    ``cell``, each from the last one's joints (the first from each of the seeds of
+    :func:`~spherecal.core.kinematics.ik_seeds_deg`: the arm's home first)."""
     from spherecal.core.errors import InputError
+    from spherecal.core.kinematics import ik_seeds_deg
     from spherecal.motion.planning import plan_stations
 
     targets = [p for _, poses in plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm,
                                               cell.sphere_radius_mm, field_of_view=cell.fov) for p in poses]
-    n = arm.chain.n_joints
-    for seed in [None, *np.random.default_rng(0).uniform(-120.0, 120.0, (4, n))]:
+    for seed in ik_seeds_deg(arm):
         try:
             q = seed
             for pose in targets:

@@ -57,6 +57,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.devices import line_protocol as P
 from spherecal.core.errors import DeviceError, InputError
+from spherecal.core.kinematics import declared_home_joints_deg
 from spherecal.core.models import Pose
 from spherecal.sim.settings import SimulatedControllerSettings
 from spherecal.sim.timeline import MotionTimeline, SimClock
@@ -87,7 +88,10 @@ class SimulatedController:
         self.n_joints = int(n_joints)
         self.rng = np.random.default_rng(self.settings.seed)
         home = self.settings.home_joints_deg
-        home = np.zeros(self.n_joints) if home is None else np.asarray(home, dtype=float)
+        if home is None:  # the arm's declared home, else zero joints
+            declared = declared_home_joints_deg(kinematics) if hasattr(kinematics, "chain") else None
+            home = np.zeros(self.n_joints) if declared is None else declared
+        home = np.asarray(home, dtype=float)
         if home.shape != (self.n_joints,):
             raise InputError(f"simulated.home_joints_deg: expected {self.n_joints} joint values, got {home.size}")
         self.joints_deg = self.kin.check_joint_limits(home, "home_joints_deg")

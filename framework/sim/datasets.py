@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from spherecal.core import geometry as geo
 from spherecal.core.models import Circle, Dataset, Observation, Pose, Profile
-from spherecal.motion.planning import FLANGE_DOWN, SweepPlan, plan_stations, with_standoff
+from spherecal.motion.planning import FLANGE_DOWN, SweepPlan, plan_stations, sphere_standoff_z_mm, with_standoff
 from spherecal.sim.cell import SimulatedCell
 
 
@@ -36,7 +36,7 @@ def simulate_dataset(
     """Run a simulated acquisition on ``cell`` and return the dataset (reported poses,
     noisy profiles). The truth goes into ``provenance``. Shots that see fewer than
     ``min_points`` points are skipped, as an acquisition would."""
-    plan = with_standoff(plan or SweepPlan(), cell.fov)
+    plan = with_standoff(plan or SweepPlan(), cell.fov, cell.sphere_radius_mm)
     stations = plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
     )
@@ -111,7 +111,7 @@ def simulate_centre_dataset(
     skipped. The truth goes into ``provenance``."""
     if kind not in ("sphere_centre", "circle"):
         raise ValueError(f"kind must be 'sphere_centre' or 'circle', got {kind!r}")
-    plan = with_standoff(plan or SweepPlan(), cell.fov)
+    plan = with_standoff(plan or SweepPlan(), cell.fov, cell.sphere_radius_mm)
     stations = plan_stations(
         cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan, reference_flange_rotation
     )
@@ -173,7 +173,7 @@ def general_pose_targets(cell: SimulatedCell, n_shots: int, max_tilt_deg: float 
     one station each. ``seed`` draws the plan (not the cell's noise)."""
     rng = np.random.default_rng([seed, 0x6E4])
     fov, r, X = cell.fov, cell.sphere_radius_mm, cell.true_transform
-    standoff = fov.sweep_standoff_z_mm
+    standoff = sphere_standoff_z_mm(fov, r)
     depth = fov.z_near_mm - fov.z_far_mm
     width = fov.width_at_mm(standoff)
     centre = cell.sphere_centre_mm

@@ -20,7 +20,7 @@ import numpy as np
 
 from spherecal.config import RobotErrorModel
 from spherecal.core import geometry as geo
-from spherecal.core.kinematics import ArmKinematics, SerialChain
+from spherecal.core.kinematics import ArmKinematics, SerialChain, joints_from_home
 from spherecal.core.models import Pose
 
 
@@ -125,7 +125,11 @@ class SimulatedArm:
         return self.true_chain.flange_matrices(q)
 
     def joints_for(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
-        """The joints the controller chooses for a target (nominal inverse kinematics)."""
+        """The joints the controller chooses for a target (nominal inverse kinematics),
+        nearest ``seed_joints_deg`` (None: from the arm's home,
+        :func:`~spherecal.core.kinematics.joints_from_home`)."""
+        if seed_joints_deg is None:
+            return joints_from_home(self.kinematics, base_from_flange)
         return self.kinematics.joints_from_flange_pose(base_from_flange, seed_joints_deg)
 
     def flange_error(self, joints_deg) -> tuple[float, float]:

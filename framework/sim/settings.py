@@ -48,7 +48,8 @@ class SimulatedControllerSettings(BaseModel):
     max_controller_speed_mm_s: float = Field(7000.0, gt=0, le=100_000,
                                              description="the controller's own TCP speed limit, mm/s")
     home_joints_deg: tuple[float, ...] | None = Field(
-        None, description="joints at start-up, controller convention, deg (None: all zero)"
+        None, description="joints at start-up, controller convention, deg (None: the arm's home when its robot type "
+        "declares one, else all zero)"
     )
     seed: int | None = Field(0, ge=0, le=2**63 - 1, description="seed of the simulator's noise generator (None: random)")
     base_frame: Pose | None = Field(

@@ -85,7 +85,7 @@ def plan_segments(cell: SimulatedCell, plan: SweepPlan | None = None, otf: OnThe
     true time (a standstill of ``lead_in_s`` first) and its sweeps. ``plan`` gives the
     stations (orientation, and where in the field of view the sphere crosses the laser
     plane: ``station_offsets_mm`` at ``standoff_z_mm``), ``otf`` the sweeps at each."""
-    plan = with_standoff(plan or SweepPlan(), cell.fov)
+    plan = with_standoff(plan or SweepPlan(), cell.fov, cell.sphere_radius_mm)
     otf = otf or OnTheFlyPlan()
     stations = plan_stations(cell.mounting, cell.true_transform, cell.sphere_centre_mm, cell.sphere_radius_mm, plan)
     if otf.stations is not None:
@@ -315,7 +315,7 @@ def simulate_recording_with_truth(cell: SimulatedCell, plan: OnTheFlyPlan | None
     """:func:`simulate_recording` and what the simulator knows beyond it (:class:`StreamTruth`)."""
     plan = plan or OnTheFlyPlan()
     settings = settings or StreamSimSettings()
-    stations = with_standoff(stations or SweepPlan(), cell.fov)
+    stations = with_standoff(stations or SweepPlan(), cell.fov, cell.sphere_radius_mm)
     segments, sweeps = plan_segments(cell, stations, plan, settings.lead_in_s)
     motion = MotionTimeline.of_segments(segments, cell.arm)
     duration = segments[-1].T1_s

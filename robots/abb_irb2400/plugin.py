@@ -41,6 +41,12 @@ DESCRIPTION = (
 )
 
 
+#: The arm's home, controller convention, deg: where the core seeds inverse kinematics
+#: when the joints are not known, as the simulated controller starts (upper arm upright,
+#: forearm level, wrist bent down: no singularity).
+HOME_JOINTS_DEG = (0.0, 0.0, 0.0, 0.0, 90.0, 0.0)
+
+
 #: ``context.extras`` keys a simulated run may set for the simulated controller's EGM
 #: stream: the pose source ``source(T_true_s) -> (R, t_mm, joints_deg | None)``, the
 #: simulated clock ``clock() -> T_true_s`` and the controller's clock (an object with
@@ -122,6 +128,7 @@ ROBOT_TYPE = RobotType(
     description=DESCRIPTION,
     flange_pose_from_joints=flange_pose_from_joints,
     arm_kinematics=arm_kinematics,
+    home_joints_deg=HOME_JOINTS_DEG,
     read_frame=read_frame,
     frame_option="tooldata",  # spherecal compare/validate --tooldata LINE: the word RAPID users know
 )

@@ -106,6 +106,13 @@ class UrdfRobotConfig(LineLinkSettings):
     base_frame_tolerance_deg: float = Field(
         0.5, gt=0, le=10, description="the same check's limit on the orientation difference, deg",
     )
+    home_joints_deg: tuple[float, ...] | None = Field(
+        None, description="the arm's home, controller order and convention, deg: where inverse kinematics starts "
+        "when the arm's joints are not known (planning before the robot is connected, simulated data) and where "
+        "the simulated controller starts unless simulated.home_joints_deg says otherwise. Choose joints away from "
+        "singularities (elbow and wrist bent); absent: simulated.home_joints_deg, else zero joints and a few "
+        "spread seeds (an arm whose zero joints stretch its elbow should set it)"
+    )
     simulated: SimulatedControllerSettings = Field(
         default_factory=SimulatedControllerSettings, description="the simulated controller of simulated runs "
         "(home_joints_deg in controller convention)"
@@ -130,15 +137,21 @@ class UrdfRobotConfig(LineLinkSettings):
         if n > MAX_JOINTS:
             raise ValueError(f"{self.urdf}: {n} joints from {self.base_link!r} to {self.flange_link!r}; the line "
                              f"protocol carries at most {MAX_JOINTS}")
-        home = self.simulated.home_joints_deg
-        if home is not None:
-            if len(home) != n:
-                raise ValueError(f"simulated.home_joints_deg: expected {n} joint values, got {len(home)}")
-            try:
-                kin.check_joint_limits(home, "simulated.home_joints_deg")
-            except InputError as exc:
-                raise ValueError(str(exc)) from None
+        for key, home in (("home_joints_deg", self.home_joints_deg),
+                          ("simulated.home_joints_deg", self.simulated.home_joints_deg)):
+            if home is not None:
+                if len(home) != n:
+                    raise ValueError(f"{key}: expected {n} joint values, got {len(home)}")
+                try:
+                    kin.check_joint_limits(home, key)
+                except InputError as exc:
+                    raise ValueError(str(exc)) from None
         return self
+
+    def arm_home_joints_deg(self) -> tuple[float, ...] | None:
+        """The arm's home (controller convention, deg): ``home_joints_deg``, else
+        ``simulated.home_joints_deg``, else None (not declared)."""
+        return self.home_joints_deg if self.home_joints_deg is not None else self.simulated.home_joints_deg
 
     def kinematics(self) -> UrdfKinematics:
         """The arm's kinematics as configured (cached per file, its modification time and
@@ -150,7 +163,8 @@ class UrdfRobotConfig(LineLinkSettings):
         except OSError as exc:
             raise InputError(f"{p}: cannot read the URDF file ({exc.strerror or exc})") from None
         return _kinematics(str(p), (st.st_mtime_ns, st.st_size), self.base_link, self.flange_link, self.joints,
-                           self.joint_map.matrix, self.joint_map.offset_deg, self.joint_limits_deg)
+                           self.joint_map.matrix, self.joint_map.offset_deg, self.joint_limits_deg,
+                           self.arm_home_joints_deg())
 
     def workspace_box(self, kin: UrdfKinematics | None = None) -> WorkspaceBox:
         """The configured workspace, or a box around the arm's whole reach: the base
@@ -163,7 +177,7 @@ class UrdfRobotConfig(LineLinkSettings):
 
 
 @lru_cache(maxsize=16)
-def _kinematics(path: str, stamp, base_link, flange_link, joints, matrix, offset, limits) -> UrdfKinematics:
+def _kinematics(path: str, stamp, base_link, flange_link, joints, matrix, offset, limits, home) -> UrdfKinematics:
     urdf = read_urdf_chain(path, base_link, flange_link)
     n = len(urdf.joint_names)
     A = np.eye(n) if matrix is None else np.array(matrix, dtype=float)
@@ -178,4 +192,4 @@ def _kinematics(path: str, stamp, base_link, flange_link, joints, matrix, offset
                          f"({list(urdf.joint_names)}), got {len(joints)}")
     if limits is not None and len(limits) != n:
         raise InputError(f"joint_limits_deg: expected {n} pairs [lower, upper], got {len(limits)}")
-    return UrdfKinematics(urdf, joints, JointMap(A, b), limits, base_link, flange_link)
+    return UrdfKinematics(urdf, joints, JointMap(A, b), limits, base_link, flange_link, home)

@@ -20,8 +20,9 @@ example: its controller reports axis 3 relative to the horizontal, so
 through ``A^-1``.
 
 Inverse kinematics is numerical (:func:`spherecal.plugins.chain_inverse_kinematics`, Newton
-steps with damped least squares), seeded from the current joints: the solution nearest
-them, as a controller's linear move keeps its configuration. When a direct solve from
+steps with damped least squares), seeded from the current joints (given none, from the
+configured home): the solution nearest them, as a controller's linear move keeps its
+configuration. When a direct solve from
 the seed fails, the pose is approached along the straight line from the seed's own pose
 (continuation), in more and smaller steps. Revolute joints take the turn (multiple of
 360 deg) nearest the seed that fits their limits.
@@ -96,7 +97,8 @@ class UrdfKinematics:
     Joints in and out are degrees in the controller's order and convention; poses are
     ``base_from_flange``, mm, quaternion (w, x, y, z). ``controller_limits_deg`` ((n, 2),
     controller convention) narrows the URDF's limits where the controller's own are
-    tighter (a coupled axis)."""
+    tighter (a coupled axis). ``home_joints_deg`` (controller convention) seeds inverse
+    kinematics given no seed (None: zero joints)."""
 
     def __init__(
         self,
@@ -106,6 +108,7 @@ class UrdfKinematics:
         controller_limits_deg=None,
         base_link: str = "base_link",
         flange_link: str = "tool0",
+        home_joints_deg=None,
     ):
         names = tuple(urdf.joint_names)
         n = len(names)
@@ -126,6 +129,9 @@ class UrdfKinematics:
         self.n_joints = n
         #: chain index of controller joint i
         self._chain_index = np.array([names.index(j) for j in order])
+        #: The arm's home (controller convention, deg; None: not declared): where inverse
+        #: kinematics starts when given no seed.
+        self.home_joints_deg = None if home_joints_deg is None else tuple(float(v) for v in home_joints_deg)
         self.joint_map = joint_map or JointMap(np.eye(n), np.zeros(n))
         if self.joint_map.offset_deg.shape != (n,):
             raise InputError(f"joint_map: expected {n} joints (the chain's), got {len(self.joint_map.offset_deg)}")
@@ -207,9 +213,14 @@ class UrdfKinematics:
     # inverse ---------------------------------------------------------------------------
     def joints_from_flange_pose(self, base_from_flange: Pose, seed_joints_deg=None) -> np.ndarray:
         """Controller joints (deg) within the limits that put the flange at
-        ``base_from_flange``, nearest the seed (default: zero joints); or
-        :class:`UnreachableError`."""
-        seed = np.zeros(self.n_joints) if seed_joints_deg is None else self._vector(seed_joints_deg, "seed_joints_deg")
+        ``base_from_flange``, nearest the seed (default: the home, else zero joints).
+        Raises :class:`UnreachableError` when the flange lies beyond the arm's reach, and
+        :class:`~spherecal.plugins.IkNotConverged` when it lies within it but the solver
+        found no solution within the limits from this seed (another seed may: the
+        message names this one)."""
+        if seed_joints_deg is None:
+            seed_joints_deg = np.zeros(self.n_joints) if self.home_joints_deg is None else self.home_joints_deg
+        seed = self._vector(seed_joints_deg, "seed_joints_deg")
         target = base_from_flange.as_matrix()
         seed_model = self.model_joints_rad(seed)
         q = self._solve(target, seed_model)
@@ -223,14 +234,40 @@ class UrdfKinematics:
             joints = self._nearest_turn_within_limits(q, seed_model)
             if joints is not None:
                 return joints
+        raise self._not_reached(base_from_flange, seed, q is not None)
+
+    def _not_reached(self, base_from_flange: Pose, seed: np.ndarray, beyond_limit: bool) -> InputError:
+        """The error for a pose the solver did not reach from ``seed``: out of reach when
+        the flange lies further from the shoulder than the arm reaches, else not
+        converged from this seed (the pose may be reachable from another)."""
         t = np.round(base_from_flange.translation, 3).tolist()
         quat = np.round(base_from_flange.quaternion_wxyz, 6).tolist()
-        why = "no joint solution" if q is None else "its joint solution is beyond a joint limit"
-        raise UnreachableError(
-            f"flange pose translation_mm={t} quaternion_wxyz={quat} is out of reach of the arm of {self.source} "
-            f"({why} near joints {np.round(seed, 1).tolist()} deg); choose a pose closer to the robot or "
-            f"another flange orientation"
-        )
+        pose = f"flange pose translation_mm={t} quaternion_wxyz={quat}"
+        distance = self._shoulder_distance_mm(base_from_flange.translation)
+        if distance > self.reach_mm:
+            return UnreachableError(
+                f"{pose} is out of reach of the arm of {self.source} ({distance:.1f} mm from the shoulder, which "
+                f"reaches {self.reach_mm:.1f} mm); choose a pose closer to the robot")
+        found = ("found only a solution beyond a joint limit" if beyond_limit else
+                 "did not converge to a solution")
+        return IkNotConverged(
+            f"{pose}: inverse kinematics from joints {np.round(seed, 1).tolist()} deg {found} (the flange lies "
+            f"{distance:.1f} mm from the shoulder, within the arm's reach of {self.reach_mm:.1f} mm): the pose may "
+            "be reachable from other joints (a seed at a singularity, such as a stretched elbow, converges badly: "
+            "give the arm a home away from singularities, robot.home_joints_deg), or not at this flange orientation "
+            "within the joint limits")
+
+    def _shoulder_distance_mm(self, point_mm: np.ndarray) -> float:
+        """The least distance from ``point_mm`` (base) to the shoulder (the second joint's
+        origin, as :attr:`reach_mm` measures from it) as the first joint turns."""
+        P = self._chain.placements
+        if self.n_joints == 1:
+            return float(np.linalg.norm(point_mm - P[0][:3, 3]))
+        q = np.zeros((361, self.n_joints))
+        q[:, 0] = np.linspace(-math.pi, math.pi, 361)
+        first = SerialChain(P[:1], self._chain.axes[:1], P[1])  # the base to the shoulder
+        shoulders = first.flange_matrices(q[:, :1])[:, :3, 3]
+        return float(np.linalg.norm(shoulders - point_mm, axis=1).min())
 
     def _solve(self, target: np.ndarray, seed_model: np.ndarray) -> np.ndarray | None:
         try:

@@ -70,8 +70,10 @@ def test_a_third_party_sensor_is_simulated_and_planned_with_its_declared_field_o
     host = host_with_profiler(SMALL)
     loaded, fov = configured_for_sensor(config_with(sim_config), host)
     assert fov == SMALL
-    # the planner puts the sphere centre in the middle of the sensor's range (0 mm), not at the nxSensor's -20 mm
-    assert loaded.config.acquisition.sweep.standoff_z_mm == 0.0
+    # the planner puts the sphere centre in the sensor's own range, not at the nxSensor's -20 mm: SMALL declares
+    # no standoff, and the 19.1 mm sphere is too large for its 30 mm range with the stations' offsets, so the
+    # middle of what they leave (sphere_standoff_z_mm): its top 11.35 mm, inside the near end (15 mm)
+    assert loaded.config.acquisition.sweep.standoff_z_mm == pytest.approx(-7.75)
     cell = make_cell(loaded.config, field_of_view=fov)
     assert cell.fov == SMALL
     # every point the simulated sensor measures lies in the declared range and line width
@@ -258,8 +260,10 @@ def test_simulate_takes_the_sensor_type_by_name(tmp_path, monkeypatch, capsys):
     assert main(["simulate", str(out), "--sensor", "acme_profiler", "--profiles", "4"]) == EXIT_OK
     ds = dataio.read_dataset(out)
     assert ds.provenance["fov"] == WIDE.model_dump()  # measured with the named sensor's field of view
-    fitted = with_standoff(SweepPlan(profiles_per_station=4), WIDE)
-    assert ds.provenance["plan"]["standoff_z_mm"] == 0.0  # the middle of its range
+    fitted = with_standoff(SweepPlan(profiles_per_station=4), WIDE, 19.1)  # the simulated cell's sphere
+    # sized for the 19.1 mm sphere (WIDE declares no standoff): as near as the stations' offsets allow below
+    # the near end (60 - 19.1 - 26 % of 120 mm), the line there 48.6 mm wide for a 38.2 mm sphere
+    assert ds.provenance["plan"]["standoff_z_mm"] == pytest.approx(9.7)
     assert [tuple(o) for o in ds.provenance["plan"]["station_offsets_mm"]] == fitted.station_offsets_mm
     assert len(ds.observations) == 16  # every planned shot sees the sphere
     for obs in ds.observations:

@@ -334,3 +334,40 @@ def test_the_json_summary_is_strict_json():
                        "d": {"e": float("inf"), "f": (np.bool_(True), Path("p"))}})
     assert json.loads(text) == {"command": "x", "a": None, "b": 1.5, "c": [1, 2], "d": {"e": None, "f": [True, "p"]}}
     assert list(json.loads(text)) == ["command", "a", "b", "c", "d"]
+
+
+def _truth_printed(text: str) -> tuple[float, float]:
+    import re
+
+    m = re.search(r"simulated truth: error ([\d.]+) deg, ([\d.]+) mm", text)
+    return float(m[1]), float(m[2])
+
+
+def test_json_gives_the_error_against_the_simulated_truth(dataset_path, tmp_path, capsys):
+    """solve --json of simulated data holds the error the terminal prints, with the true
+    transform; a dataset without a truth gives null."""
+    assert main(["solve", str(dataset_path), "-o", str(tmp_path / "r"), "--json", "--no-report"]) == EXIT_OK
+    captured = capsys.readouterr()
+    truth = json.loads(captured.out)["simulated_truth"]
+    rot, dt = _truth_printed(captured.err)
+    assert round(truth["rotation_error_deg"], 4) == rot and round(truth["translation_error_mm"], 4) == dt
+    true = dataio.read_dataset(dataset_path).provenance["true_transform"]
+    assert truth["true_translation_mm"] == pytest.approx(true["translation_mm"])
+    assert truth["true_quaternion_wxyz"] == pytest.approx(true["quaternion_wxyz"])
+    # the same data without the simulator's truth
+    plain_path = tmp_path / "plain.jsonl"
+    ds = dataio.read_dataset(dataset_path)
+    dataio.write_dataset(plain_path, ds.model_copy(update={"provenance": {"source": "a real cell"}}))
+    assert main(["solve", str(plain_path), "-o", str(tmp_path / "p"), "--json", "--no-report"]) == EXIT_OK
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["simulated_truth"] is None and "simulated truth" not in captured.err
+
+
+@pytest.mark.slow
+def test_calibrate_json_gives_the_error_against_the_simulated_truth(sim_config, capsys):
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "-o", str(cfg.parent / "j"), "--no-report", "--json"]) == EXIT_OK
+    captured = capsys.readouterr()
+    truth = json.loads(captured.out)["simulated_truth"]
+    rot, dt = _truth_printed(captured.err)
+    assert round(truth["rotation_error_deg"], 4) == rot and round(truth["translation_error_mm"], 4) == dt

@@ -210,6 +210,63 @@ def test_a_controller_in_another_frame_is_refused():
     assert make_robot().check_controller_frame(GantryKinematics(), 5.0, 0.5).within(1e-9, 1e-9)
 
 
+#: The controller's flange frame in spherecal's (tool0: z out of the mounting face), as a
+#: KUKA's $FLANGE stands (x out of the face): tool0_from_controller_flange, a turn of
+#: -90 deg about y (docs/writing-a-robot-plugin.md, "A controller's own flange frame").
+TOOL0_FROM_CONTROLLER_FLANGE = Pose.from_rt(matrix_from_rotvec([0.0, -np.pi / 2, 0.0]), [0.0, 0.0, 0.0])
+
+
+class OwnFlangeController(MemoryController):
+    """A controller that reports and takes poses of its own flange frame,
+    ``base_from_controller_flange = base_from_tool0 @ TOOL0_FROM_CONTROLLER_FLANGE``."""
+
+    def pose(self, kin) -> Pose:
+        return kin.flange_pose_from_joints(self.joints) @ TOOL0_FROM_CONTROLLER_FLANGE
+
+
+class OwnFlangeRobot(MemoryRobot):
+    """The driver converts at its boundary, as the robot guide shows: what it reads from
+    the controller times the inverse of tool0_from_controller_flange is tool0's pose; a
+    target for the controller is tool0's times it."""
+
+    convert = True
+
+    def read_controller_pose(self) -> Pose:
+        reported = self.controller.pose(self.kin)
+        return reported @ TOOL0_FROM_CONTROLLER_FLANGE.inverse() if self.convert else reported
+
+    def controller_target(self, base_from_flange: Pose) -> Pose:
+        return base_from_flange @ TOOL0_FROM_CONTROLLER_FLANGE if self.convert else base_from_flange
+
+
+def test_a_controller_whose_flange_frame_is_turned_from_tool0():
+    """Unconverted, the controller's poses differ from the model's by 90 deg at the same
+    origin: refused, the message naming the flange frame's turn and the fix; converted as
+    the guide shows, accepted, and a move's target reaches the controller in its own
+    flange frame while the flange (tool0) lands where it was asked."""
+    robot = OwnFlangeRobot(MemoryRobotConfig(), OwnFlangeController(joints_at(500.0, 0.0, 500.0)))
+    robot.convert = False
+    off = robot.controller_frame_offset(robot.kin)
+    assert off.offset_mm == pytest.approx(0.0, abs=1e-9) and off.angle_deg == pytest.approx(90.0)
+    assert off.flange_turn_deg(5.0) == pytest.approx(90.0)
+    with pytest.raises(DeviceError, match=r"The flange's origin agrees: the controller's flange frame is the model's "
+                                          r"turned by 90\.0 deg, model_from_controller = quaternion \(w, x, y, z\) "
+                                          r"\[0\.7071, 0\.0000, -0\.7071, 0\.0000\] \(a KUKA's \$FLANGE has x out.*"
+                                          r"\"A controller's own flange frame\""):
+        robot.check_controller_frame(robot.kin, 5.0, 0.5)
+    robot.convert = True
+    assert robot.check_controller_frame(robot.kin, 5.0, 0.5).within(1e-9, 1e-9)
+    target = Pose.from_rt(R0, [600.0, 100.0, 450.0])
+    robot.move_linear(target, 100.0)
+    np.testing.assert_allclose(robot.read_controller_pose().as_matrix(), target.as_matrix(), atol=1e-9)
+    sent = robot.controller_target(target)  # what the controller is told: its own flange's pose
+    np.testing.assert_allclose(robot.controller.pose(robot.kin).as_matrix(), sent.as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(sent.rotation_matrix[:, 0], target.rotation_matrix[:, 2], atol=1e-12)  # x out
+    # a base frame (a riser) is not read as a turned flange
+    riser = make_robot(frame=Pose.from_rt(np.eye(3), [0.0, 0.0, 300.0])).controller_frame_offset(robot.kin)
+    assert riser.flange_turn_deg(5.0) is None
+
+
 def test_a_workspace_box_is_required():
     with pytest.raises(InputError, match=r"memory robot: no workspace box configured"):
         MemoryRobot(MotionLimits(), MemoryController(joints_at(500.0, 0.0, 500.0)))

@@ -40,3 +40,30 @@ def test_the_simulated_acquisition_plans_with_the_planner_of_real_motion():
     for obs in ds.observations:
         assert np.min(np.linalg.norm(targets - np.asarray(obs.base_from_flange.translation), axis=1)) < 0.2
     assert len(ds.observations) > 0.8 * len(targets)
+
+
+@pytest.mark.parametrize("diameter_mm, share", [(12.7, (0.5, 0.6)), (25.4, (0.85, 1.0))])
+def test_the_standoff_is_sized_for_the_sphere_in_a_narrow_line(diameter_mm, share):
+    """A profiler with a 25 mm line (22 mm near, 28 mm far, 40 mm range) that declares no
+    standoff: a half-inch sphere is swept near (its diameter half the line there, the line
+    at its narrowest so that most points fall on the sphere), an inch sphere far, where
+    the line is widest (its diameter nearly the line's width); each sphere's section stays
+    in the range with the stations' offsets. A declared standoff is kept."""
+    from spherecal.core.field_of_view import SensorFieldOfView
+    from spherecal.motion.planning import (STATION_OFFSETS_PERCENT, SweepPlan, sphere_standoff_z_mm,
+                                           with_standoff)
+
+    fov = SensorFieldOfView(z_near_mm=20.0, z_far_mm=-20.0, width_near_mm=22.0, width_far_mm=28.0, n_columns=1280)
+    r = diameter_mm / 2
+    z = sphere_standoff_z_mm(fov, r)
+    assert share[0] <= diameter_mm / fov.width_at_mm(z) <= share[1], (z, fov.width_at_mm(z))
+    plan = with_standoff(SweepPlan(), fov, r)
+    assert plan.standoff_z_mm == z
+    depth = fov.z_near_mm - fov.z_far_mm
+    for _, dz in STATION_OFFSETS_PERCENT:  # each station's section in the range, with the wander
+        centre = z + dz * depth / 100
+        assert centre - plan.lateral_amplitude_mm >= fov.z_far_mm
+        assert centre + r + plan.lateral_amplitude_mm <= fov.z_near_mm
+    # the middle of the range is what a sphere of unknown size gets, and a declared standoff holds
+    assert sphere_standoff_z_mm(fov) == 0.0
+    assert sphere_standoff_z_mm(fov.model_copy(update={"standoff_z_mm": -5.0}), r) == -5.0
