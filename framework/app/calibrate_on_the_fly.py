@@ -17,8 +17,9 @@ from spherecal.app.provenance import check_same_devices, traceability
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
 from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Dataset
-from spherecal.core.streams import Recording
+from spherecal.core.streams import POSES_ASSUMED_KEY
 from spherecal.devices.contract import device_identity
+from spherecal.devices.pose_streaming import pose_stream_assumption
 from spherecal.estimation.on_the_fly import solve_recording
 from spherecal.io.stream_writer import RecordingWriter
 from spherecal.io.streams import read_recording, reopen_recording
@@ -181,6 +182,9 @@ def _take(run, sweeps, targets, of_sweep, cell, journal: Path, sweeps_path: Path
                    setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log)
         provenance = _journal_provenance(run, digest, cell)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
+        assumed = pose_stream_assumption(robot)
+        if assumed is not None:  # poses computed, not measured: the result must say what they assume
+            provenance[POSES_ASSUMED_KEY] = assumed
         if previous is not None:
             check_same_devices(previous, provenance, journal, log)
             writer = reopen_recording(journal, fsync=True)
@@ -200,7 +204,9 @@ def _solved(run, journal: Path, outcome: Outcome, *, report: bool, force: bool, 
     recording = read_recording(journal)
     provenance = dict(recording.provenance)
     truth = provenance.get("simulated_clocks")
-    if isinstance(truth, dict):
+    # computed poses (a programmed line) are stamped by a clock of the robot's program, not the
+    # simulated controller's clock the truth describes: no truth of the offset is claimed for them
+    if isinstance(truth, dict) and recording.poses_assumption is None:
         from spherecal.sim.live import true_time_relation
 
         offset_s, drift = true_time_relation(truth, recording.t_sensor0_s)
@@ -225,23 +231,7 @@ def _solved(run, journal: Path, outcome: Outcome, *, report: bool, force: bool, 
     outcome.solution, outcome.dataset = solution, header
     outcome.files.update(written_files(run.out))
     outcome.files["journal"] = journal
-    log(clock_line(solution.result.timing, provenance, recording))
     return outcome
 
 
-def clock_line(timing, provenance: dict, recording: Recording) -> str:
-    """The clock relation found, with its uncertainty, and in a simulated run its truth."""
-    if timing is None:
-        return "clock offset: not estimated"
-    text = (f"clock offset (robot clock minus sensor clock at the first profile, t_sensor0 = "
-            f"{recording.t_sensor0_s:.6f} s): {timing.offset_ms:.4f} ms +/- {timing.offset_std_ms:.4f} ms (1 sigma); "
-            f"drift {timing.drift_ppm:+.2f} +/- {timing.drift_std_ppm:.2f} ppm")
-    if "true_offset_s" in provenance:
-        true_ms = 1e3 * float(provenance["true_offset_s"])
-        err = timing.offset_ms - true_ms
-        text += (f"; simulated truth {true_ms:.4f} ms, drift {1e6 * float(provenance['true_drift']):+.2f} ppm: offset "
-                 f"error {err:+.4f} ms ({err / max(timing.offset_std_ms, 1e-12):+.2f} sd)")
-    return text
-
-
-__all__ = ["RESULT_NAME", "STREAM_JOURNAL_NAME", "SWEEPS_NAME", "calibrate_on_the_fly", "clock_line"]
+__all__ = ["RESULT_NAME", "STREAM_JOURNAL_NAME", "SWEEPS_NAME", "calibrate_on_the_fly"]
