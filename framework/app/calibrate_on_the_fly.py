@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from spherecal.app.cell import make_cell
 from spherecal.app.outputs import RESULT_NAME, STREAM_JOURNAL_NAME, check_output_folder, written_files
 from spherecal.app.plan_checks import check_plan, check_plan_solvable, confirm_motion, plan_digest
@@ -140,10 +142,16 @@ def _header(line: bytes, journal: Path) -> dict:
 
 def _continue_simulated_time(journal: Path, cell, provenance: dict) -> None:
     """Move the resumed simulated world's clock past the journal's last stamps (mapped to
-    true time by the clocks the journal names)."""
+    true time by the clocks the journal names), and stand the arm where the journal's last
+    pose sample has it (a real arm stays where the interrupted run left it: a controller
+    started at its home instead may reach the next sweep in another configuration, with
+    another geometric error, than the station's sweeps before)."""
     clocks = provenance.get("simulated_clocks")
     if not isinstance(clocks, dict):
         return
+    taken = read_recording(journal)
+    if taken.poses.joints_deg is not None and taken.poses.n:
+        cell.arm_start_joints_deg = np.array(taken.poses.joints_deg[-1], dtype=float)
     writer = reopen_recording(journal)
     last_pose, last_profile = writer._last_pose_t, writer._last_profile_t
     writer.close()

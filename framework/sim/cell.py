@@ -157,6 +157,10 @@ class SimulatedCell:
         self.timeline = MotionTimeline(self.current_base_from_flange, clock=self.clock)
         #: Simulated time a shot at a standstill takes, s.
         self.exposure_s = DEFAULT_EXPOSURE_S
+        #: The controller's joints (deg) where the arm stands when a simulated controller
+        #: starts: None for its home; a resumed run's last joints (the arm stayed where the
+        #: interrupted run left it, as a real one does).
+        self.arm_start_joints_deg: np.ndarray | None = None
         #: The devices' clocks against true time (seeded: the same seed, the same clocks).
         self.controller_clock, self.sensor_clock = device_clocks(seed)
         self._standstill_rngs: dict[str, np.random.Generator] = {}

@@ -88,7 +88,10 @@ class SimulatedController:
         self.n_joints = int(n_joints)
         self.rng = np.random.default_rng(self.settings.seed)
         home = self.settings.home_joints_deg
-        if home is None:  # the arm's declared home, else zero joints
+        standing = getattr(cell, "arm_start_joints_deg", None)
+        if standing is not None:  # the arm stands where a run left it
+            home = standing
+        elif home is None:  # the arm's declared home, else zero joints
             declared = declared_home_joints_deg(kinematics) if hasattr(kinematics, "chain") else None
             home = np.zeros(self.n_joints) if declared is None else declared
         home = np.asarray(home, dtype=float)

@@ -233,3 +233,25 @@ def test_poses_from_the_programmed_line_are_said_and_no_clock_truth_is_claimed(s
     assert "robot poses NOT MEASURED" in printed
     assert "simulated truth: error" in printed and "clock offset error" not in printed
 
+
+@pytest.mark.slow
+def test_a_run_resumed_within_a_station_keeps_the_arms_configuration(sim_config):
+    """Killed after the second sweep of station S3 and resumed: the next sweep is taken in
+    the arm's configuration of the sweeps before it (the simulated arm stands where the
+    kill left it, as a real one does), not in the other wrist solution reached from the
+    controller's home, which carries another geometric error into one station."""
+    cfg = sim_config(EXAMPLE)
+    out = cfg.parent / "out"
+
+    def kill():
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(cfg, after_sweep(18, kill))
+    before = read_recording(out / "journal.stream.jsonl")
+    with pytest.raises(KeyboardInterrupt):
+        run(cfg, after_sweep(19, kill), resume=True)
+    q = read_recording(out / "journal.stream.jsonl").poses.joints_deg
+    last_before, first_after = q[before.poses.n - 1], q[before.poses.n]
+    assert np.abs(first_after - last_before).max() < 20.0, (last_before, first_after)
+
