@@ -85,6 +85,8 @@ def run(config: Path) -> dict:
     except json.JSONDecodeError:
         raise SystemExit(f"{config.name}: no JSON (exit {proc.returncode}):\n{proc.stderr[-2000:]}") from None
     doc["wall_s"] = wall
+    if doc.get("error"):
+        print(f"    {config.name}: exit {proc.returncode}: {str(doc['error'])[:400]}", flush=True)
     return doc
 
 

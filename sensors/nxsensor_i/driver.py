@@ -543,7 +543,7 @@ class NxSensorDriver:
         if reader.fault is None:
             self._stop_device_quietly()
         reader.request_stop()
-        reader.join(timeout=self.config.stall_timeout_ms / 1000 + 2 * STREAM_POLL_MS / 1000 + 1.0)
+        _join_while_draining(reader, self.config.stall_timeout_ms / 1000 + 2 * STREAM_POLL_MS / 1000 + 1.0)
         self._reader = None
         self._streaming = False
         if reader.is_alive():  # the reader cannot be joined: leave it reading nothing of ours
@@ -615,3 +615,20 @@ class NxSensorDriver:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _join_while_draining(reader, quiet_s: float) -> None:
+    """Wait for the reader to end, for as long as it still takes frames: a reader that has
+    taken none for ``quiet_s`` of wall time is given up (a stream of many frames in
+    flight, or a machine busy with other work, is not a stuck reader)."""
+    taken, quiet_since = len(reader.frames), time.monotonic()
+    while True:
+        reader.join(timeout=min(0.25, quiet_s))
+        if not reader.is_alive():
+            return
+        now = time.monotonic()
+        if len(reader.frames) != taken:
+            taken, quiet_since = len(reader.frames), now
+        elif now - quiet_since > quiet_s:
+            return
+
