@@ -224,9 +224,10 @@ class TimingTooUncertain(DeviceError):
 
 
 class ClockRelationLost(DeviceError):
-    """Most of a pass's profiles fall outside its pose stream, which ran over the same
-    move: the clock relation does not hold for these clocks (one restarted, wrapped or
-    stepped since the calibration). Nothing of the pass was mapped outside the samples."""
+    """The clock relation no longer holds: the sensor's clock stepped during a pass (the
+    profiles after the step are not mapped; a later pass's stamps would all be off), or
+    most of a pass's profiles fall outside its pose stream, which ran over the same move
+    (a clock restarted, wrapped or stepped since the calibration)."""
 
 
 #: More than this share of a pass's profiles outside its pose stream's samples means the
@@ -370,6 +371,12 @@ def scan_on_the_fly(robot, sensor, passes: list[PlannedSweep], mapper: PassMappe
                 f"{pass_name(p)}: {taken.fault}. The pass ends at the fault: {taken.mapped} profiles bracketed by pose "
                 f"samples before it are in the PLY, none after it is mapped; the scan stopped after the move",
                 taken, faults[0][0])
+        if taken.unmapped.get("off_grid"):
+            raise ClockRelationLost(
+                f"{pass_name(p)}: the sensor's clock stepped during the pass: {taken.unmapped['off_grid']} profiles "
+                "stamped after the step are off the pass's frame grid and were not mapped; the clock relation "
+                f"({mapper.relation.source}) no longer holds for the sensor's stamps, so the scan stopped after the "
+                "pass. Calibrate on the fly again")
         outside = taken.unmapped.get("before", 0) + taken.unmapped.get("after", 0)
         if taken.profiles >= 10 and outside > LOST_RELATION_SHARE * taken.profiles:
             raise ClockRelationLost(
