@@ -37,27 +37,29 @@ def scan_mode(cfg) -> str:
     return "on_the_fly" if acq is not None and acq.mode == "on_the_fly" else "stop_and_go"
 
 
-def clock_relation(scan, result, result_path: Path, log: Callable[[str], None]) -> ClockRelation:
+def clock_relation(given_offset_ms: float | None, result, result_path: Path,
+                   log: Callable[[str], None]) -> ClockRelation:
     """The clock relation profiles are mapped with: the calibration's ``timing``, or the
-    offset ``[scan] clock_offset_ms`` gives for a calibration without one (said loudly).
-    InputError naming why when there is neither; ConfigError when both."""
-    timing = result.timing
+    offset ``[scan] clock_offset_ms`` gives (``given_offset_ms``) for a calibration
+    without one (said loudly). InputError naming why when there is neither; ConfigError
+    when both."""
+    timing = result.timing if result is not None else None
     if timing is not None:
-        if scan.clock_offset_ms is not None:
+        if given_offset_ms is not None:
             raise ConfigError(f"scan.clock_offset_ms: {result_path} has its own clock relation (estimated with the "
                               "transform, with its uncertainty); remove clock_offset_ms")
         relation = ClockRelation.from_timing(timing, f"the calibration's timing in {result_path}")
         if timing.poses_assumed:
             log(Notice(f"note: the calibration's poses were computed, not measured: {timing.poses_assumed}"))
         return relation
-    if scan.clock_offset_ms is None:
+    if given_offset_ms is None:
         raise InputError(
             f"{result_path} holds no clock relation (no 'timing': a stop-and-go calibration): the time between the "
             "sensor's stamps and the robot's is unknown, so no profile taken on the fly can be given the pose it was "
             "taken at; nothing was moved. Calibrate on the fly ([acquisition] mode = \"on_the_fly\"), scan "
             "stop-and-go ([scan] mode = \"stop_and_go\"), or, only when the offset is known (both devices stamping "
             "one synchronised clock), give it as [scan] clock_offset_ms")
-    offset = float(scan.clock_offset_ms)
+    offset = float(given_offset_ms)
     log(Notice(f"WARNING: scanning on the fly with a clock offset GIVEN in [scan] clock_offset_ms = {offset:g} ms, not "
                "estimated: no drift, no uncertainty; any error in it moves every point along its pass by speed x "
                "error, and nothing in the scan can see it"))
@@ -82,7 +84,7 @@ def run_scan_on_the_fly(loaded: LoadedConfig, host, fov, out: Path, result_path:
     pass that breaks a limit, and devices that cannot stream."""
     cfg = loaded.config
     sc, acq = cfg.scan, cfg.acquisition
-    relation = clock_relation(sc, result, result_path, log)
+    relation = clock_relation(sc.clock_offset_ms, result, result_path, log)
     passes = plan_passes(plan_scan(sc, acq, cfg.mounting, result.transform, fov), sc.speed_mm_s)
     targets, _ = sweep_targets(passes, acq.approach_speed_mm_s)
     log(f"plan: {len(passes)} passes on the fly at {sc.speed_mm_s:g} mm/s, {sum(p.length_mm for p in passes):.0f} mm; "

@@ -47,7 +47,7 @@ from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import Target, WallClock, robot_time_line
 from spherecal.motion.on_the_fly import PlannedSweep, sweep_streams
 
-__all__ = ["ClockRelationLost", "GRID_TOLERANCE_PERIODS", "LATE_RUN_FRAMES", "UNMAPPED_REASONS", "PassMapper", "PassMapping", "PassTaken",
+__all__ = ["ClockRelationLost", "GRID_TOLERANCE_PERIODS", "LATE_RUN_FRAMES", "UNMAPPED_REASONS", "PassCollector", "PassMapper", "PassMapping", "PassTaken",
            "ScanOnTheFlyReport", "ScanStreamError", "TimingTooUncertain", "map_pass", "off_frame_grid",
            "plan_passes", "scan_on_the_fly"]
 
@@ -254,7 +254,8 @@ class PassMapper:
     def __init__(self, X: Pose, mounting: MountingMode, relation: ClockRelation, writer, journal_path: Path,
                  max_timing_error_mm: float, fsync: bool = True):
         self.X, self.mounting, self.relation, self.writer = X, mounting, relation, writer
-        self.journal_path, self.max_timing_error_mm, self.fsync = Path(journal_path), max_timing_error_mm, fsync
+        self.journal_path = Path(journal_path) if journal_path is not None else None
+        self.max_timing_error_mm, self.fsync = max_timing_error_mm, fsync
         self.next_profile = 0
 
     def add(self, p: PlannedSweep, poses: PoseStream | None, profiles: ProfileStream | None,
@@ -291,6 +292,34 @@ class PassMapper:
             fh.flush()
             if self.fsync:
                 os.fsync(fh.fileno())
+
+
+class PassCollector(PassMapper):
+    """A :class:`PassMapper` that keeps each pass's mapped profiles (``poses[index]``:
+    ``base_from_flange`` per profile, ``profiles[index]``: its (y, z) points) instead of
+    writing them: for validation on the fly, whose figures are computed from the
+    sweeps' profiles and poses. Nothing is written (``journal_path`` None)."""
+
+    def __init__(self, relation: ClockRelation, max_timing_error_mm: float):
+        super().__init__(Pose.identity(), "eye_in_hand", relation, None, None, max_timing_error_mm)
+        self.poses: dict[int, list[Pose]] = {}
+        self.profiles: dict[int, list[np.ndarray]] = {}
+        self._pass: int | None = None
+
+    def add(self, p: PlannedSweep, poses, profiles, taken: PassTaken):
+        self._pass = p.index
+        self.poses.setdefault(p.index, [])
+        self.profiles.setdefault(p.index, [])
+        return super().add(p, poses, profiles, taken)
+
+    def _write(self, mapping: PassMapping, profiles: ProfileStream, taken: PassTaken) -> None:
+        for k, j in enumerate(mapping.mapped):
+            self.poses[self._pass].append(Pose.from_rt(mapping.R[k], mapping.t_mm[k]))
+            self.profiles[self._pass].append(profiles.profile(int(j)))
+        taken.mapped, taken.points = len(mapping.mapped), int(profiles.counts[mapping.mapped].sum())
+
+    def _journal(self, taken: PassTaken) -> None:
+        return None
 
 
 @dataclass

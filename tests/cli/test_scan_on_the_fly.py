@@ -240,3 +240,23 @@ def test_a_jump_of_the_controllers_clock_stops_the_scan_naming_the_pass(cell_tru
     with pytest.raises(ScanStreamError, match=r"pass 2 .*the pose stream failed during the pass"):
         scanned(cfg, after_pass(1, jump))
     assert surface_error_mm(cfg.parent / "out" / "scan.ply", centre, r)[0].max() < SURFACE_TOLERANCE_MM
+
+
+@pytest.mark.slow
+def test_validate_measures_on_the_fly_and_the_sphere_passes_within_the_limits(cell_truth):
+    """The sphere at four new views, each one pass at the scan's speed and rate, mapped
+    through the true clock relation: P_F, P_S and the centres' spread within their MPEs."""
+    from spherecal.app.validate import run_validate
+
+    cfg, *_ = cell_truth
+    lines = []
+    outcome = run_validate(load_config(cfg), report=False, yes=True, log=lambda m: lines.append(str(m)))
+    assert any(x.startswith("validating on the fly: 4 passes at 100 mm/s") for x in lines)
+    assert any("398." in x or "400.0 a second while streaming" in x for x in lines)
+    rows = outcome.table()
+    assert outcome.passed and rows["P_F"]["max error (mm)"] < 0.25 and abs(rows["P_S"]["max error (mm)"]) < 0.06
+    assert rows["centre spread"]["max error (mm)"] < 0.1
+    assert all(len(pr.fit.centre_mm) == 3 and pr.fit.n_points_used > 10_000 for pr in outcome.report.probing)
+    shots = dataio.read_dataset(next((cfg.parent / "out").glob("validation-*.jsonl")))
+    assert {o.station for o in shots.observations} == {"P1-sphere", "P2-sphere", "P3-sphere", "P4-sphere"}
+    assert len(shots.observations) == sum(pr.n_shots for pr in outcome.report.probing)
