@@ -39,7 +39,11 @@ def cell_truth(sim_config):
     from spherecal.estimation import calibrate
     from spherecal.sim import SweepPlan, simulate_dataset
 
-    cfg = sim_config(EXAMPLE, **{ROBOT_ERROR_SECTION: ""})  # an exact arm (the example already has "station")
+    # an exact arm (the example already has "station"); the simulated sensor draws a pass's frames in wall time
+    # after the simulated move and its driver waits stall_timeout_ms + 1 s of wall time for them at the stop:
+    # 3 s keeps a loaded machine from ending a pass there (no test here relies on the sensor's stall limit)
+    cfg = sim_config(EXAMPLE, **{ROBOT_ERROR_SECTION: "",
+                                 r'^type = "nxsensor_i"$': 'type = "nxsensor_i"\nstall_timeout_ms = 3000'})
     loaded = load_config(cfg)
     host = plugin_host.make_host()
     loaded, fov = configured_for_sensor(loaded, host)
