@@ -22,7 +22,8 @@ from spherecal.io.files import check_writable_target, is_inside
 from spherecal.io.ply import PlyWriter
 from spherecal.io.runlog import Notice, progress_log
 from spherecal.motion.acquisition import Progress
-from spherecal.motion.scanning import plan_scan, scan
+from spherecal.app.scan_on_the_fly import run_scan_on_the_fly, scan_mode
+from spherecal.motion.scanning import ScanSummary, plan_scan, scan
 
 _LOG = progress_log("run")  # the default ``log``: logger spherecal.run
 
@@ -40,6 +41,8 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     doubt = failed_validation(out, result)
     if doubt:  # said before anything moves, and again by the exit code
         log(Notice(f"warning: {doubt.text}; {doubt.carried} (scanning all the same)"))
+    if scan_mode(cfg) == "on_the_fly":
+        return ply_path, _on_the_fly(loaded, host, fov, out, result_path, result, ply_path, doubt, log, yes, ask)
     targets = plan_scan(cfg.scan, cfg.acquisition, cfg.mounting, result.transform, fov)
     keep_out = in_file(loaded, keep_out_for, cfg, host, result.transform, SCAN_KEEP_OUT_FIX, log, fov)
     check_plan(targets, cfg.acquisition, "scan plan", keep_out=keep_out, log=log)
@@ -64,6 +67,25 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     if doubt:
         summary.calibration_doubt, summary.calibration_remedy = doubt.text, doubt.remedy
     return ply_path, summary
+
+
+def _on_the_fly(loaded, host, fov, out, result_path, result, ply_path, doubt, log, yes, ask) -> "ScanSummary":
+    """The scan on the fly (:mod:`spherecal.app.scan_on_the_fly`), said as the stop-and-go
+    scan says it, with the profiles not mapped and why."""
+    done = run_scan_on_the_fly(loaded, host, fov, out, result_path, result, ply_path, log, yes, ask)
+    rep = done.report
+    empty = sum(p.empty for p in rep.passes)
+    summary = ScanSummary(profiles=rep.mapped, points=rep.points, empty_profiles=empty, robot_time_s=rep.robot_time_s,
+                          simulated_time=rep.simulated_time, mode="on_the_fly", unmapped=rep.unmapped(),
+                          streamed=rep.profiles, passes_journal=done.journal)
+    log(f"scan: {summary.points} points from {summary.profiles} profiles mapped ({empty} saw nothing) of "
+        f"{rep.profiles} streamed in {len(rep.passes)} passes, {SPHERE_FRAME[loaded.config.mounting]} frame")
+    log(f"scan: {summary.unmapped_line()}")
+    if rep.robot_time_s > 0:
+        log(f"scan: {rep.robot_time_line()} on the fly")
+    if doubt:
+        summary.calibration_doubt, summary.calibration_remedy = doubt.text, doubt.remedy
+    return summary
 
 
 def _ply_path(loaded: LoadedConfig, out_dir: Path | None) -> Path:

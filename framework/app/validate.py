@@ -17,7 +17,9 @@ from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup, calibrated_urd
 from spherecal.app.plan_checks import VALIDATION_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.io.files import sha256_of
+from spherecal.app.scan_on_the_fly import scan_mode
 from spherecal.app.solving import calibration_options
+from spherecal.app.validate_on_the_fly import measure_on_the_fly
 from spherecal.config import LoadedConfig
 from spherecal.core.errors import ConfigError
 from spherecal.core.metrology import ShotNoise
@@ -79,8 +81,12 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                                           timestamp=datetime.now(timezone.utc), base_from_flange=pose,
                                           profile=profile, target=target.index))
 
-            measured = measure(robot, sensor, sweeps, cfg.acquisition, log, Progress(len(targets), progress_stream),
-                               record)
+            if scan_mode(cfg) == "on_the_fly":
+                measured = measure_on_the_fly(cfg, robot, sensor, sweeps, result, source, writer, keep_out, log,
+                                              clock=cell.clock if cell is not None else None)
+            else:
+                measured = measure(robot, sensor, sweeps, cfg.acquisition, log,
+                                   Progress(len(targets), progress_stream), record)
     outcome = evaluate(cfg.validation, cfg.mounting, X, cfg.sphere, measured, shot_noise(cfg, result))
     if fov is not None:
         outcome.line_width_mm = float(fov.width_at_mm(sphere_standoff_z_mm(fov, cfg.sphere.radius_mm)))

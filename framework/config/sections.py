@@ -290,6 +290,21 @@ class ScanConfig(Section):
         False, description="allow scan.ply to lie outside output_dir (an absolute path or one through '..')"
     )
     format: Literal["binary_little_endian", "ascii"] = Field("binary_little_endian", description="PLY encoding")
+    mode: Literal["stop_and_go", "on_the_fly"] | None = Field(
+        None, description="stop_and_go: one profile every step_mm, the robot standing; on_the_fly: continuous passes "
+        "at speed_mm_s, the robot streaming its pose and the sensor its profiles, every profile mapped through the "
+        "pose at its exposure by the calibration's clock relation (docs/on-the-fly.md, \"Scanning on the fly\"); "
+        "default: on_the_fly when [acquisition] mode is, else stop_and_go")
+    rate_hz: float | None = Field(None, gt=0, le=100_000, description="on the fly: profiles a second while "
+                                  "streaming, Hz (default: the sensor's configured rate)")
+    clock_offset_ms: float | None = Field(
+        None, description="on the fly with a calibration that holds no clock relation (a stop-and-go one): "
+        "t_robot = t_sensor + clock_offset_ms, GIVEN, not estimated, no drift. Its error moves every point by speed "
+        "x error along the pass, unseen by anything: give it only when it is known (both devices stamping one "
+        "synchronised clock), ms. Ignored (refused) with a calibration that has its own clock relation")
+    max_timing_error_mm: float = Field(
+        0.1, gt=0, le=100, description="on the fly: the largest position error the clock relation's uncertainty may "
+        "give a profile (k = 2, at the flange's speed), mm; a pass beyond it is not mapped and the scan stops")
 
     @model_validator(mode="after")
     def _bounded(self):

@@ -48,7 +48,7 @@ from spherecal.motion.acquisition import Target, WallClock, robot_time_line
 from spherecal.motion.planning import SweepPlan, plan_stations
 
 __all__ = ["PlannedSweep", "SweepJournal", "SweepStreamError", "OnTheFlyReport", "acquire_sweeps",
-           "check_streaming", "plan_sweeps", "sweep_targets"]
+           "check_streaming", "plan_sweeps", "sweep_streams", "sweep_targets"]
 
 _LOG = progress_log("acquisition")
 
@@ -304,8 +304,9 @@ def _stream_end_problem(poses: PoseStream | None, sweep: PlannedSweep) -> str | 
             f"stopped: the stream ended before the move did (a stall)")
 
 
-def _sweep_streams(robot, sensor, sweep: PlannedSweep, rate_hz: float | None):
-    """Both streams around the sweep's MoveL: (poses, profiles, fault, which stream).
+def sweep_streams(robot, sensor, sweep: PlannedSweep, rate_hz: float | None):
+    """Both streams around the sweep's MoveL: (poses, profiles, faults), ``faults`` a list
+    of (which stream, why).
     A stream that fails keeps what came before its fault; the other is stopped and kept.
     An error of the move itself is raised after both streams are stopped."""
     sensor.start_profile_stream(rate_hz)
@@ -361,7 +362,7 @@ def acquire_sweeps(robot, sensor, sweeps: list[PlannedSweep], journal: SweepJour
             robot.move_linear(s.start, acq.approach_speed_mm_s)
             if acq.settle_s:
                 clock.wait(acq.settle_s)
-        poses, profiles, faults = _sweep_streams(robot, sensor, s, rate_hz)
+        poses, profiles, faults = sweep_streams(robot, sensor, s, rate_hz)
         at = s.end
         pc = robot.pose_stream_counts()
         fc = getattr(sensor, "profile_stream_counts", None)

@@ -5,7 +5,8 @@ bounded however long the scan."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -59,10 +60,26 @@ class ScanSummary:
     #: is simulated robot time (a simulated cell's clock) or the wall clock.
     robot_time_s: float = 0.0
     simulated_time: bool = False
+    #: "stop_and_go" or "on_the_fly"; on the fly, the profiles streamed (``profiles``:
+    #: those mapped), those not mapped by reason
+    #: (:data:`spherecal.motion.scan_on_the_fly.UNMAPPED_REASONS`) and the pass journal.
+    mode: str = "stop_and_go"
+    streamed: int = 0
+    unmapped: dict[str, int] = field(default_factory=dict)
+    passes_journal: Path | None = None
 
     def robot_time_line(self) -> str:
         """How fast the profiles were taken (:func:`~spherecal.motion.acquisition.robot_time_line`)."""
         return robot_time_line(self.profiles + self.empty_profiles, self.robot_time_s, self.simulated_time)
+
+    def unmapped_line(self) -> str:
+        """The profiles not mapped, by reason, or that none was left out."""
+        from spherecal.motion.scan_on_the_fly import UNMAPPED_REASONS
+
+        if not self.unmapped:
+            return "every profile that saw something was mapped"
+        parts = ", ".join(f"{n} {UNMAPPED_REASONS.get(k, k)}" for k, n in self.unmapped.items())
+        return f"{sum(self.unmapped.values())} profiles not mapped (never given a guessed pose): {parts}"
 
 
 def scan(robot, sensor, targets: list[Target], X: Pose, acq: AcquisitionConfig, mounting: MountingMode,

@@ -1,0 +1,66 @@
+"""``spherecal validate`` measuring as the scan does when it scans on the fly
+(:func:`spherecal.app.scan_on_the_fly.scan_mode`): each validation sweep (the sphere's
+views, the ball bar's balls, the flat) is one continuous pass at the scan's speed and
+rate, both devices streaming, every profile given the pose at its exposure by the
+calibration's clock relation, and the acceptance figures computed from those profiles and
+poses as from stop-and-go shots (docs/on-the-fly.md, "Validating on the fly")."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Callable
+
+import numpy as np
+
+from spherecal.app.plan_checks import check_plan
+from spherecal.app.scan_on_the_fly import clock_relation
+from spherecal.core.models import Observation, Profile
+from spherecal.core.streams import SweepInfo
+from spherecal.motion.on_the_fly import PlannedSweep, check_streaming, sweep_targets
+from spherecal.motion.scan_on_the_fly import PassCollector, scan_on_the_fly
+from spherecal.motion.validation import Measured, Sweep
+
+__all__ = ["validation_passes", "measure_on_the_fly"]
+
+
+def validation_passes(sweeps: list[Sweep], speed_mm_s: float) -> list[PlannedSweep]:
+    """Each validation sweep as one straight pass from its first target to its last at
+    ``speed_mm_s``."""
+    passes = []
+    for k, sw in enumerate(sweeps):
+        start, end = sw.targets[0].pose, sw.targets[-1].pose
+        d = end.translation - start.translation
+        info = SweepInfo(station=f"{sw.label}-{sw.kind}", speed_mm_s=float(speed_mm_s),
+                         direction=tuple(float(c) for c in d / max(float(np.linalg.norm(d)), 1e-12)))
+        passes.append(PlannedSweep(k, f"{sw.label}-{sw.kind}", start, end, float(speed_mm_s), info, False))
+    return passes
+
+
+def measure_on_the_fly(cfg, robot, sensor, sweeps: list[Sweep], result, source: str, writer, keep_out,
+                       log: Callable[[str], None], clock=None) -> list[Measured]:
+    """Take every validation sweep on the fly (the module's docstring) and give each its
+    mapped profiles with their poses; every mapped profile goes to the validation's
+    journal ``writer`` with its pose. The clock relation is the calibration's (or the
+    scan's given ``clock_offset_ms``); the pass rules of
+    :func:`spherecal.motion.scan_on_the_fly.scan_on_the_fly` hold (nothing mapped outside
+    the pose samples; a fault stops the run)."""
+    sc, acq = cfg.scan, cfg.acquisition
+    speed = sc.speed_mm_s if sc is not None else min(acq.on_the_fly.speeds_mm_s)
+    relation = clock_relation(sc.clock_offset_ms if sc is not None else None, result, source, log)
+    passes = validation_passes(sweeps, speed)
+    targets, _ = sweep_targets(passes, acq.approach_speed_mm_s)
+    check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
+    check_plan(targets, acq, "validation plan (on the fly)", robot=robot, keep_out=keep_out, log=log)
+    log(f"validating on the fly: {len(passes)} passes at {speed:g} mm/s, mapped with {relation.source}")
+    collector = PassCollector(relation, sc.max_timing_error_mm if sc is not None else 0.1)
+    report = scan_on_the_fly(robot, sensor, passes, collector, acq, log, clock=clock,
+                             rate_hz=sc.rate_hz if sc is not None else None)
+    log(f"validation on the fly: {report.robot_time_line()}")
+    measured = []
+    for p, sw in zip(passes, sweeps):
+        poses, profiles = collector.poses.get(p.index, []), collector.profiles.get(p.index, [])
+        for pose, pts in zip(poses, profiles):
+            writer.append(Observation(index=writer.next_index, station=p.station, timestamp=datetime.now(timezone.utc),
+                                      base_from_flange=pose, profile=Profile.from_points(pts)))
+        measured.append(Measured(sw, list(poses), list(profiles)))
+    return measured
