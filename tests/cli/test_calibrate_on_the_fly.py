@@ -89,6 +89,16 @@ def test_the_example_finds_the_clock_offset_within_its_uncertainty_and_says_the_
     assert np.linalg.norm(true.translation - result.transform.translation) < 3 * np.linalg.norm(result.std_translation_mm)
     assert geo.rotation_angle_deg(true.rotation_matrix, result.transform.rotation_matrix) < 3 * np.linalg.norm(
         result.std_rotation_deg)
+    # solve of the journal: the run's settings (the station model, not solve's "auto"), its answer and truth line
+    again = cfg.parent / "solved"
+    assert main(["solve", str(out / "journal.stream.jsonl"), "--out", str(again), "--no-report"]) == EXIT_OK
+    solved = capsys.readouterr()
+    assert 'settings from the recording (the run\'s [calibration]): ' in solved.err
+    assert 'robot_error_model = "station"' in solved.err
+    resolved = dataio.read_result(again / "result.json")
+    assert resolved.transform.translation == pytest.approx(result.transform.translation, abs=1e-9)
+    assert resolved.timing.offset_ms == pytest.approx(result.timing.offset_ms, abs=1e-9)
+    assert f"clock offset error {error_ms:+.4f} ms" in solved.out and f"true {1e3 * truth[0]:.4f} ms" in solved.out
 
 
 @pytest.mark.slow
