@@ -88,7 +88,7 @@ def _planned(run) -> tuple[list[PlannedSweep], list[Target], dict[int, list[int]
     log(f"plan: {len(sweeps)} sweeps on the fly in {len(stations)} stations ({len(otf.directions_in_sensor)} "
         f"directions x {len(otf.speeds_mm_s)} speeds ({', '.join(f'{v:g}' for v in otf.speeds_mm_s)} mm/s) x forth "
         f"and back), {sum(s.length_mm for s in sweeps):.0f} mm of sweeps; every sweep checked at "
-        f"{len(targets)} points")
+        f"{len(targets)} points; sweeps numbered 0 to {len(sweeps) - 1}, as in the journal")
     check_plan(targets, acq, "on-the-fly plan", setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out,
                log=log)
     check_plan_solvable([Target(s.index, s.station, s.start, True, s.speed_mm_s) for s in sweeps])
