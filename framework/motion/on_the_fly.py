@@ -364,7 +364,11 @@ def acquire_sweeps(robot, sensor, sweeps: list[PlannedSweep], journal: SweepJour
             robot.move_linear(s.start, acq.approach_speed_mm_s)
             if acq.settle_s:
                 clock.wait(acq.settle_s)
-        poses, profiles, faults = _sweep_streams(robot, sensor, s, rate_hz)
+        try:
+            poses, profiles, faults = _sweep_streams(robot, sensor, s, rate_hz)
+        except KeyboardInterrupt:  # Ctrl-C: the devices' own lines may follow; say which sweep it cut
+            log(f"{s.name}: interrupted; none of its data is written (--resume takes it again)")
+            raise
         at = s.end
         pc = robot.pose_stream_counts()
         fc = getattr(sensor, "profile_stream_counts", None)
