@@ -15,7 +15,7 @@ from spherecal.app.cell import make_cell
 from spherecal.app.outputs import RESULT_NAME, STREAM_JOURNAL_NAME, check_output_folder, written_files
 from spherecal.app.plan_checks import check_plan, check_plan_solvable, confirm_motion, plan_digest
 from spherecal.app.plugin_host import open_devices
-from spherecal.app.provenance import check_same_devices, traceability
+from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, check_same_devices, traceability, with_clock_truth
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
 from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Dataset
@@ -90,7 +90,7 @@ def _planned(run) -> tuple[list[PlannedSweep], list[Target], dict[int, list[int]
     log(f"plan: {len(sweeps)} sweeps on the fly in {len(stations)} stations ({len(otf.directions_in_sensor)} "
         f"directions x {len(otf.speeds_mm_s)} speeds ({', '.join(f'{v:g}' for v in otf.speeds_mm_s)} mm/s) x forth "
         f"and back), {sum(s.length_mm for s in sweeps):.0f} mm of sweeps; every sweep checked at "
-        f"{len(targets)} points")
+        f"{len(targets)} points; sweeps numbered 0 to {len(sweeps) - 1}, as in the journal")
     check_plan(targets, acq, "on-the-fly plan", setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out,
                log=log)
     check_plan_solvable([Target(s.index, s.station, s.start, True, s.speed_mm_s) for s in sweeps])
@@ -164,11 +164,13 @@ def _continue_simulated_time(journal: Path, cell, provenance: dict) -> None:
 
 
 def _journal_provenance(run, digest: str, cell) -> dict:
-    """The journal's provenance: the plan, the configuration, the device types and, in a
-    simulated run, the truth (the transform, the sphere and the two stream clocks)."""
+    """The journal's provenance: the plan, the configuration, the estimator's settings
+    (``solve`` of the journal starts from them), the device types and, in a simulated run,
+    the truth (the transform, the sphere and the two stream clocks)."""
     cfg = run.cfg
     provenance = {"source": "spherecal calibrate on the fly", "plan_digest": digest, "config": str(run.loaded.path),
-                  "robot": cfg.robot["type"], "sensor": cfg.sensor["type"], "simulated": cell is not None}
+                  "robot": cfg.robot["type"], "sensor": cfg.sensor["type"], "simulated": cell is not None,
+                  CALIBRATION_OPTIONS_KEY: calibration_options(cfg).model_dump(mode="json")}
     if cell is not None:
         from spherecal.sim.live import clock_truth
 
@@ -195,6 +197,11 @@ def _take(run, sweeps, targets, of_sweep, cell, journal: Path, sweeps_path: Path
             provenance[POSES_ASSUMED_KEY] = assumed
         if previous is not None:
             check_same_devices(previous, provenance, journal, log)
+            settings = provenance[CALIBRATION_OPTIONS_KEY]
+            if previous.get(CALIBRATION_OPTIONS_KEY, settings) != settings:
+                log(f"note: the configuration's [calibration] changed since {journal} was started: this run solves "
+                    "with the configuration's; the journal keeps the first run's, which `spherecal solve` of it "
+                    "starts from")
             writer = reopen_recording(journal, fsync=True)
         else:
             writer = RecordingWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
@@ -210,16 +217,8 @@ def _solved(run, journal: Path, outcome: Outcome, *, report: bool, force: bool, 
     """The journal read as a recording, solved with its clock relation, graded and written."""
     cfg, log = run.cfg, run.log
     recording = read_recording(journal)
-    provenance = dict(recording.provenance)
-    truth = provenance.get("simulated_clocks")
-    # computed poses (a programmed line) are stamped by a clock of the robot's program, not the
-    # simulated controller's clock the truth describes: no truth of the offset is claimed for them
-    if isinstance(truth, dict) and recording.poses_assumption is None:
-        from spherecal.sim.live import true_time_relation
-
-        offset_s, drift = true_time_relation(truth, recording.t_sensor0_s)
-        provenance.update(true_offset_s=offset_s, true_drift=drift)
-    header = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm, provenance=provenance)
+    header = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
+                     provenance=with_clock_truth(recording))
     options = calibration_options(cfg)
     arm = run.arm if recording.poses.joints_deg is not None else None
 

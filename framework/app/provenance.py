@@ -13,8 +13,30 @@ from spherecal.io.files import sha256_of
 
 if TYPE_CHECKING:
     from spherecal.config import LoadedConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
+    from spherecal.core.streams import Recording
+
+#: A recording's provenance key holding the estimator settings it was taken to be solved
+#: with (``calibrate`` on the fly: its ``[calibration]`` with the nominal transform, as
+#: ``CalibrationOptions.model_dump(mode="json")``); ``solve`` of the recording starts
+#: from them.
+CALIBRATION_OPTIONS_KEY = "calibration_options"
 
 
+def with_clock_truth(recording: Recording) -> dict:
+    """The recording's provenance with the truth of its clock relation added
+    (``true_offset_s``, ``true_drift``: docs/conventions.md, "Time: two clocks") when it
+    holds the simulated devices' clocks (``simulated_clocks``, written by ``calibrate`` on
+    a simulated cell). Computed poses (a programmed line: ``recording.poses_assumption``)
+    are stamped by a clock of the robot's program, not the simulated controller's clock
+    the truth describes: no truth of the offset is claimed for them."""
+    provenance = dict(recording.provenance)
+    clocks = provenance.get("simulated_clocks")
+    if isinstance(clocks, dict) and recording.poses_assumption is None:
+        from spherecal.sim.live import true_time_relation
+
+        offset_s, drift = true_time_relation(clocks, recording.t_sensor0_s)
+        provenance.update(true_offset_s=offset_s, true_drift=drift)
+    return provenance
 
 
 def provenance_type(dataset: Dataset, kind: str = "robot") -> str | None:

@@ -200,8 +200,10 @@ def _solve(sub, common, as_json) -> None:
                      "along x)")
     bag.add_argument("--base-frame", metavar="FRAME", help="with a /tf pose topic: the robot's base frame")
     bag.add_argument("--flange-frame", metavar="FRAME", help="with a /tf pose topic: the flange frame")
-    s.add_argument("--fit-radius", action="store_true", help="estimate the sphere radius too")
-    s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data")
+    s.add_argument("--fit-radius", action=argparse.BooleanOptionalAction, default=None,
+                   help="estimate the sphere radius too (default: no; a recording of calibrate: as its run did)")
+    s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data "
+                   "(default: none; a recording of calibrate: its run's nominal transform)")
     s.add_argument("--robot", metavar="TYPE", help="robot type whose kinematics computes flange poses from joints_deg "
                    "(default: the robot the dataset's provenance names; `spherecal plugins` lists them)")
     s.add_argument("--robot-config", metavar="FILE.toml", help="the robot's settings (its [robot] table, e.g. "
@@ -213,9 +215,9 @@ def _solve(sub, common, as_json) -> None:
                    help="a shot turned more than this from its station's orientation is left out "
                    "(default: derived from the orientation read noise)")
     s.add_argument("--robot-error-model", choices=["auto", "kinematic", "station", "kinematic+station", "none"],
-                   default="auto", help="the robot's systematic error (docs/estimation.md): auto (default) is "
-                   "kinematic when joints and the robot's kinematics are known, else station; none for a calibrated "
-                   "robot whose error is within its repeatability")
+                   help="the robot's systematic error (docs/estimation.md): auto (default; a recording of "
+                   "calibrate: its run's setting) is kinematic when joints and the robot's kinematics are known, else "
+                   "station; none for a calibrated robot whose error is within its repeatability")
     s.add_argument("--identify-kinematics", action="store_true",
                    help="kinematic calibration: estimate the arm's identifiable geometric errors too (needs --robot "
                    "and joints_deg); writes robot_calibrated.urdf")

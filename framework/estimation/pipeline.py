@@ -325,7 +325,8 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
             f"more than {ABSURD_RESIDUAL_RATIO:g} times the noise: the data fit nothing, screening skipped (another "
             "mounting's data, poses in other units, another sphere?)")
     else:
-        clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit, batch=time_effects is not None)
+        clean, ref = trim_stray_points(clean, ref, noise, opt, flags, budget, refit, batch=time_effects is not None,
+                                       recording=time_effects is not None)
         clean, ref = reject_inconsistent_shots(clean, ref, opt, flags, budget, refit, batch=time_effects is not None)
         reweighed = None if reweigh is None else reweigh(clean, ref, noise)
         if reweighed is not None or every_point is not None:

@@ -43,23 +43,32 @@ _CHI3_MEDIAN = 1.5382
 EDGE_PLANE_OFFSET_SHARE = 0.7
 
 
-def likely_cause_of_inconsistent_profile(centre_in_sensor_mm, radius_mm: float) -> str:
+def likely_cause_of_inconsistent_profile(centre_in_sensor_mm, radius_mm: float, recording: bool = False) -> str:
     """The likely cause of a profile whose points lie far from the fitted sphere, from where
     its laser plane cuts the sphere (``centre_in_sensor_mm``: the sphere centre in the
     sensor frame as fitted, mm; the plane is x = 0). A cut near the edge turns the pose's
     error along the sweep into an in-plane error x / rho times larger (rho the circle's
     radius): a few hundredths of a millimetre of robot error look like a bad shot there,
-    and the advice is to keep sweeps off the edge, not to suspect the pairing."""
+    and the advice is to keep sweeps off the edge, not to suspect the pairing. The sweeps
+    of a ``recording`` (on the fly) cross the whole sphere by design (their length is
+    ``[acquisition.on_the_fly] crossing_fraction``, at least one radius, not
+    ``sweep_fraction``): profiles at the edge are expected there and left out, and only
+    many of them say something."""
     x = abs(float(centre_in_sensor_mm[0]))
     r = float(radius_mm)
     if x > EDGE_PLANE_OFFSET_SHARE * r:
         rho = float(np.sqrt(max(r * r - x * x, 0.0)))
         gain = x / rho if rho > 0 else float("inf")
-        return (f"it cuts the sphere near its edge (laser plane {x:.1f} mm from the centre, circle radius "
-                f"{rho:.1f} mm of {r:.1f} mm), where the robot's pose error along the sweep shows {gain:.1f} times "
-                "larger in the profile; when several such shots are flagged, keep the sweeps off the edge "
-                f"(acquisition.sweep.sweep_fraction at most {EDGE_PLANE_OFFSET_SHARE:g}); else a pose read at the "
-                "wrong moment or a mis-paired shot")
+        where = (f"it cuts the sphere near its edge (laser plane {x:.1f} mm from the centre, circle radius "
+                 f"{rho:.1f} mm of {r:.1f} mm), where the robot's pose error along the sweep shows {gain:.1f} times "
+                 "larger in the profile; ")
+        if recording:
+            return where + ("a sweep on the fly crosses the whole sphere, so such profiles are expected and left "
+                            "out: nothing to change unless they are many (then suspect the arm's path error or the "
+                            "clock relation); else a pose read at the wrong moment")
+        return where + ("when several such shots are flagged, keep the sweeps off the edge "
+                        f"(acquisition.sweep.sweep_fraction at most {EDGE_PLANE_OFFSET_SHARE:g}); else a pose read "
+                        "at the wrong moment or a mis-paired shot")
     return "a pose read at the wrong moment or a mis-paired shot"
 
 
@@ -562,13 +571,16 @@ Refit = Callable[[Problem, RefineResult], RefineResult]
 
 
 def trim_stray_points(clean: Problem, ref: RefineResult, noise: NoiseAssumptions, opt, flags: list[ObservationFlag],
-                      budget: RejectionBudget, refit: Refit, batch: bool = False) -> tuple[Problem, RefineResult]:
+                      budget: RejectionBudget, refit: Refit, batch: bool = False,
+                      recording: bool = False) -> tuple[Problem, RefineResult]:
     """Stray points the circle fits kept: trimmed on the joint residuals of ``ref`` and
     refitted once. A profile that would lose too many points (or keep too few) has no
     strays: its pose is wrong. It is left out and flagged (worst first, refitting after
     each; with ``batch``, for the thousands of profiles of a recording, all such profiles
     at once within the budget), never refitted empty; once the ``budget`` is spent, only
-    profiles that would keep too few points are left out, the others are trimmed."""
+    profiles that would keep too few points are left out, the others are trimmed.
+    ``recording``: the profiles are a recording's (swept on the fly), for the flags' likely
+    cause (:func:`likely_cause_of_inconsistent_profile`)."""
     keep_pts = [np.ones(len(e), dtype=bool) for e in ref.residuals]
     while (clean.kinds == KIND_PROFILE).any():
         is_profile = clean.kinds == KIND_PROFILE
@@ -594,7 +606,8 @@ def trim_stray_points(clean: Problem, ref: RefineResult, noise: NoiseAssumptions
             flags.append(flag_shot(clean, j, f"inconsistent with the other profiles: {lost[j]} of {counts[j]} points "
                                          f"({lost[j] / counts[j]:.0%}) lie far from the sphere they agree on (beyond "
                                          f"{limit:.3f} mm): "
-                                         + likely_cause_of_inconsistent_profile(ref.predicted[j], ref.radius)))
+                                         + likely_cause_of_inconsistent_profile(ref.predicted[j], ref.radius,
+                                                                                recording)))
         budget.rejected += len(drop)
         clean = _drop_profiles(clean, keep, flags, opt, "left once others were left out ", budget.stations)
         ref = refit(clean, ref)

@@ -59,7 +59,8 @@ class KeepOut:
 @dataclass
 class KeepOutFinding:
     """What the check found: ``problems`` (one line each, empty when the plan keeps its
-    distance), the closest approach and where, the moves and poses checked, the time."""
+    distance), the closest approach and where, the moves and poses checked, the time, and
+    whether the first move from where the arm stands was among them (``from_arm``)."""
 
     problems: list[str] = field(default_factory=list)
     closest: Closest | None = None
@@ -67,12 +68,16 @@ class KeepOutFinding:
     moves: int = 0
     poses: int = 0
     seconds: float = 0.0
+    from_arm: bool = False
 
     def summary(self, keep_out: KeepOut) -> str:
-        """One line: the closest approach, where, and what was checked."""
+        """One line: the closest approach, where, and what was checked. A check from where
+        the arm stands (with the devices open, after the plan's own check) says so: it has
+        one move more, and its poses along it."""
         if self.closest is None:
             return "keep-out: nothing to check"
-        return (f"keep-out: the sensor's body stays {self.closest.clearance_mm:.1f} mm or more from the sphere and its "
+        head = "keep-out, from where the arm stands (its first move too)" if self.from_arm else "keep-out"
+        return (f"{head}: the sensor's body stays {self.closest.clearance_mm:.1f} mm or more from the sphere and its "
                 f"{keep_out.rod_name} (clearance {keep_out.clearance_mm:g} mm; closest "
                 f"{self.closest_where}, to the {self.closest.part}); {self.moves} moves, {self.poses} poses checked in "
                 f"{self.seconds:.2f} s")
@@ -115,7 +120,7 @@ def check_keep_out(targets: list, keep_out: KeepOut, start: Pose | None = None) 
     line for each target and each move (from its closest pose) nearer than the clearance.
     A move whose end target is itself too near is left to that target's line."""
     began = time.perf_counter()
-    finding = KeepOutFinding()
+    finding = KeepOutFinding(from_arm=start is not None)
     if not targets:
         return finding
     g, limit = keep_out.geometry, keep_out.clearance_mm

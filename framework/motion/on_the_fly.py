@@ -82,7 +82,9 @@ class PlannedSweep:
 
     @property
     def name(self) -> str:
-        return (f"sweep {self.index + 1} (station {self.station}, {'back' if self.back else 'forth'} at "
+        """``sweep 17 (station S3, back at 50 mm/s)``: the sweep's index, counted from 0 as
+        in the journal (the profiles' ``sweep``, ``journal.sweeps.jsonl``)."""
+        return (f"sweep {self.index} (station {self.station}, {'back' if self.back else 'forth'} at "
                 f"{self.speed_mm_s:g} mm/s)")
 
 
@@ -135,12 +137,13 @@ def plan_sweeps(acq: AcquisitionConfig, mounting: MountingMode, nominal: Transfo
 def sweep_targets(sweeps: list[PlannedSweep], approach_speed_mm_s: float) -> tuple[list[Target], dict[int, list[int]]]:
     """The sweeps as targets for the plan check (the module's docstring), and each
     sweep's target indices. A sweep that starts where the one before ends has no start
-    target of its own. Targets are named ``station S1, sweep 3`` in the check's messages."""
+    target of its own. Targets are named ``station S1, sweep 3`` in the check's messages
+    (the sweep's index, as in the journal)."""
     targets: list[Target] = []
     of_sweep: dict[int, list[int]] = {}
     previous: PlannedSweep | None = None
     for s in sweeps:
-        label = f"{s.station}, sweep {s.index + 1}"
+        label = f"{s.station}, sweep {s.index}"
         mine = of_sweep.setdefault(s.index, [])
         joined = previous is not None and np.allclose(previous.end.translation, s.start.translation, atol=1e-9) and \
             np.allclose(previous.end.rotation_matrix, s.start.rotation_matrix, atol=1e-12)
@@ -236,7 +239,7 @@ class OnTheFlyReport:
         lost_p = sum(s.pose_lost for s in self.sweeps)
         lost_f = sum(s.frames_lost for s in self.sweeps)
         late_f = sum(s.frames_late for s in self.sweeps)
-        hit = [f"{s.sweep + 1}" for s in self.sweeps if s.pose_lost or s.frames_lost]
+        hit = [f"{s.sweep}" for s in self.sweeps if s.pose_lost or s.frames_lost]
         where = f" (in sweeps {', '.join(hit)})" if hit else ""
         return (f"streams: {lost_p} pose samples lost, {lost_f} profile frames lost and {late_f} exposed late over "
                 f"{len(self.sweeps)} sweeps{where}")
@@ -362,7 +365,11 @@ def acquire_sweeps(robot, sensor, sweeps: list[PlannedSweep], journal: SweepJour
             robot.move_linear(s.start, acq.approach_speed_mm_s)
             if acq.settle_s:
                 clock.wait(acq.settle_s)
-        poses, profiles, faults = sweep_streams(robot, sensor, s, rate_hz)
+        try:
+            poses, profiles, faults = sweep_streams(robot, sensor, s, rate_hz)
+        except KeyboardInterrupt:  # Ctrl-C: the devices' own lines may follow; say which sweep it cut
+            log(f"{s.name}: interrupted; none of its data is written (--resume takes it again)")
+            raise
         at = s.end
         pc = robot.pose_stream_counts()
         fc = getattr(sensor, "profile_stream_counts", None)

@@ -52,6 +52,9 @@ _LIBUSB_ERROR_BUSY = -6
 FLUSH_WAIT_MS = 20
 #: Most frames a flush discards before it concludes that the sensor is streaming.
 MAX_FLUSH_FRAMES = 64
+#: Most frames the flush of a stream given up on discards (stop_stream sent: what is left
+#: is the frames measured before it, which a simulated device delivers only when read).
+MAX_ABANDONED_FRAMES = 4096
 #: Most frames of earlier shots one read discards in a row before it gives up.
 MAX_EARLIER_FRAMES = 256
 
@@ -268,12 +271,15 @@ class NxSensorDriver:
         data = self._dev.read(self.wire.bulk_in_endpoint, self._read_size, timeout_ms or self.config.timeout_ms)
         return decode_frame(data, self.wire)
 
-    def _flush_input(self, operation: str) -> None:
+    def _flush_input(self, operation: str, quiet: bool = False, max_frames: int = MAX_FLUSH_FRAMES) -> int:
         """Read and discard whatever waits on the IN endpoint (frames of an earlier
         session, of a stream, of a device that restarted) until a read gets nothing
         within FLUSH_WAIT_MS; the frame counter is then unknown until the next shot
-        learns it."""
-        for _ in range(MAX_FLUSH_FRAMES):
+        learns it. Returns how many frames were discarded; each is logged unless
+        ``quiet`` (the caller sums them up). More than ``max_frames`` in a row: the sensor
+        streams unasked (DeviceError)."""
+        discarded = 0
+        for _ in range(max_frames):
             try:
                 self._dev.read(self.wire.bulk_in_endpoint, self._read_size, FLUSH_WAIT_MS)
             except usb.core.USBTimeoutError:
@@ -283,15 +289,18 @@ class NxSensorDriver:
                     self._clear_halt_quietly()
                     continue
                 raise
-            self._log(f"{self.device_name}: discarded a waiting frame while {operation}")
+            discarded += 1
+            if not quiet:
+                self._log(f"{self.device_name}: discarded a waiting frame while {operation}")
         else:
             raise self._error(
-                f"flushing the input ({operation})", f"frames kept arriving unasked ({MAX_FLUSH_FRAMES} in a row)",
+                f"flushing the input ({operation})", f"frames kept arriving unasked ({max_frames} in a row)",
                 "The sensor is streaming or triggered by something else: close other sensor software, or "
                 "power-cycle the sensor.",
             )
         self.counter.forget()
         self._flushed = True
+        return discarded
 
     def _clear_halt_quietly(self) -> None:
         try:
@@ -543,7 +552,21 @@ class NxSensorDriver:
         if reader.fault is None:
             self._stop_device_quietly()
         reader.request_stop()
-        _join_while_draining(reader, self.config.stall_timeout_ms / 1000 + 2 * STREAM_POLL_MS / 1000 + 1.0)
+        try:
+            _join_while_draining(reader, self.config.stall_timeout_ms / 1000 + 2 * STREAM_POLL_MS / 1000 + 1.0)
+        except BaseException:  # interrupted (Ctrl-C) while the frames in flight were taken
+            self._abandon_stream("interrupted while stopping it")
+            raise
+        self._stream_ended(reader)
+        taken = reader.taken()
+        if reader.fault is not None:
+            raise ProfileStreamError(self._stream_fault_message(reader), taken, reader.counts)
+        if taken is None:
+            return ProfileStream.from_profiles([], [], frame=[])
+        return taken
+
+    def _stream_ended(self, reader: StreamReader) -> None:
+        """The driver's state once ``reader``'s stream has ended (joined, or given up on)."""
         self._reader = None
         self._streaming = False
         if reader.is_alive():  # the reader cannot be joined: leave it reading nothing of ours
@@ -552,14 +575,32 @@ class NxSensorDriver:
         if reader.last_frame_s is not None:
             self._last_frame_host_s = reader.last_frame_s
         self.profile_stream_counts = reader.counts
-        taken = reader.taken()
-        if reader.fault is not None:
-            if self._stamps is not None and reader.fault_kind in ("clock_backwards", "clock_jump"):
-                self._stamps.new_session()  # the clock broke the time line: follow it no further
-            raise ProfileStreamError(self._stream_fault_message(reader), taken, reader.counts)
-        if taken is None:
-            return ProfileStream.from_profiles([], [], frame=[])
-        return taken
+        if reader.fault is not None and self._stamps is not None and \
+                reader.fault_kind in ("clock_backwards", "clock_jump"):
+            self._stamps.new_session()  # the clock broke the time line: follow it no further
+
+    def _abandon_stream(self, why: str) -> None:
+        """Stop a stream whose frames nobody will take (the run stopped while it ran):
+        the reader stops at once, the frames still in flight are discarded, and one line
+        says how many frames were dropped in all, instead of one line per frame."""
+        reader = self._reader
+        if reader is None:
+            return
+        reader.abandon()
+        self._stop_device_quietly()
+        reader.join(timeout=2 * STREAM_POLL_MS / 1000 + 1.0)
+        self._stream_ended(reader)
+        in_flight = "?"
+        if self._dev is not None and not self._closed:
+            try:
+                in_flight = str(self._flush_input("stopping the stream", quiet=True, max_frames=MAX_ABANDONED_FRAMES))
+            except DeviceError:
+                in_flight = f"{MAX_ABANDONED_FRAMES} or more"
+            except usb.core.USBError:
+                in_flight = "an unknown number"
+        counts = reader.counts
+        self._log(f"{self.device_name}: profile stream stopped ({why}): its {counts.received} frame(s) read and "
+                  f"{in_flight} still in flight discarded")
 
     def _stop_stream_quietly(self) -> None:
         if self._dev is None or self._closed:
@@ -589,11 +630,8 @@ class NxSensorDriver:
         """Release the interface and the device. Safe to call twice."""
         if self._closed:
             return
-        if self._reader is not None:
-            self._stop_device_quietly()
-            self._reader.request_stop()
-            self._reader.join(timeout=2 * STREAM_POLL_MS / 1000 + 1.0)
-            self._reader = None
+        if self._reader is not None:  # a stream nobody stopped: the run ended while it ran
+            self._abandon_stream("closed while streaming")
         if self._streaming:
             self._stop_stream_quietly()
             self._streaming = False

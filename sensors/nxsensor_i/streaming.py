@@ -7,6 +7,8 @@ keeps it. It ends:
 
 * when asked to stop (:meth:`StreamReader.request_stop`, after ``stop_stream`` was sent):
   it takes the frames still in flight, until a read begun after the request gets nothing;
+* when abandoned (:meth:`StreamReader.abandon`: the run stopped while the stream ran, its
+  frames are of no use): at once, reading and saying nothing more;
 * with a named fault, keeping every frame taken before it: a stall, a USB error the driver cannot recover from (the
   device gone, an endpoint halted again and again), more malformed frames in a row than
   ``retries``, a counter or clock that breaks the time line, or a sensor that keeps
@@ -55,6 +57,7 @@ class StreamReader(threading.Thread):
         self._max_elapsed_s, self._log, self._on_fault = max_elapsed_s, log, on_fault
         self._started_s, self._period_s = started_s, period_s
         self._stop_asked = threading.Event()
+        self._abandoned = threading.Event()
         self._lock = threading.Lock()
         self.t_sensor_s: list[float] = []
         self.frames: list[int] = []
@@ -71,6 +74,15 @@ class StreamReader(threading.Thread):
 
     def request_stop(self) -> None:
         self._stop_asked.set()
+
+    def abandon(self) -> None:
+        """Stop at the next read, logging nothing more (see the module)."""
+        self._abandoned.set()
+        self._stop_asked.set()
+
+    def _say(self, message: str) -> None:
+        if not self._abandoned.is_set():
+            self._log(message)
 
     def run(self) -> None:
         try:
@@ -101,7 +113,7 @@ class StreamReader(threading.Thread):
     def _drain(self) -> None:
         draining_since: float | None = None
         misses = 0
-        while True:
+        while not self._abandoned.is_set():
             draining = self._stop_asked.is_set()
             now = self._clock_s()
             if draining and draining_since is None:
@@ -127,7 +139,7 @@ class StreamReader(threading.Thread):
                 frame = decode_frame(data, self._wire)
             except FrameFormatError as exc:
                 misses += 1
-                self._log(f"malformed frame skipped while streaming ({exc})")
+                self._say(f"malformed frame skipped while streaming ({exc})")
                 if misses > self._retries:
                     return self._fail(f"{misses} malformed frames in a row (last: {exc}); does sensor.wire match "
                                       "the device?", "malformed")
@@ -145,10 +157,10 @@ class StreamReader(threading.Thread):
             return False
         if placed.lost_before:
             self.lost += placed.lost_before
-            self._log(f"{placed.lost_before} frame(s) lost before frame {frame.frame_counter}")
+            self._say(f"{placed.lost_before} frame(s) lost before frame {frame.frame_counter}")
         if placed.late_s:
             self.late += 1
-            self._log(f"frame {frame.frame_counter} was exposed {1e3 * placed.late_s:.3f} ms late (kept: its stamp "
+            self._say(f"frame {frame.frame_counter} was exposed {1e3 * placed.late_s:.3f} ms late (kept: its stamp "
                       "says when)")
         self.t_sensor_s.append(placed.t_sensor_s)
         self.frames.append(placed.frame)

@@ -297,6 +297,21 @@ def test_a_profile_flagged_near_the_spheres_edge_is_explained_by_the_edge_not_th
     assert "inf times" in likely_cause_of_inconsistent_profile([1.2 * r, 0.0, 0.0], r)
 
 
+def test_a_recording_s_profile_at_the_edge_is_said_expected_not_sent_to_a_setting_it_ignores():
+    """Sweeps on the fly cross the whole sphere (crossing_fraction at least 1): edge
+    profiles are expected there; sweep_fraction, which sizes stop-and-go sweeps only, is
+    not named."""
+    from spherecal.estimation.screening import likely_cause_of_inconsistent_profile
+
+    r = 19.1
+    edge = likely_cause_of_inconsistent_profile([18.2, 1.0, -20.0], r, recording=True)
+    assert "near its edge" in edge and "circle radius 5.8 mm" in edge and "3.1 times" in edge
+    assert "sweep_fraction" not in edge and "mis-paired" not in edge
+    assert "expected and left out: nothing to change unless they are many" in edge
+    assert likely_cause_of_inconsistent_profile([0.1 * r, 1.0, -20.0], r, recording=True) == \
+        likely_cause_of_inconsistent_profile([0.1 * r, 1.0, -20.0], r)
+
+
 def test_stations_screened_out_are_named_when_those_left_cannot_determine_the_transform():
     """Three of four stations whose profiles are not the sphere (a flat line: a plate in
     the beam): the stations left cannot determine the transform, and the error says that

@@ -41,6 +41,11 @@ def test_a_plan_that_keeps_its_distance():
     assert finding.closest.clearance_mm > 100
     assert finding.summary(KEEP_OUT).startswith("keep-out: the sensor's body stays ")
     assert "3 moves" in finding.summary(KEEP_OUT)
+    # checked again from where the arm stands: one move more, and the line says why
+    again = check_keep_out(targets, KEEP_OUT, start=_turned(0.0, -5.0))
+    assert again.moves == 4 and again.poses > finding.poses
+    assert again.summary(KEEP_OUT).startswith("keep-out, from where the arm stands (its first move too): the sensor's "
+                                              "body stays ")
 
 
 def test_a_move_that_swings_through_the_sphere_is_named():

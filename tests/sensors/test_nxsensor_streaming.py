@@ -2,6 +2,7 @@
 streaming on simulated time: frames at the sensor's rate on its own clock, each measured
 at the true time of its exposure; lost, late and faulty frames."""
 
+import re
 import time
 
 import numpy as np
@@ -261,3 +262,42 @@ def test_closing_while_streaming_stops_the_device_and_the_reader(driver, backend
     reader = driver._reader
     driver.close()
     assert backend.streaming is False and not reader.is_alive()
+
+
+def _noise(logs):
+    return [m for m in logs if "discarded a waiting frame" in m or "lost before frame" in m]
+
+
+def test_a_stop_interrupted_by_ctrl_c_drops_the_stream_in_one_line(driver, backend, logs):
+    """Ctrl-C while the frames in flight are taken (the stop waits for the reader): the
+    reader stops at once, what is left is discarded, and one line says how many frames
+    went, instead of a line per frame discarded or seen missing (which look like loss)."""
+    driver.start_profile_stream()
+    backend.advance_s(0.5)  # 200 frames due at once, as after a simulated move
+    reader = driver._reader
+    join = reader.join
+
+    def interrupted_once(timeout=None):
+        reader.join = join
+        join(0.002)  # the reader has begun to take them
+        raise KeyboardInterrupt
+
+    reader.join = interrupted_once
+    with pytest.raises(KeyboardInterrupt):
+        driver.stop_profile_stream()
+    assert not reader.is_alive() and driver._reader is None and backend.streaming is False
+    said = [m for m in logs if "profile stream stopped" in m]
+    assert len(said) == 1 and not _noise(logs)
+    read, in_flight = map(int, re.search(r"\(interrupted while stopping it\): its (\d+) frame\(s\) read and (\d+) "
+                                         r"still in flight discarded", said[0]).groups())
+    assert read + in_flight == 200  # every frame measured is accounted for
+    driver.close()
+    assert len([m for m in logs if "profile stream stopped" in m]) == 1  # closing says nothing more
+
+
+def test_closing_a_stream_nobody_stopped_says_what_it_dropped_in_one_line(driver, backend, logs):
+    driver.start_profile_stream()
+    backend.advance_s(0.1)
+    driver.close()
+    said = [m for m in logs if "profile stream stopped" in m]
+    assert len(said) == 1 and "(closed while streaming)" in said[0] and not _noise(logs)
