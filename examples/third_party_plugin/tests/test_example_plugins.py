@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from spherecal.plugins import (ConfigError, DeviceContext, DeviceError, InputError, Pose, SimulatedDeviceServer,
-                               rotation_angle_deg)
+                               ik_seeds_deg, rotation_angle_deg)
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 ROBOT = {"type": "example_arm"}
@@ -59,6 +59,17 @@ def test_a_move_runs_the_cells_arm_on_its_timeline(spherecal_host, spherecal_con
     assert np.linalg.norm(flange.translation - cell.current_base_from_flange.translation) < 1e-4  # 6 decimals
     _, _, timeline_joints, _ = cell.timeline.at([cell.clock.now_s])
     np.testing.assert_allclose(timeline_joints[0], joints, atol=1e-6)
+    robot.close()
+
+
+def test_the_arm_declares_its_home_where_its_controller_starts(spherecal_host, spherecal_context):
+    """The robot type declares the arm's home: the core seeds inverse kinematics there
+    before the arm is connected (not at zero joints, the stretched elbow, a singularity),
+    and the simulated controller starts there."""
+    home_deg = ik_seeds_deg(spherecal_host.arm_kinematics(ROBOT))[0]
+    assert home_deg.tolist() == [0.0, 0.0, 0.0, 0.0, 90.0, 0.0]
+    robot = spherecal_host.create_robot(ROBOT, spherecal_context)
+    np.testing.assert_allclose(robot.read_joints_deg(), home_deg, atol=1e-6)
     robot.close()
 
 

@@ -21,7 +21,7 @@ from spherecal.plugins import (DeviceContext, DeviceError, MotionLimits, MotionS
                                WorkspaceBox, hookimpl)
 
 from . import xa_protocol as XA
-from .arm_kinematics import ExampleArmKinematics
+from .arm_kinematics import HOME_JOINTS_DEG, ExampleArmKinematics
 
 TYPE_NAME = "example_arm"
 #: how far the controller's pose may lie from the model's pose of its joints on connecting
@@ -168,4 +168,5 @@ def spherecal_register_devices(registry) -> None:
         description="six-axis arm on the XA/1 TCP protocol, simulated on a simulated cell (example plugin)",
         flange_pose_from_joints=lambda config, joints_deg: kinematics.flange_pose_from_joints(joints_deg),
         arm_kinematics=lambda config: kinematics,
+        home_joints_deg=tuple(HOME_JOINTS_DEG),  # where the core seeds IK before the arm is connected
     ))
