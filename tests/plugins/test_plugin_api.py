@@ -52,9 +52,11 @@ def test_the_names_are_the_objects_at_their_homes():
 
 
 #: The DeviceContext.extras keys of a simulated run, and the built-in plugin that reads each.
-SIM_EXTRAS_KEYS = {"POSE_STREAM_SOURCE_KEY": "robots/abb_irb2400/plugin.py", "SIM_CLOCK_KEY": "robots/abb_irb2400/plugin.py",
+SIM_EXTRAS_KEYS = {"POSE_STREAM_SOURCE_KEY": "robots/abb_irb2400/plugin.py",
+                   "SIM_CLOCK_KEY": "robots/abb_irb2400/plugin.py",
                    "SIM_CONTROLLER_CLOCK_KEY": "robots/abb_irb2400/plugin.py",
-                   "SIM_NOW_KEY": "sensors/nxsensor_i/plugin.py", "SIM_SENSOR_CLOCK_KEY": "sensors/nxsensor_i/plugin.py",
+                   "SIM_NOW_KEY": "sensors/nxsensor_i/plugin.py",
+                   "SIM_SENSOR_CLOCK_KEY": "sensors/nxsensor_i/plugin.py",
                    "SIM_PROFILE_SOURCE_KEY": "sensors/nxsensor_i/plugin.py"}
 
 
@@ -73,8 +75,8 @@ def test_a_simulated_runs_extras_keys_are_the_plugin_apis():
 
 def _imported_from_api(path: Path) -> set[str]:
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    return {a.name for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module == "spherecal.plugins"
-            for a in node.names}
+    return {a.name for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module == "spherecal.plugins" for a in node.names}
 
 
 def test_the_built_in_plugins_read_the_extras_keys_of_the_plugin_api():
