@@ -41,8 +41,12 @@ modules behind these names may move between releases, these names stay. What it 
   tests run on, the simulated world's time for a simulated streaming device
   (:class:`SimClock`, :class:`MotionTimeline` and its :meth:`~MotionTimeline.sample`,
   :class:`DeviceClock`, :class:`SmoothNoise`, :class:`Samples`) and the devices' own
-  random streams (:func:`device_rng`), a simulated device's server for a protocol of
-  one's own (:class:`SimulatedDeviceServer`, :func:`line_frames`), and
+  random streams (:func:`device_rng`), the keys under which a simulated run hands a
+  factory the simulated world's time, motion and clocks in ``DeviceContext.extras``
+  (:data:`POSE_STREAM_SOURCE_KEY`, :data:`SIM_CLOCK_KEY`, :data:`SIM_CONTROLLER_CLOCK_KEY`
+  for a pose stream; :data:`SIM_NOW_KEY`, :data:`SIM_SENSOR_CLOCK_KEY`,
+  :data:`SIM_PROFILE_SOURCE_KEY` for a profile stream), a simulated device's server for a
+  protocol of one's own (:class:`SimulatedDeviceServer`, :func:`line_frames`), and
   :func:`lazy_attributes` (names a package defines on first use).
 
 What a robot author uses, and what each unlocks (docs/writing-a-robot-plugin.md; its
@@ -117,6 +121,13 @@ _WHERE = {
     "Sensor": "spherecal.devices.contract",
     "SensorType": "spherecal.devices.contract",
     "device_identity": "spherecal.devices.contract",
+    # what a simulated run puts in DeviceContext.extras for simulated streaming devices
+    "POSE_STREAM_SOURCE_KEY": "spherecal.devices.contract",
+    "SIM_CLOCK_KEY": "spherecal.devices.contract",
+    "SIM_CONTROLLER_CLOCK_KEY": "spherecal.devices.contract",
+    "SIM_NOW_KEY": "spherecal.devices.contract",
+    "SIM_PROFILE_SOURCE_KEY": "spherecal.devices.contract",
+    "SIM_SENSOR_CLOCK_KEY": "spherecal.devices.contract",
     "PoseStreamingRobot": "spherecal.devices.pose_streaming",
     "PoseStreamCounts": "spherecal.devices.pose_streaming",
     "PoseStreamError": "spherecal.devices.pose_streaming",

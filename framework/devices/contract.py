@@ -28,7 +28,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from spherecal.core.kinematics import ArmKinematics
     from spherecal.core.streams import ProfileStream  # (not loaded by a dataset's solve)
 
-__all__ = ["IDENTITY_KEYS", "RESERVED_OPTION_NAMES", "ControllerFrame", "DeviceContext", "PoseStreamClockError",
+__all__ = ["IDENTITY_KEYS", "POSE_STREAM_SOURCE_KEY", "RESERVED_OPTION_NAMES", "SIM_CLOCK_KEY",
+           "SIM_CONTROLLER_CLOCK_KEY", "SIM_NOW_KEY", "SIM_PROFILE_SOURCE_KEY", "SIM_SENSOR_CLOCK_KEY",
+           "ControllerFrame", "DeviceContext", "PoseStreamClockError",
            "PoseStreamCounts", "PoseStreamError", "PoseStreamStalled", "PoseStreamingRobot", "ProfileStreamCounts",
            "ProfileStreamError", "ProfileStreamingSensor", "Robot", "RobotType", "Sensor", "SensorBody",
            "SensorFieldOfView", "SensorType", "device_identity"]
@@ -139,6 +141,38 @@ class ProfileStreamingSensor(Sensor, Protocol):
         ended abnormally raises :class:`ProfileStreamError` here, with what was taken."""
 
 
+# The keys of ``DeviceContext.extras`` under which a simulated run (``spherecal.sim.live``)
+# gives simulated streaming devices the simulated world's time, the arm's motion and the
+# devices' clocks. A plugin reads them with ``context.extras.get(KEY)`` (absent on
+# hardware and when a test builds its own context); one that knows none ignores them. A
+# simulated device may instead read the same from ``context.cell`` (``cell.clock``,
+# ``cell.timeline``, ``cell.controller_clock``, ``cell.sensor_clock``).
+
+POSE_STREAM_SOURCE_KEY = "pose_stream_source"
+"""``source(T_true_s (N,)) -> (R (N, 3, 3), t_mm (N, 3), joints_deg (N, J) or None)``:
+what the robot's controller reports at simulated true times (``base_from_flange``, mm;
+the cell's ``timeline.reported_at``), for a simulated pose stream."""
+
+SIM_CLOCK_KEY = "sim_clock"
+"""``clock() -> T_true_s``: the simulated true time now, s (the cell's ``clock.now_s``)."""
+
+SIM_CONTROLLER_CLOCK_KEY = "sim_controller_clock"
+"""The controller's clock: an object with ``stamp(T_true_s)`` (seconds of the controller's
+clock) and ``rate`` (its seconds per true second), the cell's ``controller_clock``."""
+
+SIM_NOW_KEY = "sim_now_s"
+"""``now_s() -> T_true_s``: the simulated true time now, s (what :data:`SIM_CLOCK_KEY`
+gives, under the name a simulated sensor asks for)."""
+
+SIM_SENSOR_CLOCK_KEY = "sim_sensor_clock"
+"""The sensor's clock as its hardware counts it: an object with ``to_sensor_s(T_true_s)``
+and ``to_true_s(t_sensor_s)``, seconds."""
+
+SIM_PROFILE_SOURCE_KEY = "sim_profile_source"
+"""``source(T_true_s) -> (N, 2)``: the profile, (y, z) mm in the sensor frame, the sensor
+sees at a simulated true time (where the flange truly is, with the cell's point noise)."""
+
+
 @dataclass
 class DeviceContext:
     """What the host hands a device factory besides its own configuration.
@@ -146,7 +180,14 @@ class DeviceContext:
     ``cell`` is set when the run is simulated: a :class:`spherecal.sim.SimulatedCell`, of
     which simulated devices are views (the robot moves its flange, the sensor measures the
     sphere from there), so they stay consistent without knowing about each other. (The
-    simulator sits above the devices' layer, so the annotation does not name its class.)"""
+    simulator sits above the devices' layer, so the annotation does not name its class.)
+
+    ``extras`` holds objects a configuration cannot name, handed to the factory
+    untouched: a test's stand-in for a controller, or, in a simulated run, the simulated
+    world's time, motion and clocks under :data:`POSE_STREAM_SOURCE_KEY`,
+    :data:`SIM_CLOCK_KEY`, :data:`SIM_CONTROLLER_CLOCK_KEY` (for a pose stream),
+    :data:`SIM_NOW_KEY`, :data:`SIM_SENSOR_CLOCK_KEY` and :data:`SIM_PROFILE_SOURCE_KEY`
+    (for a profile stream)."""
 
     cell: Any = None
     log: Callable[[str], None] = _LOG

@@ -150,10 +150,11 @@ class RecordingWriter:
         on none). Written in lines of at most :data:`POSES_PER_LINE` samples."""
         name = os.fspath(self.path)
         try:
-            t = np.atleast_1d(np.asarray(t_robot_s, dtype=float))
+            # contiguous copies where needed: the JSON encoder takes C-ordered arrays only
+            t = np.ascontiguousarray(np.atleast_1d(np.asarray(t_robot_s, dtype=float)))
             n = len(t)
-            tr = np.asarray(translation_mm, dtype=float).reshape(n, 3) if n else np.zeros((0, 3))
-            q = np.asarray(quaternion_wxyz, dtype=float).reshape(n, 4) if n else np.zeros((0, 4))
+            tr = np.ascontiguousarray(translation_mm, dtype=float).reshape(n, 3) if n else np.zeros((0, 3))
+            q = np.ascontiguousarray(quaternion_wxyz, dtype=float).reshape(n, 4) if n else np.zeros((0, 4))
             j = None if joints_deg is None else np.asarray(joints_deg, dtype=float).reshape(n, -1)
             s = None if seq is None else np.asarray(seq).reshape(n)
         except ValueError as exc:

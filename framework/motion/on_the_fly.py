@@ -59,6 +59,9 @@ SWEEP_CHECK_STEP_MM = 10.0
 #: the end means the stream stopped before the move did, mm and deg.
 STREAM_END_TOLERANCE_MM = 0.25
 STREAM_END_TOLERANCE_DEG = 0.05
+#: Where a plugin author reads how to stream (named in the refusal of a device that cannot).
+ROBOT_STREAMING_GUIDE = 'docs/writing-a-robot-plugin.md, "Streaming the pose while the arm moves"'
+SENSOR_STREAMING_GUIDE = 'docs/writing-a-sensor-plugin.md, "Streaming profiles"'
 
 
 @dataclass(frozen=True)
@@ -167,7 +170,8 @@ def check_streaming(robot, sensor, robot_type: str, sensor_type: str) -> None:
     problems = []
     if not isinstance(robot, PoseStreamingRobot):
         problems.append(f"robot type {robot_type!r} does not stream its pose (its plugin does not implement "
-                        "PoseStreamingRobot); use a robot type that does, or mode = \"stop_and_go\"")
+                        f"PoseStreamingRobot: {ROBOT_STREAMING_GUIDE}); use a robot type that does, or "
+                        "mode = \"stop_and_go\"")
     elif not robot.can_stream_poses():
         try:
             robot.start_pose_stream()
@@ -179,7 +183,8 @@ def check_streaming(robot, sensor, robot_type: str, sensor_type: str) -> None:
                             "(can_stream_poses() is False); configure its stream")
     if not isinstance(sensor, ProfileStreamingSensor):
         problems.append(f"sensor type {sensor_type!r} does not stream profiles (its plugin does not implement "
-                        "ProfileStreamingSensor); use a sensor type that does, or mode = \"stop_and_go\"")
+                        f"ProfileStreamingSensor: {SENSOR_STREAMING_GUIDE}); use a sensor type that does, or "
+                        "mode = \"stop_and_go\"")
     if problems:
         raise InputError("[acquisition] mode = \"on_the_fly\" needs a robot that streams its pose and a sensor that "
                          "streams profiles; nothing was moved:\n  " + "\n  ".join(problems))

@@ -12,8 +12,10 @@ time, each stamped by its own clock.
   the sensor's clock read as its hardware counts it (:class:`CounterClock`).
 - The simulated time both run on: the cell's :class:`~spherecal.sim.timeline.SimClock`.
 
-The keys are the ones the built-in plugins read (docs/robot-abb-irb2400.md and
-docs/sensor-nxsensor-i.md, "Simulation"); a plugin that knows none of them ignores them.
+The keys are the plugin API's (``spherecal.plugins.POSE_STREAM_SOURCE_KEY`` and the
+``SIM_*_KEY`` names, defined in :mod:`spherecal.devices.contract` and re-exported here),
+which the built-in plugins read (docs/robot-abb-irb2400.md and docs/sensor-nxsensor-i.md,
+"Simulation"); a plugin that knows none of them ignores them.
 :func:`clock_truth` and :func:`true_time_relation` give the truth of the two clocks'
 relation as docs/conventions.md defines it ("Time: two clocks"), to compare an
 on-the-fly calibration's clock offset with.
@@ -26,26 +28,13 @@ from typing import Any, Callable
 import numpy as np
 
 from spherecal.core.models import Pose
+from spherecal.devices.contract import (POSE_STREAM_SOURCE_KEY, SIM_CLOCK_KEY, SIM_CONTROLLER_CLOCK_KEY, SIM_NOW_KEY,
+                                        SIM_PROFILE_SOURCE_KEY, SIM_SENSOR_CLOCK_KEY)
 from spherecal.sim.timeline import DeviceClock, SmoothNoise
 
 __all__ = ["POSE_STREAM_SOURCE_KEY", "SIM_CLOCK_KEY", "SIM_CONTROLLER_CLOCK_KEY", "SIM_NOW_KEY",
            "SIM_PROFILE_SOURCE_KEY", "SIM_SENSOR_CLOCK_KEY", "CounterClock", "add_repeatability", "clock_truth",
            "device_extras", "profile_source", "true_time_relation"]
-
-#: ``source(T_true_s (N,)) -> (R (N, 3, 3), t_mm (N, 3), joints_deg (N, J) or None)``: the
-#: controller's report at true times (a pose-streaming robot's simulated server).
-POSE_STREAM_SOURCE_KEY = "pose_stream_source"
-#: ``clock() -> T_true_s``: the simulated true time now.
-SIM_CLOCK_KEY = "sim_clock"
-#: the controller's clock: an object with ``stamp(T_true_s)`` (seconds of its clock) and
-#: ``rate`` (its seconds per true second), a :class:`~spherecal.sim.timeline.DeviceClock`.
-SIM_CONTROLLER_CLOCK_KEY = "sim_controller_clock"
-#: ``now_s() -> T_true_s``: the simulated true time now (the sensor's name for it).
-SIM_NOW_KEY = "sim_now_s"
-#: the sensor's clock: an object with ``to_sensor_s(T_true_s)`` and ``to_true_s(t_sensor_s)``.
-SIM_SENSOR_CLOCK_KEY = "sim_sensor_clock"
-#: ``source(T_true_s) -> (N, 2)``: the profile (y, z) mm the sensor sees at a true time.
-SIM_PROFILE_SOURCE_KEY = "sim_profile_source"
 
 #: Correlation time of the arm's repeatability error along a move, s (as the simulated
 #: recordings' default: a real arm's path error is smooth over tens of milliseconds).

@@ -24,7 +24,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from spherecal.plugins import DeviceContext, Pose, RobotType, hookimpl
+# The ``context.extras`` keys a simulated run sets for the simulated controller's EGM
+# stream (the pose source, the simulated clock, the controller's clock: see :mod:`.egm_sim`);
+# absent: the controller's own pose, an internal clock and ``simulated.egm``'s clock.
+from spherecal.plugins import (POSE_STREAM_SOURCE_KEY, SIM_CLOCK_KEY, SIM_CONTROLLER_CLOCK_KEY, DeviceContext, Pose,
+                               RobotType, hookimpl)
 
 from .config import AbbIrb2400Config
 from .export import RAPID_EXPORTER
@@ -45,16 +49,6 @@ DESCRIPTION = (
 #: when the joints are not known, as the simulated controller starts (upper arm upright,
 #: forearm level, wrist bent down: no singularity).
 HOME_JOINTS_DEG = (0.0, 0.0, 0.0, 0.0, 90.0, 0.0)
-
-
-#: ``context.extras`` keys a simulated run may set for the simulated controller's EGM
-#: stream: the pose source ``source(T_true_s) -> (R, t_mm, joints_deg | None)``, the
-#: simulated clock ``clock() -> T_true_s`` and the controller's clock (an object with
-#: ``stamp(T_true_s)`` and ``rate``) (see :mod:`.egm_sim`); absent: the controller's own
-#: pose, an internal clock and ``simulated.egm``'s clock.
-POSE_STREAM_SOURCE_KEY = "pose_stream_source"
-SIM_CLOCK_KEY = "sim_clock"
-SIM_CONTROLLER_CLOCK_KEY = "sim_controller_clock"
 
 
 def start_simulator(*args, **kwargs):

@@ -6,7 +6,8 @@ under the real driver, so simulated runs exercise the same pyusb code path as th
 hardware; otherwise pyusb's default backend (libusb-1.0) is used. A simulated stream runs
 on the backend's own simulated time (moved by ``backend.advance_s``) at the cell's current
 pose, unless the context's ``extras`` give the simulated time, the sensor's clock and the
-profile source (the ``SIM_*_KEY`` names below).
+profile source (``spherecal.plugins.SIM_NOW_KEY``, ``SIM_SENSOR_CLOCK_KEY``,
+``SIM_PROFILE_SOURCE_KEY``).
 """
 
 from __future__ import annotations
@@ -14,7 +15,11 @@ from __future__ import annotations
 import importlib.util
 from typing import TYPE_CHECKING
 
-from spherecal.plugins import DeviceContext, DeviceError, SensorBody, SensorFieldOfView, SensorType, hookimpl
+# The ``DeviceContext.extras`` keys a simulated run sets to drive the simulated device's
+# stream (docs/sensor-nxsensor-i.md, "Simulation"): the simulated time now, the sensor's
+# clock, the profile at a true time.
+from spherecal.plugins import (SIM_NOW_KEY, SIM_PROFILE_SOURCE_KEY, SIM_SENSOR_CLOCK_KEY, DeviceContext, DeviceError,
+                               SensorBody, SensorFieldOfView, SensorType, hookimpl)
 
 from .config import NxSensorConfig
 
@@ -29,14 +34,6 @@ if importlib.util.find_spec("usb") is None:
     raise ImportError("the nxsensor_i plugin needs pyusb, which is not installed: pip install pyusb")
 
 NAME = "nxsensor_i"
-
-#: ``DeviceContext.extras`` keys a simulated run may set to drive the simulated device's
-#: stream (docs/sensor-nxsensor-i.md, "Simulation"): the simulated time now
-#: (``() -> seconds``), the sensor's clock (an object with ``to_sensor_s(T)`` and
-#: ``to_true_s(t)``), the profile at a true time (``(T_true_s) -> (N, 2) (y, z) mm``).
-SIM_NOW_KEY = "sim_now_s"
-SIM_SENSOR_CLOCK_KEY = "sim_sensor_clock"
-SIM_PROFILE_SOURCE_KEY = "sim_profile_source"
 
 #: The nxSensor-I's measuring range (NextWare's data, docs/sensor-nxsensor-i.md): z from
 #: -60 mm (far end, line 48 mm wide) to +40 mm (near end, 28 mm), sensor frame; a

@@ -122,6 +122,23 @@ def test_writer_appends_lines_that_read_back_while_it_is_open(tmp_path):
     assert_same(rec, read_recording(path))
 
 
+def test_poses_given_as_columns_of_one_table_write(tmp_path):
+    """A driver that keeps one row per sample (seq, stamp, pose, joints) hands the writer
+    column slices of that table, arrays that are not contiguous in memory: they are
+    written and read back as any others."""
+    rec = make_recording(n_poses=300, n_profiles=5)
+    p = rec.poses
+    table = np.column_stack([p.seq, p.t_robot_s, p.t_mm, p.quaternion_wxyz, p.joints_deg])
+    assert not table[:, 2:5].flags.c_contiguous
+    path = tmp_path / "columns.jsonl"
+    with RecordingWriter(path, mounting=rec.mounting, sphere_radius_mm=rec.sphere_radius_mm, clocks=rec.clocks,
+                         sweeps=rec.sweeps, provenance=rec.provenance) as out:
+        out.add_poses(table[:, 1], table[:, 2:5], table[:, 5:9], table[:, 9:], table[:, 0].astype(np.int64))
+        out.add_profiles(rec.profiles.t_sensor_s, rec.profiles.points_yz_mm, rec.profiles.start,
+                         frame=rec.profiles.frame, sweep=rec.profiles.sweep)
+    assert_same(rec, read_recording(path))
+
+
 def test_profiles_without_points(tmp_path):
     """A sensor that sees nothing sends empty profiles: a batch may hold no point at all."""
     path = tmp_path / "empty.jsonl"

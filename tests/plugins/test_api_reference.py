@@ -42,7 +42,9 @@ def test_the_api_reference_documents_the_plugin_api(tmp_path):
     expected = {
         "spherecal/core/models.html": ["Pose", "Profile", "Observation", "Dataset"],
         "spherecal/devices/contract.html": ["Robot", "Sensor", "RobotType", "SensorType", "SensorFieldOfView",
-                                            "DeviceContext", "ProfileStreamingSensor"],
+                                            "DeviceContext", "ProfileStreamingSensor", "POSE_STREAM_SOURCE_KEY",
+                                            "SIM_CLOCK_KEY", "SIM_CONTROLLER_CLOCK_KEY", "SIM_NOW_KEY",
+                                            "SIM_SENSOR_CLOCK_KEY", "SIM_PROFILE_SOURCE_KEY"],
         "spherecal/devices/pose_streaming.html": ["PoseStreamingRobot", "PoseStreamCounts", "PoseStreamError"],
         "spherecal/core/streams.html": ["PoseStream", "ProfileStream"],
         "spherecal/core/kinematics.html": ["ArmKinematics", "SerialChain", "chain_reach_mm"],
@@ -73,6 +75,11 @@ def test_the_api_reference_documents_the_plugin_api(tmp_path):
             assert _has(pages[page], name), f"{name} not in {page}"
     assert "base_from_flange" in pages["spherecal/devices/contract.html"]
     assert "check_target" in pages["spherecal/devices/contract.html"]
+    # the extras keys with what each gives a simulated streaming device
+    contract = pages["spherecal/devices/contract.html"]
+    key = contract[contract.index('<section id="POSE_STREAM_SOURCE_KEY"'):]
+    key = key[:key.index("</section>")]
+    assert '<div class="docstring">' in key and "what the robot's controller reports at simulated true times" in key
     assert "true_transform" in pages["spherecal/plugins/testing.html"]
     # the simulated cell's pieces a simulated controller uses, named on its page
     for text in ("timeline.move_linear", "controller_clock", "true_flange_pose"):

@@ -51,6 +51,48 @@ def test_the_names_are_the_objects_at_their_homes():
     assert api.BASE_DIR_CONTEXT_KEY == "base_dir"
 
 
+#: The DeviceContext.extras keys of a simulated run, and the built-in plugin that reads each.
+SIM_EXTRAS_KEYS = {"POSE_STREAM_SOURCE_KEY": "robots/abb_irb2400/plugin.py",
+                   "SIM_CLOCK_KEY": "robots/abb_irb2400/plugin.py",
+                   "SIM_CONTROLLER_CLOCK_KEY": "robots/abb_irb2400/plugin.py",
+                   "SIM_NOW_KEY": "sensors/nxsensor_i/plugin.py",
+                   "SIM_SENSOR_CLOCK_KEY": "sensors/nxsensor_i/plugin.py",
+                   "SIM_PROFILE_SOURCE_KEY": "sensors/nxsensor_i/plugin.py"}
+
+
+def test_a_simulated_runs_extras_keys_are_the_plugin_apis():
+    """What a simulated run hands the factories (spherecal.sim.live.device_extras) is
+    keyed by the plugin API's names, one key each."""
+    from reference_sensor import reference_fov
+    from spherecal.sim import live, standard_cell
+
+    values = {getattr(api, name) for name in SIM_EXTRAS_KEYS}
+    assert len(values) == len(SIM_EXTRAS_KEYS) and all(isinstance(v, str) and v for v in values)
+    for name in SIM_EXTRAS_KEYS:
+        assert getattr(live, name) == getattr(api, name), name
+    assert set(live.device_extras(standard_cell(seed=1, fov=reference_fov()))) == values
+
+
+def _imported_from_api(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    return {a.name for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module == "spherecal.plugins" for a in node.names}
+
+
+def test_the_built_in_plugins_read_the_extras_keys_of_the_plugin_api():
+    """The built-in streaming plugins import the keys from spherecal.plugins, and no module
+    of robots/ or sensors/ spells a key's value itself (a copy that could drift from what
+    a simulated run sets)."""
+    for name, module in SIM_EXTRAS_KEYS.items():
+        assert name in _imported_from_api(REPO / module), f"{module} does not import {name} from spherecal.plugins"
+    values = {getattr(api, name) for name in SIM_EXTRAS_KEYS}
+    copies = [f"{path.relative_to(REPO)}:{node.lineno} {node.value!r}"
+              for path in sorted([*(REPO / "robots").rglob("*.py"), *(REPO / "sensors").rglob("*.py")])
+              for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+              if isinstance(node, ast.Constant) and node.value in values]
+    assert copies == []
+
+
 def test_importing_the_api_loads_only_the_markers():
     code = ("import json, sys\nbefore = set(sys.modules)\nimport spherecal.plugins\n"
             "print(json.dumps(sorted(set(sys.modules) - before)))")

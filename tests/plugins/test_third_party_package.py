@@ -145,9 +145,12 @@ class Children:
         }
         self._done: dict[str, subprocess.CompletedProcess] = {}
 
+    #: the package's own tests run three calibrations, one on the fly: more time, on shared cores
+    TIMEOUT_S = {"own_tests": 300}
+
     def result(self, name: str) -> subprocess.CompletedProcess:
         if name not in self._done:
-            self._done[name] = _finish(self._procs[name])
+            self._done[name] = _finish(self._procs[name], timeout=self.TIMEOUT_S.get(name, 120))
         return self._done[name]
 
     def close(self) -> None:

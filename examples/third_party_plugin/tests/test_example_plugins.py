@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spherecal.plugins import (ConfigError, DeviceContext, DeviceError, InputError, Pose, SimulatedDeviceServer,
-                               rotation_angle_deg)
+from spherecal.plugins import (ConfigError, DeviceContext, DeviceError, InputError, Pose, PoseStreamStalled,
+                               SimulatedDeviceServer, ik_seeds_deg, rotation_angle_deg)
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 ROBOT = {"type": "example_arm"}
@@ -59,6 +59,17 @@ def test_a_move_runs_the_cells_arm_on_its_timeline(spherecal_host, spherecal_con
     assert np.linalg.norm(flange.translation - cell.current_base_from_flange.translation) < 1e-4  # 6 decimals
     _, _, timeline_joints, _ = cell.timeline.at([cell.clock.now_s])
     np.testing.assert_allclose(timeline_joints[0], joints, atol=1e-6)
+    robot.close()
+
+
+def test_the_arm_declares_its_home_where_its_controller_starts(spherecal_host, spherecal_context):
+    """The robot type declares the arm's home: the core seeds inverse kinematics there
+    before the arm is connected (not at zero joints, the stretched elbow, a singularity),
+    and the simulated controller starts there."""
+    home_deg = ik_seeds_deg(spherecal_host.arm_kinematics(ROBOT))[0]
+    assert home_deg.tolist() == [0.0, 0.0, 0.0, 0.0, 90.0, 0.0]
+    robot = spherecal_host.create_robot(ROBOT, spherecal_context)
+    np.testing.assert_allclose(robot.read_joints_deg(), home_deg, atol=1e-6)
     robot.close()
 
 
@@ -145,3 +156,66 @@ def test_spherecal_calibrate_recovers_the_simulated_truth(mounting, tmp_path):
     found_R = Pose.from_xyz_quat_wxyz(found["translation_mm"], found["quaternion_wxyz"]).rotation_matrix
     # the nominal transform was ~2 mm and ~1 deg off; the cell's noise is 0.01-0.02 mm
     assert error_mm < 0.1 and rotation_angle_deg(true_R, found_R) < 0.1, (error_mm, proc.stdout)
+
+
+def _sweep(robot, target: Pose, length_mm: float = 60.0) -> Pose:
+    """Put the arm at ``target`` (stop-and-go) and return the end of a straight sweep from there."""
+    robot.move_linear(target, 100.0)
+    return Pose.from_rt(target.rotation_matrix, target.translation + [0.0, length_mm, 0.0])
+
+
+def test_the_pose_stream_follows_the_move_on_the_controllers_clock(spherecal_host, spherecal_context,
+                                                                  spherecal_stations):
+    """Between STREAM and UNSTREAM the controller sends a sample every 4 ms of its clock:
+    consecutive sequence numbers, the controller's stamps (not the PC's), the pose it
+    reports along the move at each stamp's true time, the last one where the move ended."""
+    cell = spherecal_context.cell
+    robot = spherecal_host.create_robot(ROBOT, spherecal_context)
+    end = _sweep(robot, spherecal_stations[0][1][0])
+    T_start = cell.clock.now_s
+    robot.start_pose_stream()
+    robot.move_linear(end, 50.0)
+    stream = robot.stop_pose_stream()
+    duration_s = cell.clock.now_s - T_start
+    assert stream.n == pytest.approx(duration_s / 0.004, abs=2) and duration_s > 60.0 / 50.0
+    assert np.all(np.diff(stream.seq) == 1) and robot.pose_stream_counts().lost == 0
+    T_true = cell.controller_clock.true_time(stream.t_robot_s)  # stamps on the controller's clock (20 us jitter)
+    assert np.all((T_true > T_start - 1e-4) & (T_true < cell.clock.now_s + 1e-4))
+    _, t_reported, joints = cell.timeline.reported_at(T_true)
+    np.testing.assert_allclose(stream.t_mm, t_reported, atol=0.01)  # 50 mm/s x 0.1 ms of jitter at most
+    np.testing.assert_allclose(stream.joints_deg, joints, atol=1e-3)
+    assert np.linalg.norm(stream.t_mm[-1] - end.translation) < 1e-6
+    assert np.ptp(stream.t_mm[:, 1]) == pytest.approx(60.0, abs=1e-6)  # the whole sweep
+    robot.close()
+
+
+def test_a_pose_stream_that_goes_silent_stalls_keeping_what_came(spherecal_host, spherecal_context,
+                                                                 spherecal_stations):
+    robot = spherecal_host.create_robot(ROBOT, spherecal_context)
+    end = _sweep(robot, spherecal_stations[0][1][0])
+    robot.start_pose_stream()
+    robot.simulator.controller.samples_left = 20  # then the controller goes silent, still streaming
+    robot.move_linear(end, 50.0)
+    with pytest.raises(PoseStreamStalled, match=r"example arm: the pose stream ended: no sample for the last 1\.\d+ s"
+                       ) as err:
+        robot.stop_pose_stream()
+    assert err.value.stream.n == 21 and err.value.counts.received == 21  # the first, and 20 more
+    assert np.all(np.diff(err.value.stream.seq) == 1)
+    robot.close()
+
+
+@pytest.mark.slow
+def test_spherecal_calibrate_on_the_fly_recovers_the_simulated_truth(tmp_path):
+    """``spherecal calibrate`` on the fly: the arm streams its pose over XA/1 while it sweeps,
+    the nxSensor-I streams profiles, each on its own clock; the transform and the clocks'
+    offset come out near the simulated truth."""
+    config = CONFIGS / "example-arm-on-the-fly.toml"
+    proc = subprocess.run([sys.executable, "-m", "spherecal.cli", "calibrate", str(config), "--yes", "--no-report",
+                           "--json", "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = json.loads(proc.stdout)
+    assert "0 pose samples lost" in proc.stderr and "(32 sweeps)" in proc.stderr
+    truth = out["simulated_truth"]
+    assert truth["translation_error_mm"] < 0.05 and truth["rotation_error_deg"] < 0.05, truth
+    assert abs(truth["clock_offset_error_ms"]) < 0.2, truth  # the clocks' epochs differ by an hour
+    assert out["verdict"]["level"] == "green", out["verdict"]

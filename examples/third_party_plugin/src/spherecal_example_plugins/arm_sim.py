@@ -15,14 +15,19 @@ What a simulator of one's own protocol does with the cell (docs/writing-a-robot-
 - noise: the reported pose through ``cell.report_pose``, drawn from the controller's own
   random stream (``cell.standstill_rng("example_arm controller")``), once per standstill;
 - the server: :class:`spherecal.plugins.SimulatedDeviceServer` (thread, port, stop, the
-  handler's errors surfaced).
+  handler's errors surfaced);
+- the pose stream: a move takes no wall time (the timeline advances the clock at once),
+  so the samples covering it are sent when it is executed, before its ``DONE``:
+  ``cell.timeline.sample`` over the true time since the last sample sent, ticking on
+  the controller's clock, with the stream's own random numbers
+  (``cell.device_rng("example_arm pose stream")``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from spherecal.plugins import InputError, Pose, SimulatedDeviceServer
+from spherecal.plugins import InputError, Pose, SimulatedDeviceServer, quat_wxyz_from_matrix
 
 from . import xa_protocol as XA
 from .arm_kinematics import HOME_JOINTS_DEG, ExampleArmKinematics
@@ -43,6 +48,11 @@ class SimulatedExampleController:
         self.joints_deg = kinematics.check_joint_limits(home_joints_deg, "home_joints_deg")
         self.moves = 0
         self._reported: Pose | None = None  # the pose read at this standstill
+        self.period_s: float | None = None  # the pose stream's period (controller clock), None: not streaming
+        self._streamed_to_s = 0.0  # true time up to which the stream's samples were sent
+        self._stream_rng = cell.device_rng("example_arm pose stream")
+        #: samples still sent before the stream goes silent while on (a stall, for tests); None: no stall
+        self.samples_left: int | None = None
         cell.timeline.arm = self.arm
         cell.timeline.jump(kinematics.flange_pose_from_joints(self.joints_deg), self.joints_deg)
         cell.move_flange_to(self.arm.true_flange_pose(self.joints_deg))
@@ -65,7 +75,35 @@ class SimulatedExampleController:
                 self._reported = self.cell.report_pose(nominal, self.cell.standstill_rng("example_arm controller"))
             p = self._reported
             return XA.line("POSE", self.t_robot_s(), *p.translation_mm, *p.quaternion_wxyz, decimals=9)
+        if verb == "STREAM":
+            return self._stream_on(args[0] * 1e-3)
+        if verb == "UNSTREAM":
+            samples, self.period_s = self._samples(), None
+            return samples + XA.line("UNSTREAMED", self.t_robot_s(), decimals=9)
         return self._move(args)
+
+    def _stream_on(self, period_s: float) -> bytes:
+        """Start the stream: its first sample comes one period of the controller's clock later."""
+        if not 0.001 <= period_s <= 0.1:
+            return XA.fail("SYNTAX", f"STREAM period {period_s * 1e3:g} ms outside 1..100 ms")
+        self.period_s, self._streamed_to_s = period_s, self.cell.clock.now_s
+        self.cell.clock.advance(period_s / self.cell.controller_clock.rate)  # the arm stands meanwhile
+        return self._samples() + XA.line("STREAMING", self.t_robot_s(), decimals=9)
+
+    def _samples(self) -> bytes:
+        """The SAMPLE lines of the stream since the last sent, up to the true time now."""
+        T_now = self.cell.clock.now_s
+        if self.period_s is None or T_now <= self._streamed_to_s:
+            return b""
+        s = self.cell.timeline.sample(self._streamed_to_s, T_now, self.period_s, self.cell.controller_clock,
+                                      self._stream_rng)
+        self._streamed_to_s = T_now
+        n = len(s.tick) if self.samples_left is None else min(len(s.tick), self.samples_left)
+        if self.samples_left is not None:
+            self.samples_left -= n
+        quats = quat_wxyz_from_matrix(s.R)
+        return b"".join(XA.line("SAMPLE", s.tick[i], s.stamp_s[i], *s.t_mm[i], *quats[i], *s.joints_deg[i],
+                                decimals=9) for i in range(n))
 
     def _move(self, args: list[float]) -> bytes:
         q = np.asarray(args[3:7])
@@ -83,7 +121,7 @@ class SimulatedExampleController:
         self._reported = None  # a new standstill
         self.moves += 1
         self.cell.move_flange_to(self.arm.true_flange_pose(joints))
-        return XA.line("DONE", self.t_robot_s())
+        return self._samples() + XA.line("DONE", self.t_robot_s())  # the move's samples first
 
 
 def start_simulated_controller(kinematics: ExampleArmKinematics, cell) -> SimulatedDeviceServer:

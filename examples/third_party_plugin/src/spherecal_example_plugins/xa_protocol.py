@@ -14,19 +14,29 @@ request                                reply
 ``POSE``                               ``POSE <t_robot_s> <x> <y> <z> <qw> <qx> <qy> <qz>``
 ``MOVE <x> <y> <z> <qw> <qx> <qy>      ``DONE <t_robot_s>`` once in position (a straight
 <qz> <v_mm_s> <v_deg_s>``              move at ``v_mm_s`` and at most ``v_deg_s``)
+``STREAM <period_ms>``                 ``STREAMING <t_robot_s>``: the pose stream is on
+``UNSTREAM``                           ``UNSTREAMED <t_robot_s>``: the pose stream is off
 =====================================  ===================================================
 
 Any request may be answered ``FAIL <code> <text>``: ``SYNTAX`` (not understood), ``SPEED``
 (a speed beyond the controller's own limit), ``REACH`` (the target is out of reach or
 beyond a joint limit); nothing moves then.
+
+The pose stream: from ``STREAM`` to ``UNSTREAM`` the controller samples its flange pose
+every ``period_ms`` of its clock and sends each sample unasked, in order, on the same
+connection, before the reply of the request during which it was taken (a move's samples
+come before its ``DONE``): ``SAMPLE <seq> <t_robot_s> <x> <y> <z> <qw> <qx> <qy> <qz>
+<j1> ... <j6>``, ``seq`` the sample's tick on the controller's clock (consecutive; a gap
+is a lost sample).
 """
 
 from __future__ import annotations
 
 import math
 
-VERBS = {"HELLO": 0, "JOINTS": 0, "POSE": 0, "MOVE": 9}  # request -> count of numbers
-REPLIES = {"HELLO": None, "JOINTS": 6, "POSE": 8, "DONE": 1}  # reply -> count of numbers (None: words)
+VERBS = {"HELLO": 0, "JOINTS": 0, "POSE": 0, "MOVE": 9, "STREAM": 1, "UNSTREAM": 0}  # request -> count of numbers
+REPLIES = {"HELLO": None, "JOINTS": 6, "POSE": 8, "DONE": 1, "STREAMING": 1, "UNSTREAMED": 1,
+           "SAMPLE": 15}  # reply -> count of numbers (None: words)
 FAIL_CODES = ("SYNTAX", "SPEED", "REACH")
 
 
