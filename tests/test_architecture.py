@@ -188,3 +188,13 @@ def test_a_module_named_in_a_string_counts_as_an_import():
     estimation package's table names its pipeline."""
     assert "spherecal.estimation.pipeline" in GRAPH["spherecal.estimation"]
     assert "spherecal.sim.datasets" in GRAPH["spherecal.sim"]
+
+
+def test_test_modules_have_unique_basenames():
+    """The test folders have no __init__.py: pytest imports each test module by its file
+    name, and two of one name stop the whole collection in a fresh clone."""
+    from collections import Counter
+
+    tests = Path(__file__).resolve().parent
+    names = Counter(p.name for p in tests.rglob("test_*.py"))
+    assert not [n for n, k in names.items() if k > 1]
