@@ -91,10 +91,10 @@ def test_a_sensor_scale_error_still_fails_the_validation_on_the_narrow_line_cell
 
 @pytest.mark.slow
 def test_the_narrow_line_cell_calibrates_and_validates(sim_config, capsys):
-    """The cell as a user runs it (calibrate, then validate; seed 3, whose P2 view gives
-    P_S -0.0726 mm): validation passes, exit 0, and the verdict says that P_S lies
+    """The cell as a user runs it (calibrate, then validate; seed 10, whose views give
+    P_S -0.0655 mm): validation passes, exit 0, and the verdict says that P_S lies
     beyond its MPE by less than its uncertainty."""
-    cfg_path = sim_config("sim-eye-in-hand.toml", exact_arm=True, **NARROW_LINE, **{r"^seed = 1$": "seed = 3"})
+    cfg_path = sim_config("sim-eye-in-hand.toml", exact_arm=True, **NARROW_LINE, **{r"^seed = 1$": "seed = 10"})
     assert main(["calibrate", str(cfg_path), "--no-report"]) == EXIT_OK
     capsys.readouterr()
     assert main(["validate", str(cfg_path), "--no-report"]) == EXIT_OK
