@@ -45,7 +45,7 @@ from spherecal.devices.pose_streaming import PoseStreamError, PoseStreamingRobot
 from spherecal.io.runlog import progress_log
 from spherecal.io.stream_writer import RecordingWriter
 from spherecal.motion.acquisition import Target, WallClock, robot_time_line
-from spherecal.motion.planning import SweepPlan, plan_stations
+from spherecal.motion.planning import SweepPlan, plan_stations, sweep_ends_in_sensor_mm
 
 __all__ = ["PlannedSweep", "SweepJournal", "SweepStreamError", "OnTheFlyReport", "acquire_sweeps",
            "check_streaming", "plan_sweeps", "sweep_streams", "sweep_targets"]
@@ -116,17 +116,12 @@ def plan_sweeps(acq: AcquisitionConfig, mounting: MountingMode, nominal: Transfo
     stations = plan_stations(mounting, X, acq.sphere_centre_mm, sphere.radius_mm, plan, R_ref)
     if otf.stations is not None:
         stations = stations[:otf.stations]
-    r, a, v_max = sphere.radius_mm, otf.acceleration_mm_s2, max(otf.speeds_mm_s)
     sweeps: list[PlannedSweep] = []
     for k, (label, poses) in enumerate(stations):
         R_k = poses[0].rotation_matrix
-        dy, dz = plan.station_offsets_mm[k % len(plan.station_offsets_mm)]
-        c0 = np.array([0.0, dy, plan.standoff_z_mm + dz])
         for d in otf.directions_in_sensor:
-            d = np.asarray(d, dtype=float)
-            half = otf.crossing_fraction * r / abs(d[0]) + v_max * v_max / (2 * a)
-            ends = _flange_translation_mm(mounting, X, acq.sphere_centre_mm, R_k, np.array([c0 - half * d,
-                                                                                              c0 + half * d]))
+            ends = _flange_translation_mm(mounting, X, acq.sphere_centre_mm, R_k,
+                                          sweep_ends_in_sensor_mm(plan, otf, sphere.radius_mm, k, d))
             direction = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
             for v in otf.speeds_mm_s:
                 for start, end, sign in ((ends[0], ends[1], 1.0), (ends[1], ends[0], -1.0)):

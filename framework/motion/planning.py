@@ -18,7 +18,8 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import ConfigError
 from spherecal.core.models import MountingMode, Pose
 
-if TYPE_CHECKING:  # pragma: no cover
+if TYPE_CHECKING:
+    from spherecal.config import OnTheFlyPlan  # pragma: no cover
     from spherecal.devices.contract import SensorFieldOfView
 
 #: Flange pointing down (tool0 z along -z of base), as in a typical scanning cell: the
@@ -141,6 +142,22 @@ def sphere_centres_in_sensor(plan: SweepPlan, radius_mm: float) -> np.ndarray:
     return np.column_stack(
         [s * plan.sweep_fraction * radius_mm, a * np.sin(phase), plan.standoff_z_mm + a * np.cos(phase)]
     )
+
+
+def sweep_ends_in_sensor_mm(plan: SweepPlan, otf: "OnTheFlyPlan", radius_mm: float, station_index: int,
+                            direction_in_sensor) -> np.ndarray:
+    """(2, 3) mm: where the sphere centre lies in the sensor frame at the two ends of an
+    on-the-fly sweep at station ``station_index`` of ``plan``, along ``direction_in_sensor``:
+    centred on the station's crossing point (``station_offsets_mm`` at ``standoff_z_mm``),
+    ``crossing_fraction`` radii of the sensor's x each way at full speed, with room for the
+    speed ramps at ``acceleration_mm_s2`` beyond. The live plan and the simulated
+    recording's plan both take their sweeps from here."""
+    dy, dz = plan.station_offsets_mm[station_index % len(plan.station_offsets_mm)]
+    c0 = np.array([0.0, dy, plan.standoff_z_mm + dz])
+    d = np.asarray(direction_in_sensor, dtype=float)
+    v_max = max(otf.speeds_mm_s)
+    half = otf.crossing_fraction * radius_mm / abs(d[0]) + v_max * v_max / (2 * otf.acceleration_mm_s2)
+    return np.array([c0 - half * d, c0 + half * d])
 
 
 def station_flange_poses(

@@ -53,7 +53,7 @@ import numpy as np
 from spherecal.config import OnTheFlyPlan, StreamSimSettings, SweepPlan
 from spherecal.core import geometry as geo
 from spherecal.core.streams import PoseStream, ProfileStream, Recording, SweepInfo
-from spherecal.motion.planning import plan_stations, with_standoff
+from spherecal.motion.planning import plan_stations, sweep_ends_in_sensor_mm, with_standoff
 from spherecal.sim.cell import SimulatedCell
 from spherecal.sim.objects import BallBar, Sphere
 from spherecal.sim.timeline import (KNOT_DEG, KNOT_MM, MotionTimeline, Segment, _gauss_markov, _grid,  # noqa: F401
@@ -92,7 +92,6 @@ def plan_segments(cell: SimulatedCell, plan: SweepPlan | None = None, otf: OnThe
         stations = stations[:otf.stations]
     r = cell.sphere_radius_mm
     a = otf.acceleration_mm_s2
-    v_max = max(otf.speeds_mm_s)
     segments: list[Segment] = []
     sweeps: list[SweepInfo] = []
     T = 0.0
@@ -110,12 +109,8 @@ def plan_segments(cell: SimulatedCell, plan: SweepPlan | None = None, otf: OnThe
 
     for k, (label, poses) in enumerate(stations):
         R_k = poses[0].rotation_matrix
-        dy, dz = plan.station_offsets_mm[k % len(plan.station_offsets_mm)]
-        c0 = np.array([0.0, dy, plan.standoff_z_mm + dz])
         for d in otf.directions_in_sensor:
-            d = np.asarray(d, dtype=float)
-            half = otf.crossing_fraction * r / abs(d[0]) + v_max * v_max / (2 * a)
-            ends = _flange_translation_mm(cell, R_k, np.array([c0 - half * d, c0 + half * d]))
+            ends = _flange_translation_mm(cell, R_k, sweep_ends_in_sensor_mm(plan, otf, r, k, d))
             flange_dir = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
             for v in otf.speeds_mm_s:
                 for start, end, sign in ((ends[0], ends[1], 1.0), (ends[1], ends[0], -1.0)):
