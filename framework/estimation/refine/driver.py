@@ -79,6 +79,14 @@ STALLED_CUT_STEPS = 3
 #: say so.
 CHATTER_STEP_SHARE = 1e-2
 CHATTER_STEPS = 5
+#: A recording's kinematic prior factor, re-estimated at every step near the solution,
+#: jitters with the piecewise-smooth cost (2.4-2.9 on an eye-to-hand recording of an arm
+#: with geometric error), and the transform follows it (0.05-0.2 mm a step, where the
+#: arm's shared error and the sensor's position trade off): fifty steps, "not converged".
+#: After this many steps near the solution the factor is held at the median of its last
+#: values for the rest of the pass, and Gauss-Newton converges at it; the next pass (the
+#: variance components' loop) estimates it again from there.
+LAM_SETTLE_STEPS = 6
 
 
 def refine(
@@ -135,13 +143,20 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
     cut_steps = 0  # Gauss-Newton steps in a row that the line search had to cut
     chatter = 0  # steps in a row within a sliver of the standard deviations, above the tolerance
     fit.converged = False  # (of this pass: an earlier pass's convergence says nothing of this one)
+    lams: list[float] = []  # the kinematic prior factor at each step near the solution (a recording's)
+    lam_held = False
     if fit.m_centres:
         fit.centre_cov_frozen = None
         fit.centre_cov_frozen = fit.linearise(fit.scale).centre_parts[3]
     for it in range(1, max_iterations + 1):
         fit.iterations = it
         lin = lin if lin is not None else fit.linearise(fit.scale)
-        step, d_new, normal = _step(fit, lin, near)
+        step, d_new, normal = _step(fit, lin, near and not lam_held)
+        if near and fit.estimate_lam and fit.te is not None and not lam_held:
+            lams.append(fit.lam)
+            if len(lams) >= LAM_SETTLE_STEPS:
+                fit.lam, lam_held = float(np.median(lams[-LAM_SETTLE_STEPS:])), True
+                continue  # (the step was taken at the last factor: step again at the held one)
         cost0 = fit.penalised_cost(lin, fit.s_hat, fit.lam)
         lin = None  # (its arrays go before the line search builds linearisations)
         lin, frac, step_delta = _line_search(fit, step, d_new, cost0)
@@ -165,7 +180,7 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
             first_small = bool(small)
         was_near = near
         near = near or (np.abs(frac * step[:3]).max() < 1e-5 and np.abs(frac * step[3:6]).max() < 1e-2)
-        if small and (was_near or not fit.estimate_lam):
+        if small and (was_near or not fit.estimate_lam or lam_held):
             fit.converged = True
             break
     return first_small
