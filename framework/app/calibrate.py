@@ -13,7 +13,7 @@ from spherecal.app.outputs import JOURNAL_NAME, RESULT_NAME, check_output_folder
 from spherecal.app.plan_checks import (CALIBRATION_KEEP_OUT_FIX, check_identification_from_here, check_plan,
                                        check_plan_solvable, confirm_motion, keep_out_for, plan_digest, step_prompt)
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
-from spherecal.app.provenance import check_same_devices, traceability
+from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, check_same_devices, traceability
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
 from spherecal.config import LoadedConfig, RunConfig
 from spherecal.core.errors import ConfigError, InputError
@@ -252,8 +252,9 @@ def _resumed(journal: Path, digest: str, log: Callable[[str], None]) -> _Resumed
 
 
 def _journal_provenance(run: _Calibration, digest: str, cell) -> dict:
-    """The journal's provenance: the plan, configuration, device types and, for a
-    simulated cell, its truth."""
+    """The journal's provenance: the plan, configuration, device types, the estimator's
+    settings (``solve`` of the journal starts from them) and, for a simulated cell, its
+    truth."""
     cfg = run.cfg
     provenance = {
         "source": "spherecal calibrate",
@@ -262,6 +263,7 @@ def _journal_provenance(run: _Calibration, digest: str, cell) -> dict:
         "robot": cfg.robot["type"],
         "sensor": cfg.sensor["type"],
         "simulated": cell is not None,
+        CALIBRATION_OPTIONS_KEY: calibration_options(cfg).model_dump(mode="json"),
     }
     if run.fov is not None:  # the sensor's field of view: screening names profiles it clipped
         provenance["fov"] = run.fov.model_dump()
@@ -289,6 +291,11 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         if resumed.previous is not None:
             check_same_devices(resumed.previous.provenance, provenance, journal, log)
+            settings = provenance[CALIBRATION_OPTIONS_KEY]
+            if resumed.previous.provenance.get(CALIBRATION_OPTIONS_KEY, settings) != settings:
+                log(f"note: the configuration's [calibration] changed since {journal} was started: this run solves "
+                    "with the configuration's; the journal keeps the first run's, which `spherecal solve` of it "
+                    "starts from")
         with dataio.DatasetWriter(
             journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
             provenance=provenance, resume=journal.exists(), fsync=True,

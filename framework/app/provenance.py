@@ -7,18 +7,23 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
+from pydantic import ValidationError
+
 from spherecal import __version__
+from spherecal.config.calibration import CalibrationOptions
+from spherecal.core.errors import InputError
 from spherecal.core.models import Dataset
 from spherecal.io.files import sha256_of
+from spherecal.io.runlog import progress_log
 
 if TYPE_CHECKING:
     from spherecal.config import LoadedConfig  # (not loaded by solve: tests/cli/test_startup_imports.py)
     from spherecal.core.streams import Recording
 
-#: A recording's provenance key holding the estimator settings it was taken to be solved
-#: with (``calibrate`` on the fly: its ``[calibration]`` with the nominal transform, as
-#: ``CalibrationOptions.model_dump(mode="json")``); ``solve`` of the recording starts
-#: from them.
+#: A journal's or recording's provenance key holding the estimator settings it was taken
+#: to be solved with (``calibrate``, stop-and-go and on the fly: its ``[calibration]``
+#: with the nominal transform, as ``CalibrationOptions.model_dump(mode="json")``);
+#: ``solve`` of it starts from them.
 CALIBRATION_OPTIONS_KEY = "calibration_options"
 
 
@@ -97,3 +102,56 @@ def check_same_devices(before: dict, now: dict, journal: Path, log: Callable[[st
             log(f"warning: {journal} was started with {kind} serial number {was['serial_number']}, now "
                 f"{is_['serial_number']} is connected: the journal's provenance keeps the first; if the unit was "
                 "swapped, start a new run")
+
+
+def recorded_options(provenance: dict, path: Path | str, log: Callable[[str], None] | None = None,
+                     flags: tuple[str, ...] = ("robot_error_model", "fit_radius", "nominal_transform"),
+                     what: str = "recording", **given) -> CalibrationOptions:
+    """The estimator's settings for solving a journal or recording: those its provenance
+    holds (:data:`CALIBRATION_OPTIONS_KEY`, written by ``calibrate``, stop-and-go and on
+    the fly: the run's ``[calibration]`` and nominal transform, so that ``solve`` of its
+    journal gives the run's answer), each of ``given`` (the command line's) replacing its
+    own; the defaults for one that holds none. Says which settings came from the
+    ``what`` (those other than the defaults) and which of ``flags`` (the settings the
+    command line can give) replace them. A recorded setting this version does not know
+    is named and ignored; one it refuses is an InputError naming it."""
+    log = log or progress_log("run")
+    recorded = provenance.get(CALIBRATION_OPTIONS_KEY)
+    if recorded is None:
+        return CalibrationOptions(**given)
+    if not isinstance(recorded, dict):
+        raise InputError(f"{path}: provenance.{CALIBRATION_OPTIONS_KEY} is not an object of settings "
+                         f"({type(recorded).__name__})")
+    known = CalibrationOptions.model_fields
+    unknown = sorted(k for k in recorded if k not in known)
+    if unknown:
+        log(f"{path}: recorded settings this version does not know, ignored: {', '.join(unknown)}")
+    taken = {k: v for k, v in recorded.items() if k in known and k not in given}
+    try:
+        options = CalibrationOptions.model_validate({**taken, **given})
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])} = {e.get('input')!r}: {e['msg']}"
+                             for e in exc.errors())
+        raise InputError(f"{path}: provenance.{CALIBRATION_OPTIONS_KEY}: a setting this version refuses: {problems} "
+                         "(give the option on the command line instead)") from None
+    defaults = CalibrationOptions().model_dump(mode="json")
+    dumped = options.model_dump(mode="json")
+    said = [_setting_text(k, getattr(options, k)) for k in taken if dumped[k] != defaults[k]]
+    replaced = [_FLAGS[k] for k in given if k in recorded]
+    log(f"settings from the {what} (the run's [calibration]): {', '.join(said) or 'the defaults'}; "
+        + (f"{', '.join(replaced)} given instead of the {what}'s" if replaced else
+           f"{', '.join(_FLAGS[k] for k in flags)} replace them"))
+    return options
+
+
+#: The command line's options replacing a recorded setting.
+_FLAGS = {"robot_error_model": "--robot-error-model", "fit_radius": "--fit-radius", "nominal_transform": "--nominal",
+          "station_rotation_tolerance_deg": "--station-rotation-tolerance-deg",
+          "identify_kinematics": "--identify-kinematics"}
+
+
+def _setting_text(name: str, value) -> str:
+    if name == "nominal_transform":
+        return (f"nominal transform [{', '.join(f'{c:g}' for c in value.translation_mm)}] mm, quaternion_wxyz "
+                f"[{', '.join(f'{c:.5f}' for c in value.quaternion_wxyz)}]")
+    return f"{name} = {value!r}" if not isinstance(value, str) else f"{name} = \"{value}\""

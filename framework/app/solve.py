@@ -10,11 +10,10 @@ import numpy as np
 
 from spherecal.app import plugin_host
 from spherecal.app.outputs import check_output_folder
-from spherecal.app.provenance import provenance_type, traceability
+from spherecal.app.provenance import provenance_type, recorded_options, traceability
 from spherecal.app.solving import Outcome, solve_and_write
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.core.models import Dataset
-from spherecal.estimation import CalibrationOptions
 from spherecal.io.runlog import logger, progress_log
 from spherecal.io.transform_text import parse_xyz_quat
 
@@ -28,13 +27,16 @@ def default_out(dataset_path: str | Path) -> Path:
 
 def run_solve(dataset: Dataset, dataset_path: Path, out: Path, *, nominal: str | None = None,
               robot_type: str | None = None, robot_config: Path | None = None, pose_from: str = "reported",
-              fit_radius: bool = False, station_rotation_tolerance_deg: float | None = None,
-              identify_kinematics: bool = False, robot_error_model: str = "auto", overwrite: bool = False,
+              fit_radius: bool | None = None, station_rotation_tolerance_deg: float | None = None,
+              identify_kinematics: bool | None = None, robot_error_model: str | None = None, overwrite: bool = False,
               report: bool = True, force: bool = False, operator: str | None = None,
               log: Callable[[str], None] = _LOG) -> Outcome:
     """``spherecal solve`` of ``dataset`` (read from ``dataset_path``) into ``out``, with
     the command's options (docs/cli.md). ``nominal``: the rough transform as
-    ``x,y,z,qw,qx,qy,qz``. Refuses to replace a result in ``out`` unless ``overwrite``."""
+    ``x,y,z,qw,qx,qy,qz``. The estimator's settings are those the dataset's provenance
+    holds (a journal of ``calibrate``: its run's, :func:`~spherecal.app.provenance.recorded_options`),
+    else the defaults; each option given (not None) replaces its own. Refuses to replace
+    a result in ``out`` unless ``overwrite``."""
     if not dataset.observations:
         raise InputError(f"{dataset_path}: the dataset holds no observations (only its header): nothing to solve")
     nominal_pose = parse_xyz_quat(nominal, "--nominal") if nominal is not None else None
@@ -43,13 +45,12 @@ def run_solve(dataset: Dataset, dataset_path: Path, out: Path, *, nominal: str |
     robot_type = solve_robot_type(dataset, robot_type, robot_config)
     sensor_type = provenance_type(dataset, "sensor")
     exports = host.export_plan(None, dataset.mounting, robot_type)
-    options = CalibrationOptions(
-        fit_radius=fit_radius, nominal_transform=nominal_pose,
-        station_rotation_tolerance_deg=station_rotation_tolerance_deg,
-        identify_kinematics=identify_kinematics,
-        robot_error_model=robot_error_model,
-    )
-    if identify_kinematics and arm is None:
+    given = {"nominal_transform": nominal_pose, "fit_radius": fit_radius,
+             "station_rotation_tolerance_deg": station_rotation_tolerance_deg,
+             "identify_kinematics": identify_kinematics, "robot_error_model": robot_error_model}
+    options = recorded_options(dataset.provenance, dataset_path, log, flags=tuple(given), what="journal",
+                               **{k: v for k, v in given.items() if v is not None})
+    if options.identify_kinematics and arm is None:
         raise ConfigError("--identify-kinematics needs the robot's kinematics: give --robot TYPE (a type whose "
                           "plugin describes its arm; `spherecal plugins` lists them) and joints_deg in every "
                           "observation")

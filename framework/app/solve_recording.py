@@ -9,17 +9,15 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from pydantic import ValidationError
 
 from spherecal.app import plugin_host
 from spherecal.app.outputs import check_output_folder
-from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, provenance_type, traceability, with_clock_truth
+from spherecal.app.provenance import provenance_type, recorded_options, traceability, with_clock_truth
 from spherecal.app.solve import solve_kinematics, solve_robot_type
 from spherecal.app.solving import Outcome, solve_and_write
-from spherecal.core.errors import ConfigError, InputError
+from spherecal.core.errors import ConfigError
 from spherecal.core.models import Dataset
 from spherecal.core.streams import Recording
-from spherecal.estimation import CalibrationOptions
 from spherecal.estimation.on_the_fly import solve_recording
 from spherecal.io.rosbag import read_bag
 from spherecal.io.runlog import progress_log
@@ -39,7 +37,7 @@ def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal:
     :mod:`spherecal.core.streams`) read from ``path``: the clock relation estimated with
     the transform (:func:`spherecal.estimation.on_the_fly.solve_recording`); ``offset_ms``
     a known start for the clock offset. The estimator's settings are those the recording
-    holds (:func:`recorded_options`), else the defaults; ``nominal``, ``fit_radius`` and
+    holds (:func:`~spherecal.app.provenance.recorded_options`), else the defaults; ``nominal``, ``fit_radius`` and
     ``robot_error_model`` given (not None) replace theirs. Otherwise as :func:`run_solve`."""
     nominal_pose = parse_xyz_quat(nominal, "--nominal") if nominal is not None else None
     header = Dataset(mounting=recording.mounting, sphere_radius_mm=recording.sphere_radius_mm,
@@ -69,54 +67,6 @@ def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal:
     host.calibration_finished(result=solution.result, dataset=header, out_dir=out, exports_written=written,
                               robot_type=robot_type, sensor_type=provenance_type(header, "sensor"))
     return Outcome(solution=solution, verdict=graded, exports_written=written, dataset=header)
-
-
-def recorded_options(provenance: dict, path: Path, log: Callable[[str], None] = _LOG,
-                     **given) -> CalibrationOptions:
-    """The estimator's settings for solving a recording: those its provenance holds
-    (:data:`~spherecal.app.provenance.CALIBRATION_OPTIONS_KEY`, written by ``calibrate``
-    on the fly: the run's ``[calibration]`` and nominal transform, so that ``solve`` of
-    its journal gives the run's answer), each of ``given`` (the command line's) replacing
-    its own; the defaults for a recording that holds none. Says which settings came from
-    the recording (those other than the defaults). A recorded setting this version does
-    not know is named and ignored; one it refuses is an InputError naming it."""
-    recorded = provenance.get(CALIBRATION_OPTIONS_KEY)
-    if recorded is None:
-        return CalibrationOptions(**given)
-    if not isinstance(recorded, dict):
-        raise InputError(f"{path}: provenance.{CALIBRATION_OPTIONS_KEY} is not an object of settings "
-                         f"({type(recorded).__name__})")
-    known = CalibrationOptions.model_fields
-    unknown = sorted(k for k in recorded if k not in known)
-    if unknown:
-        log(f"{path}: recorded settings this version does not know, ignored: {', '.join(unknown)}")
-    taken = {k: v for k, v in recorded.items() if k in known and k not in given}
-    try:
-        options = CalibrationOptions.model_validate({**taken, **given})
-    except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])} = {e.get('input')!r}: {e['msg']}"
-                             for e in exc.errors())
-        raise InputError(f"{path}: provenance.{CALIBRATION_OPTIONS_KEY}: a setting this version refuses: {problems} "
-                         "(give the option on the command line instead)") from None
-    defaults = CalibrationOptions().model_dump(mode="json")
-    dumped = options.model_dump(mode="json")
-    said = [_setting_text(k, getattr(options, k)) for k in taken if dumped[k] != defaults[k]]
-    replaced = [_FLAGS[k] for k in given if k in recorded]
-    log(f"settings from the recording (the run's [calibration]): {', '.join(said) or 'the defaults'}; "
-        + (f"{', '.join(replaced)} given instead of the recording's" if replaced else
-           f"{', '.join(_FLAGS.values())} replace them"))
-    return options
-
-
-#: The command line's options replacing a recorded setting.
-_FLAGS = {"robot_error_model": "--robot-error-model", "fit_radius": "--fit-radius", "nominal_transform": "--nominal"}
-
-
-def _setting_text(name: str, value) -> str:
-    if name == "nominal_transform":
-        return (f"nominal transform [{', '.join(f'{c:g}' for c in value.translation_mm)}] mm, quaternion_wxyz "
-                f"[{', '.join(f'{c:.5f}' for c in value.quaternion_wxyz)}]")
-    return f"{name} = {value!r}" if not isinstance(value, str) else f"{name} = \"{value}\""
 
 
 def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic: str | None, mounting: str | None,

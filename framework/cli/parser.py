@@ -201,9 +201,9 @@ def _solve(sub, common, as_json) -> None:
     bag.add_argument("--base-frame", metavar="FRAME", help="with a /tf pose topic: the robot's base frame")
     bag.add_argument("--flange-frame", metavar="FRAME", help="with a /tf pose topic: the flange frame")
     s.add_argument("--fit-radius", action=argparse.BooleanOptionalAction, default=None,
-                   help="estimate the sphere radius too (default: no; a recording of calibrate: as its run did)")
+                   help="estimate the sphere radius too (default: no; a journal of calibrate: as its run did)")
     s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data "
-                   "(default: none; a recording of calibrate: its run's nominal transform)")
+                   "(default: none; a journal of calibrate: its run's nominal transform)")
     s.add_argument("--robot", metavar="TYPE", help="robot type whose kinematics computes flange poses from joints_deg "
                    "(default: the robot the dataset's provenance names; `spherecal plugins` lists them)")
     s.add_argument("--robot-config", metavar="FILE.toml", help="the robot's settings (its [robot] table, e.g. "
@@ -213,13 +213,14 @@ def _solve(sub, common, as_json) -> None:
                    "missing; joints: every flange pose from joints_deg through the robot's kinematics")
     s.add_argument("--station-rotation-tolerance-deg", type=_positive_float, metavar="DEG",
                    help="a shot turned more than this from its station's orientation is left out "
-                   "(default: derived from the orientation read noise)")
+                   "(default: derived from the orientation read noise; a journal of calibrate: its run's setting)")
     s.add_argument("--robot-error-model", choices=["auto", "kinematic", "station", "kinematic+station", "none"],
-                   help="the robot's systematic error (docs/estimation.md): auto (default; a recording of "
+                   help="the robot's systematic error (docs/estimation.md): auto (default; a journal of "
                    "calibrate: its run's setting) is kinematic when joints and the robot's kinematics are known, else "
                    "station; none for a calibrated robot whose error is within its repeatability")
-    s.add_argument("--identify-kinematics", action="store_true",
-                   help="kinematic calibration: estimate the arm's identifiable geometric errors too (needs --robot "
+    s.add_argument("--identify-kinematics", action=argparse.BooleanOptionalAction, default=None,
+                   help="kinematic calibration: estimate the arm's identifiable geometric errors too (default: a journal of "
+                   "calibrate: as its run did; needs --robot "
                    "and joints_deg); writes robot_calibrated.urdf")
     s.add_argument("--no-report", action="store_true", help="skip the HTML report")
     s.add_argument("--force", action="store_true", help="write result.json and the exports even when the result is "

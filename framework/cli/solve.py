@@ -30,8 +30,8 @@ def run(args, session: Session) -> int:
     outcome = run_solve(
         dataset, Path(args.dataset), out, nominal=args.nominal, robot_type=args.robot,
         robot_config=Path(args.robot_config) if args.robot_config else None, pose_from=args.pose_from,
-        fit_radius=bool(args.fit_radius), station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
-        identify_kinematics=args.identify_kinematics, robot_error_model=args.robot_error_model or "auto",
+        fit_radius=args.fit_radius, station_rotation_tolerance_deg=args.station_rotation_tolerance_deg,
+        identify_kinematics=args.identify_kinematics, robot_error_model=args.robot_error_model,
         overwrite=args.overwrite, report=not args.no_report, force=args.force, operator=args.operator,
         log=progress_log("run"),
     )

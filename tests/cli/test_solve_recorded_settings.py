@@ -1,6 +1,6 @@
-"""`spherecal solve` of a recording that holds the estimator settings of the run that took
-it (`calibrate` on the fly writes them in its journal's provenance): solved with those by
-default, the command line's options replacing them, the terminal saying which came from
+"""`spherecal solve` of a journal or recording that holds the estimator settings of the run
+that took it (`calibrate`, stop-and-go and on the fly, writes them in its journal's
+provenance): solved with those by default, the command line's options replacing them, the terminal saying which came from
 the recording; and the simulated clocks' truth the journal holds turned into the truth
 line's clock offset and drift, as `calibrate` prints it."""
 
@@ -9,7 +9,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from spherecal.app import solve as dataset_app
 from spherecal.app import solve_recording as app
+from spherecal.app.calibrate import _journal_provenance as _stop_and_go_provenance
 from spherecal.app.calibrate_on_the_fly import _journal_provenance
 from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, with_clock_truth
 from spherecal.app.solving import calibration_options
@@ -18,8 +20,11 @@ from spherecal.config import load_config
 from spherecal.core.errors import InputError
 from spherecal.core.streams import POSES_ASSUMED_KEY, PoseStream, ProfileStream, Recording
 from spherecal.estimation import CalibrationOptions
+from spherecal.io.dataset import write_dataset
 from spherecal.io.streams import write_recording
+from spherecal.sim import simulate_dataset, standard_cell
 from spherecal.sim.live import true_time_relation
+from reference_sensor import reference_fov
 
 NOMINAL = {"translation_mm": [44.5, -19.8, 166.2], "quaternion_wxyz": [0.0, 1.0, 0.0, 0.0]}
 #: Settings as calibrate records them (CalibrationOptions.model_dump(mode="json")).
@@ -120,3 +125,42 @@ def test_the_simulated_clocks_give_the_truth_of_the_clock_relation():
                                                                         "programmed line, not measured"}))
     assert "true_offset_s" not in computed and "true_drift" not in computed
     assert "true_offset_s" not in with_clock_truth(_recording())
+
+
+def test_a_stop_and_go_journal_records_the_run_s_settings(sim_config):
+    loaded = load_config(sim_config("sim-kinematic-eye-in-hand.toml"))
+    run = SimpleNamespace(cfg=loaded.config, loaded=loaded, fov=None)
+    recorded = _stop_and_go_provenance(run, "digest", None)[CALIBRATION_OPTIONS_KEY]
+    assert recorded["identify_kinematics"] and recorded["pose_translation_noise_mm"] == 0.02  # the example's
+    assert CalibrationOptions.model_validate(recorded) == calibration_options(loaded.config)
+
+
+def test_solve_of_a_stop_and_go_journal_runs_with_its_settings_unless_given(tmp_path, monkeypatch, capsys):
+    """The journal's settings by default (the example's identify_kinematics and pose noise
+    too, which solve's defaults would drop); each option given replaces its own, said."""
+    dataset = simulate_dataset(standard_cell("eye_in_hand", seed=0, fov=reference_fov()))
+    path = tmp_path / "journal.jsonl"
+    recorded = {**RECORDED, "identify_kinematics": True, "station_rotation_tolerance_deg": 0.5}
+    write_dataset(path, dataset.model_copy(update={"provenance": {CALIBRATION_OPTIONS_KEY: recorded}}))
+    used = []
+
+    def solve_and_write(dataset, options, *args, **kwargs):  # the options, and no solve
+        used.append(options)
+        raise InputError("not solved here")
+
+    monkeypatch.setattr(dataset_app, "solve_and_write", solve_and_write)
+    monkeypatch.setattr(dataset_app, "solve_kinematics", lambda dataset, *a, **k: (None, dataset, object()))
+    flags = ["--robot-error-model", "none", "--no-fit-radius", "--station-rotation-tolerance-deg", "2",
+             "--no-identify-kinematics"]
+    for extra in ([], flags):
+        assert main(["solve", str(path), "--out", str(tmp_path / f"o{len(used)}"), "--no-report", *extra]) == EXIT_DATA
+    as_run, given = used
+    assert as_run == CalibrationOptions.model_validate(recorded)
+    assert (given.robot_error_model, given.fit_radius, given.station_rotation_tolerance_deg) == ("none", False, 2.0)
+    assert not given.identify_kinematics and given.pose_translation_noise_mm == 0.05  # not given: the journal's
+    said = [line for line in capsys.readouterr().err.splitlines() if line.startswith("settings from the journal")]
+    assert len(said) == 2
+    assert "identify_kinematics = True" in said[0] and "identify_kinematics" not in said[1]
+    replaced = said[1].split("; ")[-1]
+    assert replaced.endswith(" given instead of the journal's") and sorted(replaced.split(" given")[0].split(", ")) == \
+        sorted(["--robot-error-model", "--fit-radius", "--station-rotation-tolerance-deg", "--identify-kinematics"])
