@@ -4,11 +4,14 @@ a configuration describes; stop-and-go observations or an on-the-fly recording."
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.plugin_host import robot_arm
+from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY
+from spherecal.app.solving import calibration_options
 from spherecal.config import PoseStreamSettings, StreamSimSettings, load_config
 from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Dataset
@@ -20,11 +23,13 @@ from spherecal.motion.kinematic_plan import plan_kinematic_stations, uses_planne
 from spherecal.sim import NoiseModel, SimulatedCell, SweepPlan, simulate_dataset, simulate_recording, standard_cell
 
 
-def configured_cell(config: str | Path, seed: int | None = None) -> tuple[SimulatedCell, SweepPlan]:
+def configured_cell(config: str | Path, seed: int | None = None) -> tuple[SimulatedCell, SweepPlan, dict]:
     """The cell and plan of a configuration: its ``[simulation]`` cell (or, without one,
     the standard cell measuring with the configured sensor's field of view, seeded with
-    ``seed``) and the plan calibrate would take (the kinematic planner's stations, or
-    ``[acquisition.sweep]``)."""
+    ``seed``), the plan calibrate would take (the kinematic planner's stations, or
+    ``[acquisition.sweep]``), and what the data's provenance says of the run as
+    calibrate's journal does: the robot and sensor types, the configuration, and the
+    estimator's settings (``solve`` of the file starts from them)."""
     host = plugin_host.make_host()
     loaded, fov = configured_for_sensor(load_config(config), host)  # the standoffs the sensor sets, as a run
     cfg = loaded.config
@@ -45,7 +50,9 @@ def configured_cell(config: str | Path, seed: int | None = None) -> tuple[Simula
                                        cfg.sphere, arm, robot_type=cfg.robot.get("type")).sweep
     else:
         plan = cfg.acquisition.sweep if cfg.acquisition else SweepPlan()
-    return cell, plan
+    provenance = {"config": str(loaded.path), "robot": cfg.robot.get("type"), "sensor": cfg.sensor.get("type"),
+                  CALIBRATION_OPTIONS_KEY: calibration_options(cfg).model_dump(mode="json")}
+    return cell, plan, provenance
 
 
 def standard_cell_for(sensor: str | None, mounting: str, seed: int, profiles: int, point_noise_mm: float,
@@ -83,12 +90,15 @@ def simulated_sensor_fov(name: str | None, host) -> SensorFieldOfView:
     return fov
 
 
-def write_simulated(cell: SimulatedCell, plan: SweepPlan, out: str | Path, force: bool = False) -> Dataset:
-    """The dataset ``cell`` gives for ``plan``, written to ``out`` (replacing a file there
-    only with ``force``)."""
+def write_simulated(cell: SimulatedCell, plan: SweepPlan, out: str | Path, force: bool = False,
+                    provenance: dict | None = None) -> Dataset:
+    """The dataset ``cell`` gives for ``plan``, ``provenance`` added to its own, written
+    to ``out`` (replacing a file there only with ``force``)."""
     if not force and os.path.lexists(out):
         raise InputError(f"{out} already exists; give --force to replace it, or another file name")
     ds = simulate_dataset(cell, plan)
+    if provenance:
+        ds = ds.model_copy(update={"provenance": {**ds.provenance, **provenance}})
     dataio.write_dataset(out, ds, overwrite=force)
     return ds
 
@@ -102,13 +112,15 @@ def stream_settings_for(cell: SimulatedCell) -> StreamSimSettings:
 
 
 def write_simulated_recording(cell: SimulatedCell, stations: SweepPlan, out: str | Path, force: bool = False,
-                              settings: StreamSimSettings | None = None) -> Recording:
+                              settings: StreamSimSettings | None = None, provenance: dict | None = None) -> Recording:
     """The on-the-fly recording ``cell`` gives at the stations of ``stations`` (the
     default sweeps, :class:`~spherecal.config.OnTheFlyPlan`; ``settings`` default
-    :func:`stream_settings_for`), written to ``out`` in the stream form (replacing a file
-    there only with ``force``)."""
+    :func:`stream_settings_for`), ``provenance`` added to its own, written to ``out`` in
+    the stream form (replacing a file there only with ``force``)."""
     if not force and os.path.lexists(out):
         raise InputError(f"{out} already exists; give --force to replace it, or another file name")
     rec = simulate_recording(cell, settings=settings or stream_settings_for(cell), stations=stations)
+    if provenance:
+        rec = replace(rec, provenance={**rec.provenance, **provenance})
     write_recording(out, rec, overwrite=force)
     return rec

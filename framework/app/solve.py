@@ -48,7 +48,7 @@ def run_solve(dataset: Dataset, dataset_path: Path, out: Path, *, nominal: str |
     given = {"nominal_transform": nominal_pose, "fit_radius": fit_radius,
              "station_rotation_tolerance_deg": station_rotation_tolerance_deg,
              "identify_kinematics": identify_kinematics, "robot_error_model": robot_error_model}
-    options = recorded_options(dataset.provenance, dataset_path, log, flags=tuple(given), what="journal",
+    options = recorded_options(dataset.provenance, dataset_path, log, flags=tuple(given), what="dataset",
                                **{k: v for k, v in given.items() if v is not None})
     if options.identify_kinematics and arm is None:
         raise ConfigError("--identify-kinematics needs the robot's kinematics: give --robot TYPE (a type whose "

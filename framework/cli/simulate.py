@@ -21,17 +21,18 @@ def run(args, session: Session) -> int:
             raise ConfigError(f"{', '.join(clash)}: the configuration gives the sensor, the mounting, the plan and "
                               "the noise ([sensor], mounting, [acquisition], [simulation]); give these options "
                               "without --config, or change the configuration")
-        cell, plan = configured_cell(args.config, seed=args.seed)
+        cell, plan, provenance = configured_cell(args.config, seed=args.seed)
     else:
         given = {name: default if getattr(args, name) is None else getattr(args, name)
                  for name, default in SIMULATE_DEFAULTS.items()}
         cell, plan = standard_cell_for(args.sensor, **given)
+        provenance = None
     if args.on_the_fly:
-        rec = write_simulated_recording(cell, plan, args.out, force=args.force)
+        rec = write_simulated_recording(cell, plan, args.out, force=args.force, provenance=provenance)
         session.say(f"wrote an on-the-fly recording ({cell.mounting}) to {args.out}: {rec.poses.n} poses, "
                     f"{rec.profiles.n} profiles, {len(rec.sweeps)} sweeps, "
                     f"{rec.provenance['duration_s']:.1f} s")
         return EXIT_OK
-    ds = write_simulated(cell, plan, args.out, force=args.force)
+    ds = write_simulated(cell, plan, args.out, force=args.force, provenance=provenance)
     session.say(f"wrote {len(ds.observations)} observations ({cell.mounting}) to {args.out}")
     return EXIT_OK

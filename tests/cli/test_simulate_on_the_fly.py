@@ -1,14 +1,19 @@
 """spherecal simulate --on-the-fly: a recording in the stream form whose provenance holds
-the truth of its time relation."""
+the truth of its time relation; with --config, the run's robot type and estimator settings
+too, which solve of the file starts from."""
 
 import json
 
 import numpy as np
 import pytest
 
+from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY
 from spherecal.app.simulate import stream_settings_for
+from spherecal.app.solving import calibration_options
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
+from spherecal.config import CalibrationOptions, load_config
 from spherecal.core.streams import sensor_to_robot_time
+from spherecal.io.dataset import read_dataset
 from spherecal.io.streams import read_recording
 from spherecal.sim import NoiseModel, SweepPlan, simulate_recording, standard_cell
 from reference_sensor import reference_fov
@@ -62,3 +67,22 @@ def test_on_the_fly_from_a_configuration_streams_the_arm_s_joints(tmp_path, sim_
     assert rec.poses.joints_deg is not None and rec.poses.joints_deg.shape[1] == 6
     assert "robot_error" in rec.provenance and rec.provenance["flange_error_mm_range"][1] > 0.3
     assert len({s.station for s in rec.sweeps}) >= 4
+    # as calibrate's journal: the robot type (solve takes its kinematics for the joints) and the run's settings
+    assert (rec.provenance["robot"], rec.provenance["sensor"]) == ("abb_irb2400", "nxsensor_i")
+    assert CalibrationOptions.model_validate(rec.provenance[CALIBRATION_OPTIONS_KEY]) == calibration_options(
+        load_config(cfg).config)
+
+
+def test_a_dataset_from_a_configuration_solves_with_its_settings(tmp_path, sim_config, capsys):
+    """The kinematic example's identify_kinematics and nominal transform reach solve
+    through the simulated dataset's provenance, as through calibrate's journal."""
+    cfg = sim_config("sim-kinematic-eye-in-hand.toml")
+    out = tmp_path / "kin.jsonl"
+    assert main(["simulate", str(out), "--config", str(cfg)]) == EXIT_OK
+    recorded = read_dataset(out).provenance
+    assert recorded["robot"] == "abb_irb2400" and recorded[CALIBRATION_OPTIONS_KEY]["identify_kinematics"] is True
+    capsys.readouterr()
+    assert main(["solve", str(out), "--out", str(tmp_path / "solved"), "--no-report"]) == EXIT_OK
+    said = capsys.readouterr().err
+    assert "settings from the dataset (the run's [calibration]): " in said and "identify_kinematics = True" in said
+    assert (tmp_path / "solved" / "robot_calibrated.urdf").exists()  # the arm's geometry was identified

@@ -158,9 +158,9 @@ def test_solve_of_a_stop_and_go_journal_runs_with_its_settings_unless_given(tmp_
     assert as_run == CalibrationOptions.model_validate(recorded)
     assert (given.robot_error_model, given.fit_radius, given.station_rotation_tolerance_deg) == ("none", False, 2.0)
     assert not given.identify_kinematics and given.pose_translation_noise_mm == 0.05  # not given: the journal's
-    said = [line for line in capsys.readouterr().err.splitlines() if line.startswith("settings from the journal")]
+    said = [line for line in capsys.readouterr().err.splitlines() if line.startswith("settings from the dataset")]
     assert len(said) == 2
     assert "identify_kinematics = True" in said[0] and "identify_kinematics" not in said[1]
     replaced = said[1].split("; ")[-1]
-    assert replaced.endswith(" given instead of the journal's") and sorted(replaced.split(" given")[0].split(", ")) == \
+    assert replaced.endswith(" given instead of the dataset's") and sorted(replaced.split(" given")[0].split(", ")) == \
         sorted(["--robot-error-model", "--fit-radius", "--station-rotation-tolerance-deg", "--identify-kinematics"])
