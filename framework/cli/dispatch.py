@@ -68,8 +68,8 @@ def main(argv: list[str] | None = None, _collector_held: bool = False) -> int:
     real_stdout = sys.stdout
     code = EXIT_INTERNAL
     try:
-        with _logging(args, session), (contextlib.redirect_stdout(sys.stderr) if args.json
-                                       else contextlib.nullcontext()):
+        with _logging(args, session), _terminate_as_interrupt(), (
+                contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext()):
             _log.debug("spherecal %s: spherecal %s", __version__, " ".join(args._argv))
             code = _run(args, session)
             if args.json:
@@ -86,6 +86,33 @@ def main(argv: list[str] | None = None, _collector_held: bool = False) -> int:
     except BrokenPipeError:
         _quiet_broken_stdout()
         return EXIT_PIPE
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a service manager stopping the run): taken as Ctrl-C is."""
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """While a command runs, SIGTERM stops it as Ctrl-C does: the devices stopped, what was
+    taken kept, the resume command and run.log written (exit 130). Python's default would
+    end the process on the spot, with none of that. Only from the main thread (the one
+    signal handlers run in); the previous handler is restored after."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        raise Terminated(f"terminated ({signal.Signals(signum).name})")
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _plugin_options(argv: list[str]) -> tuple[object | None, dict[str, list[str]]]:

@@ -30,6 +30,36 @@ def check_against_truth(out, k=5.0):
 
 
 @pytest.mark.slow
+def test_sigterm_stops_as_ctrl_c_does_keeping_the_journal(sim_config, monkeypatch, capsys):
+    """kill, timeout and service managers send SIGTERM: the run stops as on Ctrl-C (shots
+    kept, the resume command said, run.log written), not ended on the spot; the
+    process's own handler is back afterwards."""
+    import os
+    import signal
+
+    import spherecal.motion.acquisition as acq
+
+    calls = {"n": 0}
+    real = acq.take_shot
+
+    def terminated(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 7:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(*a, **k)
+
+    monkeypatch.setattr(acq, "take_shot", terminated)
+    before = signal.getsignal(signal.SIGTERM)
+    cfg = sim_config()
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
+    said = capsys.readouterr().err
+    assert "terminated (SIGTERM)" in said and "--resume" in said
+    assert signal.getsignal(signal.SIGTERM) is before
+    out = cfg.parent / "out"
+    assert 6 <= len(dataio.read_dataset(out / "journal.jsonl").observations) <= 7
+    assert "terminated (SIGTERM)" in (out / "run.log").read_text()
+
+
 @pytest.mark.parametrize("name", ["sim-eye-in-hand.toml", "sim-eye-to-hand.toml"])
 def test_calibrate_end_to_end_in_both_modes(sim_config, name, capsys):
     import hashlib
