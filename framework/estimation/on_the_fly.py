@@ -35,7 +35,7 @@ from spherecal.core.kinematics import ArmKinematics
 from spherecal.core.models import Dataset, ObservationFlag, TimingEstimate
 from spherecal.core.streams import Recording, sensor_to_robot_time
 from spherecal.estimation.circle import fit_circles
-from spherecal.estimation.pipeline import BREAKDOWN_CAUSES, Solution, _solve
+from spherecal.estimation.pipeline import BREAKDOWN_CAUSES, Solution, _solve, with_nominal_comparison
 from spherecal.estimation.problem import Problem, orientation_groups, spread_per_station
 from spherecal.estimation.refine.linearisation import NoiseAssumptions
 from spherecal.estimation.refine.state import RefineState
@@ -81,11 +81,12 @@ def solve_recording(
     Data so far from the model that the linear algebra breaks down raise
     :class:`~spherecal.core.errors.FitBreakdownError` naming the usual causes."""
     try:
-        return _solve_recording(recording, options, kinematics, progress, offset_ms, estimate_drift)
+        solution = _solve_recording(recording, options, kinematics, progress, offset_ms, estimate_drift)
     except np.linalg.LinAlgError as exc:
         raise FitBreakdownError(
             f"the fit broke down ({exc}): the recording fits no sphere seen through its poses. Check, most common "
             f"first: {BREAKDOWN_CAUSES}") from None
+    return with_nominal_comparison(solution, options.nominal_transform if options is not None else None)
 
 
 def _solve_recording(recording: Recording, options, kinematics, progress, offset_ms, estimate_drift) -> Solution:

@@ -109,19 +109,47 @@ def solve(
     flagged = name_profile_artefacts(solution.result.flagged, dataset)
     if flagged != solution.result.flagged:
         solution = replace(solution, result=solution.result.model_copy(update={"flagged": flagged}))
-    nominal = options.nominal_transform if options is not None else None
+    return with_nominal_comparison(solution, options.nominal_transform if options is not None else None)
+
+
+#: A nominal transform whose quaternion, read (x, y, z, w), lies this close to the result
+#: was written scalar last (the order of ROS and SciPy) where w comes first, deg.
+QUATERNION_ORDER_DEG = 10.0
+
+
+def with_nominal_comparison(solution: Solution, nominal: Pose | None) -> Solution:
+    """``solution`` with how far its transform lies from the rough one the user gave
+    (``diagnostics.nominal_transform``: ``rotation_deg``, ``translation_mm``, and the
+    likely cause of a large turn, which the verdict names), or as it is without one."""
     if nominal is None:
         return solution
-    # how far the result lies from the rough transform the user gave (the verdict judges it)
     X = solution.result.transform
     turn = geo.rotvec_from_matrix(nominal.rotation_matrix.T @ X.rotation_matrix)  # in the sensor frame
     angle = float(np.degrees(np.linalg.norm(turn)))
     about_z = bool(angle > 90.0 and abs(turn[2]) > 0.95 * np.linalg.norm(turn))
     # half a turn about (0, 1, 1) maps the laser plane's (y, z) to (z, y): y and z swapped in the data
     about_yz = bool(angle > 90.0 and abs(turn[1] + turn[2]) / np.sqrt(2.0) > 0.95 * np.linalg.norm(turn))
+    w, x, y, z = nominal.quaternion_wxyz
+    scalar_last = Pose(translation_mm=nominal.translation_mm, quaternion_wxyz=(z, w, x, y))  # (w, x, y, z) read as written
+    off_deg = geo.rotation_angle_deg(scalar_last.rotation_matrix, X.rotation_matrix)
+    quaternion_order = bool(angle > 2 * QUATERNION_ORDER_DEG and off_deg < QUATERNION_ORDER_DEG)
+    cause = None
+    if quaternion_order:
+        cause = (f"the nominal's quaternion, read as written scalar last (x, y, z, w: the order of ROS and SciPy), "
+                 f"lies {off_deg:.1f} deg from the result: give it w first (quaternion_wxyz); calibrate's reach and "
+                 "keep-out checks take the nominal as given")
+    elif about_z:
+        cause = ("turned about the sensor's z axis. A sensor whose y axis runs the other way (its profile points "
+                 "mirrored, y -> -y) fits such data exactly as one turned half a turn does; check the sign of the "
+                 "sensor's y, or the nominal")
+    elif about_yz:
+        cause = ("turned half a turn about the sensor's (0, 1, 1) axis, which is what data with y and z swapped in "
+                 "every profile or circle give (each written (z, y)); check the order of the coordinates, or the "
+                 "nominal")
     diag = solution.result.diagnostics.model_copy(update={"nominal_transform": {
         "rotation_deg": angle, "translation_mm": float(np.linalg.norm(X.translation - nominal.translation)),
-        "half_turn_about_sensor_z": about_z, "half_turn_about_sensor_yz": about_yz}})
+        "half_turn_about_sensor_z": about_z, "half_turn_about_sensor_yz": about_yz,
+        "quaternion_scalar_last": quaternion_order, "likely_cause": cause}})
     return replace(solution, result=solution.result.model_copy(update={"diagnostics": diag}))
 
 

@@ -176,14 +176,8 @@ def verdict(result: CalibrationResult, thresholds: Thresholds | None = None) -> 
             lvl = ("red" if angle > th.nominal_rotation_red_deg or dist > th.nominal_translation_red_mm else "amber")
             text = (f"the result is {angle:.1f} deg and {dist:.1f} mm from the nominal transform given (amber above "
                     f"{th.nominal_rotation_amber_deg:g} deg or {th.nominal_translation_amber_mm:g} mm)")
-            if nominal.get("half_turn_about_sensor_z"):
-                text += (": turned about the sensor's z axis. A sensor whose y axis runs the other way (its profile "
-                         "points mirrored, y -> -y) fits such data exactly as one turned half a turn does; check the "
-                         "sign of the sensor's y, or the nominal")
-            elif nominal.get("half_turn_about_sensor_yz"):
-                text += (": turned half a turn about the sensor's (0, 1, 1) axis, which is what data with y and z "
-                         "swapped in every profile or circle give (each written (z, y)); check the order of the "
-                         "coordinates, or the nominal")
+            if nominal.get("likely_cause"):  # (estimation.pipeline.with_nominal_comparison names it)
+                text += f": {nominal['likely_cause']}"
             reasons.append((lvl, text))
 
     timing = result.timing

@@ -157,3 +157,16 @@ def test_a_given_offset_is_a_start_near_the_truth_and_refused_far_from_it():
     assert abs(result.timing.offset_ms - true_ms) < 0.01
     with pytest.raises(InputError, match=r"--clock-offset-ms .*the offset given is wrong"):
         solve_recording(rec, CalibrationOptions(), offset_ms=true_ms + 2000.0)
+
+
+def test_a_nominal_given_for_a_recording_is_compared_with_the_result():
+    """As for stop-and-go: the result's distance from the nominal, and a quaternion
+    written scalar last named."""
+    rec = _recording("eye_to_hand", seed=1)
+    X = Pose.model_validate(rec.provenance["true_transform"])
+    w, x, y, z = X.quaternion_wxyz
+    swapped = Pose(translation_mm=X.translation_mm, quaternion_wxyz=(x, y, z, w))
+    result = solve_recording(rec, CalibrationOptions(nominal_transform=swapped)).result
+    nominal = result.diagnostics.nominal_transform
+    assert nominal["rotation_deg"] > 90 and nominal["translation_mm"] < 0.01 and nominal["quaternion_scalar_last"]
+    assert verdict(result).level == "red"

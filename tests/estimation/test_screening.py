@@ -387,6 +387,28 @@ def test_a_result_far_from_the_nominal_transform_is_red_and_a_mirrored_sensor_is
     assert not [t for _, t in v.reasons if "nominal" in t] and v.level == "green"
 
 
+def scalar_last(X: Pose) -> Pose:
+    """``X`` with its quaternion written (x, y, z, w) where w comes first, as ROS and SciPy write it."""
+    w, x, y, z = X.quaternion_wxyz
+    return Pose(translation_mm=X.translation_mm, quaternion_wxyz=(x, y, z, w))
+
+
+def test_a_nominal_whose_quaternion_is_written_scalar_last_is_named():
+    """A nominal copied from ROS or SciPy (x, y, z, w) into quaternion_wxyz: the data fit
+    the true transform, 100-180 deg from that nominal, RED, and the verdict says to give
+    it w first rather than suspect the data."""
+    from spherecal.report.assess import verdict
+
+    cell = cell_for(3, mounting="eye_in_hand")
+    ds = simulate_dataset(cell, SweepPlan(profiles_per_station=6))
+    result = solve(ds, CalibrationOptions(nominal_transform=scalar_last(cell.true_transform))).result
+    assert result.diagnostics.nominal_transform["quaternion_scalar_last"]
+    v = verdict(result)
+    (text,) = [t for lvl, t in v.reasons if "from the nominal transform given" in t]
+    assert v.level == "red" and "written scalar last (x, y, z, w" in text and "give it w first" in text
+    assert "mirrored" not in text
+
+
 def swap_y_and_z(ds: Dataset) -> Dataset:
     """Every profile's points written (z, y) instead of (y, z)."""
     return ds.model_copy(update={"observations": [o.model_copy(update={"profile": o.profile.model_copy(
