@@ -1,8 +1,9 @@
 """A recording's advice and report (on the fly: a result with ``timing``): no advice to
 stop the robot (its poses are read while it moves), a kinematic calibration named as the
 stop-and-go run it is, the widening of the pose noise for the residuals' correlation in
-time named as such."""
+time named as such, and the clock relation in the report as the terminal states it."""
 
+import html
 import math
 
 import pytest
@@ -12,6 +13,8 @@ from spherecal.core.models import KinematicParameter, RobotErrorSummary
 from spherecal.estimation.on_the_fly import solve_recording
 from spherecal.estimation.screening import likely_cause_of_inconsistent_profile
 from spherecal.report.assess import Thresholds, advice, robot_error_dominates
+from spherecal.report.html import sections, write_report
+from spherecal.report.terminal import timing_lines
 from spherecal.report.validation_advice import robot_cause
 from spherecal.sim import standard_cell
 from spherecal.sim.streams import simulate_recording
@@ -113,3 +116,23 @@ def test_a_recordings_time_correlated_pose_noise_is_named_not_blamed_on_the_robo
     (high,) = [a for a in noisy if a.key == "pose_noise_high"]
     assert high.level == "amber" and not _stop_words([high]), high.text
     assert "pose stream" in high.text and "clock relation" in high.text
+
+
+def test_the_report_states_the_clock_relation_as_the_terminal_does(recorded, tmp_path):
+    result = recorded.result
+    timing = result.timing
+    text = write_report(recorded, tmp_path).read_text(encoding="utf-8")
+    section = text[text.index('<h2 id="clock">'):text.index('<h2 id="identity">')]
+    for line in timing_lines(timing):
+        assert html.escape(line.strip(), quote=True) in section, line
+    assert "t_robot = t_sensor + offset + drift (t_sensor - " in section and f"{timing.t_sensor0_s:.6f} s" in section
+    assert f"offset {timing.offset_ms:.4f} +/- {timing.offset_std_ms:.4f} ms (robot clock minus sensor clock" in section
+    assert f"drift {timing.drift_ppm:.3f} +/- {timing.drift_std_ppm:.3f} ppm" in section
+    assert html.escape(timing.identifiability, quote=True) in section and '<a href="#clock">' in text
+    assert "NOT MEASURED" not in section  # (measured poses)
+    computed = result.model_copy(update={"timing": timing.model_copy(update={
+        "poses_assumed": "computed along the programmed line", "drift_estimated": False})})
+    said = sections.clock_html(computed)
+    assert "<b>robot poses NOT MEASURED: computed along the programmed line</b>" in said
+    assert f"drift held at {timing.drift_ppm:.3f} ppm" in said
+    assert sections.clock_html(result.model_copy(update={"timing": None})) == ""
