@@ -24,6 +24,7 @@ from spherecal.config import POINT_DISTANCE_MM  # noqa: F401 (the report's defau
 from spherecal.estimation.refine.reml import STATION_SCALE_CEILING_DEG, STATION_SCALE_CEILING_MM
 from spherecal.estimation.robust import median
 from spherecal.core.models import CalibrationResult, StationPrediction
+from spherecal.report import advice_wording as wording
 
 Level = Literal["green", "amber", "red"]
 _RANK = {"green": 0, "amber": 1, "red": 2}
@@ -417,38 +418,6 @@ def inconsistent_stations(result: CalibrationResult, thresholds: Thresholds | No
     }
 
 
-_FLAG_CAUSES = [  # the sensor's artefacts first: they are named in place of the generic causes
-    ("profile is clipped", "profiles clipped at the edge of the sensor's field of view", "keep the sphere inside "
-     "the field of view (acquisition.sweep); a sensor should leave out points beyond its range, not hold them"),
-    ("coarsely quantised", "depths on a coarse grid", "report depths at the sensor's full resolution"),
-    ("inconsistent", "pose read at the wrong moment or paired with the wrong profile",
-     "read the pose only after the robot has stopped (RAPID: a fine point and WaitRob \\InPos before CRobT) "
-     "and check that no reading was lost or repeated in the sequence"),
-    ("points (needs", "the laser line barely touches the sphere",
-     "move that station's sweep so the line crosses the sphere near its middle"),
-    ("scatter about their circle", "the sensor's noise above the limit (exposure, a dull, dirty or wet sphere, "
-     "ambient light), the sphere all the same",
-     "check the sensor's exposure and the sphere's surface; if this is the noise the sensor gives, raise the "
-     "calibration setting max_circle_rms_mm above it"),
-    ("do not lie on a circle", "the profile is not the sphere (background, holder, reflections)",
-     "check what the sensor sees at that pose; mask the background or move the sweep"),
-    ("exceeds the sphere radius", "wrong sphere radius or a profile of something else",
-     "check the certified radius in the dataset (mm) and what the sensor sees"),
-    ("usable profiles", "too few usable profiles at that station",
-     "add profiles to that station's sweep"),
-    ("turned", "the robot turned within a station (only translations are allowed there)",
-     "keep each station's orientation fixed during its sweep (linear moves, no reorientation); if the "
-     "orientation readings are noisier than assumed, set calibration.pose_rotation_noise_deg"),
-]
-
-
-def _flag_cause(reason: str) -> tuple[str, str]:
-    for needle, cause, todo in _FLAG_CAUSES:
-        if needle in reason:
-            return cause, todo
-    return "see the reason given", "check that observation's profile and pose"
-
-
 def advice(result: CalibrationResult, thresholds: Thresholds | None = None) -> list[Advice]:
     """What to do, from the diagnostics of ``result``; worst first. An empty list means
     nothing calls for action."""
@@ -563,6 +532,8 @@ def _robot_error_advice(result: CalibrationResult, th: Thresholds) -> list[Advic
     if any(p.identified for p in params):
         todo = ("measure through the calibrated model (robot_calibrated.urdf) and add stations spread over the "
                 "joints the cell works in (more of the arm's parameters identified)")
+    elif params and result.timing is not None:  # a recording: a kinematic calibration is taken stop-and-go
+        todo = wording.recording_arm_calibration(sum(p.identifiable for p in params), len(params))
     elif params:  # the arm's error modelled from its joints, not identified: spherecal can calibrate it
         seen = sum(p.identifiable for p in params)
         todo = ("calibrate the arm's geometry with spherecal and measure through the calibrated model ([calibration] "
@@ -630,7 +601,13 @@ def _residual_advice(result: CalibrationResult, th: Thresholds, bad_stations: di
             "what radius the data prefer; check the sensor exposure "
             "(a saturated or too dark line biases the points) and that the sphere is clean and matte.",
         ))
-    if pose_t is not None and pose_t > th.pose_noise_factor * th.robot_repeatability_mm:
+    if pose_t is not None and pose_t > th.pose_noise_factor * th.robot_repeatability_mm and result.timing is not None:
+        # a recording: its noise per profile widened for the residuals' correlation in time; no robot to stop
+        correlation = (result.diagnostics.refinement or {}).get("time_correlation") or {}
+        out.append(Advice(*wording.recording_pose_noise(
+            pose_t, float(correlation.get("integrated_autocorrelation_shots", 1.0)), th.robot_repeatability_mm,
+            th.pose_noise_factor)))
+    elif pose_t is not None and pose_t > th.pose_noise_factor * th.robot_repeatability_mm:
         out.append(Advice(
             "pose_noise_high", "amber", "Robot poses scatter more than the robot repeats",
             f"The data show a robot pose noise of about {pose_t:.3f} mm per axis, more than "
@@ -652,9 +629,10 @@ def _station_advice(result: CalibrationResult, bad_stations: dict[str, float]) -
         out.append(Advice(
             "station_inconsistent", "amber", "Station(s) inconsistent with the robot's moves",
             f"Within station(s) {listing} the sphere centre seen by the sensor does not move as the robot "
-            f"says it moved (typical station: {typical:.3f} mm). The likely cause is a pose read before the "
-            "robot settled (use a fine point and WaitRob \\InPos before reading), or a reading paired with "
-            "the wrong profile. Re-acquire that station, or drop it if the others suffice.",
+            f"says it moved (typical station: {typical:.3f} mm). " + (wording.RECORDING_STATION_CAUSE if result.timing
+            is not None else "The likely cause is a pose read before the robot settled (use a fine point and WaitRob "
+            "\\InPos before reading), or a reading paired with the wrong profile. Re-acquire that station, or drop it "
+            "if the others suffice."),
         ))
     return out
 
@@ -733,7 +711,7 @@ def _flagged_advice(result: CalibrationResult, th: Thresholds) -> list[Advice]:
     if result.flagged:
         groups: dict[str, list] = {}
         for f in result.flagged:
-            groups.setdefault(_flag_cause(f.reason), []).append(f)
+            groups.setdefault(wording.flag_cause(f.reason, result.timing is not None), []).append(f)
         parts = []
         for (cause, todo), flags in groups.items():
             which = ", ".join(f"{f.index} (station {f.station})" for f in flags)

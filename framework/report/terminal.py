@@ -39,7 +39,7 @@ def summary(solution: Solution, graded: Verdict | None = None, *, verbose: bool 
             lines.append(f"  advice: {len(todo) - len(shown)} more: {MORE}")
     lines.append(transform_line(r))
     if r.timing is not None:
-        lines.extend(_timing_lines(r.timing))
+        lines.extend(timing_lines(r.timing))
         lines.extend(_flagged_profile_lines(r.flagged))
     else:
         for f in r.flagged[:MAX_FLAG_LINES]:
@@ -161,8 +161,10 @@ def _flagged_profile_lines(flagged) -> list[str]:
     return lines
 
 
-def _timing_lines(timing) -> list[str]:
-    """A recording's clock relation (docs/conventions.md, "Time")."""
+def timing_lines(timing) -> list[str]:
+    """A recording's clock relation (docs/conventions.md, "Time"), as the terminal and the
+    report give it: the model, the offset (robot clock minus sensor clock) and the drift
+    with their 1-sigma, whether the data identify it, and poses that were not measured."""
     drift = (f"drift {timing.drift_ppm:.3f} +/- {timing.drift_std_ppm:.3f} ppm" if timing.drift_estimated
              else f"drift held at {timing.drift_ppm:.3f} ppm (not estimated: a recording too short to show it, or both "
              "streams stamped by one clock)")

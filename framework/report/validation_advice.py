@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from spherecal.core.models import CalibrationResult
 from spherecal.motion.validation import FIGURE_SCOPE
+from spherecal.report.advice_wording import recording_arm_calibration
 from spherecal.report.assess import Verdict, robot_error_dominates, with_validation
 
 
@@ -71,6 +72,9 @@ def robot_cause(result: CalibrationResult | None, figures: Mapping[str, Mapping]
         remedy = ("either calibrate the arm's geometry with spherecal ([calibration] identify_kinematics = true; "
                   "examples/sim-kinematic-eye-in-hand.toml) and measure through the calibrated model ([robot] "
                   "calibrated_model = the robot_calibrated.urdf it writes), or accept these figures for this cell")
+        if result.timing is not None:  # a recording: the arm's calibration is a stop-and-go run of its own
+            seen = sum(p.identifiable for p in params)
+            remedy = f"either {recording_arm_calibration(seen, len(params))}, or accept these figures for this cell"
     else:
         short = "the robot's own absolute accuracy"
         what = f"{short} (its flange is not where its controller says)"

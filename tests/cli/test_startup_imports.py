@@ -31,10 +31,11 @@ RUN_ONLY = ("spherecal.motion.acquisition", "spherecal.motion.kinematic_plan",
             "spherecal.robots.abb_irb2400.frames",  # (reading a tooldata line: compare and validate)
             "statistics")  # (the verdict's medians are the estimator's)
 #: At most this many ``spherecal`` modules (the built-in plugins' included) for a ``solve``
-#: without report: 99 now (the devices' contract brings the pose-streaming one; the flags
-#: name clipped or quantised profiles: profile_artefacts). A new one on its path raises the
-#: bound knowingly.
-MAX_SOLVE_MODULES = 99
+#: without report: 100 now (the devices' contract brings the pose-streaming one; the flags
+#: name clipped or quantised profiles: profile_artefacts; the advice's words for stop-and-go
+#: data and for recordings: report.advice_wording). A new one on its path raises the bound
+#: knowingly.
+MAX_SOLVE_MODULES = 100
 
 
 def _modules_after(argv: list[str]) -> set[str]:

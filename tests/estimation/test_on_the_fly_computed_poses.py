@@ -12,7 +12,7 @@ from spherecal.core.streams import POSES_ASSUMED_KEY, PROGRAMMED_LINE_ASSUMPTION
 from spherecal.estimation.on_the_fly import solve_recording
 from spherecal.report.assess import verdict
 from spherecal.report.html.sections import identity_html
-from spherecal.report.terminal import _timing_lines
+from spherecal.report.terminal import timing_lines
 from spherecal.sim import standard_cell
 from spherecal.sim.streams import simulate_recording
 from reference_sensor import reference_fov
@@ -46,7 +46,7 @@ def test_computed_poses_are_said_in_the_result_and_their_ramps_left_out():
     assert result.timing.poses_assumed == TEXT
     on_ramp = [f for f in result.flagged if "speed ramp" in f.reason]
     assert on_ramp and all("left out" in f.reason for f in on_ramp)
-    assert any("NOT MEASURED" in line and TEXT in line for line in _timing_lines(result.timing))
+    assert any("NOT MEASURED" in line and TEXT in line for line in timing_lines(result.timing))
     assert any(TEXT in text for _, text in verdict(result).reasons)
     assert "not measured" in identity_html(result) and "programmed line" in identity_html(result)
     offset_error_ms = result.timing.offset_ms - 1e3 * rec.provenance["true_offset_s"]

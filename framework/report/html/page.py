@@ -141,6 +141,8 @@ def _body(solution, title: str, figures: Mapping[str, tuple[str, str]], pts: lis
         simulated_html() if is_simulated(result.provenance) else "",
         sections.expectation_html(result),
         sections.headline_html(result, ver, th, notes, has_profiles),
+        *(['<section class="keep"><h2 id="clock">The clock relation</h2>', sections.clock_html(result) + "</section>"]
+          if result.timing is not None else []),
         '<section class="keep"><h2 id="identity">What was calibrated</h2>',
         sections.identity_html(result) + "</section>",
         '<h2 id="advice">What to do when something is off</h2>',

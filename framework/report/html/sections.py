@@ -21,7 +21,7 @@ from spherecal.report.assess import (Thresholds, expected_rms_mm, inconsistent_s
                                      start_vs_refined, station_prediction)
 from spherecal.report.html.data import K_EXPANDED, interactive_points, point_uncertainty
 from spherecal.report.html.signing import is_simulated, provenance_rows
-from spherecal.report.terminal import point_error_lines
+from spherecal.report.terminal import point_error_lines, timing_lines
 
 
 def _e(value: Any) -> str:
@@ -129,6 +129,25 @@ Mounting: {_e(result.mounting)}. Its inverse is <code>{_e(inv)}</code>.</p>
 a-posteriori variance factor {result.variance_factor:.3f}. Rotations are small rotations about the axes of the
 {_e(a)} frame. The files next to this report hold the same numbers (see docs/results.md).</p>
 """
+
+
+def clock_html(result: CalibrationResult) -> str:
+    """A recording's clock relation in the terminal's words (:func:`~spherecal.report.terminal.timing_lines`):
+    the model, the offset and drift with their 1-sigma, whether the data identify it, and
+    poses that were not measured; what the terms mean below. Empty without ``timing``
+    (stop-and-go data)."""
+    timing = result.timing
+    if timing is None:
+        return ""
+    first, *rest = (line.strip() for line in timing_lines(timing))
+    items = "".join(f"<li>{f'<b>{_e(line)}</b>' if 'NOT' in line else _e(line)}</li>" for line in rest)
+    return (f'<div class="advice {"green" if timing.identifiable else "amber"}"><p>{_e(first)}</p><ul>{items}</ul>'
+            "</div><p class=\"muted\">A profile stamped t_sensor by the sensor's clock was exposed when the robot's "
+            "clock read t_robot. The offset is the robot clock minus the sensor clock at t_sensor0, the first "
+            "profile's stamp; the drift is the robot clock's rate relative to the sensor's, minus 1, in parts per "
+            "million. They were estimated with the transform (1-sigma from the joint fit; a drift said to be held was "
+            "not estimated); result.json holds them as "
+            "<code>timing</code> (docs/conventions.md, \"Time: two clocks\").</p>")
 
 
 def advice_html(items) -> str:
@@ -481,7 +500,8 @@ def header_html(title: str, result: CalibrationResult, has_centres: bool, with_v
                 generated_at: str, has_profiles: bool = True) -> str:
     """The title, the line under it (mounting, transform, data, when and by what the
     report was made) and the links to the sections."""
-    nav = ["verdict", "identity", "transform", "advice", "residuals", "sphere", "uncertainty",
+    nav = ["verdict", "identity", "transform", *(["clock"] if result.timing is not None else []), "advice",
+           "residuals", "sphere", "uncertainty",
            *(["robot"] if result.robot_error is not None else []), "stations", "flagged"]
     if with_validation:
         nav.append("validation")
