@@ -77,7 +77,7 @@ def point_error_lines(result: CalibrationResult, data_error: bool = False) -> li
     dominant = POINT_ERROR_PARTS.get(err.dominant, err.dominant)
     if not _arm_calibrated(err):
         return [f"a point measured at a new pose, with the robot as it is: expected error {err.point_error_k2_mm:.3f} mm "
-                f"(k = 2), mostly from {dominant}"]
+                f"(k = 2), mostly from {dominant} (robot error model: {_MODEL_NAMES.get(err.model, err.model)})"]
     nominal = err.point_error_nominal_arm_k2_mm
     if nominal is None:
         first = (f"a point measured at a new pose, on the controller's nominal arm model ({ALONE}): more than through "
@@ -90,6 +90,13 @@ def point_error_lines(result: CalibrationResult, data_error: bool = False) -> li
     return [first, f"  through spherecal's calibrated arm model ({CALIBRATED_URDF_NAME}): expected error "
                    f"{err.point_error_k2_mm:.3f} mm (k = 2), mostly from {dominant}; this accuracy holds only where "
                    "poses go through that model"]
+
+
+#: The robot error model a result was solved with, as the terminal names it (robot_error_model
+#: "auto" chooses one; -v and the report say why).
+_MODEL_NAMES = {"kinematic": "the arm's geometry, kinematic", "station": "per station",
+                "kinematic+station": "the arm's geometry and per station, kinematic+station",
+                "none": "pose noise only, none"}
 
 
 #: How a kinematic calibration's transform is used on the controller's nominal model.

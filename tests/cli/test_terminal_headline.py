@@ -65,6 +65,7 @@ def test_the_summary_leads_with_the_point_error_and_leaves_the_tables_to_v(arm_e
     lines = printed.splitlines()
     assert lines[0].startswith(f"a point measured at a new pose, with the robot as it is: expected error "
                                f"{err.point_error_k2_mm:.3f} mm (k = 2), mostly from "), lines[0]
+    assert lines[0].endswith("(robot error model: the arm's geometry, kinematic)")  # the one auto chose
     level = result.diagnostics.verdict["level"]
     assert lines[1].startswith(f"verdict: {level.upper()}: ")
     if level != "green":  # one reason, one piece of advice, and where the others are
