@@ -588,6 +588,11 @@ def _check_time_spans(t_sensor, t_robot, name, profile_topic, pose_topic) -> Non
                   "out of the fit otherwise", BagWarning, stacklevel=3)
 
 
+#: The two streams' header stamp spans (first to last stamp) may lie this far apart (s)
+#: and still be one clock's: the largest delay a stamp may have before its log time.
+SAME_CLOCK_MAX_GAP_S = 1.0
+
+
 def _delay_trend(t_s: np.ndarray, log_ns: np.ndarray) -> tuple[float, float, float]:
     """(median, slope, slope's standard error) of the delay log time - header stamp (s)."""
     d = log_ns / 1e9 - t_s
@@ -603,16 +608,23 @@ def _delay_trend(t_s: np.ndarray, log_ns: np.ndarray) -> tuple[float, float, flo
 
 def _clocks(t_sensor, log_sensor, t_robot, log_robot, profile_topic, pose_topic, name):
     """Both streams' clock names, and whether their stamps show one clock: the recording
-    computer's (each header stamp a little before its log time, and no drift between the
-    two streams' delays)."""
+    computer's (each header stamp a little before its log time, no drift between the two
+    streams' delays, and the two streams' stamps in one stretch of time)."""
     clocks = {"robot": f"header stamps of {pose_topic}", "sensor": f"header stamps of {profile_topic}"}
     med_s, slope_s, se_s = _delay_trend(t_sensor, log_sensor)
     med_r, slope_r, se_r = _delay_trend(t_robot, log_robot)
     rel, se = slope_s - slope_r, math.hypot(se_s, se_r)
     near = -0.005 <= med_s <= 1.0 and -0.005 <= med_r <= 1.0
-    same = near and math.isfinite(se) and abs(rel) <= 2e-6 + 3.0 * se and se < 5e-6
+    # Each topic is compared only with its own log times above; a converter that writes
+    # each message's log time = its header stamp makes every topic look "stamped on
+    # reception" whatever clock stamped it. Stamps of one clock, recorded together, lie
+    # in one stretch of time: spans apart by more than a delay cannot be one clock.
+    gap_s = max(float(t_sensor[0]), float(t_robot[0])) - min(float(t_sensor[-1]), float(t_robot[-1]))
+    together = gap_s <= SAME_CLOCK_MAX_GAP_S
+    same = near and together and math.isfinite(se) and abs(rel) <= 2e-6 + 3.0 * se and se < 5e-6
     info = {"sensor_delay_median_s": med_s, "robot_delay_median_s": med_r, "relative_rate_ppm": rel * 1e6,
-            "relative_rate_std_ppm": se * 1e6 if math.isfinite(se) else None, "same_clock": bool(same)}
+            "relative_rate_std_ppm": se * 1e6 if math.isfinite(se) else None,
+            "stamp_spans_gap_s": max(gap_s, 0.0), "same_clock": bool(same)}
     if same:
         clocks = {"robot": "recording computer", "sensor": "recording computer"}
         warnings.warn(

@@ -397,6 +397,22 @@ def test_both_streams_stamped_by_the_recording_computer(tmp_path):
     assert rec.provenance["clock_check"]["same_clock"] is True
 
 
+def test_log_times_copied_from_the_stamps_show_no_one_clock(tmp_path):
+    """A converter that writes each message's log time = its header stamp makes each topic
+    look stamped on reception; stamps 1.77e9 s apart (the sensor's epoch, the robot's
+    power-on) are two clocks all the same: no SameClockWarning, no span error, the solve
+    searches the offset."""
+    truth = make_truth(n_poses=600, n_profiles=120)
+    truth.pose_ns = truth.pose_ns - T0_NS + 3_725 * 10**9  # the controller counts from power-on
+    profiles = [(int(ns), m) for (_, m), ns in zip(profile_messages(truth, drift_ppm=0), truth.profile_ns)]
+    poses = [(int(ns), m) for (_, m), ns in zip(pose_messages(truth), truth.pose_ns)]
+    rec = read(_bag(tmp_path, truth, profiles=profiles, poses=poses))  # any warning fails
+    assert rec.clocks == {"robot": "header stamps of /pose", "sensor": "header stamps of /profiles"}
+    check = rec.provenance["clock_check"]
+    assert check["same_clock"] is False and check["stamp_spans_gap_s"] > 1e9
+    np.testing.assert_array_equal(rec.poses.t_robot_s, seconds(truth.pose_ns))
+
+
 def test_pose_stamped_read_at_once_as_one_by_one(tmp_path):
     """A driver's PoseStamped messages, all of one layout, are read in one block; the
     values are those of the message-by-message reading, and messages in two frames or
