@@ -32,11 +32,12 @@ What it reads (REP 103: metres, radians, quaternions (x, y, z, w), scalar **last
 
 Bad input raises a :class:`BagError` subclass naming the cause (:class:`BagTopicError`,
 :class:`BagUnitsError`, :class:`BagCloudError`, :class:`BagStampError`,
-:class:`BagTimeSpanError`); a wrong argument raises :class:`InputError`. What needs
-attention but does not stop the conversion is a :class:`BagWarning`: some profiles
-outside the pose stream's time span, invalid points dropped from clouds that say they
-have some (``is_dense`` false), both streams stamped by the recording computer's clock
-(:class:`SameClockWarning`: no drift between them can be seen).
+:class:`BagTimeSpanError`, :class:`BagCutShortError`); a wrong argument raises
+:class:`InputError`. What needs attention but does not stop the conversion is a
+:class:`BagWarning`: some profiles outside the pose stream's time span, invalid points
+dropped from clouds that say they have some (``is_dense`` false), both streams stamped by
+the recording computer's clock (:class:`SameClockWarning`: no drift between them can be
+seen).
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.core.streams import PoseStream, ProfileStream, Recording
 from spherecal.io.mcap_scan import NotPlain, scan_messages
+from spherecal.io.rosbag_cut import cut_short_text
 from spherecal.io.stream_fields import _check_mounting_radius
 
 from spherecal.io.rosbag_messages import (
@@ -68,6 +70,7 @@ from spherecal.io.rosbag_messages import (
     MAX_FLANGE_DISTANCE_M,
     MAX_OUTSIDE_FRACTION,
     BagError,
+    BagCutShortError,
     BagTopicError,
     BagUnitsError,
     BagCloudError,
@@ -85,6 +88,7 @@ from spherecal.io.rosbag_messages import (
 
 __all__ = [
     "BagCloudError",
+    "BagCutShortError",
     "BagError",
     "BagStampError",
     "BagTimeSpanError",
@@ -128,18 +132,25 @@ def _open(path: Path, name: str):
         reader = Reader(path)
         reader.open()
     except (ReaderError, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"{name}: cannot read the bag ({exc})") from None
+        raise _unreadable(path, name, "cannot read the bag", exc) from None
     return reader
 
 
-def _messages(reader, connections, name: str):
+def _unreadable(path: Path, name: str, what: str, exc: Exception) -> BagError:
+    """The error for a bag the storage library refuses: a storage file cut short (a
+    recording interrupted) says so and names the repair; other damage is the library's word."""
+    text = cut_short_text(path, name, str(exc))
+    return BagCutShortError(text) if text else BagError(f"{name}: {what} ({exc})")
+
+
+def _messages(reader, connections, name: str, path: Path):
     """The reader's messages; a damaged storage file is a BagError naming the bag."""
     from rosbags.rosbag2.errors import ReaderError
 
     try:
         yield from reader.messages(connections=connections)
     except (ReaderError, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"{name}: cannot read the bag's messages ({exc})") from None
+        raise _unreadable(path, name, "cannot read the bag's messages", exc) from None
 
 
 def _mcap_files(path: Path) -> list[Path]:
@@ -222,7 +233,7 @@ def read_bag(
             taken = _take(scan_messages(_mcap_files(Path(path)), counts), name, profile_topic, pose_topic, line_axis,
                           prof.count)
         except NotPlain:
-            taken = _take(((c.topic, log, raw) for c, log, raw in _messages(reader, wanted, name)), name,
+            taken = _take(((c.topic, log, raw) for c, log, raw in _messages(reader, wanted, name, Path(path))), name,
                           profile_topic, pose_topic, line_axis, prof.count)
         decoder, pose_raw, pose_log, static_raw = taken
     finally:

@@ -64,6 +64,11 @@ class BagTimeSpanError(BagError):
     """Most profiles lie outside the pose stream's time span."""
 
 
+class BagCutShortError(BagError):
+    """A storage file that ends too soon (a recording interrupted); the message names the
+    file and the tools that repair it."""
+
+
 class BagWarning(UserWarning):
     """Something in a bag that the conversion kept but that needs a look."""
 

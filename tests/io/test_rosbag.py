@@ -4,6 +4,7 @@ bad bag failing with an error that names the cause."""
 
 from __future__ import annotations
 
+import re
 import shutil
 import warnings
 
@@ -14,6 +15,7 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.io.rosbag import (
     BagCloudError,
+    BagCutShortError,
     BagError,
     BagStampError,
     BagTimeSpanError,
@@ -284,6 +286,35 @@ def test_not_a_bag(tmp_path):
     (tmp_path / "x.jsonl").write_text("{}\n")
     with pytest.raises(BagError, match="not a rosbag2 recording"):
         read(tmp_path / "x.jsonl")
+
+
+@pytest.mark.parametrize("storage, fraction", [("mcap", 0.6), ("mcap", 0.999), ("sqlite3", 0.5)])
+def test_a_bag_cut_short_says_so_and_names_the_repair(tmp_path, storage, fraction):
+    """A recording interrupted leaves a storage file without its end: the error says the
+    bag looks cut short and names the file and the tools that repair it, for the bag
+    folder and for the file given alone."""
+    truth = make_truth(n_poses=400, n_profiles=150)
+    bag = write_bag(tmp_path / "bag", storage, {"/profiles": (CLOUD, profile_messages(truth)),
+                                               "/pose": (POSE, pose_messages(truth))})
+    (file,) = [p for p in bag.iterdir() if p.suffix in (".mcap", ".db3")]
+    data = file.read_bytes()
+    file.write_bytes(data[:int(len(data) * fraction)])
+    alone = tmp_path / f"alone{file.suffix}"
+    shutil.copy(file, alone)
+    repair = r"`mcap recover .*` \(the mcap CLI\)" if storage == "mcap" else r"`sqlite3 .* \.recover \| sqlite3 "
+    with pytest.raises(BagCutShortError, match=rf"bag: the bag looks cut short \(a recording interrupted\): "
+                                               rf"{re.escape(str(file))}.*Repair it: {repair}.*"
+                                               rf"`ros2 bag reindex {re.escape(str(bag))}`"):
+        read(bag)
+    with pytest.raises(BagCutShortError, match=rf"the bag looks cut short.*{re.escape(str(alone))}.*Repair it: {repair}") \
+            as err:
+        read(alone)
+    assert "reindex" not in str(err.value)  # a file alone has no metadata.yaml to rewrite
+    # a whole file with its own damage keeps the storage library's word
+    (tmp_path / "x.mcap").write_bytes(b"\x89MCAP0\r\n" + bytes(100) + b"\x89MCAP0\r\n")
+    with pytest.raises(BagError, match="cannot read the bag") as err:
+        read(tmp_path / "x.mcap")
+    assert "cut short" not in str(err.value)
 
 
 def test_millimetres_where_metres_belong(tmp_path):
