@@ -291,7 +291,21 @@ def _take(messages, name: str, profile_topic: str, pose_topic: str, line_axis: s
     pose_raw: list[bytes] = []
     pose_log: list[int] = []
     static_raw: list[bytes] = []
+    before = {profile_topic: None, pose_topic: None}  # each topic's message before, as read
+    seen = dict.fromkeys(before, 0)
+    dropped: dict[str, list[tuple[int, float]]] = {profile_topic: [], pose_topic: []}  # (index, log time s)
     for topic, log_ns, raw in messages:
+        if topic in before:
+            # a message read twice (a recorder subscribed twice, a replay recorded): the same
+            # bytes, stamp and all, as the message before it on its topic; the stamp (bytes
+            # 4 to 12 after the CDR header) tells most messages apart without comparing the rest
+            last = before[topic]
+            k = seen[topic]
+            seen[topic] = k + 1
+            if last is not None and len(last) == len(raw) and last[4:12] == raw[4:12] and last == raw:
+                dropped[topic].append((k, log_ns / 1e9))
+                continue
+            before[topic] = raw
         if topic == profile_topic:
             try:
                 cloud = parse_cloud(raw)
@@ -303,6 +317,13 @@ def _take(messages, name: str, profile_topic: str, pose_topic: str, line_axis: s
             pose_log.append(log_ns)
         else:
             static_raw.append(bytes(raw))
+    for topic, drops in dropped.items():
+        if drops:
+            k, log_s = drops[0]
+            warnings.warn(f"{name}: {topic}: dropped {len(drops)} exact duplicate messages (each byte for byte the message "
+                          f"before it on the topic, header stamp and all; the first: message {k} of "
+                          f"{seen[topic]}, bag log time {log_s:.6f} s); later messages are numbered without them",
+                          BagWarning, stacklevel=3)
     return decoder, pose_raw, pose_log, static_raw
 
 

@@ -395,6 +395,29 @@ def test_stamps_going_backwards_repeating_jumping_or_unset(tmp_path, which, chan
         read(_bag(tmp_path, truth, profiles=profiles, poses=poses))
 
 
+def test_exact_duplicate_messages_are_dropped_and_counted(tmp_path, storage):
+    """A message recorded twice (the same stamp and content, a little later in the log)
+    is dropped with a warning that counts them; the bag reads as without them. A
+    repeated stamp with other content stays an error (the parametrised test above)."""
+    truth = make_truth(n_profiles=30)
+    profiles, poses = profile_messages(truth), pose_messages(truth)
+    clean = read(write_bag(tmp_path / "clean", storage, {"/profiles": (CLOUD, profiles), "/pose": (POSE, poses)}))
+    twice = profiles + [(log + 1000, m) for log, m in profiles[10:13]]
+    poses_twice = poses + [(log + 1000, m) for log, m in poses[50:100:10]]
+    bag = write_bag(tmp_path / "dup", storage, {"/profiles": (CLOUD, twice), "/pose": (POSE, poses_twice)})
+    with pytest.warns(BagWarning) as seen:
+        rec = read_bag(bag, profile_topic="/profiles", pose_topic="/pose", mounting="eye_in_hand",
+                       sphere_radius_mm=19.05)
+    texts = sorted(str(w.message) for w in seen)
+    assert len(texts) == 2, texts
+    assert re.search(r"/pose: dropped 5 exact duplicate messages .*the first: message 51 of 205", texts[0]), texts
+    assert re.search(r"/profiles: dropped 3 exact duplicate messages .*the first: message 11 of 33", texts[1]), texts
+    np.testing.assert_array_equal(rec.profiles.points_yz_mm, clean.profiles.points_yz_mm)
+    np.testing.assert_array_equal(rec.profiles.t_sensor_s, clean.profiles.t_sensor_s)
+    np.testing.assert_array_equal(rec.poses.t_robot_s, clean.poses.t_robot_s)
+    np.testing.assert_array_equal(rec.poses.t_mm, clean.poses.t_mm)
+
+
 def test_profiles_outside_the_pose_streams_span(tmp_path):
     truth = make_truth(n_profiles=20)
     late = truth.profile_ns.copy()
