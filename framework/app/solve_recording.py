@@ -4,6 +4,8 @@ relation (docs/on-the-fly.md)."""
 
 from __future__ import annotations
 
+import re
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable
@@ -15,7 +17,7 @@ from spherecal.app.outputs import check_output_folder
 from spherecal.app.provenance import provenance_type, recorded_options, traceability, with_clock_truth
 from spherecal.app.solve import solve_kinematics, solve_robot_type
 from spherecal.app.solving import Outcome, solve_and_write
-from spherecal.core.errors import ConfigError
+from spherecal.core.errors import ConfigError, DatasetFileError, InputError
 from spherecal.core.models import Dataset
 from spherecal.core.streams import Recording
 from spherecal.estimation.on_the_fly import solve_recording
@@ -69,6 +71,35 @@ def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal:
     return Outcome(solution=solution, verdict=graded, exports_written=written, dataset=header)
 
 
+#: The library's parameters as the command line names them, in the bag reader's and the
+#: file writer's messages: (the library's words, the command line's)
+_PARAMETER_FLAGS = (
+    (re.compile(r"\bline_axis='([xy])'"), r"--line-axis \1"),
+    (re.compile(r"\b(base|flange)_frame\b"), r"--\1-frame"),
+    (re.compile(r"\bpass overwrite=True\b"), "give --overwrite"),
+)
+
+
+@contextmanager
+def _flags_for_parameters():
+    """An error of the bag reader or the file writer raised again in the same type, its
+    message naming the command line's flags (``--line-axis x``) where the library names
+    its parameters (``line_axis='x'``)."""
+    try:
+        yield
+    except (DatasetFileError, InputError) as exc:
+        text = str(exc)
+        for pattern, flag in _PARAMETER_FLAGS:
+            text = pattern.sub(flag, text)
+        try:
+            again = type(exc)(text) if text != str(exc) else None
+        except TypeError:  # an error class built from other arguments: its own words stand
+            again = None
+        if again is None:
+            raise
+        raise again from None
+
+
 def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic: str | None, mounting: str | None,
                 sphere_radius_mm: float | None, line_axis: str = "y", base_frame: str | None = None,
                 flange_frame: str | None = None, robot_type: str | None = None, robot_config: Path | None = None,
@@ -90,12 +121,17 @@ def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic:
             def joints_to_pose(q_deg):
                 poses = [arm.flange_pose_from_joints(q) for q in np.asarray(q_deg, dtype=float)]
                 return (np.array([p.rotation_matrix for p in poses]), np.array([p.translation for p in poses]))
-    recording = read_bag(path, profile_topic=profile_topic, pose_topic=pose_topic, mounting=mounting,
-                         sphere_radius_mm=sphere_radius_mm, line_axis=line_axis, base_frame=base_frame,
-                         flange_frame=flange_frame, joints_to_pose=joints_to_pose)
-    out.mkdir(parents=True, exist_ok=True)
     target = out / "recording.jsonl"
-    write_recording(target, recording, overwrite=overwrite)
+    if target.exists() and not overwrite:  # said before the bag is read, which may take a while
+        raise InputError(f"{target} exists: {out} holds a bag converted by an earlier run, and solve would replace "
+                         "it (nothing is overwritten silently); give a new folder with --out, or --overwrite to "
+                         "replace it")
+    with _flags_for_parameters():
+        recording = read_bag(path, profile_topic=profile_topic, pose_topic=pose_topic, mounting=mounting,
+                             sphere_radius_mm=sphere_radius_mm, line_axis=line_axis, base_frame=base_frame,
+                             flange_frame=flange_frame, joints_to_pose=joints_to_pose)
+        out.mkdir(parents=True, exist_ok=True)
+        write_recording(target, recording, overwrite=overwrite)
     log(f"bag {path}: {recording.poses.n} poses and {recording.profiles.n} profiles, written as {target}")
     # the solve takes the points in double precision, as read_recording gives them from the file
     profiles = recording.profiles

@@ -32,11 +32,12 @@ What it reads (REP 103: metres, radians, quaternions (x, y, z, w), scalar **last
 
 Bad input raises a :class:`BagError` subclass naming the cause (:class:`BagTopicError`,
 :class:`BagUnitsError`, :class:`BagCloudError`, :class:`BagStampError`,
-:class:`BagTimeSpanError`); a wrong argument raises :class:`InputError`. What needs
-attention but does not stop the conversion is a :class:`BagWarning`: some profiles
-outside the pose stream's time span, invalid points dropped from clouds that say they
-have some (``is_dense`` false), both streams stamped by the recording computer's clock
-(:class:`SameClockWarning`: no drift between them can be seen).
+:class:`BagTimeSpanError`, :class:`BagCutShortError`); a wrong argument raises
+:class:`InputError`. What needs attention but does not stop the conversion is a
+:class:`BagWarning`: some profiles outside the pose stream's time span, invalid points
+dropped from clouds that say they have some (``is_dense`` false), both streams stamped by
+the recording computer's clock (:class:`SameClockWarning`: no drift between them can be
+seen).
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.core.streams import PoseStream, ProfileStream, Recording
 from spherecal.io.mcap_scan import NotPlain, scan_messages
+from spherecal.io.rosbag_cut import cut_short_text
 from spherecal.io.stream_fields import _check_mounting_radius
 
 from spherecal.io.rosbag_messages import (
@@ -68,6 +70,7 @@ from spherecal.io.rosbag_messages import (
     MAX_FLANGE_DISTANCE_M,
     MAX_OUTSIDE_FRACTION,
     BagError,
+    BagCutShortError,
     BagTopicError,
     BagUnitsError,
     BagCloudError,
@@ -85,6 +88,7 @@ from spherecal.io.rosbag_messages import (
 
 __all__ = [
     "BagCloudError",
+    "BagCutShortError",
     "BagError",
     "BagStampError",
     "BagTimeSpanError",
@@ -128,18 +132,25 @@ def _open(path: Path, name: str):
         reader = Reader(path)
         reader.open()
     except (ReaderError, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"{name}: cannot read the bag ({exc})") from None
+        raise _unreadable(path, name, "cannot read the bag", exc) from None
     return reader
 
 
-def _messages(reader, connections, name: str):
+def _unreadable(path: Path, name: str, what: str, exc: Exception) -> BagError:
+    """The error for a bag the storage library refuses: a storage file cut short (a
+    recording interrupted) says so and names the repair; other damage is the library's word."""
+    text = cut_short_text(path, name, str(exc))
+    return BagCutShortError(text) if text else BagError(f"{name}: {what} ({exc})")
+
+
+def _messages(reader, connections, name: str, path: Path):
     """The reader's messages; a damaged storage file is a BagError naming the bag."""
     from rosbags.rosbag2.errors import ReaderError
 
     try:
         yield from reader.messages(connections=connections)
     except (ReaderError, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"{name}: cannot read the bag's messages ({exc})") from None
+        raise _unreadable(path, name, "cannot read the bag's messages", exc) from None
 
 
 def _mcap_files(path: Path) -> list[Path]:
@@ -222,7 +233,7 @@ def read_bag(
             taken = _take(scan_messages(_mcap_files(Path(path)), counts), name, profile_topic, pose_topic, line_axis,
                           prof.count)
         except NotPlain:
-            taken = _take(((c.topic, log, raw) for c, log, raw in _messages(reader, wanted, name)), name,
+            taken = _take(((c.topic, log, raw) for c, log, raw in _messages(reader, wanted, name, Path(path))), name,
                           profile_topic, pose_topic, line_axis, prof.count)
         decoder, pose_raw, pose_log, static_raw = taken
     finally:
@@ -280,7 +291,21 @@ def _take(messages, name: str, profile_topic: str, pose_topic: str, line_axis: s
     pose_raw: list[bytes] = []
     pose_log: list[int] = []
     static_raw: list[bytes] = []
+    before = {profile_topic: None, pose_topic: None}  # each topic's message before, as read
+    seen = dict.fromkeys(before, 0)
+    dropped: dict[str, list[tuple[int, float]]] = {profile_topic: [], pose_topic: []}  # (index, log time s)
     for topic, log_ns, raw in messages:
+        if topic in before:
+            # a message read twice (a recorder subscribed twice, a replay recorded): the same
+            # bytes, stamp and all, as the message before it on its topic; the stamp (bytes
+            # 4 to 12 after the CDR header) tells most messages apart without comparing the rest
+            last = before[topic]
+            k = seen[topic]
+            seen[topic] = k + 1
+            if last is not None and len(last) == len(raw) and last[4:12] == raw[4:12] and last == raw:
+                dropped[topic].append((k, log_ns / 1e9))
+                continue
+            before[topic] = raw
         if topic == profile_topic:
             try:
                 cloud = parse_cloud(raw)
@@ -292,6 +317,13 @@ def _take(messages, name: str, profile_topic: str, pose_topic: str, line_axis: s
             pose_log.append(log_ns)
         else:
             static_raw.append(bytes(raw))
+    for topic, drops in dropped.items():
+        if drops:
+            k, log_s = drops[0]
+            warnings.warn(f"{name}: {topic}: dropped {len(drops)} exact duplicate messages (each byte for byte the message "
+                          f"before it on the topic, header stamp and all; the first: message {k} of "
+                          f"{seen[topic]}, bag log time {log_s:.6f} s); later messages are numbered without them",
+                          BagWarning, stacklevel=3)
     return decoder, pose_raw, pose_log, static_raw
 
 
@@ -588,6 +620,11 @@ def _check_time_spans(t_sensor, t_robot, name, profile_topic, pose_topic) -> Non
                   "out of the fit otherwise", BagWarning, stacklevel=3)
 
 
+#: The two streams' header stamp spans (first to last stamp) may lie this far apart (s)
+#: and still be one clock's: the largest delay a stamp may have before its log time.
+SAME_CLOCK_MAX_GAP_S = 1.0
+
+
 def _delay_trend(t_s: np.ndarray, log_ns: np.ndarray) -> tuple[float, float, float]:
     """(median, slope, slope's standard error) of the delay log time - header stamp (s)."""
     d = log_ns / 1e9 - t_s
@@ -603,16 +640,23 @@ def _delay_trend(t_s: np.ndarray, log_ns: np.ndarray) -> tuple[float, float, flo
 
 def _clocks(t_sensor, log_sensor, t_robot, log_robot, profile_topic, pose_topic, name):
     """Both streams' clock names, and whether their stamps show one clock: the recording
-    computer's (each header stamp a little before its log time, and no drift between the
-    two streams' delays)."""
+    computer's (each header stamp a little before its log time, no drift between the two
+    streams' delays, and the two streams' stamps in one stretch of time)."""
     clocks = {"robot": f"header stamps of {pose_topic}", "sensor": f"header stamps of {profile_topic}"}
     med_s, slope_s, se_s = _delay_trend(t_sensor, log_sensor)
     med_r, slope_r, se_r = _delay_trend(t_robot, log_robot)
     rel, se = slope_s - slope_r, math.hypot(se_s, se_r)
     near = -0.005 <= med_s <= 1.0 and -0.005 <= med_r <= 1.0
-    same = near and math.isfinite(se) and abs(rel) <= 2e-6 + 3.0 * se and se < 5e-6
+    # Each topic is compared only with its own log times above; a converter that writes
+    # each message's log time = its header stamp makes every topic look "stamped on
+    # reception" whatever clock stamped it. Stamps of one clock, recorded together, lie
+    # in one stretch of time: spans apart by more than a delay cannot be one clock.
+    gap_s = max(float(t_sensor[0]), float(t_robot[0])) - min(float(t_sensor[-1]), float(t_robot[-1]))
+    together = gap_s <= SAME_CLOCK_MAX_GAP_S
+    same = near and together and math.isfinite(se) and abs(rel) <= 2e-6 + 3.0 * se and se < 5e-6
     info = {"sensor_delay_median_s": med_s, "robot_delay_median_s": med_r, "relative_rate_ppm": rel * 1e6,
-            "relative_rate_std_ppm": se * 1e6 if math.isfinite(se) else None, "same_clock": bool(same)}
+            "relative_rate_std_ppm": se * 1e6 if math.isfinite(se) else None,
+            "stamp_spans_gap_s": max(gap_s, 0.0), "same_clock": bool(same)}
     if same:
         clocks = {"robot": "recording computer", "sensor": "recording computer"}
         warnings.warn(

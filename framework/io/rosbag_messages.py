@@ -64,6 +64,11 @@ class BagTimeSpanError(BagError):
     """Most profiles lie outside the pose stream's time span."""
 
 
+class BagCutShortError(BagError):
+    """A storage file that ends too soon (a recording interrupted); the message names the
+    file and the tools that repair it."""
+
+
 class BagWarning(UserWarning):
     """Something in a bag that the conversion kept but that needs a look."""
 
@@ -399,10 +404,11 @@ def _check_stamps(ns: np.ndarray, log_ns: np.ndarray, name: str, topic: str, wha
     if back.size and (not jump.size or back[0] < jump[0]):
         k = int(back[0])
         how = "repeats" if d[k] == 0 else "goes backwards from"
+        differ = " (the two messages differ: exact duplicates are dropped)" if d[k] == 0 else ""
         raise BagStampError(f"{name}: {topic}: the header stamp of message {k + 1} {how} message {k}'s "
                             f"({ns[k + 1] / 1e9:.9f} s after {ns[k] / 1e9:.9f} s; bag log times "
-                            f"{log_ns[k] / 1e9:.6f} s and {log_ns[k + 1] / 1e9:.6f} s): the {what} must be stamped in "
-                            "the order they were measured, each once")
+                            f"{log_ns[k] / 1e9:.6f} s and {log_ns[k + 1] / 1e9:.6f} s){differ}: the {what} must be "
+                            "stamped in the order they were measured, each once")
     if jump.size:
         k = int(jump[0])
         raise BagStampError(f"{name}: {topic}: the header stamp jumps {d[k] / 1e9:.6g} s from message {k} to "

@@ -7,7 +7,17 @@ import json
 import numpy as np
 import pytest
 
-from bag_files import cloud, pose_stamped, q_xyzw, write_bag
+from bag_files import (
+    cloud,
+    make_truth,
+    pose_messages,
+    pose_stamped,
+    profile_messages,
+    q_xyzw,
+    tf_message,
+    transform,
+    write_bag,
+)
 from spherecal.cli import EXIT_DATA, EXIT_OK, EXIT_USAGE, main
 from spherecal.config import OnTheFlyPlan, StreamSimSettings
 from spherecal.io.streams import read_recording
@@ -115,3 +125,41 @@ def test_solve_a_bag_of_joint_states_through_the_robots_kinematics(tmp_path, cap
     truth = rec.provenance["true_transform"]["translation_mm"]
     error = np.abs(np.subtract(result["transform"]["translation_mm"], truth))
     assert np.all(error < 3.0 * np.asarray(result["std_translation_mm"])), (error, result["std_translation_mm"])
+
+
+def test_a_bags_errors_name_the_command_lines_flags(tmp_path, capsys):
+    """The bag reader's messages name its Python parameters (line_axis='x', base_frame,
+    overwrite=True); on the command line they name the flags to give."""
+    truth = make_truth(n_profiles=10)
+    along_x = [(log, cloud(int(ns), p[:, [1, 0, 2]]))
+               for (log, _), ns, p in zip(profile_messages(truth), truth.profile_ns, truth.points_m)]
+    poses = pose_messages(truth)
+    bag = write_bag(tmp_path / "x.bag", "mcap", {"/profiles": ("sensor_msgs/msg/PointCloud2", along_x),
+                                                 "/pose": ("geometry_msgs/msg/PoseStamped", poses)})
+    base = ["--profile-topic", "/profiles", "--mounting", "eye_in_hand", "--sphere-radius-mm", "19.05", "--no-report"]
+    assert main(["solve", str(bag), "--pose-topic", "/pose", *base, "--out", str(tmp_path / "r1")]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "off the laser plane" in err and "give --line-axis x" in err and "line_axis" not in err, err
+
+    tf = [(log, tf_message([transform(int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec), "base_link",
+                                      "tool0", [m.pose.position.x, m.pose.position.y, m.pose.position.z],
+                                      [m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+                                       m.pose.orientation.w])])) for log, m in poses]
+    bag = write_bag(tmp_path / "tf.bag", "mcap", {"/profiles": ("sensor_msgs/msg/PointCloud2", profile_messages(truth)),
+                                                  "/tf": ("tf2_msgs/msg/TFMessage", tf)})
+    assert main(["solve", str(bag), "--pose-topic", "/tf", *base, "--out", str(tmp_path / "r2")]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "--base-frame (e.g. base_link) and --flange-frame (e.g. tool0)" in err and "base_frame" not in err, err
+    code = main(["solve", str(bag), "--pose-topic", "/tf", "--base-frame", "base", "--flange-frame", "tool0", *base,
+                 "--out", str(tmp_path / "r3")])
+    err = capsys.readouterr().err
+    assert code == EXIT_DATA and "--base-frame 'base' is in no transform" in err, err
+
+    # a folder holding an earlier run's conversion: refused naming --overwrite, before the bag is read
+    out = tmp_path / "r4"
+    out.mkdir()
+    (out / "recording.jsonl").write_text("an earlier run's\n")
+    assert main(["solve", str(bag), "--pose-topic", "/tf", *base, "--out", str(out)]) == EXIT_DATA
+    err = capsys.readouterr().err
+    assert "recording.jsonl exists" in err and "--overwrite" in err and "overwrite=True" not in err, err
+    assert (out / "recording.jsonl").read_text() == "an earlier run's\n"

@@ -4,6 +4,7 @@ bad bag failing with an error that names the cause."""
 
 from __future__ import annotations
 
+import re
 import shutil
 import warnings
 
@@ -14,6 +15,7 @@ from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.io.rosbag import (
     BagCloudError,
+    BagCutShortError,
     BagError,
     BagStampError,
     BagTimeSpanError,
@@ -286,6 +288,35 @@ def test_not_a_bag(tmp_path):
         read(tmp_path / "x.jsonl")
 
 
+@pytest.mark.parametrize("storage, fraction", [("mcap", 0.6), ("mcap", 0.999), ("sqlite3", 0.5)])
+def test_a_bag_cut_short_says_so_and_names_the_repair(tmp_path, storage, fraction):
+    """A recording interrupted leaves a storage file without its end: the error says the
+    bag looks cut short and names the file and the tools that repair it, for the bag
+    folder and for the file given alone."""
+    truth = make_truth(n_poses=400, n_profiles=150)
+    bag = write_bag(tmp_path / "bag", storage, {"/profiles": (CLOUD, profile_messages(truth)),
+                                               "/pose": (POSE, pose_messages(truth))})
+    (file,) = [p for p in bag.iterdir() if p.suffix in (".mcap", ".db3")]
+    data = file.read_bytes()
+    file.write_bytes(data[:int(len(data) * fraction)])
+    alone = tmp_path / f"alone{file.suffix}"
+    shutil.copy(file, alone)
+    repair = r"`mcap recover .*` \(the mcap CLI\)" if storage == "mcap" else r"`sqlite3 .* \.recover \| sqlite3 "
+    with pytest.raises(BagCutShortError, match=rf"bag: the bag looks cut short \(a recording interrupted\): "
+                                               rf"{re.escape(str(file))}.*Repair it: {repair}.*"
+                                               rf"`ros2 bag reindex {re.escape(str(bag))}`"):
+        read(bag)
+    with pytest.raises(BagCutShortError, match=rf"the bag looks cut short.*{re.escape(str(alone))}.*Repair it: {repair}") \
+            as err:
+        read(alone)
+    assert "reindex" not in str(err.value)  # a file alone has no metadata.yaml to rewrite
+    # a whole file with its own damage keeps the storage library's word
+    (tmp_path / "x.mcap").write_bytes(b"\x89MCAP0\r\n" + bytes(100) + b"\x89MCAP0\r\n")
+    with pytest.raises(BagError, match="cannot read the bag") as err:
+        read(tmp_path / "x.mcap")
+    assert "cut short" not in str(err.value)
+
+
 def test_millimetres_where_metres_belong(tmp_path):
     truth = make_truth(n_profiles=20)
     mm = [p * 1000 for p in truth.points_m]
@@ -364,6 +395,29 @@ def test_stamps_going_backwards_repeating_jumping_or_unset(tmp_path, which, chan
         read(_bag(tmp_path, truth, profiles=profiles, poses=poses))
 
 
+def test_exact_duplicate_messages_are_dropped_and_counted(tmp_path, storage):
+    """A message recorded twice (the same stamp and content, a little later in the log)
+    is dropped with a warning that counts them; the bag reads as without them. A
+    repeated stamp with other content stays an error (the parametrised test above)."""
+    truth = make_truth(n_profiles=30)
+    profiles, poses = profile_messages(truth), pose_messages(truth)
+    clean = read(write_bag(tmp_path / "clean", storage, {"/profiles": (CLOUD, profiles), "/pose": (POSE, poses)}))
+    twice = profiles + [(log + 1000, m) for log, m in profiles[10:13]]
+    poses_twice = poses + [(log + 1000, m) for log, m in poses[50:100:10]]
+    bag = write_bag(tmp_path / "dup", storage, {"/profiles": (CLOUD, twice), "/pose": (POSE, poses_twice)})
+    with pytest.warns(BagWarning) as seen:
+        rec = read_bag(bag, profile_topic="/profiles", pose_topic="/pose", mounting="eye_in_hand",
+                       sphere_radius_mm=19.05)
+    texts = sorted(str(w.message) for w in seen)
+    assert len(texts) == 2, texts
+    assert re.search(r"/pose: dropped 5 exact duplicate messages .*the first: message 51 of 205", texts[0]), texts
+    assert re.search(r"/profiles: dropped 3 exact duplicate messages .*the first: message 11 of 33", texts[1]), texts
+    np.testing.assert_array_equal(rec.profiles.points_yz_mm, clean.profiles.points_yz_mm)
+    np.testing.assert_array_equal(rec.profiles.t_sensor_s, clean.profiles.t_sensor_s)
+    np.testing.assert_array_equal(rec.poses.t_robot_s, clean.poses.t_robot_s)
+    np.testing.assert_array_equal(rec.poses.t_mm, clean.poses.t_mm)
+
+
 def test_profiles_outside_the_pose_streams_span(tmp_path):
     truth = make_truth(n_profiles=20)
     late = truth.profile_ns.copy()
@@ -395,6 +449,22 @@ def test_both_streams_stamped_by_the_recording_computer(tmp_path):
                        pose_topic="/pose", mounting="eye_in_hand", sphere_radius_mm=19.05)
     assert rec.clocks["robot"] == rec.clocks["sensor"] == "recording computer"
     assert rec.provenance["clock_check"]["same_clock"] is True
+
+
+def test_log_times_copied_from_the_stamps_show_no_one_clock(tmp_path):
+    """A converter that writes each message's log time = its header stamp makes each topic
+    look stamped on reception; stamps 1.77e9 s apart (the sensor's epoch, the robot's
+    power-on) are two clocks all the same: no SameClockWarning, no span error, the solve
+    searches the offset."""
+    truth = make_truth(n_poses=600, n_profiles=120)
+    truth.pose_ns = truth.pose_ns - T0_NS + 3_725 * 10**9  # the controller counts from power-on
+    profiles = [(int(ns), m) for (_, m), ns in zip(profile_messages(truth, drift_ppm=0), truth.profile_ns)]
+    poses = [(int(ns), m) for (_, m), ns in zip(pose_messages(truth), truth.pose_ns)]
+    rec = read(_bag(tmp_path, truth, profiles=profiles, poses=poses))  # any warning fails
+    assert rec.clocks == {"robot": "header stamps of /pose", "sensor": "header stamps of /profiles"}
+    check = rec.provenance["clock_check"]
+    assert check["same_clock"] is False and check["stamp_spans_gap_s"] > 1e9
+    np.testing.assert_array_equal(rec.poses.t_robot_s, seconds(truth.pose_ns))
 
 
 def test_pose_stamped_read_at_once_as_one_by_one(tmp_path):
