@@ -13,7 +13,7 @@ import numpy as np
 
 from spherecal.app.cell import make_cell
 from spherecal.app.outputs import RESULT_NAME, STREAM_JOURNAL_NAME, check_output_folder, written_files
-from spherecal.app.plan_checks import check_plan, check_plan_solvable, confirm_motion, plan_digest
+from spherecal.app.plan_checks import ON_THE_FLY_SPEEDS, check_plan, check_plan_solvable, confirm_motion, plan_digest
 from spherecal.app.plugin_host import open_devices
 from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, check_same_devices, traceability, with_clock_truth
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
@@ -92,7 +92,7 @@ def _planned(run) -> tuple[list[PlannedSweep], list[Target], dict[int, list[int]
         f"and back), {sum(s.length_mm for s in sweeps):.0f} mm of sweeps; every sweep checked at "
         f"{len(targets)} points; sweeps numbered 0 to {len(sweeps) - 1}, as in the journal")
     check_plan(targets, acq, "on-the-fly plan", setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out,
-               log=log)
+               log=log, speed_keys=ON_THE_FLY_SPEEDS)
     check_plan_solvable([Target(s.index, s.station, s.start, True, s.speed_mm_s) for s in sweeps])
     return sweeps, targets, of_sweep
 
@@ -105,7 +105,7 @@ def _check_dry_run(run, sweeps: list[PlannedSweep], targets: list[Target]) -> No
     with open_devices(run.loaded, run.host, cell, run.log) as (robot, sensor):
         check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
         check_plan(targets, cfg.acquisition, "on-the-fly plan", robot=robot, setup=(cfg.mounting, cfg.nominal_transform),
-                   keep_out=run.keep_out, log=run.log)
+                   keep_out=run.keep_out, log=run.log, speed_keys=ON_THE_FLY_SPEEDS)
     run.log(f"dry run: {len(sweeps)} sweeps checked against the robot's own limits too; both devices stream")
 
 
@@ -189,7 +189,8 @@ def _take(run, sweeps, targets, of_sweep, cell, journal: Path, sweeps_path: Path
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
         check_plan(targets, acq, "on-the-fly plan", robot=robot, done=done_targets,
-                   setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log)
+                   setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log,
+                   speed_keys=ON_THE_FLY_SPEEDS)
         provenance = _journal_provenance(run, digest, cell)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         assumed = pose_stream_assumption(robot)
