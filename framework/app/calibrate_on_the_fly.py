@@ -65,13 +65,18 @@ def calibrate_on_the_fly(run, outcome: Outcome, *, dry_run: bool, resume: bool, 
         done, previous = _resumed(journal, sweeps_path, digest, cell, run.log)
     taken = _take(run, sweeps, targets, of_sweep, cell, journal, sweeps_path, digest, done, previous)
     if taken.sweeps:
-        run.log(f"acquisition: {taken.robot_time_line()} on the fly ({len(taken.sweeps)} sweeps)")
-        run.log(taken.losses_line())
-        outcome.acquisition = {"profiles": taken.profiles, "robot_time_s": taken.robot_time_s,
-                               "profiles_per_minute": 60.0 * taken.profiles / max(taken.robot_time_s, 1e-9),
-                               "simulated": taken.simulated_time, "mode": "on_the_fly", "sweeps": len(taken.sweeps),
-                               "pose_samples_lost": sum(s.pose_lost for s in taken.sweeps),
-                               "frames_lost": sum(s.frames_lost for s in taken.sweeps)}
+        # a resumed run's figures are the whole journal's, the sweeps of the runs before included
+        whole = OnTheFlyReport.of_journal(SweepJournal.finished(sweeps_path), taken.simulated_time) if done else taken
+        this_run = (f"; this run took {len(taken.sweeps)} of them, {taken.profiles} profiles in "
+                    f"{taken.robot_time_s:.1f} s" if done else "")
+        run.log(f"acquisition: {whole.robot_time_line()} on the fly ({len(whole.sweeps)} sweeps{this_run})")
+        run.log(whole.losses_line())
+        outcome.acquisition = {"profiles": whole.profiles, "robot_time_s": whole.robot_time_s,
+                               "profiles_per_minute": 60.0 * whole.profiles / max(whole.robot_time_s, 1e-9),
+                               "simulated": whole.simulated_time, "mode": "on_the_fly", "sweeps": len(whole.sweeps),
+                               "sweeps_this_run": len(taken.sweeps),
+                               "pose_samples_lost": sum(s.pose_lost for s in whole.sweeps),
+                               "frames_lost": sum(s.frames_lost for s in whole.sweeps)}
     outcome.files["journal"] = journal
     return _solved(run, journal, outcome, report=report, force=force, operator=operator)
 
@@ -149,12 +154,14 @@ def _continue_simulated_time(journal: Path, cell, provenance: dict) -> None:
     clocks = provenance.get("simulated_clocks")
     if not isinstance(clocks, dict):
         return
-    taken = read_recording(journal)
-    if taken.poses.joints_deg is not None and taken.poses.n:
-        cell.arm_start_joints_deg = np.array(taken.poses.joints_deg[-1], dtype=float)
+    # reopened first: a line the interruption cut is dropped from the file (said once), so
+    # that reading it next does not say so again
     writer = reopen_recording(journal)
     last_pose, last_profile = writer._last_pose_t, writer._last_profile_t
     writer.close()
+    taken = read_recording(journal)
+    if taken.poses.joints_deg is not None and taken.poses.n:
+        cell.arm_start_joints_deg = np.array(taken.poses.joints_deg[-1], dtype=float)
     ends = [0.0]
     for stamp, key in ((last_pose, "robot"), (last_profile, "sensor")):
         if stamp is not None:
