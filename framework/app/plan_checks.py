@@ -90,14 +90,15 @@ EXAMPLES_PER_REASON = 3
 
 def grouped_problems(problems: list[PlanProblem], speed_keys: tuple[str, str] = STOP_AND_GO_SPEEDS) -> list[str]:
     """The lines of a refusal: each distinct reason once (reasons that differ only in their
-    figures, such as each target's position, are one), with how many targets and stations
+    measures, numbers with a decimal point such as each target's position, are one; a
+    whole number, such as a joint's, tells reasons apart), with how many targets and stations
     (sweeps, on the fly) have it and the first few of those, each the first target of its
     station or sweep; a speed beyond a limit names the keys that change it
     (``speed_keys``: where the approach's and the other moves' speeds are set). A reason
     of one target is its line alone."""
     groups: dict[tuple, list[PlanProblem]] = {}
     for p in problems:
-        key = (re.sub(r"-?\d+(\.\d+)?(e[-+]?\d+)?", "#", p.reason), p.speed_limit,
+        key = (re.sub(r"-?\d+\.\d+(e[-+]?\d+)?", "#", p.reason), p.speed_limit,
                p.target.speed_mm_s if p.speed_limit else None)
         groups.setdefault(key, []).append(p)
     lines = []

@@ -80,3 +80,21 @@ def test_a_nearer_sphere_centre_is_named_when_no_target_fits(sim_config, capsys)
     cfg = sim_config("sim-eye-to-hand.toml", **small_box)
     head, *lines = refusal(capsys, cfg)
     assert "flange" not in head and "mounting" not in head
+
+
+def test_reasons_differing_in_measures_are_one_and_in_whole_numbers_are_not():
+    import numpy as np
+
+    from spherecal.app.plan_checks import grouped_problems
+    from spherecal.core.models import Pose
+    from spherecal.motion.acquisition import PlanProblem, Target
+
+    def problem(k, station, reason):
+        return PlanProblem(Target(k, station, Pose.from_rt(np.eye(3), [k, 0.0, 0.0]), False, 20.0), reason)
+
+    lines = grouped_problems([problem(0, "S1", "joint 3 = 71.25 deg is outside its range -60 .. 65"),
+                              problem(1, "S1", "joint 5 = 131.5 deg is outside its range -120 .. 120"),
+                              problem(2, "S2", "joint 3 = 80.5 deg is outside its range -60 .. 65")])
+    assert lines == ["2 targets in 2 stations (target 0 (station S1), target 2 (station S2)): the first: joint 3 = "
+                     "71.25 deg is outside its range -60 .. 65",
+                     "target 1 (station S1): joint 5 = 131.5 deg is outside its range -120 .. 120"]
