@@ -3,6 +3,7 @@ dataset), solve, and write the result, exports and report."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -296,10 +297,12 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
                 log(f"note: the configuration's [calibration] changed since {journal} was started: this run solves "
                     "with the configuration's; the journal keeps the first run's, which `spherecal solve` of it "
                     "starts from")
-        with dataio.DatasetWriter(
-            journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
-            provenance=provenance, resume=journal.exists(), fsync=True,
-        ) as writer:
+        with warnings.catch_warnings():
+            if resumed.previous is not None:  # _resumed read the journal and said what it dropped of it
+                warnings.simplefilter("ignore", dataio.TruncatedFileWarning)
+            writer = dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
+                                          provenance=provenance, resume=journal.exists(), fsync=True)
+        with writer:
             kinds = {"robot_type": cfg.robot["type"], "sensor_type": cfg.sensor["type"]}
             notify = lambda obs: run.host.observation_taken(observation=obs, **kinds)  # noqa: E731
             if plan.manual:

@@ -13,7 +13,7 @@ import numpy as np
 
 from spherecal.app.cell import make_cell
 from spherecal.app.outputs import RESULT_NAME, STREAM_JOURNAL_NAME, check_output_folder, written_files
-from spherecal.app.plan_checks import check_plan, check_plan_solvable, confirm_motion, plan_digest
+from spherecal.app.plan_checks import ON_THE_FLY_SPEEDS, check_plan, check_plan_solvable, confirm_motion, plan_digest
 from spherecal.app.plugin_host import open_devices
 from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, check_same_devices, traceability, with_clock_truth
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
@@ -65,13 +65,18 @@ def calibrate_on_the_fly(run, outcome: Outcome, *, dry_run: bool, resume: bool, 
         done, previous = _resumed(journal, sweeps_path, digest, cell, run.log)
     taken = _take(run, sweeps, targets, of_sweep, cell, journal, sweeps_path, digest, done, previous)
     if taken.sweeps:
-        run.log(f"acquisition: {taken.robot_time_line()} on the fly ({len(taken.sweeps)} sweeps)")
-        run.log(taken.losses_line())
-        outcome.acquisition = {"profiles": taken.profiles, "robot_time_s": taken.robot_time_s,
-                               "profiles_per_minute": 60.0 * taken.profiles / max(taken.robot_time_s, 1e-9),
-                               "simulated": taken.simulated_time, "mode": "on_the_fly", "sweeps": len(taken.sweeps),
-                               "pose_samples_lost": sum(s.pose_lost for s in taken.sweeps),
-                               "frames_lost": sum(s.frames_lost for s in taken.sweeps)}
+        # a resumed run's figures are the whole journal's, the sweeps of the runs before included
+        whole = OnTheFlyReport.of_journal(SweepJournal.finished(sweeps_path), taken.simulated_time) if done else taken
+        this_run = (f"; this run took {len(taken.sweeps)} of them, {taken.profiles} profiles in "
+                    f"{taken.robot_time_s:.1f} s" if done else "")
+        run.log(f"acquisition: {whole.robot_time_line()} on the fly ({len(whole.sweeps)} sweeps{this_run})")
+        run.log(whole.losses_line())
+        outcome.acquisition = {"profiles": whole.profiles, "robot_time_s": whole.robot_time_s,
+                               "profiles_per_minute": 60.0 * whole.profiles / max(whole.robot_time_s, 1e-9),
+                               "simulated": whole.simulated_time, "mode": "on_the_fly", "sweeps": len(whole.sweeps),
+                               "sweeps_this_run": len(taken.sweeps),
+                               "pose_samples_lost": sum(s.pose_lost for s in whole.sweeps),
+                               "frames_lost": sum(s.frames_lost for s in whole.sweeps)}
     outcome.files["journal"] = journal
     return _solved(run, journal, outcome, report=report, force=force, operator=operator)
 
@@ -92,7 +97,7 @@ def _planned(run) -> tuple[list[PlannedSweep], list[Target], dict[int, list[int]
         f"and back), {sum(s.length_mm for s in sweeps):.0f} mm of sweeps; every sweep checked at "
         f"{len(targets)} points; sweeps numbered 0 to {len(sweeps) - 1}, as in the journal")
     check_plan(targets, acq, "on-the-fly plan", setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out,
-               log=log)
+               log=log, speed_keys=ON_THE_FLY_SPEEDS)
     check_plan_solvable([Target(s.index, s.station, s.start, True, s.speed_mm_s) for s in sweeps])
     return sweeps, targets, of_sweep
 
@@ -105,7 +110,7 @@ def _check_dry_run(run, sweeps: list[PlannedSweep], targets: list[Target]) -> No
     with open_devices(run.loaded, run.host, cell, run.log) as (robot, sensor):
         check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
         check_plan(targets, cfg.acquisition, "on-the-fly plan", robot=robot, setup=(cfg.mounting, cfg.nominal_transform),
-                   keep_out=run.keep_out, log=run.log)
+                   keep_out=run.keep_out, log=run.log, speed_keys=ON_THE_FLY_SPEEDS)
     run.log(f"dry run: {len(sweeps)} sweeps checked against the robot's own limits too; both devices stream")
 
 
@@ -149,12 +154,14 @@ def _continue_simulated_time(journal: Path, cell, provenance: dict) -> None:
     clocks = provenance.get("simulated_clocks")
     if not isinstance(clocks, dict):
         return
-    taken = read_recording(journal)
-    if taken.poses.joints_deg is not None and taken.poses.n:
-        cell.arm_start_joints_deg = np.array(taken.poses.joints_deg[-1], dtype=float)
+    # reopened first: a line the interruption cut is dropped from the file (said once), so
+    # that reading it next does not say so again
     writer = reopen_recording(journal)
     last_pose, last_profile = writer._last_pose_t, writer._last_profile_t
     writer.close()
+    taken = read_recording(journal)
+    if taken.poses.joints_deg is not None and taken.poses.n:
+        cell.arm_start_joints_deg = np.array(taken.poses.joints_deg[-1], dtype=float)
     ends = [0.0]
     for stamp, key in ((last_pose, "robot"), (last_profile, "sensor")):
         if stamp is not None:
@@ -189,7 +196,8 @@ def _take(run, sweeps, targets, of_sweep, cell, journal: Path, sweeps_path: Path
     with open_devices(run.loaded, run.host, cell, log) as (robot, sensor):
         check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
         check_plan(targets, acq, "on-the-fly plan", robot=robot, done=done_targets,
-                   setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log)
+                   setup=(cfg.mounting, cfg.nominal_transform), keep_out=run.keep_out, log=log,
+                   speed_keys=ON_THE_FLY_SPEEDS)
         provenance = _journal_provenance(run, digest, cell)
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         assumed = pose_stream_assumption(robot)

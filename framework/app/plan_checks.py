@@ -4,6 +4,7 @@ motion on real hardware."""
 from __future__ import annotations
 
 import hashlib
+import re
 from typing import Callable
 
 import numpy as np
@@ -11,7 +12,7 @@ import numpy as np
 from spherecal.core.errors import ConfigError, InputError, SpherecalError
 from spherecal.core.keep_out import KeepOutGeometry
 from spherecal.io.runlog import Notice
-from spherecal.motion.acquisition import check_first_move, check_targets
+from spherecal.motion.acquisition import PlanProblem, check_first_move, target_problems
 from spherecal.motion.keep_out import KeepOut, check_keep_out, keep_out_message
 from spherecal.motion.kinematic_plan import check_plan_identifies_kinematics
 
@@ -29,15 +30,22 @@ def plan_digest(targets) -> str:
 #: Farther than this from the flange, a sensor (eye_in_hand) or a sphere on its stylus
 #: (eye_to_hand) is not mounted on the arm (mm).
 FAR_FROM_FLANGE_MM = 500.0
+#: ... when no target of the plan can be taken: farther than this, the offset on the arm
+#: reads like a position in base (a stylus or a sensor bracket is shorter), mm.
+FAR_FROM_FLANGE_IF_NOTHING_FITS_MM = 300.0
 #: Nearer than this to the robot's base origin, a sphere (eye_in_hand) or a sensor
 #: (eye_to_hand) would sit inside the robot's foot (mm).
 NEAR_BASE_MM = 300.0
 
 
-def mounting_hint(mounting, nominal, acq) -> str | None:
-    """The configuration's geometry read in ``mounting``'s frames, when it is not a cell's
-    (a sensor or sphere far from the flange, or one at the robot's base): the usual
-    cause is the other mounting. None when it looks like a cell."""
+def mounting_hint(mounting, nominal, acq, nothing_fits: bool = False) -> str | None:
+    """The configuration's geometry read in ``mounting``'s frames, when it is not a cell's;
+    None when it looks like a cell. The thing on the arm (the sensor eye-in-hand, the
+    sphere eye-to-hand) far from the flange and the fixed one near the robot's base: the
+    other mounting. The thing on the arm far from the flange alone (beyond
+    :data:`FAR_FROM_FLANGE_MM`, or :data:`FAR_FROM_FLANGE_IF_NOTHING_FITS_MM` when
+    ``nothing_fits``: no target of the plan passed its checks): its offset, which is in the
+    flange frame, given in base."""
     on_arm, fixed = ((np.asarray(nominal.translation_mm, float), np.asarray(acq.sphere_centre_mm, float))
                      if mounting == "eye_in_hand" else
                      (np.asarray(acq.sphere_centre_mm, float), np.asarray(nominal.translation_mm, float)))
@@ -45,11 +53,20 @@ def mounting_hint(mounting, nominal, acq) -> str | None:
     arm_key, fixed_key = (("[nominal_transform] translation_mm", "acquisition.sphere_centre_mm")
                           if mounting == "eye_in_hand" else
                           ("acquisition.sphere_centre_mm", "[nominal_transform] translation_mm"))
+    far_mm = FAR_FROM_FLANGE_IF_NOTHING_FITS_MM if nothing_fits else FAR_FROM_FLANGE_MM
+    far, near = np.linalg.norm(on_arm) > far_mm, np.linalg.norm(fixed) < NEAR_BASE_MM
+    if far and not near:
+        what = ("flange_from_sensor, the sensor's origin and axes in the flange frame" if mounting == "eye_in_hand"
+                else "the sphere's centre in the flange frame (where the stylus holds it)")
+        values = ", ".join(f"{v:g}" for v in on_arm)
+        return (f"{arm_key} = [{values}] puts the {arm_name} {np.linalg.norm(on_arm) / 1000:.2f} m from the flange: "
+                f"for mounting = \"{mounting}\" it is {what}, and this looks like a position in base; give it in "
+                "the flange frame")
     odd = []
-    if np.linalg.norm(on_arm) > FAR_FROM_FLANGE_MM:
+    if far:
         odd.append(f"the {arm_name} {np.linalg.norm(on_arm) / 1000:.2f} m from the flange ({arm_key}, "
                    "in the flange frame)")
-    if np.linalg.norm(fixed) < NEAR_BASE_MM:
+    if near:
         odd.append(f"the {fixed_name} {np.linalg.norm(fixed):.0f} mm from the robot's base origin ({fixed_key}, "
                    "in base)")
     if not odd:
@@ -60,23 +77,81 @@ def mounting_hint(mounting, nominal, acq) -> str | None:
             f"transform as {'base_from_sensor' if other == 'eye_to_hand' else 'flange_from_sensor'})")
 
 
+#: Where the speeds of a plan's targets come from: the move to a station's (or sweep's)
+#: first target, and the moves after it. A stop-and-go plan's; see :func:`check_plan`.
+STOP_AND_GO_SPEEDS = ("[acquisition] approach_speed_mm_s", "[acquisition] speed_mm_s")
+#: ... an on-the-fly calibration's sweeps.
+ON_THE_FLY_SPEEDS = ("[acquisition] approach_speed_mm_s", "[acquisition.on_the_fly] speeds_mm_s")
+#: ... a scan's passes.
+SCAN_SPEEDS = ("[acquisition] approach_speed_mm_s", "[scan] speed_mm_s")
+#: Targets named per group of a refusal (:func:`grouped_problems`).
+EXAMPLES_PER_REASON = 3
+
+
+def grouped_problems(problems: list[PlanProblem], speed_keys: tuple[str, str] = STOP_AND_GO_SPEEDS) -> list[str]:
+    """The lines of a refusal: each distinct reason once (reasons that differ only in their
+    measures, numbers with a decimal point such as each target's position, are one; a
+    whole number, such as a joint's, tells reasons apart), with how many targets and stations
+    (sweeps, on the fly) have it and the first few of those, each the first target of its
+    station or sweep; a speed beyond a limit names the keys that change it
+    (``speed_keys``: where the approach's and the other moves' speeds are set). A reason
+    of one target is its line alone."""
+    groups: dict[tuple, list[PlanProblem]] = {}
+    for p in problems:
+        key = (re.sub(r"-?\d+\.\d+(e[-+]?\d+)?", "#", p.reason), p.speed_limit,
+               p.target.speed_mm_s if p.speed_limit else None)
+        groups.setdefault(key, []).append(p)
+    lines = []
+    for group in groups.values():
+        first = group[0]
+        line = str(first)
+        if len(group) > 1:
+            by_label = list({p.target.station: p for p in reversed(group)}.values())[::-1]  # first of each
+            unit = "sweep" if all(", sweep " in p.target.station for p in group) else "station"
+            names = ", ".join(p.name for p in by_label[:EXAMPLES_PER_REASON])
+            more = ", ..." if len(by_label) > EXAMPLES_PER_REASON else ""
+            same = all(p.reason == first.reason and not p.at for p in group)
+            reason = first.reason if same else (f"the first at {first.at} mm {first.reason}" if first.at
+                                                else f"the first: {first.reason}")
+            line = (f"{len(group)} targets in {len(by_label)} {unit}{'s' if len(by_label) != 1 else ''} "
+                    f"({names}{more}): {reason}")
+        if first.speed_limit is not None:
+            line += speed_fix(group, speed_keys)
+        lines.append(line)
+    return lines
+
+
+def speed_fix(group: list[PlanProblem], speed_keys: tuple[str, str]) -> str:
+    """What to change when the targets of ``group`` (all at one speed) exceed the speed
+    limit they name: that limit, or the keys their speed comes from."""
+    speed = group[0].target.speed_mm_s
+    approach, moves = speed_keys
+    keys = list(dict.fromkeys(approach if p.target.first_of_station else moves for p in group))
+    return (f"; to take them, raise {group[0].speed_limit} to at least {speed:g} mm/s, or lower the speed set in "
+            f"{' and '.join(keys)}")
+
+
 def check_plan(targets, acq, what: str = "plan", robot=None, done: set[int] = frozenset(), setup=None,
-               keep_out: KeepOut | None = None, log: Callable[[str], None] | None = None) -> None:
+               keep_out: KeepOut | None = None, log: Callable[[str], None] | None = None,
+               speed_keys: tuple[str, str] = STOP_AND_GO_SPEEDS) -> None:
     """Raise before any motion when a target breaks the configured limits (or, with
     ``robot``, the robot plugin's own limits, and the first move, from wherever the arm
-    stands to the first target not in ``done``, breaks either). ``setup``: (mounting,
-    nominal transform), to name a likely wrong mounting once, before the list.
-    ``keep_out``: then the targets not in ``done`` and the moves between them (with
+    stands to the first target not in ``done``, breaks either), each distinct reason once
+    (:func:`grouped_problems`; ``speed_keys`` where the plan's speeds are set). ``setup``:
+    (mounting, nominal transform), to name a likely wrong mounting or frame once, before
+    the list. ``keep_out``: then the targets not in ``done`` and the moves between them (with
     ``robot``, the first move from where the arm stands too) keep the sensor's body away
     from the sphere and its stand, else InputError naming each target or move, the gap
     found and what to change; ``log`` hears the closest approach when they do."""
-    problems = check_targets(targets, acq, robot)
+    found = target_problems(targets, acq, robot)
+    problems = grouped_problems(found, speed_keys)
     todo = [t for t in targets if t.index not in done]
     if robot is not None and todo:
         problems += check_first_move(robot, todo[0], acq)
     if problems:
         limits = "the robot's limits" if robot is not None else "the limits"
-        hint = mounting_hint(setup[0], setup[1], acq) if setup is not None else None
+        nothing_fits = len({p.target.index for p in found}) == len(targets)
+        hint = mounting_hint(setup[0], setup[1], acq, nothing_fits) if setup is not None else None
         head = f"the {what} breaks {limits}; nothing was moved"
         raise InputError(head + (f". {hint}" if hint else "") + ":\n  " + "\n  ".join(problems))
     if keep_out is not None and todo:

@@ -13,7 +13,7 @@ import numpy as np
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
 from spherecal.app.outputs import calibrated_setup
-from spherecal.app.plan_checks import SCAN_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
+from spherecal.app.plan_checks import SCAN_SPEEDS, SCAN_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
 from spherecal.app.plugin_host import in_file, open_devices, robot_arm
 from spherecal.config import LoadedConfig
 from spherecal.core.errors import ConfigError, InputError
@@ -45,7 +45,7 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
         return ply_path, _on_the_fly(loaded, host, fov, out, result_path, result, ply_path, doubt, log, yes, ask)
     targets = plan_scan(cfg.scan, cfg.acquisition, cfg.mounting, result.transform, fov)
     keep_out = in_file(loaded, keep_out_for, cfg, host, result.transform, SCAN_KEEP_OUT_FIX, log, fov)
-    check_plan(targets, cfg.acquisition, "scan plan", keep_out=keep_out, log=log)
+    check_plan(targets, cfg.acquisition, "scan plan", keep_out=keep_out, log=log, speed_keys=SCAN_SPEEDS)
     if ply_path.exists():
         raise InputError(f"{ply_path} exists; remove it or set [scan] ply to another name (nothing is overwritten)")
     cell = make_cell(cfg, robot_arm(loaded, host), fov)
@@ -55,7 +55,8 @@ def run_scan(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Callable
     log(f"scan: {len(targets)} profiles into {ply_path}")
     frame = SPHERE_FRAME[cfg.mounting]
     with open_devices(loaded, host, cell, log) as (robot, sensor):
-        check_plan(targets, cfg.acquisition, "scan plan", robot=robot, keep_out=keep_out, log=log)
+        check_plan(targets, cfg.acquisition, "scan plan", robot=robot, keep_out=keep_out, log=log,
+                   speed_keys=SCAN_SPEEDS)
         with PlyWriter(ply_path, format=cfg.scan.format, with_profile=True, frame=frame,
                        comments=(f"spherecal scan, {result.transform_name} from {result_path}",)) as writer:
             summary = scan(robot, sensor, targets, result.transform, cfg.acquisition, cfg.mounting, writer, log,

@@ -13,7 +13,7 @@ from typing import Callable
 from spherecal.app.calibrate_on_the_fly import RESUME_GAP_S
 from spherecal.app.cell import make_cell
 from spherecal.app.outputs import STREAM_JOURNAL_NAME
-from spherecal.app.plan_checks import SCAN_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
+from spherecal.app.plan_checks import SCAN_SPEEDS, SCAN_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
 from spherecal.app.plugin_host import in_file, open_devices, robot_arm
 from spherecal.config import LoadedConfig
 from spherecal.core.clock import ClockRelation
@@ -90,7 +90,7 @@ def run_scan_on_the_fly(loaded: LoadedConfig, host, fov, out: Path, result_path:
     log(f"plan: {len(passes)} passes on the fly at {sc.speed_mm_s:g} mm/s, {sum(p.length_mm for p in passes):.0f} mm; "
         f"every pass checked at {len(targets)} points")
     keep_out = in_file(loaded, keep_out_for, cfg, host, result.transform, SCAN_KEEP_OUT_FIX, log, fov)
-    check_plan(targets, acq, "scan plan", keep_out=keep_out, log=log)
+    check_plan(targets, acq, "scan plan", keep_out=keep_out, log=log, speed_keys=SCAN_SPEEDS)
     journal = ply_path.with_name(ply_path.name + PASSES_SUFFIX)
     for path in (ply_path, journal):
         if path.exists():
@@ -107,7 +107,7 @@ def run_scan_on_the_fly(loaded: LoadedConfig, host, fov, out: Path, result_path:
                 f"clock relation: {relation.source}")
     with open_devices(loaded, host, cell, log) as (robot, sensor):
         check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
-        check_plan(targets, acq, "scan plan", robot=robot, keep_out=keep_out, log=log)
+        check_plan(targets, acq, "scan plan", robot=robot, keep_out=keep_out, log=log, speed_keys=SCAN_SPEEDS)
         with PlyWriter(ply_path, format=sc.format, with_profile=True, frame=frame, comments=comments) as writer:
             mapper = PassMapper(result.transform, cfg.mounting, relation, writer, journal, sc.max_timing_error_mm)
             report = scan_on_the_fly(robot, sensor, passes, mapper, acq, log,

@@ -13,13 +13,14 @@ import numpy as np
 
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
-from spherecal.app.outputs import JOURNAL_NAME, calibrated_setup, calibrated_urdf_in
-from spherecal.app.plan_checks import VALIDATION_KEEP_OUT_FIX, check_plan, confirm_motion, keep_out_for
+from spherecal.app.outputs import STREAM_JOURNAL_NAME, calibrated_setup, calibrated_urdf_in, journal_of
+from spherecal.app.plan_checks import (STOP_AND_GO_SPEEDS, VALIDATION_KEEP_OUT_FIX, check_plan, confirm_motion,
+                                      keep_out_for)
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
 from spherecal.io.files import sha256_of
 from spherecal.app.scan_on_the_fly import scan_mode
 from spherecal.app.solving import calibration_options
-from spherecal.app.validate_on_the_fly import measure_on_the_fly
+from spherecal.app.validate_on_the_fly import measure_on_the_fly, plan_on_the_fly, solve_calibration_recording
 from spherecal.config import LoadedConfig
 from spherecal.core.errors import ConfigError
 from spherecal.core.metrology import ShotNoise
@@ -29,6 +30,7 @@ from spherecal.io import dataset as dataio
 from spherecal.io import files as safeio
 from spherecal.io.runlog import progress_log
 from spherecal.motion.acquisition import Progress
+from spherecal.motion.on_the_fly import check_streaming
 from spherecal.motion.validation import evaluate, measure, plan_validation, position_rows
 from spherecal.motion.planning import sphere_standoff_z_mm
 from spherecal.report.assess import Verdict, verdict
@@ -57,20 +59,31 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     cfg = loaded.config
     out, result_path, result, X, source = _transform_to_validate(loaded, out_dir, transform, log)
     sweeps = plan_validation(cfg.validation, cfg.acquisition, cfg.mounting, X, cfg.sphere, fov, cfg.sensor["type"])
-    targets = [t for s in sweeps for t in s.targets]
-    log(f"validating {source}: {len(sweeps)} sweeps, {len(targets)} shots")
+    # on the fly, the passes alone are checked and said: what moves
+    on_the_fly = plan_on_the_fly(cfg, sweeps, result, source, log) if scan_mode(cfg) == "on_the_fly" else None
+    if on_the_fly is None:
+        targets = [t for s in sweeps for t in s.targets]
+        plan, what, speed_keys = f"{len(sweeps)} sweeps, {len(targets)} shots", "validation plan", STOP_AND_GO_SPEEDS
+        log(f"validating {source}: {plan}")
+    else:
+        targets, plan = on_the_fly.targets, on_the_fly.describe()
+        what, speed_keys = "validation plan (on the fly)", on_the_fly.speed_keys
+        log(f"validating {source}: {plan}, one per validation sweep; every pass checked at "
+            f"{len(targets)} points")
     keep_out = in_file(loaded, keep_out_for, cfg, host, X, VALIDATION_KEEP_OUT_FIX, log, fov)
-    check_plan(targets, cfg.acquisition, "validation plan", keep_out=keep_out, log=log)
+    check_plan(targets, cfg.acquisition, what, keep_out=keep_out, log=log, speed_keys=speed_keys)
     exports = export_plan(loaded, host)  # for the report's notes; a bad [export] stops before any motion
     cell = make_cell(cfg, robot_arm(loaded, host), fov)
     if cell is None:
-        confirm_motion("validate", f"{len(sweeps)} sweeps, {len(targets)} shots", yes, ask, log)
+        confirm_motion("validate", plan, yes, ask, log)
     out.mkdir(parents=True, exist_ok=True)
     started = datetime.now(timezone.utc)
     stamp = started.strftime("%Y%m%dT%H%M%S%fZ")
     journal = out / f"validation-{stamp}.jsonl"  # one journal per validation run; none is overwritten
     with open_devices(loaded, host, cell, log) as (robot, sensor):
-        check_plan(targets, cfg.acquisition, "validation plan", robot=robot, keep_out=keep_out, log=log)
+        if on_the_fly is not None:
+            check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
+        check_plan(targets, cfg.acquisition, what, robot=robot, keep_out=keep_out, log=log, speed_keys=speed_keys)
         with dataio.DatasetWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,
                                   provenance={"source": "spherecal validate", "result": source,
                                               "transform": X.model_dump()},
@@ -81,8 +94,8 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
                                           timestamp=datetime.now(timezone.utc), base_from_flange=pose,
                                           profile=profile, target=target.index))
 
-            if scan_mode(cfg) == "on_the_fly":
-                measured = measure_on_the_fly(cfg, robot, sensor, sweeps, result, source, writer, keep_out, log,
+            if on_the_fly is not None:
+                measured = measure_on_the_fly(cfg, robot, sensor, sweeps, on_the_fly, writer, log,
                                               clock=cell.clock if cell is not None else None)
             else:
                 measured = measure(robot, sensor, sweeps, cfg.acquisition, log,
@@ -95,7 +108,7 @@ def run_validate(loaded: LoadedConfig, *, out_dir: Path | None = None, log: Call
     outcome.verdict, outcome.cause = validation_verdict(own, outcome.table(), result)
     outcome.transform, outcome.transform_name, outcome.transform_source = X, TRANSFORM_NAME[cfg.mounting], source
     outcome.figures_path = _write_validation(outcome, out, stamp, journal, transform is not None)
-    calib_journal = out / JOURNAL_NAME
+    calib_journal = journal_of(out)  # stop-and-go's or on the fly's
     if report and transform is None and calib_journal.exists():
         # the report shows the calibration's residuals: only when that calibration is the one validated
         added = (f"the validation run at {started.isoformat(timespec='seconds')} ({outcome.figures_path.name}, its "
@@ -168,10 +181,14 @@ def _report_version(loaded: LoadedConfig, host, outcome, result, result_path: Pa
     else None, and the log says why not. The calibration's ``report.html`` is never
     rewritten."""
     cfg = loaded.config
-    calib_journal = out / JOURNAL_NAME
+    calib_journal = journal_of(out)
     X = outcome.transform
-    solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
-                     host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent), kinematics=robot_arm(loaded, host))
+    if calib_journal.name == STREAM_JOURNAL_NAME:
+        solution = solve_calibration_recording(calib_journal, calibration_options(cfg), robot_arm(loaded, host))
+    else:
+        solution = solve(dataio.read_dataset(calib_journal), calibration_options(cfg),
+                         host.robot_kinematics(cfg.robot, base_dir=loaded.path.parent),
+                         kinematics=robot_arm(loaded, host))
     if np.allclose(solution.result.transform.as_matrix(), X.as_matrix(), atol=1e-6):
         # the result as written (its provenance: the calibration's identity and hashes)
         solution = replace(solution, result=result)

@@ -7,20 +7,25 @@ poses as from stop-and-go shots (docs/on-the-fly.md, "Validating on the fly").""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from spherecal.app.plan_checks import check_plan
+from spherecal.app.plan_checks import ON_THE_FLY_SPEEDS, SCAN_SPEEDS
 from spherecal.app.scan_on_the_fly import clock_relation
+from spherecal.core.clock import ClockRelation
 from spherecal.core.models import Observation, Profile
 from spherecal.core.streams import SweepInfo
-from spherecal.motion.on_the_fly import PlannedSweep, check_streaming, sweep_targets
+from spherecal.motion.acquisition import Target
+from spherecal.motion.on_the_fly import PlannedSweep, sweep_targets
 from spherecal.motion.scan_on_the_fly import PassCollector, scan_on_the_fly
 from spherecal.motion.validation import Measured, Sweep
 
-__all__ = ["validation_passes", "measure_on_the_fly"]
+__all__ = ["OnTheFlyValidation", "validation_passes", "plan_on_the_fly", "measure_on_the_fly",
+           "solve_calibration_recording"]
 
 
 def validation_passes(sweeps: list[Sweep], speed_mm_s: float) -> list[PlannedSweep]:
@@ -36,23 +41,49 @@ def validation_passes(sweeps: list[Sweep], speed_mm_s: float) -> list[PlannedSwe
     return passes
 
 
-def measure_on_the_fly(cfg, robot, sensor, sweeps: list[Sweep], result, source: str, writer, keep_out,
-                       log: Callable[[str], None], clock=None) -> list[Measured]:
-    """Take every validation sweep on the fly (the module's docstring) and give each its
-    mapped profiles with their poses; every mapped profile goes to the validation's
-    journal ``writer`` with its pose. The clock relation is the calibration's (or the
-    scan's given ``clock_offset_ms``); the pass rules of
-    :func:`spherecal.motion.scan_on_the_fly.scan_on_the_fly` hold (nothing mapped outside
-    the pose samples; a fault stops the run)."""
+@dataclass(frozen=True)
+class OnTheFlyValidation:
+    """The validation's passes on the fly (:func:`plan_on_the_fly`): the passes, the
+    targets the plan check takes along them, their speed (mm/s), the clock relation
+    their profiles are mapped with, and where their speeds are configured (for
+    :func:`spherecal.app.plan_checks.check_plan`)."""
+
+    passes: list[PlannedSweep]
+    targets: list[Target]
+    speed_mm_s: float
+    relation: ClockRelation
+    speed_keys: tuple[str, str]
+
+    def describe(self) -> str:
+        """``4 passes on the fly at 100 mm/s``."""
+        return f"{len(self.passes)} passes on the fly at {self.speed_mm_s:g} mm/s"
+
+
+def plan_on_the_fly(cfg, sweeps: list[Sweep], result, source: str, log: Callable[[str], None]) -> OnTheFlyValidation:
+    """The passes of the validation ``sweeps`` (the scan's speed, else the calibration's
+    slowest sweep) and their clock relation (the calibration's, or the scan's given
+    ``clock_offset_ms``), before anything opens: InputError when there is none."""
     sc, acq = cfg.scan, cfg.acquisition
     speed = sc.speed_mm_s if sc is not None else min(acq.on_the_fly.speeds_mm_s)
     relation = clock_relation(sc.clock_offset_ms if sc is not None else None, result, source, log)
     passes = validation_passes(sweeps, speed)
     targets, _ = sweep_targets(passes, acq.approach_speed_mm_s)
-    check_streaming(robot, sensor, cfg.robot["type"], cfg.sensor["type"])
-    check_plan(targets, acq, "validation plan (on the fly)", robot=robot, keep_out=keep_out, log=log)
-    log(f"validating on the fly: {len(passes)} passes at {speed:g} mm/s, mapped with {relation.source}")
-    collector = PassCollector(relation, sc.max_timing_error_mm if sc is not None else 0.1)
+    return OnTheFlyValidation(passes, targets, float(speed), relation,
+                              SCAN_SPEEDS if sc is not None else ON_THE_FLY_SPEEDS)
+
+
+def measure_on_the_fly(cfg, robot, sensor, sweeps: list[Sweep], plan: OnTheFlyValidation, writer,
+                       log: Callable[[str], None], clock=None) -> list[Measured]:
+    """Take every validation sweep on the fly as ``plan`` says (the module's docstring; the
+    plan checked and both devices checked to stream by the caller) and give each its
+    mapped profiles with their poses; every mapped profile goes to the validation's
+    journal ``writer`` with its pose. The pass rules of
+    :func:`spherecal.motion.scan_on_the_fly.scan_on_the_fly` hold (nothing mapped outside
+    the pose samples; a fault stops the run)."""
+    sc, acq, passes = cfg.scan, cfg.acquisition, plan.passes
+    log(f"validating on the fly: {len(passes)} passes at {plan.speed_mm_s:g} mm/s, mapped with "
+        f"{plan.relation.source}")
+    collector = PassCollector(plan.relation, sc.max_timing_error_mm if sc is not None else 0.1)
     report = scan_on_the_fly(robot, sensor, passes, collector, acq, log, clock=clock,
                              rate_hz=sc.rate_hz if sc is not None else None)
     log(f"validation on the fly: {report.robot_time_line()}")
@@ -64,3 +95,14 @@ def measure_on_the_fly(cfg, robot, sensor, sweeps: list[Sweep], result, source: 
                                       base_from_flange=pose, profile=Profile.from_points(pts)))
         measured.append(Measured(sw, list(poses), list(profiles)))
     return measured
+
+
+def solve_calibration_recording(journal: Path, options, arm):
+    """The on-the-fly calibration's journal (a stream recording) solved again as
+    ``calibrate`` solved it (its clock relation; ``arm``, the robot's kinematics, used when
+    the recording has joints), for the report's figures of the calibration."""
+    from spherecal.estimation.on_the_fly import solve_recording
+    from spherecal.io.streams import read_recording
+
+    recording = read_recording(journal)
+    return solve_recording(recording, options, kinematics=arm if recording.poses.joints_deg is not None else None)

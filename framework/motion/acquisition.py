@@ -66,26 +66,67 @@ def plan_targets(acq: AcquisitionConfig | None, mounting: MountingMode, nominal:
     return targets
 
 
-def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> list[str]:
+@dataclass(frozen=True)
+class PlanProblem:
+    """What is wrong with one target of a plan (:func:`target_problems`): ``reason`` in the
+    check's words, ``at`` the target's flange position when the reason does not give it
+    (``"[x, y, z]"``, mm), ``speed_limit`` the configuration key of the speed limit the
+    target's speed exceeds, when that is the problem (else None)."""
+
+    target: Target
+    reason: str
+    at: str = ""
+    speed_limit: str | None = None
+
+    @property
+    def name(self) -> str:
+        return f"target {self.target.index} (station {self.target.station})"
+
+    def __str__(self) -> str:
+        return f"{self.name} at {self.at} mm {self.reason}" if self.at else f"{self.name}: {self.reason}"
+
+
+def target_problems(targets: list[Target], acq: AcquisitionConfig, robot=None) -> list[PlanProblem]:
     """Every problem with the plan, before anything moves: the workspace box, the speeds,
-    and the robot plugin's own check (``robot.check_target``) where it has one."""
+    and the robot plugin's own check (``robot.check_target``) where it has one. A target
+    the robot refuses at a speed its own ``check_speed`` refuses is a speed problem of
+    ``[robot] max_speed_mm_s``."""
     problems = []
     check = getattr(robot, "check_target", None) if robot is not None else None
+    check_speed = getattr(robot, "check_speed", None) if robot is not None else None
+    too_fast: dict[float, bool] = {}  # the robot's verdict on each speed of the plan
+
+    def refused_speed(speed_mm_s: float) -> bool:
+        if check_speed is None:
+            return False
+        if speed_mm_s not in too_fast:
+            try:
+                check_speed(speed_mm_s)
+                too_fast[speed_mm_s] = False
+            except SpherecalError:
+                too_fast[speed_mm_s] = True
+        return too_fast[speed_mm_s]
+
     for t in targets:
         if t.speed_mm_s > acq.max_speed_mm_s:
-            problems.append(f"target {t.index} (station {t.station}): speed {t.speed_mm_s} mm/s exceeds "
-                            f"acquisition.max_speed_mm_s = {acq.max_speed_mm_s}")
+            problems.append(PlanProblem(t, f"speed {t.speed_mm_s} mm/s exceeds acquisition.max_speed_mm_s = "
+                                           f"{acq.max_speed_mm_s}", speed_limit="[acquisition] max_speed_mm_s"))
         if not acq.workspace.contains(t.pose.translation):
-            problems.append(
-                f"target {t.index} (station {t.station}) at {np.round(t.pose.translation, 1).tolist()} mm is outside "
-                f"acquisition.workspace {list(acq.workspace.min_mm)}..{list(acq.workspace.max_mm)}"
-            )
+            problems.append(PlanProblem(
+                t, f"is outside acquisition.workspace {list(acq.workspace.min_mm)}..{list(acq.workspace.max_mm)}",
+                at=str(np.round(t.pose.translation, 1).tolist())))
         if check is not None:
             try:
                 check(t.pose, t.speed_mm_s)
             except SpherecalError as exc:
-                problems.append(f"target {t.index} (station {t.station}): {exc}")
+                problems.append(PlanProblem(t, str(exc), speed_limit="[robot] max_speed_mm_s"
+                                            if refused_speed(t.speed_mm_s) else None))
     return problems
+
+
+def check_targets(targets: list[Target], acq: AcquisitionConfig, robot=None) -> list[str]:
+    """Every problem with the plan (:func:`target_problems`), one line per target at fault."""
+    return [str(p) for p in target_problems(targets, acq, robot)]
 
 
 def check_first_move(robot, target: Target, acq: AcquisitionConfig) -> list[str]:

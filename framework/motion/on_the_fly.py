@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable
 
@@ -227,6 +227,15 @@ class OnTheFlyReport:
     sweeps: list[SweepTaken] = field(default_factory=list)
     robot_time_s: float = 0.0
     simulated_time: bool = False
+
+    @classmethod
+    def of_journal(cls, finished: dict[int, dict], simulated_time: bool) -> "OnTheFlyReport":
+        """What the journal's finished sweeps took, over every run that added to it
+        (``finished``: :meth:`SweepJournal.finished`): their counts, and the sum of their
+        robot times (each from the end of the sweep before, its move to the start included)."""
+        names = {f.name for f in fields(SweepTaken)}
+        sweeps = [SweepTaken(**{k: v for k, v in row.items() if k in names}) for _, row in sorted(finished.items())]
+        return cls(sweeps, float(sum(s.robot_time_s for s in sweeps)), simulated_time)
 
     @property
     def profiles(self) -> int:

@@ -208,7 +208,8 @@ def test_a_sweep_outside_the_workspace_is_refused_before_anything_moves(sim_conf
     cfg = sim_config(EXAMPLE, **{r"^max_mm = \[1600.0, 800.0, 1400.0\]$": "max_mm = [1168.0, 800.0, 1400.0]"})
     with pytest.raises(InputError, match=r"the on-the-fly plan breaks the limits; nothing was moved") as err:
         run(cfg, lambda _: None)
-    assert re.search(r"target \d+ \(station S1, sweep 0\) at \[1171.5, 186.0, 584.0\] mm is outside", str(err.value))
+    assert re.search(r"\d+ targets in \d+ sweeps \(target \d+ \(station S1, sweep 0\), .*\): the first at "
+                     r"\[1171.5, 186.0, 584.0\] mm is outside", str(err.value))
     assert not opened  # refused before the devices were opened
     assert not (cfg.parent / "out" / "journal.stream.jsonl").exists()
 
