@@ -152,6 +152,7 @@ _WHERE = {
     "SerialChain": "spherecal.core.kinematics",
     "chain_reach_mm": "spherecal.core.kinematics",
     "ik_seeds_deg": "spherecal.core.kinematics",
+    "arm_joint_names": "spherecal.core.kinematics",
     "joints_from_home": "spherecal.core.kinematics",
     "IkNotConverged": "spherecal.core.urdf",
     "UrdfChain": "spherecal.core.urdf",
