@@ -20,6 +20,7 @@ from spherecal.core.kinematics import arm_joint_names
 from spherecal.core.models import Dataset
 from spherecal.core.streams import Recording
 from spherecal.estimation.on_the_fly import solve_recording
+from spherecal.io.bag_frames import bag_frames
 from spherecal.io.rosbag import read_bag
 from spherecal.io.runlog import progress_log
 from spherecal.io.streams import write_recording
@@ -56,8 +57,11 @@ def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal:
         check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
                             "exports and report", exports)
 
+    frames = bag_frames(recording.provenance)  # the bag's frame ids, for the result and the ROS exports
+
     def solver():
-        return solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
+        solution = solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
+        return replace(solution, result=solution.result.model_copy(update={"data_frames": frames}))
 
     def as_mounting(mounting: str):
         return solve_recording(replace(recording, mounting=mounting), options, kinematics=arm).result

@@ -12,8 +12,8 @@ What it reads (REP 103: metres, radians, quaternions (x, y, z, w), scalar **last
   FLOAT64) in metres in the sensor frame. The laser plane is the sensor's x = 0 plane:
   (y, z) becomes the profile's (y, z) in mm and x must be 0. A driver that puts the line
   along x gives ``line_axis="x"``: (x, z) becomes (y, z) and y must be 0; the calibrated
-  sensor frame is then the cloud's frame turned by +90 degrees about z
-  (``sensor_from_cloud = Rz(90 deg)``: y_sensor = x_cloud, x_sensor = -y_cloud). Points
+  sensor frame is then not the cloud's frame: ``sensor_from_cloud = Rz(+90 deg)``
+  (y_sensor = x_cloud, x_sensor = -y_cloud; :mod:`spherecal.io.bag_frames`). Points
   are decoded with NumPy from ``data``, ``point_step`` and the fields' offsets; the
   message's fixed layout is read with ``struct``, not through a generic deserialiser,
   because ten thousand clouds a minute must convert at tens of millions of points a
@@ -54,6 +54,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.core.streams import PoseStream, ProfileStream, Recording
+from spherecal.io.bag_frames import SENSOR_FROM_CLOUD_TEXT
 from spherecal.io.mcap_scan import NotPlain, scan_messages
 from spherecal.io.stream_fields import _check_mounting_radius
 
@@ -188,6 +189,9 @@ def read_bag(
     another publisher on the topic, are skipped, and none with them is a
     :class:`BagTopicError` listing both sets of names. Without ``joint_names`` the joints
     are the first message's, in its order, with a :class:`BagWarning` saying so).
+    ``base_frame`` and ``flange_frame`` given with other pose types name those frames in
+    the provenance (``base_frame_id``, ``flange_frame_id``: the ROS exports' frames) where
+    the messages name none; a PoseStamped's ``header.frame_id`` must be ``base_frame``.
     ``mounting`` and ``sphere_radius_mm`` are the calibration's, which a bag does not
     record. The recording's clocks are named after the topics, or both
     ``"recording computer"`` when their stamps show one clock (:class:`SameClockWarning`).
@@ -263,9 +267,12 @@ def read_bag(
         "pose_topic": pose_topic,
         "pose_type": pose.msgtype,
         "line_axis": line_axis,
-        **({"sensor_from_cloud_frame": "Rz(+90 deg): y_sensor = x_cloud, x_sensor = -y_cloud"}
-           if line_axis == "x" else {}),
+        **({"sensor_from_cloud_frame": SENSOR_FROM_CLOUD_TEXT[line_axis]} if line_axis in SENSOR_FROM_CLOUD_TEXT
+           else {}),
         **cloud_info,
+        # the frames given for the exports' names where the messages name none (a PoseStamped's
+        # flange, a JointState's base and flange)
+        **{k: v.lstrip("/") for k, v in (("base_frame_id", base_frame), ("flange_frame_id", flange_frame)) if v},
         **pose_info,
         "clock_check": clock_info,
     }
