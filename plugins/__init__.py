@@ -32,7 +32,7 @@ modules behind these names may move between releases, these names stay. What it 
   controller's server (:class:`SimulatedController`, :class:`ControllerServer`,
   :class:`SimulatedControllerSettings`, :func:`start_controller`);
 - exporters: the contract (:class:`Exporter`, :class:`ExportNote`, :func:`red_warning`,
-  :func:`calibrated_model_warning`)
+  :func:`calibrated_model_warning`, :func:`sensor_frame_warning`)
   and the formatting helpers of the core's exports (:func:`fixed`, :data:`MM_DECIMALS`, ...);
 - the errors and data models plugins use (:class:`Pose`, :class:`Profile`,
   :class:`Dataset`, :class:`CalibrationResult`, :class:`DeviceError`, ...), the
@@ -152,6 +152,7 @@ _WHERE = {
     "SerialChain": "spherecal.core.kinematics",
     "chain_reach_mm": "spherecal.core.kinematics",
     "ik_seeds_deg": "spherecal.core.kinematics",
+    "arm_joint_names": "spherecal.core.kinematics",
     "joints_from_home": "spherecal.core.kinematics",
     "IkNotConverged": "spherecal.core.urdf",
     "UrdfChain": "spherecal.core.urdf",
@@ -189,6 +190,7 @@ _WHERE = {
     "TEMPLATE_FIELDS": "spherecal.io.exporters",
     "red_warning": "spherecal.io.exporters",
     "calibrated_model_warning": "spherecal.io.exporters",
+    "sensor_frame_warning": "spherecal.io.exporters",
     "MATRIX_DECIMALS": "spherecal.report.export",
     "METRE_DECIMALS": "spherecal.report.export",
     "MM_DECIMALS": "spherecal.report.export",

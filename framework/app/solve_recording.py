@@ -18,9 +18,11 @@ from spherecal.app.provenance import provenance_type, recorded_options, traceabi
 from spherecal.app.solve import solve_kinematics, solve_robot_type
 from spherecal.app.solving import Outcome, solve_and_write
 from spherecal.core.errors import ConfigError, DatasetFileError, InputError
+from spherecal.core.kinematics import arm_joint_names
 from spherecal.core.models import Dataset
 from spherecal.core.streams import Recording
 from spherecal.estimation.on_the_fly import solve_recording
+from spherecal.io.bag_frames import bag_frames
 from spherecal.io.rosbag import read_bag
 from spherecal.io.runlog import progress_log
 from spherecal.io.streams import write_recording
@@ -57,8 +59,11 @@ def run_solve_recording(recording: Recording, path: Path, out: Path, *, nominal:
         check_output_folder(out, "solve", "give a new folder with --out, or --overwrite to replace its result, "
                             "exports and report", exports)
 
+    frames = bag_frames(recording.provenance)  # the bag's frame ids, for the result and the ROS exports
+
     def solver():
-        return solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
+        solution = solve_recording(recording, options, kinematics=arm, progress=log, offset_ms=offset_ms)
+        return replace(solution, result=solution.result.model_copy(update={"data_frames": frames}))
 
     def as_mounting(mounting: str):
         return solve_recording(replace(recording, mounting=mounting), options, kinematics=arm).result
@@ -106,20 +111,27 @@ def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic:
                 overwrite: bool = False, log: Callable[[str], None] = _LOG) -> Recording:
     """A ROS 2 bag read into a recording (:func:`spherecal.io.rosbag.read_bag`) and written
     once in the stream form, ``out/recording.jsonl``, so that a re-run reads that file.
-    Joint states go through the robot plugin's kinematics (``robot_type``)."""
+    Joint states go through the robot plugin's kinematics: the robot type is
+    ``robot_type`` (``--robot``), else the ``type`` of ``robot_config``
+    (:func:`~spherecal.app.solve.solve_robot_type`), with that file's settings; they are
+    picked out of each message by the names the arm's kinematics gives its joints
+    (:func:`~spherecal.core.kinematics.arm_joint_names`), else taken in the message's order."""
     missing = [flag for flag, value in (("--profile-topic", profile_topic), ("--pose-topic", pose_topic),
                                         ("--mounting", mounting), ("--sphere-radius-mm", sphere_radius_mm))
                if value is None]
     if missing:
         raise ConfigError(f"{path} is a ROS 2 bag: give {', '.join(missing)} (a bag does not record them; "
                           "docs/on-the-fly.md)")
-    joints_to_pose = None
+    header = Dataset(mounting=mounting, sphere_radius_mm=sphere_radius_mm)
+    robot_type = solve_robot_type(header, robot_type, robot_config)
+    joints_to_pose = joint_names = None
     if robot_type is not None:
-        _, _, arm = solve_kinematics(Dataset(mounting=mounting, sphere_radius_mm=sphere_radius_mm), robot_type,
-                                     robot_config, "joints", host=plugin_host.make_host())
-        if arm is not None:
+        fk, _, arm = solve_kinematics(header, robot_type, robot_config, "joints", host=plugin_host.make_host())
+        flange_pose = arm.flange_pose_from_joints if arm is not None else fk
+        joint_names = arm_joint_names(arm) if arm is not None else None
+        if flange_pose is not None:
             def joints_to_pose(q_deg):
-                poses = [arm.flange_pose_from_joints(q) for q in np.asarray(q_deg, dtype=float)]
+                poses = [flange_pose(q) for q in np.asarray(q_deg, dtype=float)]
                 return (np.array([p.rotation_matrix for p in poses]), np.array([p.translation for p in poses]))
     target = out / "recording.jsonl"
     if target.exists() and not overwrite:  # said before the bag is read, which may take a while
@@ -129,7 +141,7 @@ def convert_bag(path: Path, out: Path, *, profile_topic: str | None, pose_topic:
     with _flags_for_parameters():
         recording = read_bag(path, profile_topic=profile_topic, pose_topic=pose_topic, mounting=mounting,
                              sphere_radius_mm=sphere_radius_mm, line_axis=line_axis, base_frame=base_frame,
-                             flange_frame=flange_frame, joints_to_pose=joints_to_pose)
+                             flange_frame=flange_frame, joints_to_pose=joints_to_pose, joint_names=joint_names)
         out.mkdir(parents=True, exist_ok=True)
         write_recording(target, recording, overwrite=overwrite)
     log(f"bag {path}: {recording.poses.n} poses and {recording.profiles.n} profiles, written as {target}")

@@ -198,8 +198,11 @@ def _solve(sub, common, as_json) -> None:
     bag.add_argument("--line-axis", choices=["y", "x"], default="y", help="the cloud axis the laser line runs along "
                      "(default y, the project's laser plane being the sensor's y-z plane; x for drivers that put it "
                      "along x)")
-    bag.add_argument("--base-frame", metavar="FRAME", help="with a /tf pose topic: the robot's base frame")
-    bag.add_argument("--flange-frame", metavar="FRAME", help="with a /tf pose topic: the flange frame")
+    bag.add_argument("--base-frame", metavar="FRAME", help="the robot's base frame: with a /tf pose topic, the "
+                     "chain's start; else the PoseStamped frame_id it must be, or (joint states) the name the ROS "
+                     "exports give it")
+    bag.add_argument("--flange-frame", metavar="FRAME", help="the flange frame: with a /tf pose topic, the chain's "
+                     "end; else the name the ROS exports give it (default tool0)")
     s.add_argument("--fit-radius", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate the sphere radius too (default: no; a journal of calibrate: as its run did)")
     s.add_argument("--nominal", help="rough X as x,y,z,qw,qx,qy,qz (mm, w first) to settle ambiguous data "

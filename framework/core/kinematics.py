@@ -159,6 +159,23 @@ def declared_home_joints_deg(arm) -> np.ndarray | None:
     return q
 
 
+def arm_joint_names(arm) -> tuple[str, ...] | None:
+    """The names of the joints an arm's kinematics takes, in the order it takes them (the
+    controller's), or None when it names none: ``controller_joint_names`` when the arm
+    has them (a URDF arm whose controller orders its joints otherwise than the chain),
+    else ``joint_names`` (optional attributes of an ArmKinematics: the names a ROS
+    description and its ``/joint_states`` give the joints). Raises :class:`InputError`
+    when they do not name each of the arm's joints once."""
+    names = getattr(arm, "controller_joint_names", None) or getattr(arm, "joint_names", None)
+    if names is None:
+        return None
+    names = tuple(str(n) for n in names)
+    n = arm.chain.n_joints
+    if len(names) != n or len(set(names)) != n:
+        raise InputError(f"joint_names: expected {n} distinct names (the arm's joints), got {list(names)}")
+    return names
+
+
 def ik_seeds_deg(arm) -> list[np.ndarray]:
     """The joints (controller convention, deg) inverse kinematics is seeded at, in turn,
     when the arm's own joints are not known: the declared home

@@ -607,6 +607,31 @@ class TimingEstimate(BaseModel):
         "result's error, beyond its stated uncertainty; None: measured")
 
 
+class DataFrames(BaseModel):
+    """The frames of the data a result was calibrated from, as the data name them (a ROS 2
+    bag's frame ids; docs/conventions.md, "A ROS 2 bag's frames"): the robot's base and
+    flange frames (None: the data do not name it), the frame the profiles came in (a
+    cloud's ``header.frame_id``), and how the calibrated ``sensor`` frame (the laser plane
+    its x = 0 plane) lies in that cloud frame. The ROS exports name their frames after
+    them and, for the clouds' frame, publish ``<mount>_from_sensor @ sensor_from_cloud``."""
+
+    model_config = ConfigDict(defer_build=True, frozen=True, extra="forbid")
+
+    source: str = Field(description="what named the frames (\"rosbag2\": a ROS 2 bag)")
+    base_frame_id: str | None = Field(None, description="the frame the flange poses are in")
+    flange_frame_id: str | None = Field(None, description="the flange's frame")
+    cloud_frame_id: str | None = Field(None, description="the frame the profiles came in (the clouds' frame_id)")
+    sensor_from_cloud: Pose = Field(
+        default_factory=Pose.identity, description="maps points in the clouds' frame to the calibrated sensor "
+        "frame: the identity, or Rz(+90 deg) for clouds with the laser line along their x")
+    sensor_from_cloud_text: str | None = Field(None, description="sensor_from_cloud in words, when not the identity")
+
+    @property
+    def cloud_is_sensor(self) -> bool:
+        """Whether the calibrated sensor frame is the clouds' frame itself."""
+        return self.sensor_from_cloud == Pose.identity()
+
+
 class CalibrationResult(BaseModel):
     """The calibrated transform, its uncertainty and how it was obtained.
 
@@ -651,6 +676,9 @@ class CalibrationResult(BaseModel):
     timing: TimingEstimate | None = Field(None, description="a recording's clock relation (TimingEstimate)")
     diagnostics: ResultDiagnostics = Field(
         default_factory=ResultDiagnostics, description="how the estimate was obtained (ResultDiagnostics)")
+    data_frames: DataFrames | None = Field(
+        None, description="the frames as the data named them (a ROS 2 bag's) and how the calibrated sensor frame "
+        "lies in the clouds' frame (DataFrames); None: the data named none")
     provenance: dict[str, Any] = Field(default={})
 
     @model_validator(mode="after")

@@ -40,6 +40,7 @@ __all__ = [
     "NoSettings",
     "SelectedExporter",
     "calibrated_model_warning",
+    "sensor_frame_warning",
     "check_file_name",
     "ExportPlan",
     "write_exports",
@@ -92,6 +93,21 @@ def red_warning(result: CalibrationResult) -> str:
     writes, so that a RED result written with ``--force`` says so wherever it is copied."""
     verdict = result.diagnostics.verdict
     return RED_WARNING if isinstance(verdict, dict) and verdict.get("level") == "red" else ""
+
+
+def sensor_frame_warning(result: CalibrationResult) -> str:
+    """When the calibrated sensor frame is not the frame the data's profiles came in (a
+    ROS 2 bag's clouds with the laser line along their x: ``result.data_frames``), that it
+    is not, and the fixed rotation between them (``sensor_from_cloud``); else "". One line
+    of plain words without '--', like :data:`RED_WARNING`, for a comment of each file an
+    exporter writes, so that the sensor frame is not taken for the clouds' frame."""
+    frames = result.data_frames
+    if frames is None or frames.cloud_is_sensor:
+        return ""
+    cloud = f"'{frames.cloud_frame_id}'" if frames.cloud_frame_id else "(not named)"
+    return (f"SENSOR FRAME: 'sensor' here is spherecal's calibrated sensor frame, not the frame the clouds came in "
+            f"{cloud}: sensor_from_cloud = {frames.sensor_from_cloud_text or 'not the identity'} (result.json "
+            "data_frames)")
 
 
 def calibrated_model_warning(result: CalibrationResult) -> str:

@@ -12,8 +12,8 @@ What it reads (REP 103: metres, radians, quaternions (x, y, z, w), scalar **last
   FLOAT64) in metres in the sensor frame. The laser plane is the sensor's x = 0 plane:
   (y, z) becomes the profile's (y, z) in mm and x must be 0. A driver that puts the line
   along x gives ``line_axis="x"``: (x, z) becomes (y, z) and y must be 0; the calibrated
-  sensor frame is then the cloud's frame turned by +90 degrees about z
-  (``sensor_from_cloud = Rz(90 deg)``: y_sensor = x_cloud, x_sensor = -y_cloud). Points
+  sensor frame is then not the cloud's frame: ``sensor_from_cloud = Rz(+90 deg)``
+  (y_sensor = x_cloud, x_sensor = -y_cloud; :mod:`spherecal.io.bag_frames`). Points
   are decoded with NumPy from ``data``, ``point_step`` and the fields' offsets; the
   message's fixed layout is read with ``struct``, not through a generic deserialiser,
   because ten thousand clouds a minute must convert at tens of millions of points a
@@ -55,6 +55,7 @@ import numpy as np
 from spherecal.core import geometry as geo
 from spherecal.core.errors import InputError
 from spherecal.core.streams import PoseStream, ProfileStream, Recording
+from spherecal.io.bag_frames import SENSOR_FROM_CLOUD_TEXT
 from spherecal.io.mcap_scan import NotPlain, scan_messages
 from spherecal.io.rosbag_cut import cut_short_text
 from spherecal.io.stream_fields import _check_mounting_radius
@@ -194,8 +195,14 @@ def read_bag(
     ``profile_topic``: PointCloud2, one profile per message. ``pose_topic``: PoseStamped,
     TFMessage (give ``base_frame`` and ``flange_frame``; static transforms are read from
     ``tf_static_topic`` when the bag has it) or JointState (give ``joints_to_pose``;
-    ``joint_names`` picks and orders the joints it takes, by default those of the first
-    message; messages without them, from another publisher on the topic, are skipped).
+    ``joint_names``, the arm's joints in the order ``joints_to_pose`` takes them, picks
+    them out of each message by name, extra joints left out; messages without them, from
+    another publisher on the topic, are skipped, and none with them is a
+    :class:`BagTopicError` listing both sets of names. Without ``joint_names`` the joints
+    are the first message's, in its order, with a :class:`BagWarning` saying so).
+    ``base_frame`` and ``flange_frame`` given with other pose types name those frames in
+    the provenance (``base_frame_id``, ``flange_frame_id``: the ROS exports' frames) where
+    the messages name none; a PoseStamped's ``header.frame_id`` must be ``base_frame``.
     ``mounting`` and ``sphere_radius_mm`` are the calibration's, which a bag does not
     record. The recording's clocks are named after the topics, or both
     ``"recording computer"`` when their stamps show one clock (:class:`SameClockWarning`).
@@ -271,9 +278,12 @@ def read_bag(
         "pose_topic": pose_topic,
         "pose_type": pose.msgtype,
         "line_axis": line_axis,
-        **({"sensor_from_cloud_frame": "Rz(+90 deg): y_sensor = x_cloud, x_sensor = -y_cloud"}
-           if line_axis == "x" else {}),
+        **({"sensor_from_cloud_frame": SENSOR_FROM_CLOUD_TEXT[line_axis]} if line_axis in SENSOR_FROM_CLOUD_TEXT
+           else {}),
         **cloud_info,
+        # the frames given for the exports' names where the messages name none (a PoseStamped's
+        # flange, a JointState's base and flange)
+        **{k: v.lstrip("/") for k, v in (("base_frame_id", base_frame), ("flange_frame_id", flange_frame)) if v},
         **pose_info,
         "clock_check": clock_info,
     }
@@ -554,12 +564,17 @@ def _poses_from_tf(raws, log_ns, static_raws, name, topic, static_topic, base_fr
 
 
 def _poses_from_joints(raws, log_ns, name, topic, joints_to_pose, joint_names):
+    """Flange poses from joint states: each message's positions picked by the arm's joint
+    names (``joint_names``: extra joints in a message, a gripper's, left out; a message
+    without them, from another publisher, skipped), or without names in the order of the
+    first message's, all of them (said: nothing checks that it is the arm's order)."""
     ts = _typestore()
     rows = []
     stamps = []
     logs = []
-    names = list(joint_names) if joint_names is not None else None
-    skipped = 0
+    by_name = joint_names is not None
+    names = list(joint_names) if by_name else None
+    others: dict[tuple[str, ...], int] = {}  # the name lists of the messages skipped, and how many
     for i, raw in enumerate(raws):
         try:
             msg = ts.deserialize_cdr(raw, JOINT_STATE)
@@ -573,16 +588,27 @@ def _poses_from_joints(raws, log_ns, name, topic, joints_to_pose, joint_names):
             raise BagTopicError(f"{name}: {topic}: message {i} has {len(msg_names)} names but {len(pos)} positions")
         index = {n_: k for k, n_ in enumerate(msg_names)}
         if any(n_ not in index for n_ in names):
-            skipped += 1  # another publisher on the topic (a gripper): not the arm
+            others[tuple(msg_names)] = others.get(tuple(msg_names), 0) + 1
             continue
         rows.append(pos[[index[n_] for n_ in names]])
         stamps.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
         logs.append(log_ns[i])
+    skipped = sum(others.values())
+    seen = "; ".join(f"{list(k)} ({v} messages)" for k, v in sorted(others.items(), key=lambda e: -e[1])[:3])
     if not rows:
+        if by_name:
+            raise BagTopicError(f"{name}: {topic}: no message names the arm's joints {names}, the names the robot's "
+                                f"kinematics takes them by; the messages name {seen}. The joint names do not match: "
+                                "record the arm's own /joint_states, or describe the arm with the names its driver "
+                                "publishes")
         raise BagTopicError(f"{name}: {topic}: no message has the joints {names}")
     if skipped:
         warnings.warn(f"{name}: {topic}: skipped {skipped} of {len(raws)} messages without the joints {names} "
-                      "(another publisher on the topic?)", BagWarning, stacklevel=3)
+                      f"(another publisher on the topic?); they name {seen}", BagWarning, stacklevel=3)
+    if not by_name:
+        warnings.warn(f"{name}: {topic}: the robot's kinematics names no joints: the joints are taken in the order "
+                      f"of the first message's names, {names}, all of them; check that this is the arm's order, base "
+                      "to flange", BagWarning, stacklevel=3)
     q_deg = np.degrees(np.asarray(rows))
     if not np.all(np.isfinite(q_deg)):
         i = int(np.flatnonzero(~np.isfinite(q_deg).all(axis=1))[0])
@@ -590,18 +616,21 @@ def _poses_from_joints(raws, log_ns, name, topic, joints_to_pose, joint_names):
     ns = np.asarray(stamps, np.int64)
     logs_a = np.asarray(logs, np.int64)
     _check_stamps(ns, logs_a, name, topic, "joint states")
+    taken = (f"the joints {names}, matched by name" if by_name else
+             f"the joints {names} in the first message's order (the kinematics names none to match them by)")
     try:
         R, t = joints_to_pose(q_deg)
         R = np.asarray(R, dtype=float)
         t = np.asarray(t, dtype=float)
     except (ValueError, TypeError) as exc:
-        raise InputError(f"{name}: {topic}: the robot's kinematics refused the joints ({exc})") from None
+        raise InputError(f"{name}: {topic}: the robot's kinematics refused the joints ({exc}); {taken}") from None
     n = len(q_deg)
     if R.shape != (n, 3, 3) or t.shape != (n, 3) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
         raise InputError(f"joints_to_pose must return finite rotations (n, 3, 3) and translations (n, 3) mm for "
                          f"n = {n} joint rows; got {R.shape} and {t.shape}")
     sec, nsec = np.divmod(ns, 1_000_000_000)
-    return _seconds(sec, nsec), R, t, q_deg, {"joint_names": names, "n_joint_messages_skipped": skipped}, logs_a
+    info = {"joint_names": names, "joints_matched_by_name": by_name, "n_joint_messages_skipped": skipped}
+    return _seconds(sec, nsec), R, t, q_deg, info, logs_a
 
 
 def _check_time_spans(t_sensor, t_robot, name, profile_topic, pose_topic) -> None:

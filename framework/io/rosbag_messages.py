@@ -374,7 +374,7 @@ class _CloudDecoder:
             raise BagUnitsError(f"{name}: {topic}: the points look like millimetres, not metres: a typical profile "
                                 f"reaches {typical:.4g} from the sensor, more than {MAX_PROFILE_EXTENT_M:g} if that "
                                 "were metres. ROS clouds are in metres (REP 103); have the driver publish metres")
-        info = {"sensor_frame_id": frames[0], "n_clouds": m, "n_empty_clouds": int((~nonempty).sum()),
+        info = {"cloud_frame_id": frames[0], "n_clouds": m, "n_empty_clouds": int((~nonempty).sum()),
                 "n_invalid_points_dropped": n_dropped}
         return t, out, start, info
 

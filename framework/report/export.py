@@ -39,7 +39,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from spherecal.core.errors import InputError
-from spherecal.io.exporters import ExportNote, Exporter, calibrated_model_warning, red_warning, write_exports
+from spherecal.io.exporters import (
+    ExportNote, Exporter, calibrated_model_warning, red_warning, sensor_frame_warning, write_exports,
+)
 from spherecal.core.models import CalibrationResult, Pose
 
 __all__ = [
@@ -58,6 +60,8 @@ __all__ = [
     "xyz_quaternion_text",
     "read_xyz_quaternion",
     "default_ros_frames",
+    "ros_transform",
+    "ros_frame_text",
     "ros_static_transform_command",
     "ros_static_transform_yaml",
     "ros_launch_py",
@@ -123,12 +127,14 @@ def uncertainty_sentence(result: CalibrationResult) -> str:
             f"translation {tr} mm along {target} x y z")
 
 
-def warning_lines(result: CalibrationResult, prefix: str) -> str:
-    """The RED warning (:func:`~spherecal.io.exporters.red_warning`) and the calibrated
-    arm model's (:func:`~spherecal.io.exporters.calibrated_model_warning`), each as one
-    comment line starting with ``prefix`` and ending in a line break; "" for a result not
-    rated RED whose arm was not calibrated."""
-    return "".join(f"{prefix}{w}\n" for w in (red_warning(result), calibrated_model_warning(result)) if w)
+def warning_lines(result: CalibrationResult, prefix: str, sensor_frame: bool = True) -> str:
+    """The RED warning (:func:`~spherecal.io.exporters.red_warning`), the calibrated
+    arm model's (:func:`~spherecal.io.exporters.calibrated_model_warning`) and, with
+    ``sensor_frame``, that the sensor frame is not the clouds'
+    (:func:`~spherecal.io.exporters.sensor_frame_warning`), each as one comment line
+    starting with ``prefix`` and ending in a line break; "" when none applies."""
+    said = (red_warning(result), calibrated_model_warning(result), sensor_frame_warning(result) if sensor_frame else "")
+    return "".join(f"{prefix}{w}\n" for w in said if w)
 
 
 def rounded_quaternion_wxyz(pose: Pose) -> list[str]:
@@ -240,10 +246,58 @@ def read_xyz_quaternion(text: str) -> tuple[str, np.ndarray, np.ndarray]:
 
 # --- ROS ----------------------------------------------------------------------------------------
 def default_ros_frames(result: CalibrationResult) -> tuple[str, str]:
-    """(parent frame id, child frame id): ``("tool0", "sensor")`` eye-in-hand,
-    ``("base", "sensor")`` eye-to-hand: the ROS-Industrial names of the flange frame and
-    of the robot's base frame as its controller reports poses in (REP-199)."""
-    return ("tool0", "sensor") if result.mounting == "eye_in_hand" else ("base", "sensor")
+    """(parent frame id, child frame id) of the ROS exports when their settings name none:
+    the frames the data named (``result.data_frames``, a ROS 2 bag's: the flange frame
+    eye-in-hand or the base frame eye-to-hand, and the clouds' frame), else
+    ``("tool0", "sensor")`` eye-in-hand, ``("base", "sensor")`` eye-to-hand: the
+    ROS-Industrial names of the flange frame and of the robot's base frame as its
+    controller reports poses in (REP-199)."""
+    parent, child = ("tool0", "sensor") if result.mounting == "eye_in_hand" else ("base", "sensor")
+    frames = result.data_frames
+    if frames is not None:
+        parent = (frames.flange_frame_id if result.mounting == "eye_in_hand" else frames.base_frame_id) or parent
+        child = frames.cloud_frame_id or child
+    return parent, child
+
+
+def ros_transform(result: CalibrationResult, child_frame_id: str) -> Pose:
+    """What the ROS exports publish for the child frame ``child_frame_id``: the clouds'
+    frame of the data (``result.data_frames.cloud_frame_id``) gets
+    ``<mount>_from_cloud = <mount>_from_sensor @ sensor_from_cloud``, so that the clouds
+    published in it land where the calibration put them; any other child is the
+    calibrated sensor frame, ``result.transform``."""
+    frames = result.data_frames
+    if frames is not None and frames.cloud_frame_id == child_frame_id and not frames.cloud_is_sensor:
+        return result.transform @ frames.sensor_from_cloud
+    return result.transform
+
+
+def ros_frame_text(result: CalibrationResult, child_frame_id: str) -> tuple[str, bool]:
+    """What the ROS child frame ``child_frame_id`` is when the calibrated sensor frame is
+    not the clouds' frame, and whether that is a warning: the clouds' frame gets the
+    transform composed with ``sensor_from_cloud`` (said); any other child gets the
+    calibrated sensor frame, which needs the fixed turn published between the two (a
+    warning). ("", False) when the two frames are one."""
+    frames = result.data_frames
+    if frames is None or frames.cloud_is_sensor:
+        return "", False
+    cloud, turn = frames.cloud_frame_id, frames.sensor_from_cloud_text or "not the identity"
+    a, _ = frames_of(result.transform_name)
+    if cloud is not None and cloud == child_frame_id:
+        return (f"'{child_frame_id}' is the clouds' own frame: this is {a}_from_cloud = {a}_from_sensor @ "
+                f"sensor_from_cloud, sensor_from_cloud = {turn} (result.json data_frames): spherecal's calibrated "
+                "sensor frame is not the clouds' frame"), False
+    return (f"'{child_frame_id}' is spherecal's calibrated sensor frame, NOT the clouds' frame "
+            f"'{cloud or '(not named)'}': sensor_from_cloud = {turn}; publish the clouds' frame in "
+            f"'{child_frame_id}' with that fixed rotation, or set [export.ros2] child_frame_id to the clouds' "
+            "frame to have it published directly"), True
+
+
+def ros_frame_lines(result: CalibrationResult, child_frame_id: str, prefix: str) -> str:
+    """:func:`ros_frame_text` as a comment line starting with ``prefix`` (a warning
+    starting with WARNING), or ""."""
+    text, warn = ros_frame_text(result, child_frame_id)
+    return f"{prefix}{'WARNING: ' if warn else ''}{text}\n" if text else ""
 
 
 def _check_frame_id(frame: str, what: str) -> str:
@@ -255,14 +309,23 @@ def _check_frame_id(frame: str, what: str) -> str:
     return frame
 
 
+def _ros_name(result: CalibrationResult, child_frame_id: str) -> str:
+    """The name of what the ROS exports publish for ``child_frame_id``: the result's
+    transform name, or ``<mount>_from_cloud`` for the clouds' frame (:func:`ros_transform`)."""
+    if ros_transform(result, child_frame_id) is result.transform:
+        return result.transform_name
+    return f"{frames_of(result.transform_name)[0]}_from_cloud"
+
+
 def _ros_values(result: CalibrationResult, frame_id, child_frame_id):
     parent, child = default_ros_frames(result)
     parent = _check_frame_id(frame_id or parent, "frame_id")
     child = _check_frame_id(child_frame_id or child, "child_frame_id")
     if parent == child:
         raise InputError(f"frame_id and child_frame_id are both {parent!r}; they must differ")
-    xyz_m = [fixed(v / 1000.0, METRE_DECIMALS) for v in result.transform.translation_mm]
-    w, x, y, z = rounded_quaternion_wxyz(result.transform)
+    X = ros_transform(result, child)
+    xyz_m = [fixed(v / 1000.0, METRE_DECIMALS) for v in X.translation_mm]
+    w, x, y, z = rounded_quaternion_wxyz(X)
     return parent, child, xyz_m, (x, y, z, w)
 
 
@@ -274,8 +337,8 @@ def ros_static_transform_command(
     ``child_frame_id`` the sensor; translation in METRES, quaternion (x, y, z, w)."""
     result = check_result(result)
     parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
-    return warning_lines(result, "# ") + (
-        f"# {result.transform_name} from spherecal: pose of '{child}' in '{parent}'; "
+    return warning_lines(result, "# ", sensor_frame=False) + ros_frame_lines(result, child, "# ") + (
+        f"# {_ros_name(result, child)} from spherecal: pose of '{child}' in '{parent}'; "
         "translation in METRES, quaternion in ROS order (x, y, z, w)\n"
         "ros2 run tf2_ros static_transform_publisher"
         f" --x {xyz[0]} --y {xyz[1]} --z {xyz[2]}"
@@ -291,9 +354,9 @@ def ros_static_transform_yaml(
     in METRES, rotation quaternion in ROS order (x, y, z, w)."""
     result = check_result(result)
     parent, child, xyz, q = _ros_values(result, frame_id, child_frame_id)
-    a, b = frames_of(result.transform_name)
-    return warning_lines(result, "# ") + (
-        f"# {result.transform_name} ({result.mounting}) from spherecal, as geometry_msgs/TransformStamped\n"
+    a, b = frames_of(_ros_name(result, child))
+    return warning_lines(result, "# ", sensor_frame=False) + ros_frame_lines(result, child, "# ") + (
+        f"# {_ros_name(result, child)} ({result.mounting}) from spherecal, as geometry_msgs/TransformStamped\n"
         f"# parent '{parent}' = spherecal '{a}', child '{child}' = spherecal '{b}'\n"
         "# translation in METRES; rotation quaternion in ROS order (x, y, z, w), scalar LAST\n"
         f"# {uncertainty_sentence(result)}\n"
@@ -385,8 +448,8 @@ def ros_launch_py(result: CalibrationResult, frame_id: str | None = None, child_
             ("--qx", q[0]), ("--qy", q[1]), ("--qz", q[2]), ("--qw", q[3]),
             ("--frame-id", parent), ("--child-frame-id", child)]
     arg_lines = "".join(f'                "{k}", "{v}",\n' for k, v in args)
-    return warning_lines(result, "# ") + (
-        f"# {result.transform_name} ({result.mounting}) from spherecal: pose of '{child}' in '{parent}'.\n"
+    return warning_lines(result, "# ", sensor_frame=False) + ros_frame_lines(result, child, "# ") + (
+        f"# {_ros_name(result, child)} ({result.mounting}) from spherecal: pose of '{child}' in '{parent}'.\n"
         "# Translation in METRES; quaternion in ROS order (x, y, z, w), scalar LAST.\n"
         f"# {uncertainty_sentence(result)}\n"
         "# Run: ros2 launch ./ros_static_transform.launch.py (ROS 2 Humble or later)\n"
@@ -464,16 +527,16 @@ def ros_urdf_joint(result: CalibrationResult, frame_id: str | None = None, child
     give back the transform to about 1e-15). Read back with :func:`read_ros_urdf_joint`."""
     result = check_result(result)
     parent, child, _, _ = _ros_values(result, frame_id, child_frame_id)
-    X = result.transform
+    X = ros_transform(result, child)
     xyz = " ".join(repr(float(v) / 1000.0) for v in X.translation_mm)
     rpy = " ".join(repr(float(v)) for v in rpy_from_matrix(X.rotation_matrix))
-    a, b = frames_of(result.transform_name)
+    a, b = frames_of(_ros_name(result, child))
     where = "on the flange" if result.mounting == "eye_in_hand" else "fixed in the cell, relative to the robot's base"
     return (
         '<?xml version="1.0"?>\n'
         "<!--\n"
-        + warning_lines(result, "  ")
-        + f"  spherecal {result.transform_name} ({result.mounting}): the sensor frame '{child}' {where} '{parent}'\n"
+        + warning_lines(result, "  ", sensor_frame=False) + ros_frame_lines(result, child, "  ")
+        + f"  spherecal {_ros_name(result, child)} ({result.mounting}): the sensor frame '{child}' {where} '{parent}'\n"
         f"  (spherecal '{a}' = '{parent}', '{b}' = '{child}').\n"
         "  origin: xyz in METRES, rpy in RADIANS about the fixed parent axes x, y, z in that order\n"
         "  (R = Rz(yaw) Ry(pitch) Rx(roll), as URDF defines it); full precision, do not round.\n"
@@ -546,9 +609,11 @@ class Ros2ExportSettings(BaseModel):
 
     frame_id: str | None = Field(
         None, max_length=MAX_FRAME_ID_LENGTH,
-        description="parent frame: the flange (eye_in_hand) or the robot's base (eye_to_hand); default 'tool0' or "
-        "'base' (the ROS-Industrial names)")
-    child_frame_id: str = Field("sensor", max_length=MAX_FRAME_ID_LENGTH, description="the sensor's frame")
+        description="parent frame: the flange (eye_in_hand) or the robot's base (eye_to_hand); default: the frame "
+        "the data name (a ROS 2 bag's), else 'tool0' or 'base' (the ROS-Industrial names)")
+    child_frame_id: str | None = Field(
+        None, max_length=MAX_FRAME_ID_LENGTH, description="the sensor's frame; default: the frame the data's clouds "
+        "came in (a ROS 2 bag's frame_id; its transform composed with sensor_from_cloud), else 'sensor'")
 
     @field_validator("frame_id", "child_frame_id")
     @classmethod
@@ -562,7 +627,8 @@ class Ros2ExportSettings(BaseModel):
 
     @model_validator(mode="after")
     def _differ(self):
-        if self.frame_id == self.child_frame_id:
+        # (the child's default 'sensor' counts: a configuration's run has no data to name another)
+        if self.frame_id is not None and self.frame_id == (self.child_frame_id or "sensor"):
             raise ValueError(f"frame_id and child_frame_id are both {self.frame_id!r}; they must differ")
         return self
 
@@ -593,12 +659,22 @@ def _ros2_files(result: CalibrationResult, s: Ros2ExportSettings) -> dict[str, s
 
 def _ros2_note(result: CalibrationResult, s: Ros2ExportSettings) -> ExportNote:
     parent, child, _, _ = _ros_values(result, s.frame_id, s.child_frame_id)
+    frames, warn = ros_frame_text(result, child)
+    named = ""
+    if result.data_frames is not None and s.frame_id is None:
+        what, given = (("flange", result.data_frames.flange_frame_id) if result.mounting == "eye_in_hand" else
+                       ("base", result.data_frames.base_frame_id))
+        named = (f" '{parent}' is the {what} frame the {result.data_frames.source} data named." if given else
+                 f" The {result.data_frames.source} data name no {what} frame: '{parent}' is the ROS-Industrial "
+                 "name; set [export.ros2] frame_id (or name it when converting the data) if yours differs.")
     return ExportNote(
         title="ROS 2",
         text=(f"The sensor frame '{child}' in '{parent}': run the command below or "
               "'ros2 launch ./ros_static_transform.launch.py' (ROS 2 Humble or later) to publish it on /tf_static, "
-              "or add ros_sensor_joint.urdf.xacro to the robot description. Metres; quaternion (x, y, z, w)."),
+              "or add ros_sensor_joint.urdf.xacro to the robot description. Metres; quaternion (x, y, z, w)."
+              + named + (f" {frames[0].upper()}{frames[1:]}." if frames else "")),
         code=ros_static_transform_command(result, s.frame_id, s.child_frame_id),
+        warning=frames if warn else "",
     )
 
 

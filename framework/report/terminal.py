@@ -38,6 +38,7 @@ def summary(solution: Solution, graded: Verdict | None = None, *, verbose: bool 
         if len(todo) > len(shown):
             lines.append(f"  advice: {len(todo) - len(shown)} more: {MORE}")
     lines.append(transform_line(r))
+    lines.extend(sensor_frame_lines(r))
     if r.timing is not None:
         lines.extend(timing_lines(r.timing))
         lines.extend(_flagged_profile_lines(r.flagged))
@@ -115,6 +116,24 @@ def transform_line(result: CalibrationResult) -> str:
     return (f"{result.transform_name} (maps points in {b} to {a}): translation_mm = "
             f"[{', '.join(fixed(v, MM_DECIMALS) for v in X.translation_mm)}], quaternion_wxyz = "
             f"[{', '.join(fixed(v, QUAT_DECIMALS) for v in X.quaternion_wxyz)}]")
+
+
+def sensor_frame_lines(result: CalibrationResult) -> list[str]:
+    """When the calibrated sensor frame is not the frame the data's clouds came in
+    (``result.data_frames``: a ROS 2 bag's clouds with the laser line along x): that it is
+    not, the rotation between them, and the transform to the clouds' frame, which is what
+    to publish for it; else nothing."""
+    frames = result.data_frames
+    if frames is None or frames.cloud_is_sensor:
+        return []
+    a, _ = result.transform_name.split("_from_")
+    X = result.transform @ frames.sensor_from_cloud
+    cloud = f"'{frames.cloud_frame_id}'" if frames.cloud_frame_id else "(not named)"
+    return [f"the calibrated sensor frame is NOT the clouds' frame {cloud}: sensor_from_cloud = "
+            f"{frames.sensor_from_cloud_text or 'not the identity'}; to the clouds' frame (what the ROS exports "
+            f"publish for it): {a}_from_cloud: translation_mm = "
+            f"[{', '.join(fixed(v, MM_DECIMALS) for v in X.translation_mm)}], quaternion_wxyz = "
+            f"[{', '.join(fixed(v, QUAT_DECIMALS) for v in X.quaternion_wxyz)}]"]
 
 
 def details(solution: Solution) -> str:

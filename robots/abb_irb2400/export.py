@@ -29,6 +29,7 @@ from spherecal.plugins import (
     frames_of,
     red_warning,
     rounded_quaternion_wxyz,
+    sensor_frame_warning,
 )
 
 __all__ = [
@@ -88,7 +89,8 @@ def _rapid_comment_lines(result: CalibrationResult, extra: list[str]) -> list[st
         f"! 1-sigma translation mm along {a} x y z: "
         + " ".join(fixed(v, 4) for v in result.std_translation_mm),
     ]
-    warnings = [f"! {line}" for w in (red_warning(result), calibrated_model_warning(result)) if w for line in _wrap(w)]
+    said = (red_warning(result), calibrated_model_warning(result), sensor_frame_warning(result))
+    warnings = [f"! {line}" for w in said if w for line in _wrap(w)]
     return warnings + lines + extra
 
 

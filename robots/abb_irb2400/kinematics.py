@@ -168,6 +168,10 @@ class Irb2400Kinematics:
     docstring for ``j23_coupled``). Poses are ``base_from_flange`` (tool0 in wobj0), mm,
     quaternion (w, x, y, z)."""
 
+    #: The joints' names, base to flange: those of the ROS-Industrial description of the
+    #: IRB 2400 (and of the model's URDF), by which a ROS ``/joint_states`` is read.
+    joint_names = tuple(f"joint_{i}" for i in range(1, JOINT_COUNT + 1))
+
     def __init__(self, geometry: Irb2400Geometry | None = None, j23_coupled: bool = True):
         self.geometry = geometry or Irb2400Geometry()
         self.j23_coupled = bool(j23_coupled)
@@ -458,7 +462,7 @@ CALIBRATED_IK_TOLERANCE_RAD = 1e-9
 CALIBRATED_MAX_DEVIATION_MM = 20.0
 CALIBRATED_MAX_DEVIATION_DEG = 2.0
 #: Joint names, base and flange links a calibrated model's URDF must have.
-CALIBRATED_JOINT_NAMES = tuple(f"joint_{i}" for i in range(1, JOINT_COUNT + 1))
+CALIBRATED_JOINT_NAMES = Irb2400Kinematics.joint_names
 CALIBRATED_BASE_LINK = "base_link"
 CALIBRATED_FLANGE_LINK = "tool0"
 

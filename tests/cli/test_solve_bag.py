@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from bag_files import (
     cloud,
@@ -163,3 +164,49 @@ def test_a_bags_errors_name_the_command_lines_flags(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "recording.jsonl exists" in err and "--overwrite" in err and "overwrite=True" not in err, err
     assert (out / "recording.jsonl").read_text() == "an earlier run's\n"
+
+
+@pytest.mark.slow
+def test_a_bag_with_the_line_along_x_exports_the_clouds_own_frame(tmp_path, capsys):
+    """A driver that puts the laser line along the cloud's x (--line-axis x), its clouds in
+    'profiler_link', the poses in 'robot_base' and the flange named 'ee_link': the terminal,
+    run.log and result.json say the calibrated sensor frame is not the clouds' frame, and
+    the ROS exports publish 'profiler_link' in 'ee_link' so that its clouds land where the
+    calibration puts them."""
+    from spherecal.report import export as ex
+
+    cell = standard_cell("eye_in_hand", seed=2, fov=reference_fov())
+    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
+                             StreamSimSettings(sensor={"rate_hz": 100.0}, seed=2))
+    ps, poses = rec.profiles, rec.poses
+    clouds = []
+    for j in range(ps.n):
+        yz = ps.profile(j)
+        xyz_m = np.column_stack([yz[:, 0], np.zeros(len(yz)), yz[:, 1]]) / 1000.0  # (line, 0, range)
+        clouds.append((_ns(ps.t_sensor_s[j]) + 3_000_000, cloud(_ns(ps.t_sensor_s[j]), xyz_m, frame="profiler_link")))
+    q = q_xyzw(poses.R)
+    to_computer = -rec.provenance["true_offset_s"]
+    pose_msgs = [(_ns(poses.t_robot_s[i] + to_computer) + 1_000_000,
+                  pose_stamped(_ns(poses.t_robot_s[i]), poses.t_mm[i] / 1000.0, q[i], frame="robot_base"))
+                 for i in range(poses.n)]
+    bag = write_bag(tmp_path / "cell.bag", "mcap", {
+        "/profiler/points": ("sensor_msgs/msg/PointCloud2", clouds),
+        "/robot/flange_pose": ("geometry_msgs/msg/PoseStamped", pose_msgs)})
+    out = tmp_path / "res"
+    assert main(["solve", str(bag), "--profile-topic", "/profiler/points", "--pose-topic", "/robot/flange_pose",
+                 "--mounting", "eye_in_hand", "--sphere-radius-mm", str(rec.sphere_radius_mm), "--line-axis", "x",
+                 "--flange-frame", "ee_link", "--out", str(out), "--no-report"]) == EXIT_OK
+    said = "the calibrated sensor frame is NOT the clouds' frame 'profiler_link': sensor_from_cloud = Rz(+90 deg)"
+    assert said in capsys.readouterr().out and said in (out / "run.log").read_text()
+    result = json.loads((out / "result.json").read_text())
+    frames = result["data_frames"]
+    assert (frames["base_frame_id"], frames["flange_frame_id"], frames["cloud_frame_id"]) == \
+        ("robot_base", "ee_link", "profiler_link")
+    ros = ex.read_ros_command((out / "ros_static_transform.sh").read_text())
+    assert (ros["frame_id"], ros["child_frame_id"]) == ("ee_link", "profiler_link")
+    # a cloud point (x, y, z) is the sensor point (-y, x, z): both land on one flange point
+    X = ex.read_json((out / "result.json").read_text()).transform
+    p_cloud_m = np.array([[0.01, 0.0, -0.02], [-0.015, 0.003, 0.03]])
+    R = Rotation.from_quat(ros["quaternion_xyzw"]).as_matrix()
+    sensor_mm = np.column_stack([-p_cloud_m[:, 1], p_cloud_m[:, 0], p_cloud_m[:, 2]]) * 1000.0
+    np.testing.assert_allclose((p_cloud_m @ R.T + ros["xyz_m"]) * 1000.0, X.apply(sensor_mm), atol=2e-4)

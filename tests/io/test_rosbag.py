@@ -94,7 +94,7 @@ def test_pose_stamped_bag_round_trip(tmp_path, storage):
     assert rec.sweeps == [] and rec.mounting == "eye_in_hand" and rec.sphere_radius_mm == 19.05
     assert rec.clocks == {"robot": "header stamps of /pose", "sensor": "header stamps of /profiles"}
     p = rec.provenance
-    assert (p["source"], p["profile_topic"], p["pose_type"], p["sensor_frame_id"], p["base_frame_id"]) == \
+    assert (p["source"], p["profile_topic"], p["pose_type"], p["cloud_frame_id"], p["base_frame_id"]) == \
         ("rosbag2", "/profiles", POSE, "sensor", "base_link")
     assert p["clock_check"]["same_clock"] is False
     assert abs(p["clock_check"]["relative_rate_ppm"] - 50) < 1  # the helper's sensor runs 50 ppm off

@@ -68,7 +68,7 @@ def test_builtin_exporters_are_registered_through_entry_points():
         ("matrix", "xyz_quaternion", "ros2"), "core_exports")
     assert host.exporters.provider("abb_rapid") == "abb_irb2400"
     text = host.format_description()
-    assert "exporter 'ros2' (plugin 'core_exports')" in text and "export.ros2.child_frame_id (str, default 'sensor'" in text
+    assert "exporter 'ros2' (plugin 'core_exports')" in text and "export.ros2.child_frame_id (str | None, default None" in text
 
 
 @pytest.mark.parametrize("exporter, message", [

@@ -209,6 +209,8 @@ def test_ros2_settings_are_checked():
         ex.Ros2ExportSettings(child_frame_id="my sensor")
     with pytest.raises(ValueError, match="both 'sensor'"):
         ex.Ros2ExportSettings(frame_id="sensor")
+    with pytest.raises(ValueError, match="both 'laser'"):
+        ex.Ros2ExportSettings(frame_id="laser", child_frame_id="laser")
     with pytest.raises(ValueError, match="at most 256 characters"):
         ex.Ros2ExportSettings(frame_id="f" * 257)
 
