@@ -2,6 +2,7 @@
 (PointCloud2 profiles in metres, PoseStamped flange poses with quaternions x, y, z, w),
 converted once into the stream form and calibrated with its clock relation."""
 
+import functools
 import json
 
 import numpy as np
@@ -31,12 +32,19 @@ def _ns(t_s: float) -> int:
     return int(round(t_s * 1e9))
 
 
+@functools.cache
+def _three_stations():
+    """A recording of the standard eye-in-hand cell, three stations, the profiler at 100 Hz
+    (read-only: the tests that write it into bags share it)."""
+    cell = standard_cell("eye_in_hand", seed=2, fov=reference_fov())
+    return simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
+                              StreamSimSettings(sensor={"rate_hz": 100.0}, seed=2))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_solve_a_bag_finds_the_clocks_and_the_transform(tmp_path, capsys, storage):
-    cell = standard_cell("eye_in_hand", seed=2, fov=reference_fov())
-    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
-                             StreamSimSettings(sensor={"rate_hz": 100.0}, seed=2))
+    rec = _three_stations()
     ps, poses = rec.profiles, rec.poses
     clouds = []
     for j in range(ps.n):
@@ -175,9 +183,7 @@ def test_a_bag_with_the_line_along_x_exports_the_clouds_own_frame(tmp_path, caps
     calibration puts them."""
     from spherecal.report import export as ex
 
-    cell = standard_cell("eye_in_hand", seed=2, fov=reference_fov())
-    rec = simulate_recording(cell, OnTheFlyPlan(crossing_fraction=1.15, pause_s=0.05, stations=3),
-                             StreamSimSettings(sensor={"rate_hz": 100.0}, seed=2))
+    rec = _three_stations()
     ps, poses = rec.profiles, rec.poses
     clouds = []
     for j in range(ps.n):
