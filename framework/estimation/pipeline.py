@@ -25,7 +25,7 @@ from spherecal.estimation.problem import (
     fill_unknown, screen_station_orientations, several_stations_under_one_label, spread_per_station,
 )
 from spherecal.estimation.options import kinematic_effects, station_effects, station_rotation_tolerance_deg
-from spherecal.estimation.refine import NoiseAssumptions, RefineResult, cost_at, refine
+from spherecal.estimation.refine import NoiseAssumptions, RefineProgress, RefineResult, cost_at, refine
 from spherecal.estimation.refine.timing import with_start
 from spherecal.estimation.centres import (
     PAIR_UNDECIDED, leave_one_out_sizes, screen_table, settle_pairs, with_leave_one_out_size, within_station_noise,
@@ -324,10 +324,12 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
         ts, sub, sub_fits, budget, flags, orientation_diagnostics, robot_effects, start_notes = general
     noise = _noise_assumptions(opt, sub_fits, orientation_diagnostics, say)
 
+    told = RefineProgress(say)  # one clock for every refinement of this solve
+
     def refit(clean_: Problem, start) -> RefineResult:
         timing = {} if time_effects is None else {"time_effects": with_start(time_effects, getattr(start, "timing", None))}
         return refine(clean_, start.R, start.t, start.centre, noise, opt.fit_radius, opt.estimate_pose_noise,
-                      **robot_effects, **timing)
+                      **robot_effects, **timing, progress=told)
 
     clean = sub.with_profiles([sub_fits[j].inlier_points(p) if isinstance(sub_fits[j], CircleFit) else p
                                for j, p in enumerate(sub.profiles)])
@@ -364,7 +366,7 @@ def _solve(dataset, problem, opt, say, kinematics, joints_known, table_flags, ti
                 say(f"joint refinement over every point of the profiles kept ({sum(len(p) for p in clean.profiles)})")
             timing = {} if time_effects is None else {"time_effects": with_start(time_effects, ref.timing)}
             ref = refine(clean, ref.R, ref.t, ref.centre, noise, opt.fit_radius,
-                         opt.estimate_pose_noise and reweighed is None, **robot_effects, **timing)
+                         opt.estimate_pose_noise and reweighed is None, **robot_effects, **timing, progress=told)
 
     compared = None
     if linear is not None and not absurd:

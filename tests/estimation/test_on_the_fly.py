@@ -170,3 +170,16 @@ def test_a_nominal_given_for_a_recording_is_compared_with_the_result():
     nominal = result.diagnostics.nominal_transform
     assert nominal["rotation_deg"] > 90 and nominal["translation_mm"] < 0.01 and nominal["quaternion_scalar_last"]
     assert verdict(result).level == "red"
+
+
+def test_a_long_refinement_says_that_it_still_runs(monkeypatch):
+    """A fit of minutes (millions of points, the arm's kinematic model) must not look hung:
+    the solve's progress hears from the joint refinement every PROGRESS_EVERY_S seconds
+    (here every step), counted from the first refinement of the solve."""
+    from spherecal.estimation.refine import driver
+
+    monkeypatch.setattr(driver, "PROGRESS_EVERY_S", 0.0)
+    said = []
+    solve_recording(_recording(), CalibrationOptions(), progress=said.append)
+    still = [m for m in said if m.startswith("  joint refinement still running: ")]
+    assert still and all(m.endswith("steps so far") for m in still)

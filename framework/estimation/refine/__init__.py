@@ -35,7 +35,9 @@ from spherecal.estimation.refine.design import (
     IDENTIFIABILITY_TOLERANCE, _centre_design, cramer_rao_bound, design_identifiability,
     identifiable_kinematic_parameters, plan_design,
 )
-from spherecal.estimation.refine.driver import STALLED_CUT_STEPS, STALLED_STEP_SHARE, RefineResult, cost_at, refine
+from spherecal.estimation.refine.driver import (
+    STALLED_CUT_STEPS, STALLED_STEP_SHARE, RefineProgress, RefineResult, cost_at, refine,
+)
 from spherecal.estimation.refine.effects import KinematicEffects, StationEffects
 from spherecal.estimation.refine.linearisation import (
     NoiseAssumptions, _centres, _linearise, _point_sums, _Points, _pose_cov,
@@ -46,7 +48,7 @@ from spherecal.estimation.refine.reml import (
 
 __all__ = [
     "IDENTIFIABILITY_TOLERANCE", "KINEMATIC_EVIDENCE_LR", "SEEN_POSTERIOR_SHARE", "STALLED_CUT_STEPS",
-    "STALLED_STEP_SHARE", "KinematicEffects", "NoiseAssumptions", "RefineResult", "StationEffects",
+    "STALLED_STEP_SHARE", "KinematicEffects", "NoiseAssumptions", "RefineProgress", "RefineResult", "StationEffects",
     "cost_at", "cramer_rao_bound", "design_identifiability", "identifiable_kinematic_parameters", "plan_design", "refine",
 ]
 # The underscored names above are the refinement's internals that prediction, the

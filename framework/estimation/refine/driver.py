@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 
@@ -87,6 +89,9 @@ CHATTER_STEPS = 5
 #: values for the rest of the pass, and Gauss-Newton converges at it; the next pass (the
 #: variance components' loop) estimates it again from there.
 LAM_SETTLE_STEPS = 6
+#: A refinement that runs longer says so this often (s): a recording of millions of points
+#: with the arm's kinematic model takes minutes, which must not look like a hung program.
+PROGRESS_EVERY_S = 15.0
 
 
 def refine(
@@ -102,6 +107,7 @@ def refine(
     station_effects: StationEffects | None = None,
     kinematic_effects: KinematicEffects | None = None,
     time_effects: TimeEffects | None = None,
+    progress: Callable[[str], None] | RefineProgress | None = None,
 ) -> RefineResult:
     """Gauss-Newton over all points of ``problem.profiles`` (already cleaned).
 
@@ -118,12 +124,16 @@ def refine(
 
     With ``time_effects`` (a recording, :mod:`.timing`) the clock relation between the
     sensor and the robot is estimated with the rest, each shot's pose re-read from the
-    pose stream as it moves."""
+    pose stream as it moves.
+
+    ``progress`` is told every :data:`PROGRESS_EVERY_S` seconds while the refinement runs
+    (a :class:`RefineProgress` shared by the refinements of one solve counts from its first)."""
     fit = RefineState(problem, R, t, centre, noise, fit_radius, station_effects, kinematic_effects, time_effects)
+    fit.progress = progress if isinstance(progress, RefineProgress) else RefineProgress(progress)
     ke = fit.ke
     if ke is not None and ke.select_by_evidence and fit.se is None and not ke.identify and len(fit.rand_cols):
         return _refine_by_evidence(problem, fit.R, fit.t, fit.c, noise, fit_radius, estimate_pose_noise,
-                                   max_iterations, tolerance, ke, fit.rand_cols, time_effects)
+                                   max_iterations, tolerance, ke, fit.rand_cols, time_effects, fit.progress)
     for _ in range(max(4 if estimate_pose_noise else 1, 8 if fit.m_centres else 1)):
         first_small = _gauss_newton_pass(fit, max_iterations, tolerance)
         if not update_variance_components(fit, first_small, estimate_pose_noise):
@@ -150,6 +160,8 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
         fit.centre_cov_frozen = fit.linearise(fit.scale).centre_parts[3]
     for it in range(1, max_iterations + 1):
         fit.iterations = it
+        if fit.progress is not None:
+            fit.progress.tick()
         lin = lin if lin is not None else fit.linearise(fit.scale)
         step, d_new, normal = _step(fit, lin, near and not lam_held)
         if near and fit.estimate_lam and fit.te is not None and not lam_held:
@@ -184,6 +196,23 @@ def _gauss_newton_pass(fit: RefineState, max_iterations: int, tolerance: float) 
             fit.converged = True
             break
     return first_small
+
+
+class RefineProgress:
+    """Says, every :data:`PROGRESS_EVERY_S` seconds, how long the joint refinement has run
+    (over every refinement it is given to)."""
+
+    def __init__(self, say: Callable[[str], None] | None):
+        self.say, self.start = say, time.monotonic()
+        self.said = self.start
+        self.steps = 0
+
+    def tick(self) -> None:
+        self.steps += 1
+        now = time.monotonic()
+        if self.say is not None and now - self.said >= PROGRESS_EVERY_S:
+            self.said = now
+            self.say(f"  joint refinement still running: {now - self.start:.0f} s, {self.steps} steps so far")
 
 
 def _step(fit: RefineState, lin, near: bool):
@@ -408,24 +437,25 @@ def _station_to_station_scales(fit: RefineState) -> tuple[float, float]:
 
 
 def _refine_by_evidence(problem, R, t, c, noise, fit_radius, estimate_pose_noise, max_iterations, tolerance,
-                        ke: KinematicEffects, cols, te: TimeEffects | None = None) -> RefineResult:
+                        ke: KinematicEffects, cols, te: TimeEffects | None = None,
+                        progress: RefineProgress | None = None) -> RefineResult:
     """The ``auto`` robot error model: the pose-noise-only fit at the stated noise, the
     evidence for the arm's geometric error at its solution, then the kinematic model if
     the data show that error, else the pose-noise-only fit (pose noise rescaled as asked)
     with the arm's geometry considered. The decision is made at the stated pose noise: a
     pose-noise scale learnt first would absorb the arm's error and hide it."""
     plain = replace(ke, select_by_evidence=False, consider_columns=tuple(int(i) for i in cols))
-    first = refine(problem, R, t, c, noise, fit_radius, False, max_iterations, tolerance, None, plain, te)
+    first = refine(problem, R, t, c, noise, fit_radius, False, max_iterations, tolerance, None, plain, te, progress)
     evidence = first.diagnostics["kinematic_evidence"]
     te_first = te if te is None else with_start(te, first.timing)
     if evidence["likelihood_ratio"] >= KINEMATIC_EVIDENCE_LR:
         out = refine(problem, first.R, first.t, first.centre, noise, fit_radius, estimate_pose_noise, max_iterations,
-                     tolerance, None, replace(ke, select_by_evidence=False), te_first)
+                     tolerance, None, replace(ke, select_by_evidence=False), te_first, progress)
         selected = "kinematic"
     else:
         out = first if not estimate_pose_noise else refine(
             problem, first.R, first.t, first.centre, noise, fit_radius, True, max_iterations, tolerance, None, plain,
-            te_first)
+            te_first, progress)
         selected = "none"
     out.diagnostics["kinematic_evidence"] = {**evidence, "selected": selected}
     return out

@@ -40,6 +40,7 @@ class RefineState:
     def __init__(self, problem: Problem, R, t, centre, noise: NoiseAssumptions, fit_radius: bool,
                  station_effects: StationEffects | None, kinematic_effects: KinematicEffects | None,
                  time_effects: TimeEffects | None = None):
+        self.progress = None  # refine() sets what tells the user, on long fits, that it still runs
         self.base_problem = self.problem = problem
         self.te = time_effects if time_effects is not None and problem.t_sensor_s is not None else None
         self.n_time = 0 if self.te is None else self.te.n_parameters
