@@ -6,6 +6,8 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 from typing import Callable
 
 from spherecal.app import plugin_host
@@ -176,6 +178,13 @@ def _acquired(run: _Calibration, outcome: Outcome, *, dry_run: bool, resume: boo
     run.out.mkdir(parents=True, exist_ok=True)
     digest = "manual" if plan.manual else plan_digest(plan.targets)
     resumed = _resumed(journal, digest, run.log) if resume and journal.exists() else _Resumed()
+    if cell is not None and resumed.previous is not None:
+        # a real arm stays where the interrupted run left it; a simulated controller started at
+        # its home instead could reach the station's next shot in the other wrist solution
+        # (joints 4-6 -116.5/-13.7/124.3 -> 62.4/13.9/-54.5 seen), with another geometric error
+        taken = [o.joints_deg for o in resumed.previous.observations if o.joints_deg is not None]
+        if taken:
+            cell.arm_start_joints_deg = np.array(taken[-1], dtype=float)
     rep = _take(run, plan, cell, journal, _journal_provenance(run, digest, cell), resumed, ask, progress_stream,
                 step_prompt(ask) if step else None)
     outcome.notes.extend(rep.skipped)

@@ -30,6 +30,34 @@ def check_against_truth(out, k=5.0):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_a_run_resumed_within_a_station_keeps_the_arms_wrist(sim_config, monkeypatch):
+    """Stopped at the 25th shot (mid-station) and resumed: the simulated arm stands where
+    the journal's last shot left it, as a real arm does, so the station's next shot is
+    reached in the same wrist solution (started from home it flipped: joints 4-6
+    -116.5/-13.7/124.3 -> 62.4/13.9/-54.5)."""
+    import spherecal.motion.acquisition as acq
+
+    calls = {"n": 0}
+    real = acq.take_shot
+
+    def stop_at_25(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 25:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(acq, "take_shot", stop_at_25)
+    cfg = sim_config(**{r'^scan_object = "car_door_panel".*$': 'scan_object = "none"'})
+    assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
+    monkeypatch.setattr(acq, "take_shot", real)
+    assert main(["calibrate", str(cfg), "--resume", "--no-report"]) == EXIT_OK
+    obs = dataio.read_dataset(cfg.parent / "out" / "journal.jsonl").observations
+    before, after = obs[23], obs[24]
+    assert before.station == after.station
+    assert np.abs(np.subtract(after.joints_deg[3:], before.joints_deg[3:])).max() < 10.0
+
+
 def test_sigterm_stops_as_ctrl_c_does_keeping_the_journal(sim_config, monkeypatch, capsys):
     """kill, timeout and service managers send SIGTERM: the run stops as on Ctrl-C (shots
     kept, the resume command said, run.log written), not ended on the spot; the
