@@ -30,6 +30,28 @@ def check_against_truth(out, k=5.0):
 
 
 @pytest.mark.slow
+def _at_shot(monkeypatch, n: int, action):
+    """``take_shot`` calls ``action()`` at its ``n``-th call, then shoots as usual (an
+    interruption at a known shot); returns the real ``take_shot``, to put back."""
+    import spherecal.motion.acquisition as acq
+
+    real = acq.take_shot
+    calls = {"n": 0}
+
+    def shot(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == n:
+            action()
+        return real(*a, **k)
+
+    monkeypatch.setattr(acq, "take_shot", shot)
+    return real
+
+
+def _interrupt():
+    raise KeyboardInterrupt
+
+
 @pytest.mark.slow
 def test_a_run_resumed_within_a_station_keeps_the_arms_wrist(sim_config, monkeypatch):
     """Stopped at the 25th shot (mid-station) and resumed: the simulated arm stands where
@@ -38,16 +60,7 @@ def test_a_run_resumed_within_a_station_keeps_the_arms_wrist(sim_config, monkeyp
     -116.5/-13.7/124.3 -> 62.4/13.9/-54.5)."""
     import spherecal.motion.acquisition as acq
 
-    calls = {"n": 0}
-    real = acq.take_shot
-
-    def stop_at_25(*a, **k):
-        calls["n"] += 1
-        if calls["n"] == 25:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(acq, "take_shot", stop_at_25)
+    real = _at_shot(monkeypatch, 25, _interrupt)
     cfg = sim_config(**{r'^scan_object = "car_door_panel".*$': 'scan_object = "none"'})
     assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
     monkeypatch.setattr(acq, "take_shot", real)
@@ -65,18 +78,7 @@ def test_sigterm_stops_as_ctrl_c_does_keeping_the_journal(sim_config, monkeypatc
     import os
     import signal
 
-    import spherecal.motion.acquisition as acq
-
-    calls = {"n": 0}
-    real = acq.take_shot
-
-    def terminated(*a, **k):
-        calls["n"] += 1
-        if calls["n"] == 7:
-            os.kill(os.getpid(), signal.SIGTERM)
-        return real(*a, **k)
-
-    monkeypatch.setattr(acq, "take_shot", terminated)
+    _at_shot(monkeypatch, 7, lambda: os.kill(os.getpid(), signal.SIGTERM))
     before = signal.getsignal(signal.SIGTERM)
     cfg = sim_config()
     assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
@@ -192,16 +194,7 @@ def test_killed_run_resumes_to_the_same_result(sim_config, tmp_path, capsys):
 def test_resume_refuses_a_journal_taken_with_another_plan(sim_config, monkeypatch, capsys):
     import spherecal.motion.acquisition as acq
 
-    real = acq.take_shot
-    calls = {"n": 0}
-
-    def stop_after_five(*a, **k):
-        calls["n"] += 1
-        if calls["n"] == 6:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(acq, "take_shot", stop_after_five)
+    real = _at_shot(monkeypatch, 6, _interrupt)
     cfg = sim_config()
     assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
     monkeypatch.setattr(acq, "take_shot", real)
@@ -212,18 +205,7 @@ def test_resume_refuses_a_journal_taken_with_another_plan(sim_config, monkeypatc
 
 
 def test_interrupt_keeps_the_journal(sim_config, monkeypatch, capsys):
-    import spherecal.motion.acquisition as acq
-
-    calls = {"n": 0}
-    real = acq.take_shot
-
-    def flaky(*a, **k):
-        calls["n"] += 1
-        if calls["n"] == 7:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(acq, "take_shot", flaky)
+    _at_shot(monkeypatch, 7, _interrupt)
     cfg = sim_config()
     assert main(["calibrate", str(cfg), "--no-report"]) == EXIT_INTERRUPTED
     assert "--resume" in capsys.readouterr().err
