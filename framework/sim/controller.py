@@ -89,9 +89,13 @@ class SimulatedController:
         self.rng = np.random.default_rng(self.settings.seed)
         home = self.settings.home_joints_deg
         standing = getattr(cell, "arm_start_joints_deg", None)
-        if standing is not None:  # the arm stands where a run left it
+        # where the configuration says the arm stands (a jog simulated) wins; else where a
+        # resumed run's journal left it; else the settings' default, the arm's declared
+        # home, zero joints
+        given = "home_joints_deg" in getattr(self.settings, "model_fields_set", ())
+        if standing is not None and not given:
             home = standing
-        elif home is None:  # the arm's declared home, else zero joints
+        elif home is None:
             declared = declared_home_joints_deg(kinematics) if hasattr(kinematics, "chain") else None
             home = np.zeros(self.n_joints) if declared is None else declared
         home = np.asarray(home, dtype=float)
