@@ -6,9 +6,9 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
-from typing import Callable
 
 from spherecal.app import plugin_host
 from spherecal.app.cell import configured_for_sensor, make_cell
@@ -16,7 +16,8 @@ from spherecal.app.outputs import JOURNAL_NAME, RESULT_NAME, check_output_folder
 from spherecal.app.plan_checks import (CALIBRATION_KEEP_OUT_FIX, check_identification_from_here, check_plan,
                                        check_plan_solvable, confirm_motion, keep_out_for, plan_digest, step_prompt)
 from spherecal.app.plugin_host import export_plan, in_file, open_devices, robot_arm
-from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, check_same_devices, traceability
+from spherecal.app.provenance import (CALIBRATION_OPTIONS_KEY, check_same_devices, check_same_settings,
+                                      traceability)
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
 from spherecal.config import LoadedConfig, RunConfig
 from spherecal.core.errors import ConfigError, InputError
@@ -301,11 +302,7 @@ def _take(run: _Calibration, plan: _Plan, cell, journal: Path, provenance: dict,
         provenance.update(robot_identity=device_identity(robot), sensor_identity=device_identity(sensor))
         if resumed.previous is not None:
             check_same_devices(resumed.previous.provenance, provenance, journal, log)
-            settings = provenance[CALIBRATION_OPTIONS_KEY]
-            if resumed.previous.provenance.get(CALIBRATION_OPTIONS_KEY, settings) != settings:
-                log(f"note: the configuration's [calibration] changed since {journal} was started: this run solves "
-                    "with the configuration's; the journal keeps the first run's, which `spherecal solve` of it "
-                    "starts from")
+            check_same_settings(resumed.previous.provenance, provenance, journal, log)
         with warnings.catch_warnings():
             if resumed.previous is not None:  # _resumed read the journal and said what it dropped of it
                 warnings.simplefilter("ignore", dataio.TruncatedFileWarning)

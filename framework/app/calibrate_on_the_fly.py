@@ -15,7 +15,8 @@ from spherecal.app.cell import make_cell
 from spherecal.app.outputs import RESULT_NAME, STREAM_JOURNAL_NAME, check_output_folder, written_files
 from spherecal.app.plan_checks import ON_THE_FLY_SPEEDS, check_plan, check_plan_solvable, confirm_motion, plan_digest
 from spherecal.app.plugin_host import open_devices
-from spherecal.app.provenance import CALIBRATION_OPTIONS_KEY, check_same_devices, traceability, with_clock_truth
+from spherecal.app.provenance import (CALIBRATION_OPTIONS_KEY, check_same_devices, check_same_settings, traceability,
+                                      with_clock_truth)
 from spherecal.app.solving import Outcome, calibration_options, solve_and_write
 from spherecal.core.errors import ConfigError, InputError
 from spherecal.core.models import Dataset
@@ -205,11 +206,7 @@ def _take(run, sweeps, targets, of_sweep, cell, journal: Path, sweeps_path: Path
             provenance[POSES_ASSUMED_KEY] = assumed
         if previous is not None:
             check_same_devices(previous, provenance, journal, log)
-            settings = provenance[CALIBRATION_OPTIONS_KEY]
-            if previous.get(CALIBRATION_OPTIONS_KEY, settings) != settings:
-                log(f"note: the configuration's [calibration] changed since {journal} was started: this run solves "
-                    "with the configuration's; the journal keeps the first run's, which `spherecal solve` of it "
-                    "starts from")
+            check_same_settings(previous, provenance, journal, log)
             writer = reopen_recording(journal, fsync=True)
         else:
             writer = RecordingWriter(journal, mounting=cfg.mounting, sphere_radius_mm=cfg.sphere.radius_mm,

@@ -104,6 +104,16 @@ def check_same_devices(before: dict, now: dict, journal: Path, log: Callable[[st
                 "swapped, start a new run")
 
 
+def check_same_settings(before: dict, now: dict, journal: Path, log: Callable[[str], None]) -> None:
+    """On --resume: say so when the configuration's estimator settings (``now``'s
+    :data:`CALIBRATION_OPTIONS_KEY`) are not those the journal was started with (``before``):
+    this run solves with the configuration's, ``solve`` of the journal with the first run's."""
+    settings = now[CALIBRATION_OPTIONS_KEY]
+    if before.get(CALIBRATION_OPTIONS_KEY, settings) != settings:
+        log(f"note: the configuration's [calibration] changed since {journal} was started: this run solves with the "
+            "configuration's; the journal keeps the first run's, which `spherecal solve` of it starts from")
+
+
 def recorded_options(provenance: dict, path: Path | str, log: Callable[[str], None] | None = None,
                      flags: tuple[str, ...] = ("robot_error_model", "fit_radius", "nominal_transform"),
                      what: str = "recording", **given) -> CalibrationOptions:

@@ -130,8 +130,8 @@ def with_nominal_comparison(solution: Solution, nominal: Pose | None) -> Solutio
     # half a turn about (0, 1, 1) maps the laser plane's (y, z) to (z, y): y and z swapped in the data
     about_yz = bool(angle > 90.0 and abs(turn[1] + turn[2]) / np.sqrt(2.0) > 0.95 * np.linalg.norm(turn))
     w, x, y, z = nominal.quaternion_wxyz
-    scalar_last = Pose(translation_mm=nominal.translation_mm, quaternion_wxyz=(z, w, x, y))  # (w, x, y, z) read as written
-    off_deg = geo.rotation_angle_deg(scalar_last.rotation_matrix, X.rotation_matrix)
+    scalar_last = geo.matrix_from_quat_wxyz((z, w, x, y))  # the nominal's (w, x, y, z) read as written (x, y, z, w)
+    off_deg = geo.rotation_angle_deg(scalar_last, X.rotation_matrix)
     quaternion_order = bool(angle > 2 * QUATERNION_ORDER_DEG and off_deg < QUATERNION_ORDER_DEG)
     cause = None
     if quaternion_order:
